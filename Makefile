@@ -1,0 +1,37 @@
+# geostride: `make demo` runs the bundled example, `make test` the tests, `make bench` the
+# side-by-side benchmarks. Each target first installs what the build needs (scripts/bootstrap.sh).
+
+CARGO ?= cargo
+
+# Real third-party data for tests and benchmarks (see ../shared/data/README.md), when present.
+ifeq ($(origin GEOSTRIDE_DATA), undefined)
+  ifneq ($(wildcard ../shared/data),)
+    export GEOSTRIDE_DATA := $(abspath ../shared/data)
+  endif
+endif
+
+.PHONY: all bootstrap build demo test bench fmt clean
+
+all: build
+
+bootstrap:
+	@./scripts/bootstrap.sh
+
+build: bootstrap
+	$(CARGO) build --release --locked
+
+demo: build
+	./target/release/geostride demo --out out/demo
+
+test: bootstrap
+	$(CARGO) test --release --locked
+
+bench: bootstrap
+	$(CARGO) bench --locked --bench calibrate_vs_opencv
+
+fmt:
+	$(CARGO) fmt
+
+clean:
+	$(CARGO) clean
+	rm -rf out

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Installs the Debian packages geostride builds against, and only those that are missing, so a
+# second run costs a few dpkg queries. Called by every make target.
+#
+#   OpenCV (+ clang/libclang for the opencv crate's generated bindings), GDAL, PROJ,
+#   pkg-config, cmake and sqlite3 (the proj crate builds PROJ from source, see docs/architecture.md),
+#   libtiff and libcurl (PROJ's grid support).
+set -euo pipefail
+
+packages=(
+  pkg-config cmake clang libclang-dev
+  libopencv-dev
+  libgdal-dev libproj-dev libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
+)
+
+if ! command -v cargo >/dev/null 2>&1; then
+  echo "bootstrap: cargo is not on PATH; install the Rust toolchain (rustup) first" >&2
+  exit 1
+fi
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+if ! command -v apt-get >/dev/null 2>&1; then
+  echo "bootstrap: missing packages (${missing[*]}) and no apt-get; install them by hand" >&2
+  exit 1
+fi
+sudo=""
+if [ "$(id -u)" -ne 0 ]; then
+  if ! command -v sudo >/dev/null 2>&1; then
+    echo "bootstrap: need root or sudo to install: ${missing[*]}" >&2
+    exit 1
+  fi
+  sudo="sudo"
+fi
+echo "bootstrap: installing ${missing[*]}"
+$sudo apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"

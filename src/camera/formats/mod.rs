@@ -1,0 +1,182 @@
+//! Calibration files: OpenCV YAML, Agisoft Metashape XML and geostride JSON.
+//!
+//! Conversions and the conventions they rest on are documented in `docs/formats.md`.
+
+pub mod cvyaml;
+mod json;
+mod metashape;
+mod opencv;
+
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+use super::Calibration;
+
+/// A calibration file format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// OpenCV FileStorage YAML as written by OpenCV's calibration samples.
+    OpenCvYaml,
+    /// Agisoft Metashape calibration XML (Metashape 1.5 and later).
+    Metashape,
+    /// geostride's own JSON, which carries the covariance.
+    Json,
+}
+
+impl Format {
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::OpenCvYaml => "opencv-yaml",
+            Format::Metashape => "metashape-xml",
+            Format::Json => "json",
+        }
+    }
+
+    /// The format implied by a file name: `.yaml`/`.yml`, `.xml` (Metashape), `.json`.
+    pub fn from_extension(path: &Path) -> Option<Format> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "yaml" | "yml" => Some(Format::OpenCvYaml),
+            "xml" => Some(Format::Metashape),
+            "json" => Some(Format::Json),
+            _ => None,
+        }
+    }
+
+    /// The format of a file's content.
+    pub fn detect(content: &str) -> Option<Format> {
+        let t = content.trim_start_matches('\u{feff}').trim_start();
+        if t.starts_with('{') {
+            Some(Format::Json)
+        } else if t.starts_with("<?xml") || t.starts_with('<') {
+            Some(Format::Metashape)
+        } else if t.starts_with("%YAML") || t.contains("!!opencv-matrix") {
+            Some(Format::OpenCvYaml)
+        } else {
+            None
+        }
+    }
+}
+
+/// A calibration file that cannot be read or written: which file, where, what was expected.
+#[derive(Debug, Error)]
+pub struct FormatError {
+    pub path: PathBuf,
+    pub line: Option<usize>,
+    pub field: Option<String>,
+    pub message: String,
+}
+
+impl std::fmt::Display for FormatError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.path.display())?;
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+        }
+        if let Some(field) = &self.field {
+            write!(f, ": field '{field}'")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+/// Builds errors for one file.
+#[derive(Clone)]
+pub(crate) struct Ctx<'a> {
+    pub path: &'a Path,
+}
+
+impl Ctx<'_> {
+    pub fn err(
+        &self,
+        line: Option<usize>,
+        field: Option<&str>,
+        message: impl Into<String>,
+    ) -> FormatError {
+        FormatError {
+            path: self.path.to_path_buf(),
+            line,
+            field: field.map(str::to_string),
+            message: message.into(),
+        }
+    }
+}
+
+/// Reads a calibration file, detecting its format from the content unless `format` is given.
+pub fn read(path: &Path, format: Option<Format>) -> Result<Calibration, FormatError> {
+    let ctx = Ctx { path };
+    let bytes =
+        std::fs::read(path).map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        ctx.err(
+            None,
+            None,
+            format!("not UTF-8 text ({e}); expected a YAML, XML or JSON calibration"),
+        )
+    })?;
+    parse(path, &text, format)
+}
+
+/// Parses calibration text; `path` is used in error messages.
+pub fn parse(path: &Path, text: &str, format: Option<Format>) -> Result<Calibration, FormatError> {
+    let ctx = Ctx { path };
+    let format = match format.or_else(|| Format::detect(text)) {
+        Some(f) => f,
+        None => {
+            return Err(ctx.err(
+                Some(1),
+                None,
+                "unknown calibration format: expected OpenCV YAML ('%YAML:1.0' and \
+                 '!!opencv-matrix'), Metashape XML or geostride JSON; pass --format to choose",
+            ));
+        }
+    };
+    match format {
+        Format::OpenCvYaml => opencv::parse(&ctx, text),
+        Format::Metashape => metashape::parse(&ctx, text),
+        Format::Json => json::parse(&ctx, text),
+    }
+}
+
+/// Renders a calibration in a format.
+pub fn render(
+    cal: &Calibration,
+    format: Format,
+    path_for_errors: &Path,
+) -> Result<String, FormatError> {
+    let ctx = Ctx {
+        path: path_for_errors,
+    };
+    match format {
+        Format::OpenCvYaml => Ok(opencv::render(cal)),
+        Format::Metashape => metashape::render(&ctx, cal),
+        Format::Json => json::render(cal).map_err(|e| ctx.err(None, None, e.to_string())),
+    }
+}
+
+/// Writes a calibration atomically; the format follows `format` or else the file extension.
+pub fn write(
+    cal: &Calibration,
+    path: &Path,
+    format: Option<Format>,
+) -> Result<Format, FormatError> {
+    let ctx = Ctx { path };
+    let format = format
+        .or_else(|| Format::from_extension(path))
+        .ok_or_else(|| {
+            ctx.err(
+                None,
+                None,
+                "cannot tell the output format from the extension: use .yaml (OpenCV), .xml \
+             (Metashape) or .json (geostride), or pass --format",
+            )
+        })?;
+    let text = render(cal, format, path)?;
+    crate::io::write_atomic(path, text.as_bytes())
+        .map_err(|e| ctx.err(None, None, format!("cannot write: {e}")))?;
+    Ok(format)
+}
+
+#[cfg(test)]
+mod tests;

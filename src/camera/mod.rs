@@ -1,0 +1,78 @@
+//! Camera models and calibration files (pure: nalgebra and std only).
+//!
+//! [`Camera`] is a pinhole camera with Brown–Conrady distortion in OpenCV's order and
+//! conventions. [`Calibration`] is a camera together with what a calibration knows about it: the
+//! parameter covariance and a summary of the views it came from. [`formats`] reads and writes it
+//! as OpenCV YAML, Agisoft Metashape XML and geostride JSON.
+
+pub mod formats;
+mod model;
+
+pub use model::{Camera, CameraError, ImageSize, N_PARAMS, PARAM_NAMES, ParamJacobian, param};
+
+use nalgebra::SMatrix;
+
+/// Covariance of the 13 camera parameters, [`PARAM_NAMES`] order. Rows and columns of parameters
+/// that were held fixed are zero.
+pub type ParamCovariance = SMatrix<f64, N_PARAMS, N_PARAMS>;
+
+/// A camera with its uncertainty and the record of how it was calibrated.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Calibration {
+    pub camera: Camera,
+    pub covariance: Option<ParamCovariance>,
+    pub summary: Option<CalibrationSummary>,
+    /// Remarks made while reading or converting (e.g. an approximated coefficient).
+    pub notes: Vec<String>,
+}
+
+/// What a checkerboard calibration reports and calibration files carry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalibrationSummary {
+    /// Root mean square of the reprojection error length over all corners, pixels (OpenCV's
+    /// definition: `sqrt(Σ‖r‖² / n_points)`).
+    pub rms_px: f64,
+    pub board: Option<BoardSpec>,
+    /// Names of the parameters that were estimated (the rest were held fixed).
+    pub free_parameters: Vec<String>,
+    pub views: Vec<ViewSummary>,
+    /// ISO 8601 UTC time of the calibration.
+    pub created_utc: Option<String>,
+}
+
+/// A planar chessboard: inner corners per row and column, and the square size in metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoardSpec {
+    pub cols: u32,
+    pub rows: u32,
+    pub square_m: f64,
+}
+
+/// One view of a calibration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewSummary {
+    pub name: String,
+    pub rms_px: f64,
+    /// Board pose `cam_from_board`: Rodrigues vector (radians) and translation (metres).
+    pub rvec: [f64; 3],
+    pub tvec: [f64; 3],
+    pub outlier: bool,
+}
+
+impl Calibration {
+    pub fn from_camera(camera: Camera) -> Self {
+        Calibration {
+            camera,
+            covariance: None,
+            summary: None,
+            notes: Vec::new(),
+        }
+    }
+
+    /// Standard deviation of every parameter ([`PARAM_NAMES`] order), when the covariance is known.
+    pub fn std_devs(&self) -> Option<[f64; N_PARAMS]> {
+        self.covariance
+            .as_ref()
+            .map(|c| std::array::from_fn(|i| c[(i, i)].max(0.0).sqrt()))
+    }
+}

@@ -1,0 +1,131 @@
+//! Command-line interface: argument parsing and output only; the work is in the library.
+
+mod calibrate;
+mod camera;
+mod demo;
+
+use clap::{Parser, Subcommand};
+
+/// An error caused by the user's input or usage (exit code 2), as opposed to a failure while
+/// running (exit code 1).
+#[derive(Debug)]
+pub struct BadInput(pub anyhow::Error);
+
+impl std::fmt::Display for BadInput {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.0)
+    }
+}
+
+impl std::error::Error for BadInput {}
+
+/// Wraps an input error so that `main` exits with code 2.
+pub fn bad_input(e: impl Into<anyhow::Error>) -> anyhow::Error {
+    anyhow::Error::new(BadInput(e.into()))
+}
+
+#[derive(Parser)]
+#[command(
+    name = "geostride",
+    version,
+    about = "Photogrammetry for people-tracking from drone video: calibration, survey, pose, trajectories",
+    long_about = None
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Calibrate a camera from checkerboard images, folders of images or videos
+    Calibrate(calibrate::Args),
+    /// Inspect and convert camera calibration files (OpenCV YAML, Metashape XML, geostride JSON)
+    #[command(subcommand)]
+    Camera(camera::Command),
+    /// Run the bundled example end to end and check it against its ground truth
+    Demo(demo::Args),
+}
+
+impl Cli {
+    pub fn run(self) -> anyhow::Result<()> {
+        match self.command {
+            Command::Calibrate(args) => calibrate::run(args),
+            Command::Camera(cmd) => camera::run(cmd),
+            Command::Demo(args) => demo::run(args),
+        }
+    }
+}
+
+/// Parses `COLSxROWS` (inner corners), e.g. `9x6`.
+pub(crate) fn parse_board_size(s: &str) -> Result<(u32, u32), String> {
+    let (c, r) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected COLSxROWS of inner corners, e.g. 9x6; got '{s}'"))?;
+    let parse = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("expected whole numbers in COLSxROWS, e.g. 9x6; got '{s}'"))
+    };
+    let (c, r) = (parse(c)?, parse(r)?);
+    if c < 3 || r < 3 {
+        return Err(format!(
+            "a board needs at least 3x3 inner corners; got {c}x{r}"
+        ));
+    }
+    Ok((c, r))
+}
+
+/// A positive finite number.
+pub(crate) fn parse_positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("expected a positive number, got '{s}'")),
+    }
+}
+
+/// A number from 0 to 1.
+pub(crate) fn parse_fraction(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err(format!("expected a fraction from 0 to 1, got '{s}'")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn board_sizes() {
+        assert_eq!(parse_board_size("9x6"), Ok((9, 6)));
+        assert_eq!(parse_board_size("7X5"), Ok((7, 5)));
+        assert!(parse_board_size("9").is_err());
+        assert!(parse_board_size("2x6").is_err());
+        assert!(parse_board_size("ax6").is_err());
+    }
+
+    #[test]
+    fn every_option_is_documented() {
+        use clap::CommandFactory;
+        let cmd = Cli::command();
+        fn walk(cmd: &clap::Command) {
+            for arg in cmd.get_arguments() {
+                if arg.get_id() == "help" || arg.get_id() == "version" {
+                    continue;
+                }
+                assert!(
+                    arg.get_help().is_some(),
+                    "{} --{} has no help text",
+                    cmd.get_name(),
+                    arg.get_id()
+                );
+            }
+            for sub in cmd.get_subcommands() {
+                walk(sub);
+            }
+        }
+        walk(&cmd);
+        cmd.debug_assert();
+    }
+}

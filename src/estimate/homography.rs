@@ -1,0 +1,245 @@
+//! Plane-to-image homographies: normalised DLT (Hartley) and geometric-error refinement.
+
+use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
+use nalgebra::{DMatrix, Dyn, Matrix3, OMatrix, OVector, Owned, U8, Vector2, Vector3};
+
+use super::EstimateError;
+
+/// A similarity that moves the centroid to the origin and the mean distance to √2.
+fn normalizer(pts: &[Vector2<f64>]) -> Result<Matrix3<f64>, EstimateError> {
+    let n = pts.len() as f64;
+    let c = pts.iter().fold(Vector2::zeros(), |a, p| a + p) / n;
+    let mean_dist = pts.iter().map(|p| (p - c).norm()).sum::<f64>() / n;
+    if !(mean_dist > 0.0) || !mean_dist.is_finite() {
+        return Err(EstimateError::Degenerate("all points coincide".into()));
+    }
+    let s = std::f64::consts::SQRT_2 / mean_dist;
+    Ok(Matrix3::new(
+        s,
+        0.0,
+        -s * c.x,
+        0.0,
+        s,
+        -s * c.y,
+        0.0,
+        0.0,
+        1.0,
+    ))
+}
+
+fn apply(h: &Matrix3<f64>, p: &Vector2<f64>) -> Vector2<f64> {
+    let q = h * Vector3::new(p.x, p.y, 1.0);
+    Vector2::new(q.x / q.z, q.y / q.z)
+}
+
+/// Homography `dst ~ H · src` by the normalised direct linear transform (n ≥ 4). Scaled so that
+/// `H[(2, 2)] = 1` when possible, otherwise to unit Frobenius norm.
+pub fn homography_dlt(
+    src: &[Vector2<f64>],
+    dst: &[Vector2<f64>],
+) -> Result<Matrix3<f64>, EstimateError> {
+    assert_eq!(src.len(), dst.len(), "src and dst must pair up");
+    if src.len() < 4 {
+        return Err(EstimateError::TooFewPoints {
+            needed: 4,
+            got: src.len(),
+        });
+    }
+    let (ts, td) = (normalizer(src)?, normalizer(dst)?);
+    let mut a = DMatrix::<f64>::zeros(2 * src.len(), 9);
+    for (i, (s, d)) in src.iter().zip(dst).enumerate() {
+        let s = apply(&ts, s);
+        let d = apply(&td, d);
+        let (x, y, u, v) = (s.x, s.y, d.x, d.y);
+        a.row_mut(2 * i)
+            .copy_from_slice(&[-x, -y, -1.0, 0.0, 0.0, 0.0, u * x, u * y, u]);
+        a.row_mut(2 * i + 1)
+            .copy_from_slice(&[0.0, 0.0, 0.0, -x, -y, -1.0, v * x, v * y, v]);
+    }
+    // The null vector of A is the eigenvector of AᵀA with the smallest eigenvalue.
+    let ata = a.transpose() * &a;
+    let eig = ata.symmetric_eigen();
+    let mut order: Vec<usize> = (0..9).collect();
+    order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+    // A second (near-)null vector means the points do not pin the homography down.
+    if eig.eigenvalues[order[1]] <= 1e-12 * eig.eigenvalues[order[8]] {
+        return Err(EstimateError::Degenerate(
+            "the points do not determine a homography (collinear?)".into(),
+        ));
+    }
+    let h = eig.eigenvectors.column(order[0]);
+    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let td_inv = td
+        .try_inverse()
+        .ok_or_else(|| EstimateError::Degenerate("normaliser".into()))?;
+    let mut hm = td_inv * hn * ts;
+    if hm[(2, 2)].abs() > 1e-12 * hm.norm() {
+        hm /= hm[(2, 2)];
+    } else {
+        hm /= hm.norm();
+    }
+    Ok(hm)
+}
+
+/// Geometric reprojection error problem for the levenberg-marquardt crate, with `H[(2,2)] = 1`.
+struct HomographyProblem<'a> {
+    h: [f64; 8],
+    src: &'a [Vector2<f64>],
+    dst: &'a [Vector2<f64>],
+}
+
+impl HomographyProblem<'_> {
+    fn matrix(&self) -> Matrix3<f64> {
+        let h = &self.h;
+        Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], 1.0)
+    }
+}
+
+impl LeastSquaresProblem<f64, Dyn, U8> for HomographyProblem<'_> {
+    type ResidualStorage = Owned<f64, Dyn>;
+    type JacobianStorage = Owned<f64, Dyn, U8>;
+    type ParameterStorage = Owned<f64, U8>;
+
+    fn set_params(&mut self, x: &OVector<f64, U8>) {
+        self.h.copy_from_slice(x.as_slice());
+    }
+
+    fn params(&self) -> OVector<f64, U8> {
+        OVector::<f64, U8>::from_row_slice(&self.h)
+    }
+
+    fn residuals(&self) -> Option<OVector<f64, Dyn>> {
+        let h = self.matrix();
+        let mut r = OVector::<f64, Dyn>::zeros(2 * self.src.len());
+        for (i, (s, d)) in self.src.iter().zip(self.dst).enumerate() {
+            let p = apply(&h, s);
+            r[2 * i] = p.x - d.x;
+            r[2 * i + 1] = p.y - d.y;
+        }
+        Some(r)
+    }
+
+    fn jacobian(&self) -> Option<OMatrix<f64, Dyn, U8>> {
+        let h = self.matrix();
+        let mut j = OMatrix::<f64, Dyn, U8>::zeros(2 * self.src.len());
+        for (i, s) in self.src.iter().enumerate() {
+            let q = h * Vector3::new(s.x, s.y, 1.0);
+            let (u, v, w) = (q.x / q.z, q.y / q.z, q.z);
+            j.row_mut(2 * i).copy_from_slice(&[
+                s.x / w,
+                s.y / w,
+                1.0 / w,
+                0.0,
+                0.0,
+                0.0,
+                -u * s.x / w,
+                -u * s.y / w,
+            ]);
+            j.row_mut(2 * i + 1).copy_from_slice(&[
+                0.0,
+                0.0,
+                0.0,
+                s.x / w,
+                s.y / w,
+                1.0 / w,
+                -v * s.x / w,
+                -v * s.y / w,
+            ]);
+        }
+        Some(j)
+    }
+}
+
+/// Homography by DLT, then refined by Levenberg–Marquardt on the reprojection error in `dst`.
+pub fn homography_refined(
+    src: &[Vector2<f64>],
+    dst: &[Vector2<f64>],
+) -> Result<Matrix3<f64>, EstimateError> {
+    let h0 = homography_dlt(src, dst)?;
+    if h0[(2, 2)] != 1.0 {
+        return Ok(h0);
+    }
+    let problem = HomographyProblem {
+        h: [
+            h0[(0, 0)],
+            h0[(0, 1)],
+            h0[(0, 2)],
+            h0[(1, 0)],
+            h0[(1, 1)],
+            h0[(1, 2)],
+            h0[(2, 0)],
+            h0[(2, 1)],
+        ],
+        src,
+        dst,
+    };
+    let (solved, report) = LevenbergMarquardt::new().minimize(problem);
+    if !report.termination.was_successful() || !report.objective_function.is_finite() {
+        return Ok(h0);
+    }
+    Ok(solved.matrix())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid() -> Vec<Vector2<f64>> {
+        (0..6)
+            .flat_map(|r| (0..9).map(move |c| Vector2::new(c as f64 * 0.025, r as f64 * 0.025)))
+            .collect()
+    }
+
+    #[test]
+    fn recovers_an_exact_homography() {
+        let h = Matrix3::new(900.0, 40.0, 120.0, -30.0, 870.0, 200.0, 0.2, -0.1, 1.0);
+        let src = grid();
+        let dst: Vec<_> = src.iter().map(|p| apply(&h, p)).collect();
+        for est in [
+            homography_dlt(&src, &dst).unwrap(),
+            homography_refined(&src, &dst).unwrap(),
+        ] {
+            assert!((est - h).norm() < 1e-6 * h.norm(), "{est}");
+        }
+    }
+
+    #[test]
+    fn refinement_lowers_the_geometric_error() {
+        let h = Matrix3::new(900.0, 40.0, 120.0, -30.0, 870.0, 200.0, 0.9, -0.6, 1.0);
+        let src = grid();
+        // Deterministic pseudo-noise of about a pixel.
+        let dst: Vec<_> = src
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                apply(&h, p)
+                    + Vector2::new(
+                        ((i * 37) % 11) as f64 / 5.0 - 1.0,
+                        ((i * 53) % 7) as f64 / 3.0 - 1.0,
+                    )
+            })
+            .collect();
+        let err = |m: &Matrix3<f64>| -> f64 {
+            src.iter()
+                .zip(&dst)
+                .map(|(s, d)| (apply(m, s) - d).norm_squared())
+                .sum()
+        };
+        let a = homography_dlt(&src, &dst).unwrap();
+        let b = homography_refined(&src, &dst).unwrap();
+        assert!(err(&b) <= err(&a) + 1e-9, "{} > {}", err(&b), err(&a));
+    }
+
+    #[test]
+    fn rejects_too_few_and_collinear_points() {
+        let src = vec![Vector2::new(0.0, 0.0); 3];
+        assert!(matches!(
+            homography_dlt(&src, &src),
+            Err(EstimateError::TooFewPoints { .. })
+        ));
+        let line: Vec<_> = (0..6)
+            .map(|i| Vector2::new(i as f64, 2.0 * i as f64))
+            .collect();
+        assert!(homography_dlt(&line, &line).is_err());
+    }
+}

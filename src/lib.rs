@@ -1,0 +1,20 @@
+//! geostride: photogrammetry for people-tracking from drone video.
+//!
+//! Conventions (see `docs/conventions.md`): camera frame x right, y down, z forward; pixel (0, 0)
+//! is the centre of the top-left pixel; transforms are named `dst_from_src`; metres, radians,
+//! pixels, seconds; distortion in OpenCV order `k1 k2 p1 p2 k3 k4 k5 k6`.
+//!
+//! Pure modules (`geom`, `camera`, `estimate`, `optim`, and the algorithmic parts of
+//! `calibration` and `simulate`) use nalgebra and std only; OpenCV stays in the adapters
+//! (`imageio`, `calibration::detect`, `calibration::inputs`).
+
+pub mod calibration;
+pub mod camera;
+pub mod cli;
+pub mod estimate;
+pub mod geom;
+pub mod imageio;
+pub mod io;
+pub mod optim;
+pub mod progress;
+pub mod simulate;

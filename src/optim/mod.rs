@@ -1,0 +1,130 @@
+//! Least-squares machinery (pure): the Levenberg–Marquardt trust-region controller shared by
+//! every optimiser in geostride.
+//!
+//! The strategy follows Ceres Solver's Levenberg–Marquardt: the damped system
+//! `(JᵀJ + μ·D) δ = −Jᵀr` with `D = diag(JᵀJ)` clamped to `[1e-6, 1e32]`, a step accepted when
+//! the actual over predicted decrease `ρ` exceeds 1e-3, `μ` scaled by `max(1/3, 1 − (2ρ − 1)³)`
+//! after a success and doubled-and-growing after a failure (Nielsen), and termination on the
+//! function, gradient and parameter tolerances.
+
+use serde::Serialize;
+
+/// Tolerances and limits of a Levenberg–Marquardt run.
+#[derive(Clone, Debug)]
+pub struct LmSettings {
+    pub max_iterations: usize,
+    /// Stop when `|Δcost| / cost` of an accepted step falls below this.
+    pub function_tolerance: f64,
+    /// Stop when the largest gradient component falls below this.
+    pub gradient_tolerance: f64,
+    /// Stop when `‖δ‖ ≤ tol · (‖x‖ + tol)`.
+    pub parameter_tolerance: f64,
+    pub initial_mu: f64,
+    pub min_diagonal: f64,
+    pub max_diagonal: f64,
+    pub min_relative_decrease: f64,
+}
+
+impl Default for LmSettings {
+    fn default() -> Self {
+        LmSettings {
+            max_iterations: 100,
+            function_tolerance: 1e-12,
+            gradient_tolerance: 1e-12,
+            parameter_tolerance: 1e-12,
+            initial_mu: 1e-4,
+            min_diagonal: 1e-6,
+            max_diagonal: 1e32,
+            min_relative_decrease: 1e-3,
+        }
+    }
+}
+
+/// Why an optimiser stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Termination {
+    FunctionTolerance,
+    GradientTolerance,
+    ParameterTolerance,
+    MaxIterations,
+    /// The damping grew without bound: no step lowers the cost any more.
+    NoFurtherProgress,
+}
+
+impl Termination {
+    /// Whether the result is a converged optimum.
+    pub fn converged(self) -> bool {
+        !matches!(self, Termination::MaxIterations)
+    }
+}
+
+impl std::fmt::Display for Termination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Termination::FunctionTolerance => "function tolerance reached",
+            Termination::GradientTolerance => "gradient tolerance reached",
+            Termination::ParameterTolerance => "parameter tolerance reached",
+            Termination::MaxIterations => "maximum number of iterations reached",
+            Termination::NoFurtherProgress => "no step lowers the cost further",
+        })
+    }
+}
+
+/// The damping state of a Levenberg–Marquardt run.
+#[derive(Clone, Debug)]
+pub struct Damping {
+    pub mu: f64,
+    nu: f64,
+}
+
+impl Damping {
+    pub fn new(settings: &LmSettings) -> Self {
+        Damping {
+            mu: settings.initial_mu,
+            nu: 2.0,
+        }
+    }
+
+    /// The regularised diagonal entry `μ·clamp(d)` to add to a normal-matrix diagonal `d`.
+    pub fn regularizer(&self, d: f64, settings: &LmSettings) -> f64 {
+        self.mu * d.clamp(settings.min_diagonal, settings.max_diagonal)
+    }
+
+    /// Updates μ after a step with gain ratio `rho`; returns whether the step is accepted.
+    pub fn update(&mut self, rho: f64, settings: &LmSettings) -> bool {
+        if rho.is_finite() && rho > settings.min_relative_decrease {
+            let f = 1.0 - (2.0 * rho - 1.0).powi(3);
+            self.mu *= f.max(1.0 / 3.0);
+            self.nu = 2.0;
+            true
+        } else {
+            self.mu *= self.nu;
+            self.nu *= 2.0;
+            false
+        }
+    }
+
+    /// True when the damping is so large that steps are meaningless.
+    pub fn exhausted(&self) -> bool {
+        self.mu > 1e32 || !self.mu.is_finite()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn damping_shrinks_on_good_steps_and_grows_on_bad_ones() {
+        let s = LmSettings::default();
+        let mut d = Damping::new(&s);
+        assert!(d.update(1.0, &s));
+        assert!((d.mu - s.initial_mu / 3.0).abs() < 1e-18);
+        let before = d.mu;
+        assert!(!d.update(-1.0, &s));
+        assert_eq!(d.mu, before * 2.0);
+        assert!(!d.update(f64::NAN, &s));
+        assert_eq!(d.mu, before * 8.0);
+    }
+}

@@ -1,0 +1,3 @@
+//! Synthetic scenes with exact ground truth (pure).
+
+pub mod board;

@@ -1,0 +1,34 @@
+//! Shared helpers for integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// The real-data folder from `GEOSTRIDE_DATA`. Outside CI a missing folder skips the test with
+/// a message; with `CI=true` it fails, so real-data tests never silently vanish from CI.
+pub fn data_dir(sub: &str) -> Option<PathBuf> {
+    let in_ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
+    let dir = std::env::var_os("GEOSTRIDE_DATA")
+        .map(PathBuf::from)
+        .map(|d| d.join(sub));
+    match dir {
+        Some(d) if d.is_dir() => Some(d),
+        other => {
+            let why = match other {
+                Some(d) => format!("{} does not exist", d.display()),
+                None => "GEOSTRIDE_DATA is not set".to_string(),
+            };
+            if in_ci {
+                panic!(
+                    "real-data test cannot run in CI: {why} (make test sets GEOSTRIDE_DATA=../shared/data)"
+                );
+            }
+            eprintln!("SKIPPED: real-data test needs {sub}: {why}; run it through `make test`");
+            None
+        }
+    }
+}
+
+/// The geostride binary built for these tests.
+pub fn geostride() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))
+}

@@ -58,6 +58,37 @@ fn residuals_and_cost(
     Some((all, cost))
 }
 
+/// Residuals (2 per corner) of one view with their Jacobians with respect to the free intrinsics
+/// and to the pose increment `(δrot, δt)` of [`pose_plus`].
+fn view_jacobians(
+    cam: &Camera,
+    pm: &DMatrix<f64>,
+    object: &[Vector3<f64>],
+    obs: &[Vector2<f64>],
+    pose: &Pose,
+) -> Option<(DVector<f64>, DMatrix<f64>, DMatrix<f64>)> {
+    let m = 2 * obs.len();
+    let mut jt = DMatrix::<f64>::zeros(m, pm.ncols());
+    let mut jp = DMatrix::<f64>::zeros(m, 6);
+    let mut r = DVector::<f64>::zeros(m);
+    for (k, (x, o)) in object.iter().zip(obs.iter()).enumerate() {
+        let rx = pose.rotation * x;
+        let p = rx + pose.translation.vector;
+        let (uv, j_point, j_params) = cam.project_with_jacobians(&p).ok()?;
+        let res = uv - o;
+        r[2 * k] = res.x;
+        r[2 * k + 1] = res.y;
+        // Left-multiplicative rotation increment: d(R x + t)/dδ = −[R x]×.
+        let j_rot = j_point * (-skew(&rx));
+        let mut j_pose = SMatrix::<f64, 2, 6>::zeros();
+        j_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&j_rot);
+        j_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&j_point);
+        jp.fixed_view_mut::<2, 6>(2 * k, 0).copy_from(&j_pose);
+        jt.rows_mut(2 * k, 2).copy_from(&(j_params * pm));
+    }
+    Some((r, jt, jp))
+}
+
 fn linearise(
     cam: &Camera,
     param: &Parametrization,
@@ -75,26 +106,7 @@ fn linearise(
         g_pose: Vec::with_capacity(views.len()),
     };
     for (obs, pose) in views.iter().zip(poses) {
-        let m = 2 * obs.len();
-        let mut jt = DMatrix::<f64>::zeros(m, n);
-        let mut jp = DMatrix::<f64>::zeros(m, 6);
-        let mut r = DVector::<f64>::zeros(m);
-        for (k, (x, o)) in object.iter().zip(obs.iter()).enumerate() {
-            let rx = pose.rotation * x;
-            let p = rx + pose.translation.vector;
-            let (uv, j_point, j_params) = cam.project_with_jacobians(&p).ok()?;
-            let res = uv - o;
-            r[2 * k] = res.x;
-            r[2 * k + 1] = res.y;
-            // Left-multiplicative rotation increment: d(R x + t)/dδ = −[R x]×.
-            let j_rot = j_point * (-skew(&rx));
-            let mut j_pose = SMatrix::<f64, 2, 6>::zeros();
-            j_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&j_rot);
-            j_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&j_point);
-            jp.fixed_view_mut::<2, 6>(2 * k, 0).copy_from(&j_pose);
-            let j_theta = j_params * &pm;
-            jt.rows_mut(2 * k, 2).copy_from(&j_theta);
-        }
+        let (r, jt, jp) = view_jacobians(cam, &pm, object, obs, pose)?;
         normal.u.gemm_tr(1.0, &jt, &jt, 1.0);
         normal.g_theta.gemv_tr(1.0, &jt, &r, 1.0);
         normal.w.push(jt.transpose() * &jp);
@@ -309,4 +321,82 @@ fn covariance(
         ParamCovariance::from_iterator(full.iter().copied()),
         sigma2.sqrt(),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::{Options, board_points};
+    use crate::camera::BoardSpec;
+    use crate::geom::pose_from_rvec_tvec;
+
+    /// The calibration Jacobians (intrinsics through the parametrization, and the pose
+    /// increment) agree with central differences of the residuals.
+    #[test]
+    fn view_jacobians_match_finite_differences() {
+        let board = BoardSpec {
+            cols: 4,
+            rows: 3,
+            square_m: 0.05,
+        };
+        let object = board_points(&board);
+        let cam = Camera::pinhole(800.0, 790.0, 330.0, 250.0)
+            .with_distortion(&[-0.2, 0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.003])
+            .with_image_size(640, 480);
+        let pose = pose_from_rvec_tvec(
+            &Vector3::new(0.3, -0.2, 0.1),
+            &Vector3::new(-0.1, -0.05, 0.6),
+        );
+        let obs: Vec<Vector2<f64>> = object.iter().map(|_| Vector2::new(300.0, 200.0)).collect();
+        for opts in [
+            Options {
+                rational: true,
+                ..Options::default()
+            },
+            Options {
+                fix_aspect: Some(1.02),
+                zero_tangential: true,
+                ..Options::default()
+            },
+        ] {
+            let param = Parametrization::new(&opts).unwrap();
+            let pm = param.matrix();
+            let mut base = cam.clone();
+            let theta = param.get(&base);
+            param.set(&mut base, &theta);
+            let (_, jt, jp) = view_jacobians(&base, &pm, &object, &obs, &pose).unwrap();
+            let resid = |c: &Camera, p: &Pose| view_jacobians(c, &pm, &object, &obs, p).unwrap().0;
+            for k in 0..theta.len() {
+                let h = 1e-6 * (1.0 + theta[k].abs());
+                let (mut a, mut b) = (base.clone(), base.clone());
+                let (mut ta, mut tb) = (theta.clone(), theta.clone());
+                ta[k] += h;
+                tb[k] -= h;
+                param.set(&mut a, &ta);
+                param.set(&mut b, &tb);
+                let fd = (resid(&a, &pose) - resid(&b, &pose)) / (2.0 * h);
+                let err = (&fd - jt.column(k)).amax();
+                assert!(
+                    err < 1e-5 * (1.0 + fd.amax()),
+                    "{}: {err}",
+                    param.names()[k]
+                );
+            }
+            for k in 0..6 {
+                let h = 1e-7;
+                let mut d = Vector6::zeros();
+                d[k] = h;
+                let step = |d: &Vector6<f64>| {
+                    pose_plus(
+                        &pose,
+                        &d.fixed_rows::<3>(0).into(),
+                        &d.fixed_rows::<3>(3).into(),
+                    )
+                };
+                let fd = (resid(&base, &step(&d)) - resid(&base, &step(&-d))) / (2.0 * h);
+                let err = (&fd - jp.column(k)).amax();
+                assert!(err < 1e-4 * (1.0 + fd.amax()), "pose {k}: {err}");
+            }
+        }
+    }
 }

@@ -231,6 +231,32 @@ mod tests {
     }
 
     #[test]
+    fn refinement_jacobian_matches_finite_differences() {
+        let src = grid();
+        let dst = src.clone();
+        let h = [900.0, 40.0, 120.0, -30.0, 870.0, 200.0, 0.9, -0.6];
+        let mut p = HomographyProblem {
+            h,
+            src: &src,
+            dst: &dst,
+        };
+        let j = p.jacobian().unwrap();
+        for k in 0..8 {
+            let step = 1e-6 * (1.0 + h[k].abs());
+            let mut hp = h;
+            hp[k] += step;
+            p.set_params(&OVector::<f64, U8>::from_row_slice(&hp));
+            let rp = p.residuals().unwrap();
+            hp[k] -= 2.0 * step;
+            p.set_params(&OVector::<f64, U8>::from_row_slice(&hp));
+            let rm = p.residuals().unwrap();
+            let fd = (rp - rm) / (2.0 * step);
+            let err = (&fd - j.column(k)).amax();
+            assert!(err < 1e-6 * (1.0 + fd.amax()), "column {k}: {err}");
+        }
+    }
+
+    #[test]
     fn rejects_too_few_and_collinear_points() {
         let src = vec![Vector2::new(0.0, 0.0); 3];
         assert!(matches!(

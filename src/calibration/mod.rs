@@ -138,7 +138,7 @@ pub struct ViewResult {
 
 impl CalibrationResult {
     pub fn std_devs(&self) -> [f64; N_PARAMS] {
-        std::array::from_fn(|i| self.covariance[(i, i)].max(0.0).sqrt())
+        crate::camera::std_devs(&self.covariance)
     }
 
     /// The calibration as files carry it.
@@ -381,10 +381,9 @@ fn flag_outliers(views: &mut [ViewResult], factor: f64) {
 /// A serialisable report for `--json`.
 #[derive(Serialize)]
 pub struct JsonReport {
-    pub image_size: [u32; 2],
     pub board: [u32; 2],
     pub square_m: f64,
-    pub camera: JsonCamera,
+    pub camera: Camera,
     pub std_dev: std::collections::BTreeMap<&'static str, f64>,
     pub free_parameters: Vec<&'static str>,
     pub rms_px: f64,
@@ -394,17 +393,6 @@ pub struct JsonReport {
     pub views: Vec<JsonView>,
     pub dropped_views: Vec<String>,
     pub coverage_percent: f64,
-}
-
-#[derive(Serialize)]
-pub struct JsonCamera {
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    pub skew: f64,
-    /// OpenCV order k1 k2 p1 p2 k3 k4 k5 k6.
-    pub dist: [f64; 8],
 }
 
 #[derive(Serialize)]
@@ -419,20 +407,11 @@ pub struct JsonView {
 
 impl CalibrationResult {
     pub fn json_report(&self) -> JsonReport {
-        let c = &self.camera;
         let sd = self.std_devs();
         JsonReport {
-            image_size: [self.image_size.width, self.image_size.height],
             board: [self.board.cols, self.board.rows],
             square_m: self.board.square_m,
-            camera: JsonCamera {
-                fx: c.fx,
-                fy: c.fy,
-                cx: c.cx,
-                cy: c.cy,
-                skew: c.skew,
-                dist: c.dist,
-            },
+            camera: self.camera.clone(),
             std_dev: PARAM_NAMES.iter().copied().zip(sd).collect(),
             free_parameters: self.free_parameters.clone(),
             rms_px: self.rms_px,

@@ -16,6 +16,11 @@ use nalgebra::SMatrix;
 /// that were held fixed are zero.
 pub type ParamCovariance = SMatrix<f64, N_PARAMS, N_PARAMS>;
 
+/// Standard deviations from a covariance's diagonal ([`PARAM_NAMES`] order).
+pub fn std_devs(cov: &ParamCovariance) -> [f64; N_PARAMS] {
+    std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt())
+}
+
 /// A camera with its uncertainty and the record of how it was calibrated.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Calibration {
@@ -71,8 +76,6 @@ impl Calibration {
 
     /// Standard deviation of every parameter ([`PARAM_NAMES`] order), when the covariance is known.
     pub fn std_devs(&self) -> Option<[f64; N_PARAMS]> {
-        self.covariance
-            .as_ref()
-            .map(|c| std::array::from_fn(|i| c[(i, i)].max(0.0).sqrt()))
+        self.covariance.as_ref().map(std_devs)
     }
 }

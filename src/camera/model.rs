@@ -48,14 +48,15 @@ pub mod param {
 pub type ParamJacobian = SMatrix<f64, 2, N_PARAMS>;
 
 /// Image size in pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct ImageSize {
     pub width: u32,
     pub height: u32,
 }
 
 /// A pinhole camera with Brown–Conrady distortion (OpenCV's model, with optional skew).
-#[derive(Clone, Debug, PartialEq)]
+/// Serialises as its fields (reports); calibration files go through [`super::formats`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Camera {
     /// The image size the intrinsics refer to, when known.
     pub image_size: Option<ImageSize>,

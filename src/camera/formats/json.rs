@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use super::{Ctx, FormatError};
 use crate::camera::{
     BoardSpec, Calibration, CalibrationSummary, Camera, ImageSize, N_PARAMS, PARAM_NAMES,
-    ParamCovariance, ViewSummary,
+    ParamCovariance, ViewSummary, std_devs,
 };
 
 pub const FORMAT_TAG: &str = "geostride.camera";
@@ -132,7 +132,7 @@ pub(super) fn render(cal: &Calibration) -> Result<String, serde_json::Error> {
         },
         uncertainty: cal.covariance.as_ref().map(|cov| UncertaintyJson {
             parameters: PARAM_NAMES.iter().map(|s| s.to_string()).collect(),
-            std_dev: (0..N_PARAMS).map(|i| cov[(i, i)].max(0.0).sqrt()).collect(),
+            std_dev: std_devs(cov).to_vec(),
             covariance: (0..N_PARAMS)
                 .map(|i| (0..N_PARAMS).map(|j| cov[(i, j)]).collect())
                 .collect(),

@@ -6,7 +6,7 @@ use super::cvyaml::{self, Node};
 use super::{Ctx, FormatError};
 use crate::camera::{
     BoardSpec, Calibration, CalibrationSummary, Camera, ImageSize, N_PARAMS, PARAM_NAMES,
-    ParamCovariance, ViewSummary,
+    ParamCovariance, ViewSummary, std_devs,
 };
 
 const CAMERA_MATRIX_KEYS: [&str; 4] = ["camera_matrix", "Camera_Matrix", "cameraMatrix", "K"];
@@ -361,8 +361,7 @@ pub(super) fn render(cal: &Calibration) -> String {
     }
     if let Some(cov) = &cal.covariance {
         w.strings("parameter_names", &PARAM_NAMES);
-        let sd: Vec<f64> = (0..N_PARAMS).map(|i| cov[(i, i)].max(0.0).sqrt()).collect();
-        w.matrix("parameter_std_dev", N_PARAMS, 1, &sd);
+        w.matrix("parameter_std_dev", N_PARAMS, 1, &std_devs(cov));
         w.matrix(
             "parameter_covariance",
             N_PARAMS,

@@ -7,6 +7,7 @@ use opencv::prelude::*;
 
 use super::{Options, View, board_points};
 use crate::camera::{BoardSpec, Camera, ImageSize, N_PARAMS};
+use crate::geom::{Pose, pose_from_rvec_tvec};
 
 /// Corners and board points in OpenCV's containers, built once so timings exclude conversion.
 pub struct OpenCvInput {
@@ -74,6 +75,7 @@ pub fn opencv_flags(opts: &Options) -> i32 {
 /// geostride's parameter order (skew, which OpenCV does not estimate, is 0).
 pub struct OpenCvResult {
     pub camera: Camera,
+    pub cam_from_board: Vec<Pose>,
     pub rms_px: f64,
     pub std_devs: [f64; N_PARAMS],
 }
@@ -146,8 +148,21 @@ pub fn calibrate_camera(
         *k.at_2d::<f64>(1, 2)?,
     )
     .with_distortion(&dist);
+    let vec3 = |m: &Mat| -> opencv::Result<nalgebra::Vector3<f64>> {
+        Ok(nalgebra::Vector3::new(
+            *m.at::<f64>(0)?,
+            *m.at::<f64>(1)?,
+            *m.at::<f64>(2)?,
+        ))
+    };
+    let cam_from_board = rvecs
+        .iter()
+        .zip(tvecs.iter())
+        .map(|(r, t)| Ok(pose_from_rvec_tvec(&vec3(&r)?, &vec3(&t)?)))
+        .collect::<opencv::Result<Vec<_>>>()?;
     Ok(OpenCvResult {
         camera,
+        cam_from_board,
         rms_px: rms,
         std_devs: sd,
     })

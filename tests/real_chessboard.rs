@@ -308,3 +308,31 @@ fn a_wrong_board_size_is_a_clear_error() {
         "{err}"
     );
 }
+
+#[test]
+fn a_real_video_without_a_board_is_decoded_and_reported() {
+    let Some(dir) = common::data_dir("video") else {
+        return;
+    };
+    let o = common::geostride()
+        .args([
+            "calibrate",
+            "--board",
+            "9x6",
+            "--square",
+            "0.025",
+            "-q",
+            "--every",
+            "10",
+        ])
+        .arg(dir.join("vtest_480x360_h264.avi"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    // 795 frames, every 10th: 80 decoded and searched.
+    assert!(
+        err.contains("9x6 board was not found in any of the 80 image(s)/frame(s) tried"),
+        "{err}"
+    );
+}

@@ -562,6 +562,43 @@ mod tests {
     }
 
     #[test]
+    fn fronto_parallel_boards_are_refused_not_guessed() {
+        // Boards parallel to the image plane do not determine the focal length.
+        let cam = truth();
+        let object = board_points(&BOARD);
+        let v: Vec<View> = [(-0.1, -0.05), (0.0, 0.0), (-0.05, 0.02), (-0.12, 0.03)]
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, y))| View {
+                name: format!("v{i}"),
+                corners: object
+                    .iter()
+                    .map(|p| {
+                        cam.project(&(p + nalgebra::Vector3::new(x, y, 0.6)))
+                            .unwrap()
+                    })
+                    .collect(),
+            })
+            .collect();
+        let err = calibrate(
+            &v,
+            &BOARD,
+            cam.image_size.unwrap(),
+            &Options::default(),
+            false,
+        )
+        .unwrap_err();
+        println!("{err}");
+        assert!(
+            matches!(
+                err,
+                CalibrationError::Initialisation(_) | CalibrationError::Optimisation(_)
+            ),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn too_few_views_and_wrong_corner_counts_are_errors() {
         let cam = truth();
         let v = views(&cam, 2, 0.1, 4);

@@ -24,22 +24,21 @@ fn views() -> (Vec<View>, BoardSpec, ImageSize, String) {
     };
     if let Some(dir) =
         std::env::var_os("GEOSTRIDE_DATA").map(|d| PathBuf::from(d).join("opencv-chessboard-left"))
+        && dir.is_dir()
     {
-        if dir.is_dir() {
-            let c = collect(
-                &[dir.clone()],
-                &board,
-                &CollectSettings::default(),
-                &NoProgress,
-            )
-            .expect("corners");
-            return (
-                c.views,
-                board,
-                c.image_size.expect("size"),
-                format!("{} ({} views)", dir.display(), 13),
-            );
-        }
+        let c = collect(
+            std::slice::from_ref(&dir),
+            &board,
+            &CollectSettings::default(),
+            &NoProgress,
+        )
+        .expect("corners");
+        return (
+            c.views,
+            board,
+            c.image_size.expect("size"),
+            format!("{} ({} views)", dir.display(), 13),
+        );
     }
     let cam = Camera::pinhole(536.0, 536.0, 342.0, 235.0)
         .with_distortion(&[-0.27, -0.04, 0.0018, -0.0003, 0.24])

@@ -104,10 +104,10 @@ fn max_window(corners: &Vector<Point2f>, board: &BoardSpec) -> i32 {
     let cols = board.cols as usize;
     let mut min_spacing = f32::INFINITY;
     for (i, p) in corners.iter().enumerate() {
-        if (i + 1) % cols != 0 {
-            if let Ok(q) = corners.get(i + 1) {
-                min_spacing = min_spacing.min(((p.x - q.x).powi(2) + (p.y - q.y).powi(2)).sqrt());
-            }
+        if (i + 1) % cols != 0
+            && let Ok(q) = corners.get(i + 1)
+        {
+            min_spacing = min_spacing.min(((p.x - q.x).powi(2) + (p.y - q.y).powi(2)).sqrt());
         }
         if let Ok(q) = corners.get(i + cols) {
             min_spacing = min_spacing.min(((p.x - q.x).powi(2) + (p.y - q.y).powi(2)).sqrt());

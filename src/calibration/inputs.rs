@@ -272,7 +272,7 @@ fn collect_video(
     loop {
         let more = cap.read(&mut frame).map_err(cv(&name))?;
         if more && !frame.empty() {
-            if index % every == 0 {
+            if index.is_multiple_of(every) {
                 let gray = to_gray(&frame).map_err(cv(&name))?;
                 let size = ImageSize {
                     width: gray.cols() as u32,

@@ -118,11 +118,11 @@ pub fn calibrate_camera(
             criteria,
         )?;
         // OpenCV order: fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6 ...; geostride inserts skew at 4.
-        for i in 0..4 {
-            sd[i] = *sdi.at::<f64>(i as i32)?;
-        }
-        for i in 0..8 {
-            sd[5 + i] = *sdi.at::<f64>(4 + i as i32)?;
+        let cv_index = [0, 1, 2, 3, -1, 4, 5, 6, 7, 8, 9, 10, 11];
+        for (s, &k) in sd.iter_mut().zip(&cv_index) {
+            if k >= 0 {
+                *s = *sdi.at::<f64>(k)?;
+            }
         }
         rms
     } else {

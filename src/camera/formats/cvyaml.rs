@@ -664,6 +664,7 @@ points:\n   - { x: 1, y: 2 }\n   - [ 3, 4 ]\nnested:\n   a: 1\n   b:\n      c: .
     }
 
     #[test]
+    #[allow(clippy::excessive_precision)]
     fn numbers_round_trip_in_opencv_format() {
         for v in [535.915_733_961_631_99, -0.000_281_221, 1e-300, 0.0, -3.5e17] {
             let s = format_f64(v);

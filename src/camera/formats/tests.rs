@@ -1,3 +1,6 @@
+// Literals copied digit for digit from OpenCV files.
+#![allow(clippy::excessive_precision)]
+
 use std::path::Path;
 
 use nalgebra::Vector3;

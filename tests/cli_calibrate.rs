@@ -145,6 +145,36 @@ fn bad_usage_and_missing_inputs_exit_2_without_output() {
     assert!(stderr(&o).contains("extension"), "{}", stderr(&o));
     assert!(!bad_out.exists());
 
+    // An output that would replace an input, or in a missing folder, is refused before any work.
+    let before = std::fs::read(&files[0]).unwrap();
+    let o = run(
+        &[
+            "calibrate",
+            "--board",
+            "9x6",
+            "--square",
+            "0.03",
+            "--format",
+            "json",
+            "-o",
+        ],
+        &[&files[0], &files[0]],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("overwrite an input"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(&files[0]).unwrap(),
+        before,
+        "the input image is intact"
+    );
+    let nested = tmp.path().join("no/such/dir/x.yaml");
+    let o = run(
+        &["calibrate", "--board", "9x6", "--square", "0.03", "-o"],
+        &[&nested, &files[0]],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("does not exist"), "{}", stderr(&o));
+
     let empty = tmp.path().join("empty");
     std::fs::create_dir(&empty).unwrap();
     let o = run(

@@ -7,7 +7,7 @@ use anyhow::{Context, anyhow};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use super::{bad_input, parse_board_size, parse_fraction, parse_positive};
+use super::{bad_input, check_output_path, parse_board_size, parse_fraction, parse_positive};
 use crate::calibration::detect::{DetectSettings, Detector};
 use crate::calibration::inputs::{CollectSettings, InputError, InputLog, collect};
 use crate::calibration::{CalibrationError, CalibrationResult, Options, calibrate};
@@ -247,6 +247,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })?),
         (None, None) => None,
     };
+    if let Some(out) = &args.output {
+        check_output_path(out, &job.inputs)?;
+    }
     let outcome = run_job(&job)?;
     let written = match &args.output {
         Some(path) => {

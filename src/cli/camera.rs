@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::anyhow;
 
-use super::bad_input;
 use super::calibrate::FormatArg;
+use super::{bad_input, check_output_path};
 use crate::camera::formats::{self, Format};
 use crate::camera::{Calibration, ImageSize, PARAM_NAMES};
 
@@ -78,12 +78,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             to,
             image_size,
         } => {
-            if input == output {
-                return Err(bad_input(anyhow!(
-                    "the output would overwrite the input '{}'",
-                    input.display()
-                )));
-            }
+            check_output_path(&output, std::slice::from_ref(&input))?;
             let mut cal = formats::read(&input, from.map(Format::from)).map_err(bad_input)?;
             if let Some((w, h)) = image_size {
                 match cal.camera.image_size {

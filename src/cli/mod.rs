@@ -4,6 +4,9 @@ mod calibrate;
 mod camera;
 mod demo;
 
+use std::path::{Path, PathBuf};
+
+use anyhow::anyhow;
 use clap::{Parser, Subcommand};
 
 /// An error caused by the user's input or usage (exit code 2), as opposed to a failure while
@@ -82,6 +85,32 @@ pub(crate) fn parse_positive(s: &str) -> Result<f64, String> {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
         _ => Err(format!("expected a positive number, got '{s}'")),
     }
+}
+
+/// Refuses, before any work, an output whose folder does not exist or that would replace an input.
+pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf]) -> anyhow::Result<()> {
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !parent.is_dir() {
+        return Err(bad_input(anyhow!(
+            "{}: the output folder '{}' does not exist",
+            out.display(),
+            parent.display()
+        )));
+    }
+    if let Ok(out_abs) = out.canonicalize()
+        && inputs
+            .iter()
+            .any(|i| i.canonicalize().is_ok_and(|i| i == out_abs))
+    {
+        return Err(bad_input(anyhow!(
+            "{}: the output would overwrite an input; choose another file name",
+            out.display()
+        )));
+    }
+    Ok(())
 }
 
 /// A number from 0 to 1.

@@ -2,15 +2,15 @@
 # Installs the Debian packages geostride builds against, and only those that are missing, so a
 # second run costs a few dpkg queries. Called by every make target.
 #
-#   OpenCV (+ clang/libclang for the opencv crate's generated bindings), GDAL, PROJ,
-#   pkg-config, cmake and sqlite3 (the proj crate builds PROJ from source, see docs/architecture.md),
-#   libtiff and libcurl (PROJ's grid support).
+#   OpenCV (+ clang/libclang for the opencv and proj crates' generated bindings), GDAL and PROJ
+#   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
+#   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
 set -euo pipefail
 
 packages=(
   pkg-config cmake clang libclang-dev
   libopencv-dev
-  libgdal-dev libproj-dev libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
+  libgdal-dev gdal-bin libproj-dev proj-data libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
 )
 
 if ! command -v cargo >/dev/null 2>&1; then

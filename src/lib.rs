@@ -8,6 +8,9 @@
 //! `calibration` and `simulate`) use nalgebra and std only; OpenCV stays in the adapters
 //! (`imageio`, `calibration::detect`, `calibration::inputs`).
 
+// `!(x > 0.0)` is used on purpose: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod calibration;
 pub mod camera;
 pub mod cli;
@@ -18,3 +21,4 @@ pub mod io;
 pub mod optim;
 pub mod progress;
 pub mod simulate;
+pub mod survey;

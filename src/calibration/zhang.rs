@@ -67,7 +67,6 @@ fn intrinsics_from_b(b: &Vector6<f64>) -> Result<(f64, f64, f64, f64, f64), Stri
     }
     let v0 = (b12 * b13 - b11 * b23) / den;
     let lambda = b33 - (b13 * b13 + v0 * (b12 * b13 - b11 * b23)) / b11;
-    #[allow(clippy::neg_cmp_op_on_partial_ord)] // also rejects NaN
     if !(lambda / b11 > 0.0) {
         return Err("negative focal length squared".into());
     }

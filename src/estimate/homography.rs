@@ -10,7 +10,6 @@ fn normalizer(pts: &[Vector2<f64>]) -> Result<Matrix3<f64>, EstimateError> {
     let n = pts.len() as f64;
     let c = pts.iter().fold(Vector2::zeros(), |a, p| a + p) / n;
     let mean_dist = pts.iter().map(|p| (p - c).norm()).sum::<f64>() / n;
-    #[allow(clippy::neg_cmp_op_on_partial_ord)] // also rejects NaN
     if !(mean_dist > 0.0) || !mean_dist.is_finite() {
         return Err(EstimateError::Degenerate("all points coincide".into()));
     }

@@ -2,6 +2,9 @@
 //!
 //! Transforms are named `dst_from_src`: `p_cam = cam_from_world * p_world`.
 
+pub mod geodesy;
+pub mod similarity;
+
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// A rigid transform. Named by its frames at the use site, e.g. `cam_from_board: Pose`.

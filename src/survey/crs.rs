@@ -1,0 +1,476 @@
+//! Coordinate reference systems through PROJ (adapter). PROJ objects are not `Send`: make one
+//! [`Crs`] per thread.
+//!
+//! A [`Crs`] knows how to take its horizontal coordinates to latitude and longitude on its own
+//! geodetic datum and back, without any datum change, and what its heights mean. Conversions
+//! between two CRSs ([`Transform`]) may change datum; their accuracy is reported.
+
+use std::ffi::{CStr, CString};
+use std::ptr;
+
+use proj_sys as sys;
+use thiserror::Error;
+
+use crate::geom::geodesy::Ellipsoid;
+
+#[derive(Debug, Error, Clone, PartialEq)]
+#[error("CRS '{spec}': {message}")]
+pub struct CrsError {
+    pub spec: String,
+    pub message: String,
+}
+
+/// What the third coordinate of a position means.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HeightKind {
+    /// Height above the ellipsoid of the horizontal datum.
+    Ellipsoidal,
+    /// Gravity-related height, with the vertical datum when known.
+    Orthometric(Option<String>),
+    /// The file does not say; pass `--height` to say it.
+    Unknown,
+}
+
+impl std::fmt::Display for HeightKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            HeightKind::Ellipsoidal => f.write_str("ellipsoidal"),
+            HeightKind::Orthometric(Some(d)) => write!(f, "orthometric ({d})"),
+            HeightKind::Orthometric(None) => f.write_str("orthometric"),
+            HeightKind::Unknown => f.write_str("unknown (the file does not say)"),
+        }
+    }
+}
+
+/// The kind of horizontal coordinates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Horizontal {
+    /// Longitude, latitude in degrees (axis order normalised to longitude first).
+    Geographic,
+    /// Easting, northing in the CRS's linear unit.
+    Projected,
+}
+
+/// An owned PROJ object with the context it was made in.
+struct Pj {
+    ptr: *mut sys::PJ,
+}
+
+impl Drop for Pj {
+    fn drop(&mut self) {
+        if !self.ptr.is_null() {
+            unsafe {
+                sys::proj_destroy(self.ptr);
+            }
+        }
+    }
+}
+
+/// A PROJ context, destroyed after every object made in it.
+struct Context {
+    ptr: *mut sys::PJ_CONTEXT,
+}
+
+impl Drop for Context {
+    fn drop(&mut self) {
+        unsafe {
+            sys::proj_context_destroy(self.ptr);
+        }
+    }
+}
+
+impl Context {
+    fn new() -> Self {
+        let ptr = unsafe { sys::proj_context_create() };
+        // Quiet: errors are reported through our own messages.
+        unsafe {
+            sys::proj_log_level(ptr, sys::PJ_LOG_LEVEL_PJ_LOG_NONE);
+        }
+        Context { ptr }
+    }
+
+    fn last_error(&self) -> String {
+        unsafe {
+            let code = sys::proj_context_errno(self.ptr);
+            let s = sys::proj_context_errno_string(self.ptr, code);
+            if s.is_null() {
+                format!("PROJ error {code}")
+            } else {
+                CStr::from_ptr(s).to_string_lossy().into_owned()
+            }
+        }
+    }
+
+    fn wrap(&self, ptr: *mut sys::PJ, spec: &str, what: &str) -> Result<Pj, CrsError> {
+        if ptr.is_null() {
+            Err(CrsError {
+                spec: spec.to_string(),
+                message: format!("{what}: {}", self.last_error()),
+            })
+        } else {
+            Ok(Pj { ptr })
+        }
+    }
+}
+
+fn c_str_opt(p: *const std::os::raw::c_char) -> Option<String> {
+    if p.is_null() {
+        None
+    } else {
+        Some(unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
+    }
+}
+
+/// Turns the spellings surveyors' files use into something PROJ parses: OpenDroneMap's
+/// `WGS84 UTM 17N`, and PROJ strings without `+type=crs`.
+pub fn normalise_spec(spec: &str) -> String {
+    let s = spec.trim();
+    let words: Vec<&str> = s.split_whitespace().collect();
+    if words.len() == 3
+        && words[0].eq_ignore_ascii_case("WGS84")
+        && words[1].eq_ignore_ascii_case("UTM")
+    {
+        let zone = words[2];
+        let (num, hemi) = zone.split_at(zone.len().saturating_sub(1));
+        if let (Ok(z), Some(h)) = (num.parse::<u32>(), hemi.chars().next())
+            && (1..=60).contains(&z)
+        {
+            match h.to_ascii_uppercase() {
+                'N' => return format!("EPSG:{}", 32600 + z),
+                'S' => return format!("EPSG:{}", 32700 + z),
+                _ => {}
+            }
+        }
+    }
+    if s.starts_with('+') && !s.contains("+type=crs") {
+        return format!("{s} +type=crs");
+    }
+    s.to_string()
+}
+
+/// A coordinate reference system.
+pub struct Crs {
+    /// The specification as given (EPSG code, PROJ string, name, WKT).
+    pub spec: String,
+    /// PROJ's name for it.
+    pub name: String,
+    /// `AUTH:CODE` when PROJ knows one.
+    pub id: Option<String>,
+    pub horizontal: Horizontal,
+    /// What heights mean according to the CRS itself (a compound or 3D CRS says; a 2D one does not).
+    pub height_kind: HeightKind,
+    /// Metres per unit of the horizontal axes of a projected CRS (1 for metres).
+    pub unit_m: f64,
+    pub ellipsoid: Ellipsoid,
+    /// Name of the geodetic CRS the horizontal coordinates are on.
+    pub geodetic_name: String,
+    to_geodetic: proj::Proj,
+    from_geodetic: proj::Proj,
+    /// WKT of the whole CRS, for GDAL outputs.
+    pub wkt: String,
+}
+
+impl std::fmt::Debug for Crs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Crs({}: {})", self.spec, self.name)
+    }
+}
+
+impl Crs {
+    /// Parses a CRS: `EPSG:nnnn`, a PROJ string, a CRS name PROJ knows, WKT, or OpenDroneMap's
+    /// `WGS84 UTM 17N`.
+    pub fn new(spec: &str) -> Result<Crs, CrsError> {
+        let ctx = Context::new();
+        let err = |message: String| CrsError {
+            spec: spec.to_string(),
+            message,
+        };
+        let normalised = normalise_spec(spec);
+        let c = CString::new(normalised.clone()).map_err(|_| err("contains a NUL byte".into()))?;
+        let obj = ctx.wrap(unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) }, spec, "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string or a CRS name)")?;
+        let mut crs = obj;
+        let mut ty = unsafe { sys::proj_get_type(crs.ptr) };
+        if ty == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
+            crs = ctx.wrap(
+                unsafe { sys::proj_get_source_crs(ctx.ptr, crs.ptr) },
+                spec,
+                "bound CRS without a source",
+            )?;
+            ty = unsafe { sys::proj_get_type(crs.ptr) };
+        }
+        let name = c_str_opt(unsafe { sys::proj_get_name(crs.ptr) }).unwrap_or_default();
+        let id = match (
+            c_str_opt(unsafe { sys::proj_get_id_auth_name(crs.ptr, 0) }),
+            c_str_opt(unsafe { sys::proj_get_id_code(crs.ptr, 0) }),
+        ) {
+            (Some(a), Some(c)) => Some(format!("{a}:{c}")),
+            _ => None,
+        };
+        let wkt_of = |pj: &Pj| -> Result<String, CrsError> {
+            c_str_opt(unsafe {
+                sys::proj_as_wkt(ctx.ptr, pj.ptr, sys::PJ_WKT_TYPE_PJ_WKT2_2019, ptr::null())
+            })
+            .ok_or_else(|| err("cannot be written as WKT".into()))
+        };
+        let wkt = wkt_of(&crs)?;
+        let (horizontal_crs, height_kind) = match ty {
+            sys::PJ_TYPE_PJ_TYPE_COMPOUND_CRS => {
+                let h = ctx.wrap(
+                    unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 0) },
+                    spec,
+                    "compound CRS without a horizontal part",
+                )?;
+                let v = ctx.wrap(
+                    unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 1) },
+                    spec,
+                    "compound CRS without a vertical part",
+                )?;
+                let vname = c_str_opt(unsafe { sys::proj_get_name(v.ptr) });
+                let mut h = h;
+                if unsafe { sys::proj_get_type(h.ptr) } == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
+                    h = ctx.wrap(
+                        unsafe { sys::proj_get_source_crs(ctx.ptr, h.ptr) },
+                        spec,
+                        "bound CRS without a source",
+                    )?;
+                }
+                (h, HeightKind::Orthometric(vname))
+            }
+            sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_3D_CRS => (crs, HeightKind::Ellipsoidal),
+            sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_2D_CRS | sys::PJ_TYPE_PJ_TYPE_PROJECTED_CRS => {
+                (crs, HeightKind::Unknown)
+            }
+            sys::PJ_TYPE_PJ_TYPE_GEOCENTRIC_CRS => {
+                return Err(err("geocentric (ECEF) coordinates are not supported as a survey CRS; convert them to a geographic or projected CRS".into()));
+            }
+            sys::PJ_TYPE_PJ_TYPE_ENGINEERING_CRS | sys::PJ_TYPE_PJ_TYPE_VERTICAL_CRS => {
+                return Err(err("not a geographic, projected or compound CRS".into()));
+            }
+            _ => {
+                return Err(err(format!(
+                    "'{normalised}' is not a coordinate reference system (append +type=crs to a PROJ string?)"
+                )));
+            }
+        };
+        let hty = unsafe { sys::proj_get_type(horizontal_crs.ptr) };
+        let horizontal = match hty {
+            sys::PJ_TYPE_PJ_TYPE_PROJECTED_CRS => Horizontal::Projected,
+            sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_2D_CRS | sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_3D_CRS => {
+                Horizontal::Geographic
+            }
+            _ => {
+                return Err(err(
+                    "its horizontal part is neither geographic nor projected".into(),
+                ));
+            }
+        };
+        let geodetic = ctx.wrap(
+            unsafe { sys::proj_crs_get_geodetic_crs(ctx.ptr, horizontal_crs.ptr) },
+            spec,
+            "no geodetic CRS",
+        )?;
+        let geodetic_name =
+            c_str_opt(unsafe { sys::proj_get_name(geodetic.ptr) }).unwrap_or_default();
+        let ell = ctx.wrap(
+            unsafe { sys::proj_get_ellipsoid(ctx.ptr, geodetic.ptr) },
+            spec,
+            "no ellipsoid",
+        )?;
+        let (mut a, mut b, mut computed, mut inv_f) = (0.0, 0.0, 0, 0.0);
+        let ok = unsafe {
+            sys::proj_ellipsoid_get_parameters(
+                ctx.ptr,
+                ell.ptr,
+                &mut a,
+                &mut b,
+                &mut computed,
+                &mut inv_f,
+            )
+        };
+        if ok == 0 || !(a > 0.0) {
+            return Err(err("cannot read its ellipsoid".into()));
+        }
+        let ellipsoid = Ellipsoid::from_axes(a, b);
+        let unit_m = if horizontal == Horizontal::Projected {
+            axis_unit(&ctx, &horizontal_crs).unwrap_or(1.0)
+        } else {
+            1.0
+        };
+        // The geodetic CRS of the same datum: no datum change, so no grid or Helmert involved.
+        let geodetic_wkt = wkt_of(&geodetic)?;
+        let horizontal_wkt = wkt_of(&horizontal_crs)?;
+        let to_geodetic = proj::Proj::new_known_crs(&horizontal_wkt, &geodetic_wkt, None)
+            .map_err(|e| err(format!("cannot convert to latitude/longitude: {e}")))?;
+        let from_geodetic = proj::Proj::new_known_crs(&geodetic_wkt, &horizontal_wkt, None)
+            .map_err(|e| err(format!("cannot convert from latitude/longitude: {e}")))?;
+        Ok(Crs {
+            spec: spec.to_string(),
+            name,
+            id,
+            horizontal,
+            height_kind,
+            unit_m,
+            ellipsoid,
+            geodetic_name,
+            to_geodetic,
+            from_geodetic,
+            wkt,
+        })
+    }
+
+    /// Horizontal coordinates to (longitude, latitude) in degrees on this CRS's own datum.
+    pub fn to_lon_lat(&self, x: f64, y: f64) -> Result<(f64, f64), CrsError> {
+        if self.horizontal == Horizontal::Geographic {
+            return Ok((x, y));
+        }
+        self.to_geodetic.convert((x, y)).map_err(|e| CrsError {
+            spec: self.spec.clone(),
+            message: format!("cannot convert ({x}, {y}) to latitude/longitude: {e}"),
+        })
+    }
+
+    /// (longitude, latitude) in degrees on this CRS's datum to its horizontal coordinates.
+    pub fn from_lon_lat(&self, lon: f64, lat: f64) -> Result<(f64, f64), CrsError> {
+        if self.horizontal == Horizontal::Geographic {
+            return Ok((lon, lat));
+        }
+        self.from_geodetic
+            .convert((lon, lat))
+            .map_err(|e| CrsError {
+                spec: self.spec.clone(),
+                message: format!("cannot convert ({lon}, {lat}) from latitude/longitude: {e}"),
+            })
+    }
+
+    /// A short label: `EPSG:31370 (BD72 / Belgian Lambert 72)`.
+    pub fn label(&self) -> String {
+        match &self.id {
+            Some(id) => format!("{id} ({})", self.name),
+            None => self.name.clone(),
+        }
+    }
+}
+
+fn axis_unit(ctx: &Context, crs: &Pj) -> Option<f64> {
+    let cs = unsafe { sys::proj_crs_get_coordinate_system(ctx.ptr, crs.ptr) };
+    if cs.is_null() {
+        return None;
+    }
+    let cs = Pj { ptr: cs };
+    let mut factor = 0.0;
+    let ok = unsafe {
+        sys::proj_cs_get_axis_info(
+            ctx.ptr,
+            cs.ptr,
+            0,
+            ptr::null_mut(),
+            ptr::null_mut(),
+            ptr::null_mut(),
+            &mut factor,
+            ptr::null_mut(),
+            ptr::null_mut(),
+            ptr::null_mut(),
+        )
+    };
+    (ok != 0 && factor > 0.0).then_some(factor)
+}
+
+/// A conversion between two CRSs, horizontal only (heights are carried unchanged), possibly with
+/// a datum change whose accuracy PROJ reports.
+pub struct Transform {
+    proj: proj::Proj,
+    pub source: String,
+    pub target: String,
+}
+
+impl Transform {
+    pub fn new(source: &Crs, target: &Crs) -> Result<Transform, CrsError> {
+        let proj = proj::Proj::new_known_crs(
+            &normalise_spec(&source.spec),
+            &normalise_spec(&target.spec),
+            None,
+        )
+        .map_err(|e| CrsError {
+            spec: target.spec.clone(),
+            message: format!("no conversion from {}: {e}", source.label()),
+        })?;
+        Ok(Transform {
+            proj,
+            source: source.label(),
+            target: target.label(),
+        })
+    }
+
+    pub fn apply(&self, x: f64, y: f64) -> Result<(f64, f64), CrsError> {
+        self.proj.convert((x, y)).map_err(|e| CrsError {
+            spec: self.target.clone(),
+            message: format!("cannot convert ({x}, {y}) from {}: {e}", self.source),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn odm_utm_spelling() {
+        assert_eq!(normalise_spec("WGS84 UTM 17N"), "EPSG:32617");
+        assert_eq!(normalise_spec("WGS84 UTM 22S"), "EPSG:32722");
+        assert_eq!(
+            normalise_spec("+proj=utm +zone=22"),
+            "+proj=utm +zone=22 +type=crs"
+        );
+        assert_eq!(normalise_spec("EPSG:31370"), "EPSG:31370");
+    }
+
+    #[test]
+    fn reads_kinds_and_heights() {
+        let utm = Crs::new("WGS84 UTM 17N").unwrap();
+        assert_eq!(utm.horizontal, Horizontal::Projected);
+        assert_eq!(utm.height_kind, HeightKind::Unknown);
+        assert_eq!(utm.id.as_deref(), Some("EPSG:32617"));
+        assert!((utm.ellipsoid.a - 6_378_137.0).abs() < 1e-6);
+        let compound = Crs::new("EPSG:6190").unwrap();
+        assert!(
+            matches!(compound.height_kind, HeightKind::Orthometric(Some(ref d)) if d.contains("Ostend"))
+        );
+        assert!(
+            (compound.ellipsoid.a - 6_378_388.0).abs() < 1e-6,
+            "International 1924"
+        );
+        assert_eq!(
+            Crs::new("EPSG:4979").unwrap().height_kind,
+            HeightKind::Ellipsoidal
+        );
+        let geo = Crs::new("EPSG:4326").unwrap();
+        assert_eq!(geo.horizontal, Horizontal::Geographic);
+        let proj_string =
+            Crs::new("+proj=utm +zone=22 +south +datum=WGS84 +units=m +no_defs").unwrap();
+        assert_eq!(proj_string.horizontal, Horizontal::Projected);
+        let ft = Crs::new("EPSG:2227").unwrap(); // California zone 3, US survey feet
+        assert!((ft.unit_m - 1200.0 / 3937.0).abs() < 1e-12, "{}", ft.unit_m);
+    }
+
+    #[test]
+    fn unknown_crs_is_a_clear_error() {
+        let e = Crs::new("EPSG:999999").unwrap_err();
+        assert!(e.to_string().contains("EPSG:999999"), "{e}");
+        assert!(Crs::new("not a crs at all").is_err());
+        assert!(
+            Crs::new("EPSG:4978")
+                .unwrap_err()
+                .message
+                .contains("geocentric")
+        );
+    }
+
+    #[test]
+    fn lon_lat_round_trip_is_sub_millimetre() {
+        let crs = Crs::new("EPSG:31370").unwrap();
+        let (lon, lat) = crs.to_lon_lat(150_000.0, 170_000.0).unwrap();
+        let (x, y) = crs.from_lon_lat(lon, lat).unwrap();
+        assert!((x - 150_000.0).abs() < 1e-6 && (y - 170_000.0).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,3 @@
+//! Survey data: ground control points from surveyors' files, CRSs, the local frame, fits.
+
+pub mod crs;

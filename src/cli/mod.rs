@@ -3,6 +3,7 @@
 mod calibrate;
 mod camera;
 mod demo;
+mod survey;
 
 use std::path::{Path, PathBuf};
 
@@ -39,6 +40,8 @@ pub struct Cli {
     command: Command,
 }
 
+// Parsed once per run; boxing the big variants would buy nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 enum Command {
     /// Calibrate a camera from checkerboard images, folders of images or videos
@@ -48,6 +51,9 @@ enum Command {
     Camera(camera::Command),
     /// Run the bundled example end to end and check it against its ground truth
     Demo(demo::Args),
+    /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
+    #[command(subcommand)]
+    Survey(survey::Command),
 }
 
 impl Cli {
@@ -56,6 +62,7 @@ impl Cli {
             Command::Calibrate(args) => calibrate::run(args),
             Command::Camera(cmd) => camera::run(cmd),
             Command::Demo(args) => demo::run(args),
+            Command::Survey(cmd) => survey::run(cmd),
         }
     }
 }

@@ -163,7 +163,7 @@ pub struct Crs {
     /// Metres per unit of the horizontal axes of a projected CRS (1 for metres).
     pub unit_m: f64,
     pub ellipsoid: Ellipsoid,
-    /// Name of the geodetic CRS the horizontal coordinates are on.
+    /// Name of the geodetic datum the horizontal coordinates are on.
     pub geodetic_name: String,
     to_geodetic: proj::Proj,
     from_geodetic: proj::Proj,
@@ -199,7 +199,10 @@ impl Crs {
             )?;
             ty = unsafe { sys::proj_get_type(crs.ptr) };
         }
-        let name = c_str_opt(unsafe { sys::proj_get_name(crs.ptr) }).unwrap_or_default();
+        // PROJ strings make nameless ("unknown") CRSs: the specification is the better name.
+        let name = c_str_opt(unsafe { sys::proj_get_name(crs.ptr) })
+            .filter(|n| !n.is_empty() && n != "unknown")
+            .unwrap_or_else(|| spec.trim().to_string());
         let id = match (
             c_str_opt(unsafe { sys::proj_get_id_auth_name(crs.ptr, 0) }),
             c_str_opt(unsafe { sys::proj_get_id_code(crs.ptr, 0) }),
@@ -270,8 +273,15 @@ impl Crs {
             spec,
             "no geodetic CRS",
         )?;
-        let geodetic_name =
-            c_str_opt(unsafe { sys::proj_get_name(geodetic.ptr) }).unwrap_or_default();
+        // The datum (an ensemble's common name for WGS 84, ETRS89), which says whether two CRSs
+        // share one.
+        let datum = unsafe { sys::proj_crs_get_datum_forced(ctx.ptr, geodetic.ptr) };
+        let geodetic_name = if datum.is_null() {
+            c_str_opt(unsafe { sys::proj_get_name(geodetic.ptr) }).unwrap_or_default()
+        } else {
+            let datum = Pj { ptr: datum };
+            c_str_opt(unsafe { sys::proj_get_name(datum.ptr) }).unwrap_or_default()
+        };
         let ell = ctx.wrap(
             unsafe { sys::proj_get_ellipsoid(ctx.ptr, geodetic.ptr) },
             spec,

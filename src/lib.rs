@@ -22,3 +22,4 @@ pub mod optim;
 pub mod progress;
 pub mod simulate;
 pub mod survey;
+pub mod terrain;

@@ -7,11 +7,14 @@
 //! height of the origin; over a site of a few hundred metres the geoid's slope (typically below
 //! 1e-5) changes `U` by millimetres at most.
 
-use nalgebra::{Matrix3, Vector3};
+use std::rc::Rc;
 
-use super::crs::{Crs, CrsError, HeightKind};
+use nalgebra::{Matrix3, Vector2, Vector3};
+
+use super::crs::{Crs, CrsError, HeightKind, Transform};
 use super::model::{Role, Survey, SurveyError};
 use crate::geom::geodesy::{Geodetic, LocalTangentFrame};
+use crate::terrain::{DemSurface, RasterGrid};
 
 /// Where the site frame's origin is.
 #[derive(Clone, Debug, PartialEq)]
@@ -218,6 +221,53 @@ impl SiteFrame {
             j.set_column(k, &col);
         }
         Ok(j * diagonal * j.transpose())
+    }
+}
+
+/// A DEM in any CRS as a height surface of the site frame: site positions are taken to the
+/// raster's CRS through PROJ (changing datum if they differ), and raster heights, assumed of the
+/// survey's kind, become site `U` exactly (the Earth's curvature included). A raster without a
+/// CRS must be in the site frame itself.
+pub fn dem_surface(
+    frame: Rc<SiteFrame>,
+    grid: RasterGrid,
+    raster_wkt: &str,
+) -> Result<DemSurface, CrsError> {
+    match (&frame.crs, raster_wkt.trim().is_empty()) {
+        (None, true) => Ok(DemSurface {
+            grid,
+            to_raster: Box::new(|en| Some((en.x, en.y))),
+            to_local_height: Box::new(|_, z| Some(z)),
+        }),
+        (None, false) => Err(CrsError {
+            spec: "raster".into(),
+            message: "the raster has a CRS but the survey is in its own local frame".into(),
+        }),
+        (Some(_), true) => Err(CrsError {
+            spec: "raster".into(),
+            message: "the raster has no CRS; geostride cannot place it in the site frame".into(),
+        }),
+        (Some(site_crs), false) => {
+            let raster_crs = Crs::new(raster_wkt)?;
+            let to_raster_t = Transform::new(site_crs, &raster_crs)?;
+            let f1 = Rc::clone(&frame);
+            let f2 = Rc::clone(&frame);
+            Ok(DemSurface {
+                grid,
+                to_raster: Box::new(move |en: &Vector2<f64>| {
+                    let src = f1
+                        .source_from_local(&Vector3::new(en.x, en.y, f64::NAN))
+                        .ok()?;
+                    to_raster_t.apply(src.x, src.y).ok()
+                }),
+                to_local_height: Box::new(move |en: &Vector2<f64>, z: f64| {
+                    let src = f2
+                        .source_from_local(&Vector3::new(en.x, en.y, f64::NAN))
+                        .ok()?;
+                    Some(f2.local_from_source(&Vector3::new(src.x, src.y, z)).ok()?.z)
+                }),
+            })
+        }
     }
 }
 

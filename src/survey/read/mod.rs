@@ -90,9 +90,15 @@ pub fn detect(text: &str) -> Option<SurveyFormat> {
     if looks_crs {
         return Some(SurveyFormat::Odm);
     }
-    // label,x,y,z rows with a delimiter: Metashape's reference export without comments.
-    let fields: Vec<&str> = first_data.split([',', '\t', ';']).collect();
-    if fields.len() >= 4 && fields[1..4].iter().all(|f| f.trim().parse::<f64>().is_ok()) {
+    // label,x,y,z rows with a delimiter (Metashape's reference export without comments),
+    // possibly under a header line.
+    let label_xyz = |l: &str| {
+        let f: Vec<&str> = l.split([',', '\t', ';']).collect();
+        f.len() >= 4 && f[1..4].iter().all(|x| x.trim().parse::<f64>().is_ok())
+    };
+    if label_xyz(first_data)
+        || (data.len() > 1 && label_xyz(data[1]) && first_data.to_ascii_lowercase().contains('x'))
+    {
         return Some(SurveyFormat::Metashape);
     }
     None

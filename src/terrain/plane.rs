@@ -1,0 +1,281 @@
+//! Planes: total least squares, RANSAC, and local planes fitted in a window around each query
+//! point of a point cloud (the paper's 2 m x 2 m local ground for moving-camera events).
+
+use nalgebra::{Matrix3, Vector2, Vector3};
+use rand::{Rng, RngExt};
+
+use super::HeightSurface;
+
+/// A plane `n · p = d` with `n` the upward unit normal.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plane {
+    pub normal: Vector3<f64>,
+    pub d: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlaneError {
+    #[error("a plane needs at least 3 points, got {0}")]
+    TooFewPoints(usize),
+    #[error("the points are collinear or vertical: no height surface")]
+    Degenerate,
+}
+
+impl Plane {
+    /// `z = gx·E + gy·N + c`.
+    pub fn from_gradient(gx: f64, gy: f64, c: f64) -> Plane {
+        let n = Vector3::new(-gx, -gy, 1.0);
+        let norm = n.norm();
+        Plane {
+            normal: n / norm,
+            d: c / norm,
+        }
+    }
+
+    /// Signed distance of a point from the plane (positive above).
+    pub fn distance(&self, p: &Vector3<f64>) -> f64 {
+        self.normal.dot(p) - self.d
+    }
+
+    /// Total least squares: the plane through the centroid whose normal is the direction of least
+    /// spread. Returns it with the RMS of the orthogonal distances.
+    pub fn fit(points: &[Vector3<f64>]) -> Result<(Plane, f64), PlaneError> {
+        if points.len() < 3 {
+            return Err(PlaneError::TooFewPoints(points.len()));
+        }
+        let n = points.len() as f64;
+        let c = points.iter().fold(Vector3::zeros(), |a, p| a + p) / n;
+        let mut cov = Matrix3::zeros();
+        for p in points {
+            let d = p - c;
+            cov += d * d.transpose();
+        }
+        let eig = cov.symmetric_eigen();
+        let mut idx = [0, 1, 2];
+        idx.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+        let (l0, l1) = (eig.eigenvalues[idx[0]], eig.eigenvalues[idx[1]]);
+        let mut normal: Vector3<f64> = eig.eigenvectors.column(idx[0]).into();
+        if l1 <= 1e-12 * eig.eigenvalues[idx[2]].max(1e-300) || normal.z.abs() < 1e-6 {
+            return Err(PlaneError::Degenerate);
+        }
+        if normal.z < 0.0 {
+            normal = -normal;
+        }
+        let plane = Plane {
+            d: normal.dot(&c),
+            normal,
+        };
+        Ok((plane, (l0.max(0.0) / n).sqrt()))
+    }
+
+    /// RANSAC on 3-point samples with an inlier distance, then a least-squares refit on the
+    /// inliers. Returns the plane and the inlier mask.
+    pub fn fit_ransac(
+        points: &[Vector3<f64>],
+        threshold_m: f64,
+        iterations: usize,
+        rng: &mut impl Rng,
+    ) -> Result<(Plane, Vec<bool>), PlaneError> {
+        let n = points.len();
+        if n < 3 {
+            return Err(PlaneError::TooFewPoints(n));
+        }
+        let mut best: Option<(usize, Plane)> = None;
+        for _ in 0..iterations.max(1) {
+            let i = rng.random_range(0..n);
+            let j = rng.random_range(0..n);
+            let k = rng.random_range(0..n);
+            if i == j || j == k || i == k {
+                continue;
+            }
+            let nrm = (points[j] - points[i]).cross(&(points[k] - points[i]));
+            if nrm.norm() < 1e-12 || nrm.z.abs() < 1e-6 * nrm.norm() {
+                continue;
+            }
+            let mut nrm = nrm.normalize();
+            if nrm.z < 0.0 {
+                nrm = -nrm;
+            }
+            let plane = Plane {
+                d: nrm.dot(&points[i]),
+                normal: nrm,
+            };
+            let count = points
+                .iter()
+                .filter(|p| plane.distance(p).abs() <= threshold_m)
+                .count();
+            if best.as_ref().is_none_or(|(c, _)| count > *c) {
+                best = Some((count, plane));
+            }
+        }
+        let (_, plane) = best.ok_or(PlaneError::Degenerate)?;
+        let mask: Vec<bool> = points
+            .iter()
+            .map(|p| plane.distance(p).abs() <= threshold_m)
+            .collect();
+        let inliers: Vec<Vector3<f64>> = points
+            .iter()
+            .zip(&mask)
+            .filter(|(_, m)| **m)
+            .map(|(p, _)| *p)
+            .collect();
+        let (refit, _) = Plane::fit(&inliers)?;
+        let mask = points
+            .iter()
+            .map(|p| refit.distance(p).abs() <= threshold_m)
+            .collect();
+        Ok((refit, mask))
+    }
+}
+
+impl HeightSurface for Plane {
+    fn height(&self, en: &Vector2<f64>) -> Option<f64> {
+        (self.normal.z.abs() > 1e-9)
+            .then(|| (self.d - self.normal.x * en.x - self.normal.y * en.y) / self.normal.z)
+    }
+
+    fn normal(&self, _: &Vector2<f64>) -> Option<Vector3<f64>> {
+        Some(self.normal)
+    }
+}
+
+/// Ground as a plane fitted, for each query, to the points of a cloud inside a square window
+/// around it. Points are bucketed on a grid of the window's size for lookup.
+pub struct LocalPlanes {
+    points: Vec<Vector3<f64>>,
+    window_m: f64,
+    cell: std::collections::HashMap<(i64, i64), Vec<usize>>,
+    /// Fewest points a window needs.
+    pub min_points: usize,
+}
+
+impl LocalPlanes {
+    /// `window_m` is the side of the square window (the paper: 2 m).
+    pub fn new(points: Vec<Vector3<f64>>, window_m: f64) -> Self {
+        let mut cell: std::collections::HashMap<(i64, i64), Vec<usize>> =
+            std::collections::HashMap::new();
+        for (i, p) in points.iter().enumerate() {
+            cell.entry(Self::key(p.x, p.y, window_m))
+                .or_default()
+                .push(i);
+        }
+        LocalPlanes {
+            points,
+            window_m,
+            cell,
+            min_points: 3,
+        }
+    }
+
+    fn key(e: f64, n: f64, size: f64) -> (i64, i64) {
+        ((e / size).floor() as i64, (n / size).floor() as i64)
+    }
+
+    /// The plane fitted in the window around a position.
+    pub fn plane_at(&self, en: &Vector2<f64>) -> Option<Plane> {
+        let half = self.window_m / 2.0;
+        let (ci, cj) = Self::key(en.x, en.y, self.window_m);
+        let mut near = Vec::new();
+        for di in -1..=1 {
+            for dj in -1..=1 {
+                if let Some(ids) = self.cell.get(&(ci + di, cj + dj)) {
+                    near.extend(
+                        ids.iter()
+                            .map(|&i| self.points[i])
+                            .filter(|p| (p.x - en.x).abs() <= half && (p.y - en.y).abs() <= half),
+                    );
+                }
+            }
+        }
+        if near.len() < self.min_points {
+            return None;
+        }
+        Plane::fit(&near).ok().map(|(p, _)| p)
+    }
+}
+
+impl HeightSurface for LocalPlanes {
+    fn height(&self, en: &Vector2<f64>) -> Option<f64> {
+        self.plane_at(en)?.height(en)
+    }
+
+    fn normal(&self, en: &Vector2<f64>) -> Option<Vector3<f64>> {
+        Some(self.plane_at(en)?.normal)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    fn noisy_plane(n: usize, seed: u64) -> Vec<Vector3<f64>> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 0.005).unwrap();
+        (0..n)
+            .map(|_| {
+                let (e, nn) = (rng.random_range(-20.0..20.0), rng.random_range(-20.0..20.0));
+                Vector3::new(e, nn, 0.02 * e - 0.01 * nn + 5.0 + noise.sample(&mut rng))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn least_squares_recovers_a_known_plane() {
+        let pts = noisy_plane(400, 1);
+        let (p, rms) = Plane::fit(&pts).unwrap();
+        let truth = Plane::from_gradient(0.02, -0.01, 5.0);
+        assert!((p.normal - truth.normal).norm() < 1e-3);
+        assert!((p.height(&Vector2::new(3.0, 4.0)).unwrap() - (0.06 - 0.04 + 5.0)).abs() < 2e-3);
+        assert!((rms - 0.005).abs() < 0.001, "{rms}");
+        assert_eq!(Plane::fit(&pts[..2]), Err(PlaneError::TooFewPoints(2)));
+        let line: Vec<_> = (0..5).map(|i| Vector3::new(i as f64, 0.0, 0.0)).collect();
+        assert_eq!(Plane::fit(&line), Err(PlaneError::Degenerate));
+    }
+
+    #[test]
+    fn ransac_ignores_people_and_clutter() {
+        let mut pts = noisy_plane(300, 2);
+        // 30 % of points 1-2 m above the ground: people, railings.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for p in pts.iter_mut().take(90) {
+            p.z += rng.random_range(1.0..2.0);
+        }
+        let (plane, inliers) = Plane::fit_ransac(&pts, 0.03, 200, &mut rng).unwrap();
+        assert!(inliers.iter().take(90).all(|m| !m));
+        assert!(inliers.iter().skip(90).filter(|m| **m).count() > 200);
+        assert!((plane.height(&Vector2::new(0.0, 0.0)).unwrap() - 5.0).abs() < 0.005);
+        let (ls, _) = Plane::fit(&pts).unwrap();
+        assert!(
+            (ls.height(&Vector2::zeros()).unwrap() - 5.0).abs() > 0.2,
+            "plain least squares is pulled up"
+        );
+    }
+
+    #[test]
+    fn local_planes_follow_a_curved_ground() {
+        // A gentle bowl z = 0.005 (E² + N²), sampled every 0.25 m.
+        let mut pts = Vec::new();
+        for i in -60..=60 {
+            for j in -60..=60 {
+                let (e, n) = (i as f64 * 0.25, j as f64 * 0.25);
+                pts.push(Vector3::new(e, n, 0.005 * (e * e + n * n)));
+            }
+        }
+        let local = LocalPlanes::new(pts, 2.0);
+        for &(e, n) in &[(0.0, 0.0), (8.0, -3.0), (-10.0, 10.0)] {
+            let z = 0.005 * (e * e + n * n);
+            let h = local.height(&Vector2::new(e, n)).unwrap();
+            // A plane over a 2 m window of a paraboloid errs by at most the curvature term.
+            assert!((h - z).abs() < 0.005 * 1.0 + 1e-9, "{e},{n}: {h} vs {z}");
+            let nrm = local.normal(&Vector2::new(e, n)).unwrap();
+            let expected = Vector3::new(-0.01 * e, -0.01 * n, 1.0).normalize();
+            assert!((nrm - expected).norm() < 1e-3);
+        }
+        assert!(
+            local.height(&Vector2::new(40.0, 0.0)).is_none(),
+            "no points there"
+        );
+    }
+}

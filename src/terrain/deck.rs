@@ -250,14 +250,14 @@ mod tests {
         let mut pts = Vec::new();
         while pts.len() < 500 {
             let en = Vector2::new(rng.random_range(0.0..62.0), rng.random_range(-2.0..40.0));
-            if let Some((s, off, _)) = probe.station(&en) {
-                if off.abs() <= 2.0 {
-                    pts.push(Vector3::new(
-                        en.x,
-                        en.y,
-                        truth.height_slope(s).unwrap().0 + noise.sample(&mut rng),
-                    ));
-                }
+            if let Some((s, off, _)) = probe.station(&en)
+                && off.abs() <= 2.0
+            {
+                pts.push(Vector3::new(
+                    en.x,
+                    en.y,
+                    truth.height_slope(s).unwrap().0 + noise.sample(&mut rng),
+                ));
             }
         }
         let stations: Vec<f64> = (0..=10).map(|k| 100.0 + 10.0 * k as f64).collect();

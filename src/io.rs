@@ -3,6 +3,67 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+/// An input file that cannot be used: which file, where (line, field or column), what was
+/// expected. Every reader reports through this.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct FileError {
+    pub path: PathBuf,
+    pub line: Option<usize>,
+    pub field: Option<String>,
+    pub message: String,
+}
+
+impl std::fmt::Display for FileError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.path.display())?;
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+        }
+        if let Some(field) = &self.field {
+            write!(f, ": field '{field}'")?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+/// Builds [`FileError`]s for one file.
+#[derive(Clone, Copy)]
+pub struct FileCtx<'a> {
+    pub path: &'a Path,
+}
+
+impl FileCtx<'_> {
+    pub fn err(
+        &self,
+        line: Option<usize>,
+        field: Option<&str>,
+        message: impl Into<String>,
+    ) -> FileError {
+        FileError {
+            path: self.path.to_path_buf(),
+            line,
+            field: field.map(str::to_string),
+            message: message.into(),
+        }
+    }
+
+    pub fn at(&self, line: usize, message: impl Into<String>) -> FileError {
+        self.err(Some(line), None, message)
+    }
+
+    /// Parses a number, naming the line and field on failure.
+    pub fn number(&self, text: &str, line: usize, field: &str) -> Result<f64, FileError> {
+        let t = text.trim();
+        t.parse::<f64>().map_err(|_| {
+            self.err(
+                Some(line),
+                Some(field),
+                format!("expected a number, found '{t}'"),
+            )
+        })
+    }
+}
+
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over the target. A failed write leaves no partial file and never touches the target.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

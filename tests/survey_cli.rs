@@ -380,7 +380,7 @@ fn bad_inputs_exit_2_with_the_file_and_line() {
     let o = run(&["survey", "inspect"], &[&f]);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        stderr(&o).contains("gcp_list.txt:3: column 'z': expected a number, found 'x'"),
+        stderr(&o).contains("gcp_list.txt:3: field 'z': expected a number, found 'x'"),
         "{}",
         stderr(&o)
     );

@@ -1,6 +1,6 @@
 //! Ground control points as surveyors' files describe them (pure).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use nalgebra::{Vector2, Vector3};
 use serde::Serialize;
@@ -174,62 +174,6 @@ impl Survey {
     }
 }
 
-/// A survey file that cannot be read: which file, where, what was expected.
-#[derive(Debug, thiserror::Error, Clone, PartialEq)]
-pub struct SurveyError {
-    pub path: PathBuf,
-    pub line: Option<usize>,
-    pub field: Option<String>,
-    pub message: String,
-}
-
-impl std::fmt::Display for SurveyError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}", self.path.display())?;
-        if let Some(l) = self.line {
-            write!(f, ":{l}")?;
-        }
-        if let Some(field) = &self.field {
-            write!(f, ": column '{field}'")?;
-        }
-        write!(f, ": {}", self.message)
-    }
-}
-
-/// Builds errors for one file.
-#[derive(Clone, Copy)]
-pub struct Ctx<'a> {
-    pub path: &'a Path,
-}
-
-impl Ctx<'_> {
-    pub fn err(
-        &self,
-        line: Option<usize>,
-        field: Option<&str>,
-        message: impl Into<String>,
-    ) -> SurveyError {
-        SurveyError {
-            path: self.path.to_path_buf(),
-            line,
-            field: field.map(str::to_string),
-            message: message.into(),
-        }
-    }
-
-    pub fn at(&self, line: usize, message: impl Into<String>) -> SurveyError {
-        self.err(Some(line), None, message)
-    }
-
-    /// Parses a number, naming the line and column on failure.
-    pub fn number(&self, text: &str, line: usize, field: &str) -> Result<f64, SurveyError> {
-        let t = text.trim();
-        t.parse::<f64>().map_err(|_| {
-            self.err(
-                Some(line),
-                Some(field),
-                format!("expected a number, found '{t}'"),
-            )
-        })
-    }
-}
+/// A survey file that cannot be read.
+pub type SurveyError = crate::io::FileError;
+pub use crate::io::FileCtx as Ctx;

@@ -97,11 +97,7 @@ pub fn metashape(crs: &OutCrs, points: &[OutPoint]) -> String {
     );
     // Metashape has no disabled state: an unticked marker is a check point.
     for p in points.iter().filter(|p| p.gcp.role != Role::Disabled) {
-        let sig = p
-            .gcp
-            .sigma_m
-            .map(|v| [num(v.x), num(v.y), num(v.z)])
-            .unwrap_or_default();
+        let sig = sigma_fields(p.gcp);
         let _ = writeln!(
             s,
             "{},{},{},{},{},{},{},{}",
@@ -152,6 +148,13 @@ pub fn petrack(points: &[OutPoint]) -> Result<String, WriteError> {
         s.push('\n');
     }
     Ok(s)
+}
+
+/// The σ of a point as three fields, empty when unknown.
+fn sigma_fields(g: &Gcp) -> [String; 3] {
+    g.sigma_m
+        .map(|v| [num(v.x), num(v.y), num(v.z)])
+        .unwrap_or_default()
 }
 
 fn csv_field(s: &str) -> String {
@@ -219,10 +222,7 @@ pub fn csv(points: &[OutPoint]) -> String {
     s.push('\n');
     for p in points {
         let g = p.gcp;
-        let sig = g
-            .sigma_m
-            .map(|v| [num(v.x), num(v.y), num(v.z)])
-            .unwrap_or_default();
+        let sig = sigma_fields(g);
         let _ = write!(
             s,
             "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",

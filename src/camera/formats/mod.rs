@@ -7,9 +7,7 @@ mod json;
 mod metashape;
 mod opencv;
 
-use std::path::{Path, PathBuf};
-
-use thiserror::Error;
+use std::path::Path;
 
 use super::Calibration;
 
@@ -59,49 +57,9 @@ impl Format {
     }
 }
 
-/// A calibration file that cannot be read or written: which file, where, what was expected.
-#[derive(Debug, Error)]
-pub struct FormatError {
-    pub path: PathBuf,
-    pub line: Option<usize>,
-    pub field: Option<String>,
-    pub message: String,
-}
-
-impl std::fmt::Display for FormatError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}", self.path.display())?;
-        if let Some(l) = self.line {
-            write!(f, ":{l}")?;
-        }
-        if let Some(field) = &self.field {
-            write!(f, ": field '{field}'")?;
-        }
-        write!(f, ": {}", self.message)
-    }
-}
-
-/// Builds errors for one file.
-#[derive(Clone)]
-pub(crate) struct Ctx<'a> {
-    pub path: &'a Path,
-}
-
-impl Ctx<'_> {
-    pub fn err(
-        &self,
-        line: Option<usize>,
-        field: Option<&str>,
-        message: impl Into<String>,
-    ) -> FormatError {
-        FormatError {
-            path: self.path.to_path_buf(),
-            line,
-            field: field.map(str::to_string),
-            message: message.into(),
-        }
-    }
-}
+/// A calibration file that cannot be read or written.
+pub type FormatError = crate::io::FileError;
+pub(crate) use crate::io::FileCtx as Ctx;
 
 /// Reads a calibration file, detecting its format from the content unless `format` is given.
 pub fn read(path: &Path, format: Option<Format>) -> Result<Calibration, FormatError> {

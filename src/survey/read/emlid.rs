@@ -8,7 +8,7 @@ use nalgebra::Vector3;
 use super::table::{read_table, sniff_delimiter};
 use super::{HeightChoice, ReadOptions, apply_fix_policy};
 use crate::survey::crs::{Crs, HeightKind, Horizontal};
-use crate::survey::model::{Ctx, Dropped, Gcp, SolutionStatus, Survey, SurveyError, SurveyFormat};
+use crate::survey::model::{Ctx, Gcp, SolutionStatus, Survey, SurveyError, SurveyFormat};
 
 /// Columns of the first generation (27); the second adds 15 more, all optional here.
 pub const COLUMNS_27: [&str; 27] = [
@@ -193,21 +193,8 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     };
     for r in &rows {
         let name = cell(r, name_col);
-        if name.is_empty() {
-            dropped.push(Dropped {
-                line: r.line,
-                reason: "no point name".into(),
-            });
+        if !super::admit_name(ctx, &points, &mut dropped, &name, r.line)? {
             continue;
-        }
-        if let Some(prev) = points.iter().find(|p| p.name == name) {
-            return Err(ctx.at(
-                r.line,
-                format!(
-                    "duplicate point name '{name}' (first on line {})",
-                    prev.line
-                ),
-            ));
         }
         let num = |c: usize, field: &str| ctx.number(&cell(r, c), r.line, field);
         let (xf, yf) = if projected {

@@ -7,9 +7,7 @@ use nalgebra::Vector3;
 use super::ReadOptions;
 use super::table::{Field, Row, read_table, sniff_delimiter};
 use crate::survey::crs::HeightKind;
-use crate::survey::model::{
-    Ctx, Dropped, Gcp, Role, SolutionStatus, Survey, SurveyError, SurveyFormat,
-};
+use crate::survey::model::{Ctx, Gcp, Role, SolutionStatus, Survey, SurveyError, SurveyFormat};
 
 /// The CRS named in a Metashape comment: `EPSG::nnnn` in parentheses, or a local frame.
 fn crs_from_comments(comments: &[(usize, String)]) -> Option<Option<String>> {
@@ -191,21 +189,8 @@ pub(super) fn read(
             Some(_) => cell(get(Field::Name)).to_string(),
             None => format!("P{}", points.len() + 1),
         };
-        if name.is_empty() {
-            dropped.push(Dropped {
-                line: r.line,
-                reason: "no point name".into(),
-            });
+        if !super::admit_name(ctx, &points, &mut dropped, &name, r.line)? {
             continue;
-        }
-        if let Some(prev) = points.iter().find(|p| p.name == name) {
-            return Err(ctx.at(
-                r.line,
-                format!(
-                    "duplicate point name '{name}' (first on line {})",
-                    prev.line
-                ),
-            ));
         }
         let x = ctx.number(cell(get(Field::X)), r.line, "x")?;
         let y = ctx.number(cell(get(Field::Y)), r.line, "y")?;

@@ -265,6 +265,34 @@ pub fn assign_roles(
     Ok(())
 }
 
+/// Whether a row's point name may start a new point: an empty name is a dropped row (Ok(false)),
+/// a name seen before is an error naming both lines.
+pub(crate) fn admit_name(
+    ctx: &Ctx,
+    points: &[super::model::Gcp],
+    dropped: &mut Vec<super::model::Dropped>,
+    name: &str,
+    line: usize,
+) -> Result<bool, SurveyError> {
+    if name.is_empty() {
+        dropped.push(super::model::Dropped {
+            line,
+            reason: "no point name".into(),
+        });
+        return Ok(false);
+    }
+    if let Some(prev) = points.iter().find(|p| p.name == name) {
+        return Err(ctx.at(
+            line,
+            format!(
+                "duplicate point name '{name}' (first on line {})",
+                prev.line
+            ),
+        ));
+    }
+    Ok(true)
+}
+
 /// Warns about, or with `fix_only` drops, points whose solution is not FIX.
 pub(crate) fn apply_fix_policy(survey: &mut Survey, fix_only: bool) {
     use super::model::{Dropped, SolutionStatus};

@@ -35,3 +35,136 @@ pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
     }
     crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
 }
+
+/// A scalar map for [`write_heatmap`]: row-major values, a title, and the unit of the labels
+/// (values are multiplied by `scale` for them, e.g. 100 for centimetres).
+pub struct HeatMap<'a> {
+    pub cols: usize,
+    pub rows: usize,
+    pub values: &'a [f64],
+    pub title: String,
+    pub unit: &'a str,
+    pub scale: f64,
+}
+
+/// Writes a scalar map as a PNG heat map (viridis) with a colour bar and a title. NaN cells are
+/// black. The map is scaled up to about `width_px` wide.
+pub fn write_heatmap(path: &Path, map: &HeatMap, width_px: i32) -> Result<(), String> {
+    let HeatMap {
+        cols,
+        rows,
+        values,
+        title,
+        unit,
+        scale,
+    } = map;
+    let (cols, rows, scale) = (*cols, *rows, *scale);
+    use opencv::core::{CV_8UC3, Point, Rect, Scalar, Size};
+    use opencv::imgproc;
+    let err = |e: opencv::Error| format!("{}: {e}", path.display());
+    let vmax = values
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    let grey: Vec<u8> = values
+        .iter()
+        .map(|v| {
+            if v.is_finite() && vmax > 0.0 {
+                (v / vmax * 255.0).round().clamp(0.0, 255.0) as u8
+            } else {
+                0
+            }
+        })
+        .collect();
+    let small = Mat::new_rows_cols_with_data(rows as i32, cols as i32, &grey).map_err(err)?;
+    let mut coloured = Mat::default();
+    imgproc::apply_color_map(&small, &mut coloured, imgproc::COLORMAP_VIRIDIS).map_err(err)?;
+    // NaN cells black.
+    for (i, v) in values.iter().enumerate() {
+        if !v.is_finite() {
+            let (r, c) = ((i / cols) as i32, (i % cols) as i32);
+            *coloured
+                .at_2d_mut::<opencv::core::Vec3b>(r, c)
+                .map_err(err)? = opencv::core::Vec3b::from([0, 0, 0]);
+        }
+    }
+    let map_w = width_px.max(64);
+    let map_h = ((map_w as f64) * rows as f64 / cols as f64)
+        .round()
+        .max(1.0) as i32;
+    let mut big = Mat::default();
+    imgproc::resize(
+        &coloured,
+        &mut big,
+        Size::new(map_w, map_h),
+        0.0,
+        0.0,
+        imgproc::INTER_LINEAR,
+    )
+    .map_err(err)?;
+
+    // Canvas: title band on top, colour bar and labels on the right.
+    let (top, bar_w, right) = (40, 24, 110);
+    let mut canvas = Mat::new_rows_cols_with_default(
+        map_h + top + 20,
+        map_w + right + 20,
+        CV_8UC3,
+        Scalar::all(255.0),
+    )
+    .map_err(err)?;
+    let mut roi = Mat::roi_mut(&mut canvas, Rect::new(10, top, map_w, map_h)).map_err(err)?;
+    big.copy_to(&mut roi).map_err(err)?;
+    let ramp: Vec<u8> = (0..map_h)
+        .map(|y| (255.0 * (1.0 - y as f64 / (map_h - 1).max(1) as f64)).round() as u8)
+        .collect();
+    let ramp = Mat::new_rows_cols_with_data(map_h, 1, &ramp).map_err(err)?;
+    let mut ramp_c = Mat::default();
+    imgproc::apply_color_map(&ramp, &mut ramp_c, imgproc::COLORMAP_VIRIDIS).map_err(err)?;
+    let mut bar = Mat::default();
+    imgproc::resize(
+        &ramp_c,
+        &mut bar,
+        Size::new(bar_w, map_h),
+        0.0,
+        0.0,
+        imgproc::INTER_NEAREST,
+    )
+    .map_err(err)?;
+    let x_bar = 10 + map_w + 15;
+    let mut roi = Mat::roi_mut(&mut canvas, Rect::new(x_bar, top, bar_w, map_h)).map_err(err)?;
+    bar.copy_to(&mut roi).map_err(err)?;
+    let black = Scalar::new(0.0, 0.0, 0.0, 0.0);
+    for k in 0..=4 {
+        let f = f64::from(k) / 4.0;
+        let y = top + ((1.0 - f) * f64::from(map_h - 1)).round() as i32;
+        let label = format!("{:.1} {unit}", vmax * f * scale);
+        imgproc::put_text(
+            &mut canvas,
+            &label,
+            Point::new(x_bar + bar_w + 5, y + 5),
+            imgproc::FONT_HERSHEY_SIMPLEX,
+            0.4,
+            black,
+            1,
+            imgproc::LINE_AA,
+            false,
+        )
+        .map_err(err)?;
+    }
+    imgproc::put_text(
+        &mut canvas,
+        title,
+        Point::new(10, 25),
+        imgproc::FONT_HERSHEY_SIMPLEX,
+        0.55,
+        black,
+        1,
+        imgproc::LINE_AA,
+        false,
+    )
+    .map_err(err)?;
+    let mut buf = Vector::<u8>::new();
+    imgcodecs::imencode(".png", &canvas, &mut buf, &Vector::new()).map_err(err)?;
+    crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
+}

@@ -3,6 +3,7 @@
 mod calibrate;
 mod camera;
 mod demo;
+mod plan;
 mod survey;
 
 use std::path::{Path, PathBuf};
@@ -51,6 +52,8 @@ enum Command {
     Camera(camera::Command),
     /// Run the bundled example end to end and check it against its ground truth
     Demo(demo::Args),
+    /// Plan a flight: footprint, ground sample distance and error maps for a camera and altitude
+    Plan(plan::Args),
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
     #[command(subcommand)]
     Survey(survey::Command),
@@ -63,6 +66,7 @@ impl Cli {
             Command::Camera(cmd) => camera::run(cmd),
             Command::Demo(args) => demo::run(args),
             Command::Survey(cmd) => survey::run(cmd),
+            Command::Plan(args) => plan::run(args),
         }
     }
 }

@@ -36,6 +36,28 @@ pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
     crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// Writes an 8-bit RGB image (row-major); the format follows the extension.
+pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), String> {
+    let err = |e: opencv::Error| format!("{}: {e}", path.display());
+    let mat = Mat::new_rows_cols_with_data(height as i32, width as i32 * 3, rgb).map_err(err)?;
+    let mat = mat.reshape(3, height as i32).map_err(err)?;
+    let mut bgr = Mat::default();
+    opencv::imgproc::cvt_color_def(&mat, &mut bgr, opencv::imgproc::COLOR_RGB2BGR).map_err(err)?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| format!(".{e}"))
+        .ok_or_else(|| {
+            format!(
+                "{}: no file extension to choose the image format",
+                path.display()
+            )
+        })?;
+    let mut buf = Vector::<u8>::new();
+    imgcodecs::imencode(&ext, &bgr, &mut buf, &Vector::new()).map_err(err)?;
+    crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
+}
+
 /// A scalar map for [`write_heatmap`]: row-major values, a title, and the unit of the labels
 /// (values are multiplied by `scale` for them, e.g. 100 for centimetres).
 pub struct HeatMap<'a> {

@@ -23,3 +23,4 @@ pub mod progress;
 pub mod simulate;
 pub mod survey;
 pub mod terrain;
+pub mod video;

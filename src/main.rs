@@ -3,6 +3,11 @@ use clap::Parser;
 use geostride::cli::{BadInput, Cli};
 
 fn main() {
+    // Die quietly on a closed pipe (`geostride ... | head`) instead of panicking on the write.
+    #[cfg(unix)]
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     if let Err(e) = cli.run() {
         eprintln!("error: {e:#}");

@@ -7,6 +7,7 @@
 
 pub mod formats;
 mod model;
+pub mod presets;
 
 pub use model::{Camera, CameraError, ImageSize, N_PARAMS, PARAM_NAMES, ParamJacobian, param};
 

@@ -124,6 +124,27 @@ impl Camera {
         self
     }
 
+    /// The same camera at another resolution of the same aspect ratio (a video mode, say), or
+    /// `None` when the aspect ratio differs (the sensor crop would be unknown). Pixel centres stay
+    /// at integers: `c' = (c + 0.5)·s − 0.5`.
+    pub fn scaled_to(&self, width: u32, height: u32) -> Option<Camera> {
+        let size = self.image_size?;
+        let sx = f64::from(width) / f64::from(size.width);
+        let sy = f64::from(height) / f64::from(size.height);
+        if (sx - sy).abs() > 1e-3 * sx {
+            return None;
+        }
+        Some(Camera {
+            image_size: Some(ImageSize { width, height }),
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: (self.cx + 0.5) * sx - 0.5,
+            cy: (self.cy + 0.5) * sy - 0.5,
+            skew: self.skew * sx,
+            dist: self.dist,
+        })
+    }
+
     /// All parameters in [`PARAM_NAMES`] order.
     pub fn params(&self) -> [f64; N_PARAMS] {
         let d = &self.dist;

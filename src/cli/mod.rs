@@ -4,6 +4,7 @@ mod calibrate;
 mod camera;
 mod demo;
 mod plan;
+mod simulate;
 mod survey;
 
 use std::path::{Path, PathBuf};
@@ -52,6 +53,8 @@ enum Command {
     Camera(camera::Command),
     /// Run the bundled example end to end and check it against its ground truth
     Demo(demo::Args),
+    /// Render a simulated scene (drone video of walkers or runners) with exact ground truth
+    Simulate(simulate::Args),
     /// Plan a flight: footprint, ground sample distance and error maps for a camera and altitude
     Plan(plan::Args),
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
@@ -67,6 +70,7 @@ impl Cli {
             Command::Demo(args) => demo::run(args),
             Command::Survey(cmd) => survey::run(cmd),
             Command::Plan(args) => plan::run(args),
+            Command::Simulate(args) => simulate::run(args),
         }
     }
 }

@@ -6,23 +6,9 @@ use anyhow::{Context, anyhow};
 
 use super::{bad_input, parse_positive};
 use crate::camera::Camera;
-use crate::camera::formats::{self, Format};
+use crate::camera::{formats, presets};
 use crate::imageio::HeatMap;
 use crate::simulate::plan::{PixelNoise, PlanSettings, plan};
-
-/// Nominal camera presets shipped in `calib/` (embedded so that they work from any folder).
-const PRESETS: [(&str, &str, &str); 2] = [
-    (
-        "mavic3e",
-        "calib/dji-mavic3e-4k.json",
-        include_str!("../../calib/dji-mavic3e-4k.json"),
-    ),
-    (
-        "mini3pro",
-        "calib/dji-mini3pro-4k.json",
-        include_str!("../../calib/dji-mini3pro-4k.json"),
-    ),
-];
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
@@ -88,18 +74,16 @@ pub struct Args {
     json: bool,
 }
 
-fn load_camera(spec: &str) -> anyhow::Result<(Camera, String)> {
-    if let Some((_, path, text)) = PRESETS.iter().find(|(n, _, _)| *n == spec) {
-        let cal =
-            formats::parse(Path::new(path), text, Some(Format::Json)).map_err(|e| anyhow!(e))?;
-        return Ok((cal.camera, format!("preset {spec} ({path}, nominal)")));
+/// A preset by name or a calibration file.
+pub(crate) fn load_camera(spec: &str) -> anyhow::Result<(Camera, String)> {
+    if let Some(cal) = presets::preset(spec) {
+        return Ok((cal.camera, format!("preset {spec} (nominal)")));
     }
     let path = Path::new(spec);
     if !path.exists() {
-        let names: Vec<&str> = PRESETS.iter().map(|(n, _, _)| *n).collect();
         return Err(bad_input(anyhow!(
             "--camera '{spec}' is neither a preset ({}) nor a file",
-            names.join(", ")
+            presets::names().join(", ")
         )));
     }
     let cal = formats::read(path, None).map_err(bad_input)?;
@@ -107,31 +91,17 @@ fn load_camera(spec: &str) -> anyhow::Result<(Camera, String)> {
 }
 
 /// The camera scaled to another resolution of the same aspect ratio.
-fn scale_to(camera: Camera, w: u32, h: u32) -> anyhow::Result<Camera> {
+pub(crate) fn scale_to(camera: Camera, w: u32, h: u32) -> anyhow::Result<Camera> {
     let size = camera
         .image_size
         .ok_or_else(|| bad_input(anyhow!("the camera has no image size to scale from")))?;
-    let (sx, sy) = (
-        f64::from(w) / f64::from(size.width),
-        f64::from(h) / f64::from(size.height),
-    );
-    if (sx - sy).abs() > 1e-3 * sx {
-        return Err(bad_input(anyhow!(
-            "--video-mode {w}x{h} has another aspect ratio than the camera's {}x{}: the sensor crop is unknown; use a calibration made in that mode",
+    camera.scaled_to(w, h).ok_or_else(|| {
+        bad_input(anyhow!(
+            "video mode {w}x{h} has another aspect ratio than the camera's {}x{}: the sensor crop is unknown; use a calibration made in that mode",
             size.width,
             size.height
-        )));
-    }
-    // Pixel centres at integers: (c + 0.5)·s − 0.5.
-    Ok(Camera {
-        fx: camera.fx * sx,
-        fy: camera.fy * sy,
-        cx: (camera.cx + 0.5) * sx - 0.5,
-        cy: (camera.cy + 0.5) * sy - 0.5,
-        skew: camera.skew * sx,
-        ..camera
-    }
-    .with_image_size(w, h))
+        ))
+    })
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {

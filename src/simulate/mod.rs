@@ -1,4 +1,11 @@
-//! Synthetic scenes with exact ground truth (pure).
+//! Synthetic scenes with exact ground truth (pure), and survey planning.
 
 pub mod board;
+pub mod flight;
+pub mod noise;
+pub mod people;
 pub mod plan;
+pub mod render;
+pub mod run;
+pub mod scene;
+pub mod world;

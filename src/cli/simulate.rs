@@ -1,0 +1,139 @@
+//! `geostride simulate`: render a scene with exact ground truth.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, anyhow};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::bad_input;
+use super::plan::{load_camera, scale_to};
+use crate::simulate::run::{Overrides, SimError, Summary, simulate};
+use crate::simulate::scene::Scene;
+
+#[derive(clap::Args)]
+#[command(
+    after_help = "The scene file format is described in docs/simulate.md; examples are in surveys/."
+)]
+pub struct Args {
+    /// Scene description (TOML)
+    scene: PathBuf,
+    /// Output folder (created): video, frames, truth/, gcps.csv, picks.csv, checkerboards/
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Seed, overriding the scene's
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Duration in seconds, overriding the scene's
+    #[arg(long, value_name = "S")]
+    duration: Option<f64>,
+    /// Write every N-th frame as PNG, overriding the scene's output.frames_every
+    #[arg(long, value_name = "N")]
+    frames_every: Option<u32>,
+    /// Skip the video (truth and exports only)
+    #[arg(long)]
+    no_video: bool,
+    /// No progress bar
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+/// Loads a scene and its camera (a preset name, or a file relative to the scene).
+pub(crate) fn load(scene_path: &Path) -> anyhow::Result<(Scene, crate::camera::Camera, String)> {
+    let scene = Scene::load(scene_path).map_err(bad_input)?;
+    let spec = &scene.camera.calibration;
+    let cam_spec = if crate::camera::presets::preset(spec).is_some() {
+        spec.clone()
+    } else {
+        scene
+            .calibration_path(scene_path)
+            .to_string_lossy()
+            .into_owned()
+    };
+    let (mut camera, source) = load_camera(&cam_spec)
+        .with_context(|| format!("{}: camera.calibration", scene_path.display()))?;
+    if let Some([w, h]) = scene.camera.video_mode {
+        camera = scale_to(camera, w, h)?;
+    }
+    Ok((scene, camera, source))
+}
+
+/// Runs one scene with a progress bar.
+pub(crate) fn run_scene(
+    scene_path: &Path,
+    out: &Path,
+    over: &Overrides,
+    quiet: bool,
+) -> anyhow::Result<Summary> {
+    let (scene, camera, source) = load(scene_path)?;
+    if let Some(d) = over.duration_s
+        && !(d > 0.0)
+    {
+        return Err(bad_input(anyhow!("--duration must be positive")));
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        let b = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} rendering {bar:30} {pos}/{len} frames ({per_sec}, {eta})",
+            )
+            .expect("template"),
+        );
+        b
+    };
+    if !quiet {
+        eprintln!(
+            "{}: {} with {}",
+            scene_path.display(),
+            if scene.name.is_empty() {
+                "scene"
+            } else {
+                &scene.name
+            },
+            source
+        );
+    }
+    let summary = simulate(&scene, &camera, out, over, &bar).map_err(|e| match e {
+        SimError::Input(m) => bad_input(anyhow!("{}: {m}", scene_path.display())),
+        SimError::Output(m) => anyhow!(m),
+    })?;
+    bar.finish_and_clear();
+    Ok(summary)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let over = Overrides {
+        seed: args.seed,
+        duration_s: args.duration,
+        no_video: args.no_video,
+        frames_every: args.frames_every,
+    };
+    let s = run_scene(&args.scene, &args.out, &over, args.quiet)?;
+    print_summary(&s);
+    Ok(())
+}
+
+pub(crate) fn print_summary(s: &Summary) {
+    println!(
+        "Rendered {} frame(s) of {}x{}: {} people, {} of them seen",
+        s.frames, s.image_size[0], s.image_size[1], s.people, s.people_in_view
+    );
+    if let (Some(v), Some(c)) = (&s.video, &s.codec) {
+        println!("  video: {} ({c})", v.display());
+    }
+    for f in &s.files {
+        if Some(f) != s.video.as_ref() && !f.to_string_lossy().contains("checkerboards") {
+            println!("  {}", f.display());
+        }
+    }
+    let boards = s
+        .files
+        .iter()
+        .filter(|f| f.to_string_lossy().contains("checkerboards"))
+        .count();
+    if boards > 0 {
+        println!("  {boards} checkerboard image(s) in checkerboards/");
+    }
+}

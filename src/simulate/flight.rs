@@ -1,0 +1,150 @@
+//! Camera motion over a scene (pure): hovering with drift and jitter, along waypoints, or
+//! following a group.
+
+use nalgebra::{Matrix3, Rotation3, Vector3};
+
+use super::noise::{gaussian, hash};
+use super::render::CameraPose;
+use super::scene::Motion;
+
+/// World from camera for a nadir camera whose image top points to `heading_deg` (from north):
+/// camera x right, y down (towards the image bottom), z down.
+pub fn nadir(heading_deg: f64) -> Matrix3<f64> {
+    let a = heading_deg.to_radians();
+    let up = Vector3::new(a.sin(), a.cos(), 0.0);
+    let right = Vector3::new(a.cos(), -a.sin(), 0.0);
+    Matrix3::from_columns(&[right, -up, Vector3::new(0.0, 0.0, -1.0)])
+}
+
+/// Small rotation jitter for frame `index`: independent per frame, σ `deg` about each axis.
+fn jitter(seed: u64, index: usize, deg: f64) -> Matrix3<f64> {
+    if deg <= 0.0 {
+        return Matrix3::identity();
+    }
+    let s = deg.to_radians();
+    let v = Vector3::new(
+        gaussian(hash(&[seed, index as u64, 1])) * s,
+        gaussian(hash(&[seed, index as u64, 2])) * s,
+        gaussian(hash(&[seed, index as u64, 3])) * s,
+    );
+    *Rotation3::from_scaled_axis(v).matrix()
+}
+
+/// The camera pose at frame `index` (time `t`); `group_centre` is the centroid of the people
+/// present, for `follow`.
+pub fn camera_pose(
+    motion: &Motion,
+    seed: u64,
+    index: usize,
+    t: f64,
+    group_centre: Option<Vector3<f64>>,
+) -> CameraPose {
+    match motion {
+        Motion::Hover {
+            position,
+            heading_deg,
+            drift_m,
+            drift_period_s,
+            jitter_deg,
+        } => {
+            let w = std::f64::consts::TAU * t / drift_period_s.max(1e-3);
+            let drift = Vector3::new(
+                (w).sin(),
+                (0.7 * w + 1.0).sin(),
+                0.3 * (1.3 * w + 2.0).sin(),
+            ) * *drift_m;
+            // A slow tilt of a tenth of a degree, as a gimbal settles.
+            let tilt = Rotation3::from_scaled_axis(Vector3::new(
+                0.1f64.to_radians() * (0.5 * w).sin(),
+                0.1f64.to_radians() * (0.4 * w).cos(),
+                0.0,
+            ));
+            CameraPose {
+                centre: Vector3::new(position[0], position[1], position[2]) + drift,
+                world_from_cam: tilt.matrix()
+                    * nadir(*heading_deg)
+                    * jitter(seed, index, *jitter_deg),
+            }
+        }
+        Motion::Path {
+            waypoints,
+            speed_m_s,
+            heading_deg,
+            jitter_deg,
+        } => {
+            let mut remaining = speed_m_s * t;
+            let mut pos = Vector3::new(waypoints[0][0], waypoints[0][1], waypoints[0][2]);
+            for w in waypoints.windows(2) {
+                let (a, b) = (Vector3::from(w[0]), Vector3::from(w[1]));
+                let len = (b - a).norm();
+                if remaining <= len {
+                    pos = a + (b - a) * (remaining / len.max(1e-12));
+                    break;
+                }
+                remaining -= len;
+                pos = b;
+            }
+            CameraPose {
+                centre: pos,
+                world_from_cam: nadir(*heading_deg) * jitter(seed, index, *jitter_deg),
+            }
+        }
+        Motion::Follow {
+            altitude_m,
+            heading_deg,
+            jitter_deg,
+        } => {
+            let c = group_centre.unwrap_or_else(Vector3::zeros);
+            CameraPose {
+                centre: Vector3::new(c.x, c.y, c.z + altitude_m),
+                world_from_cam: nadir(*heading_deg) * jitter(seed, index, *jitter_deg),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nadir_looks_down_with_the_image_top_to_the_heading() {
+        let r = nadir(0.0);
+        assert_eq!(r * Vector3::z(), Vector3::new(0.0, 0.0, -1.0));
+        // Image up (−y) is north.
+        assert!((r * -Vector3::y() - Vector3::new(0.0, 1.0, 0.0)).norm() < 1e-12);
+        assert!((r * Vector3::x() - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-12);
+        let r90 = nadir(90.0);
+        assert!((r90 * -Vector3::y() - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-12);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn paths_are_followed_at_speed_and_hover_drifts_slowly() {
+        let m = Motion::Path {
+            waypoints: vec![[0.0, 0.0, 30.0], [10.0, 0.0, 30.0], [10.0, 10.0, 30.0]],
+            speed_m_s: 2.0,
+            heading_deg: 0.0,
+            jitter_deg: 0.0,
+        };
+        assert!(
+            (camera_pose(&m, 1, 0, 7.5, None).centre - Vector3::new(10.0, 5.0, 30.0)).norm()
+                < 1e-12
+        );
+        assert!(
+            (camera_pose(&m, 1, 0, 100.0, None).centre - Vector3::new(10.0, 10.0, 30.0)).norm()
+                < 1e-12
+        );
+        let h = Motion::Hover {
+            position: [0.0, 0.0, 30.0],
+            heading_deg: 0.0,
+            drift_m: 0.3,
+            drift_period_s: 40.0,
+            jitter_deg: 0.02,
+        };
+        let a = camera_pose(&h, 1, 0, 0.0, None);
+        let b = camera_pose(&h, 1, 1, 0.04, None);
+        assert!((a.centre - b.centre).norm() < 0.01);
+        assert_eq!(camera_pose(&h, 1, 1, 0.04, None), b, "deterministic");
+    }
+}

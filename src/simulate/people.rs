@@ -1,0 +1,451 @@
+//! Simulated people: who they are (height, speed, gait, colours), where they are at any time
+//! (along a deck or a track lane, with lane changes), their head bob, and their bodies as seen
+//! from above (pure).
+
+use nalgebra::{Vector2, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_distr::{Distribution, Normal};
+
+use super::scene::{Gait, Ground, PeopleSpec};
+use super::world::{Rgb, World};
+
+/// Radius of the hat (a flat cap on top of the head), metres.
+pub const HAT_RADIUS_M: f64 = 0.12;
+/// Radius of the head.
+pub const HEAD_RADIUS_M: f64 = 0.105;
+
+/// One person, fixed for the whole scene.
+#[derive(Clone, Debug)]
+pub struct Person {
+    pub id: usize,
+    /// Standing height (top of the head), metres.
+    pub height_m: f64,
+    pub speed_m_s: f64,
+    pub gait: Gait,
+    /// When the person enters (stream) or starts moving (group), seconds.
+    pub start_s: f64,
+    /// Progress along the path at `start_s`, metres.
+    pub start_along_m: f64,
+    /// Lateral position (deck: from the centre line; track: outward from the inner edge).
+    pub lateral_m: f64,
+    /// Lane changes: (time, new lateral position).
+    pub lane_changes: Vec<(f64, f64)>,
+    pub step_hz: f64,
+    pub bob_m: f64,
+    pub phase: f64,
+    pub shirt: Rgb,
+    pub hair: Rgb,
+}
+
+/// A person at one instant.
+#[derive(Clone, Debug)]
+pub struct Pose {
+    /// Feet (centre) on the surface.
+    pub foot: Vector3<f64>,
+    /// Unit direction of travel (horizontal).
+    pub heading: Vector2<f64>,
+    /// Top of the head (the hat's centre): the truth that detection aims at.
+    pub head_top: Vector3<f64>,
+    /// Gait phase, radians.
+    pub stride_phase: f64,
+}
+
+const SHIRTS: [Rgb; 8] = [
+    [0.85, 0.1, 0.1],
+    [0.1, 0.3, 0.8],
+    [0.95, 0.85, 0.1],
+    [0.1, 0.6, 0.25],
+    [0.95, 0.95, 0.95],
+    [0.08, 0.08, 0.1],
+    [0.95, 0.5, 0.1],
+    [0.2, 0.7, 0.8],
+];
+
+/// The people of a scene, from its seed.
+pub fn spawn(spec: &PeopleSpec, world: &World, duration_s: f64, seed: u64) -> Vec<Person> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F9E_091E);
+    let heights = Normal::new(spec.height_m[0], spec.height_m[1].max(1e-9)).expect("height");
+    let speeds = Normal::new(spec.speed_m_s[0], spec.speed_m_s[1].max(1e-9)).expect("speed");
+    let group = spec.mode == "group";
+    let (track, lanes, lane_w, deck_half_w, deck_len) = match world.ground {
+        Ground::Track {
+            lanes,
+            lane_width_m,
+            ..
+        } => (true, lanes, lane_width_m, 0.0, 0.0),
+        Ground::Deck {
+            width_m, length_m, ..
+        } => (false, 1, 0.0, width_m / 2.0 - 0.45, length_m),
+    };
+    let lateral = |rng: &mut rand_chacha::ChaCha8Rng| -> f64 {
+        if track {
+            let lane = rng.random_range(0..lanes.min(6));
+            f64::from(lane) * lane_w + 0.3 + rng.random_range(-0.1..0.1)
+        } else {
+            rng.random_range(-deck_half_w..deck_half_w)
+        }
+    };
+    let mut people = Vec::new();
+    let count = if group {
+        spec.count as usize
+    } else {
+        usize::MAX
+    };
+    // A stream is already flowing when the scene starts: arrivals from one crossing earlier.
+    let path_len = if track { 0.0 } else { deck_len };
+    let mut t = if group {
+        0.0
+    } else {
+        -path_len / spec.speed_m_s[0].max(0.5)
+    };
+    while people.len() < count {
+        let (start_s, start_along_m) = if group {
+            // A pack: a few abreast, rows 1.5 m apart, behind the start.
+            let row = people.len() / 4;
+            (0.0, -1.5 * row as f64 - rng.random_range(0.0..0.5))
+        } else {
+            t += -(1.0 - rng.random::<f64>()).ln() / spec.rate_per_s.max(1e-9);
+            if t >= duration_s {
+                break;
+            }
+            (t, if track { 0.0 } else { -deck_len / 2.0 })
+        };
+        let gait = spec.gait;
+        let speed = speeds.sample(&mut rng).clamp(0.5, 9.0);
+        let (step_hz, bob_m) = match gait {
+            Gait::Walk => (1.8 + 0.3 * (speed - 1.4), 0.025),
+            Gait::Run => (2.8 + 0.08 * (speed - 3.5), 0.045),
+        };
+        let lat = lateral(&mut rng);
+        let mut lane_changes = Vec::new();
+        let mut tc = start_s;
+        let per_s = spec.lane_changes_per_min / 60.0;
+        if per_s > 0.0 {
+            loop {
+                tc += -(1.0 - rng.random::<f64>()).ln() / per_s;
+                if tc >= duration_s {
+                    break;
+                }
+                lane_changes.push((tc, lateral(&mut rng)));
+            }
+        }
+        let mut shirt = SHIRTS[rng.random_range(0..SHIRTS.len())];
+        for c in &mut shirt {
+            *c = (*c * rng.random_range(0.85..1.1)).clamp(0.0, 1.0);
+        }
+        let hair_level = rng.random_range(0.05..0.45);
+        people.push(Person {
+            id: people.len(),
+            height_m: heights.sample(&mut rng).clamp(1.4, 2.05),
+            speed_m_s: speed,
+            gait,
+            start_s,
+            start_along_m,
+            lateral_m: lat,
+            lane_changes,
+            step_hz,
+            bob_m,
+            phase: rng.random_range(0.0..std::f64::consts::TAU),
+            shirt,
+            hair: [hair_level * 0.8, hair_level * 0.6, hair_level * 0.4],
+        });
+    }
+    people
+}
+
+/// Smooth step over 2 s.
+fn ease(x: f64) -> f64 {
+    let x = x.clamp(0.0, 1.0);
+    x * x * (3.0 - 2.0 * x)
+}
+
+impl Person {
+    /// Lateral position at a time, easing between lanes over 2 s.
+    fn lateral_at(&self, t: f64) -> f64 {
+        let mut lat = self.lateral_m;
+        for &(tc, target) in &self.lane_changes {
+            if t <= tc {
+                break;
+            }
+            lat += (target - lat) * ease((t - tc) / 2.0);
+        }
+        lat
+    }
+
+    /// Where the person is at time `t`, or `None` before entering or after leaving the path.
+    pub fn pose(&self, world: &World, t: f64) -> Option<Pose> {
+        if t < self.start_s {
+            return None;
+        }
+        let along = self.start_along_m + self.speed_m_s * (t - self.start_s);
+        let lat = self.lateral_at(t);
+        let (en, heading) = match world.ground {
+            Ground::Track { .. } => world.track_point(along, lat),
+            Ground::Deck { length_m, .. } => {
+                if along > length_m / 2.0 {
+                    return None;
+                }
+                (world.from_local(along, lat), world.along_dir())
+            }
+        };
+        let (z, _) = world.surface_height(&en);
+        let stride_phase = self.phase + std::f64::consts::TAU * self.step_hz * (t - self.start_s);
+        // The head is highest in mid-stance, twice per stride: once per step.
+        let bob = self.bob_m * stride_phase.cos();
+        let foot = Vector3::new(en.x, en.y, z);
+        Some(Pose {
+            foot,
+            heading,
+            head_top: foot + Vector3::new(0.0, 0.0, self.height_m + bob),
+            stride_phase,
+        })
+    }
+}
+
+/// An ellipsoid with axes along (heading, left, up).
+#[derive(Clone, Debug)]
+pub struct Ellipsoid {
+    pub centre: Vector3<f64>,
+    pub semi: Vector3<f64>,
+    pub colour: Rgb,
+}
+
+/// What a person is made of, as seen from above: legs, torso, arms, head, and a hat.
+pub struct Body {
+    pub parts: Vec<Ellipsoid>,
+    pub heading: Vector2<f64>,
+    /// Hat: centre (top of the head) and colour, when worn.
+    pub hat: Option<(Vector3<f64>, Rgb)>,
+    /// An axis-aligned bounding box (min, max) for culling.
+    pub bounds: (Vector3<f64>, Vector3<f64>),
+}
+
+impl Body {
+    pub fn new(person: &Person, pose: &Pose, hat: Option<Rgb>) -> Body {
+        let h = pose.head_top.z - pose.foot.z;
+        let f = pose.foot;
+        let fwd = Vector3::new(pose.heading.x, pose.heading.y, 0.0);
+        let left = Vector3::new(-pose.heading.y, pose.heading.x, 0.0);
+        let swing = 0.22 * (h / 1.7) * pose.stride_phase.sin();
+        let leg = |side: f64, s: f64| Ellipsoid {
+            centre: f + left * (0.1 * side) + fwd * s + Vector3::new(0.0, 0.0, 0.24 * h),
+            semi: Vector3::new(0.08, 0.07, 0.25 * h),
+            colour: [0.12, 0.12, 0.15],
+        };
+        let arm = |side: f64, s: f64| Ellipsoid {
+            centre: f + left * (0.23 * side) + fwd * s + Vector3::new(0.0, 0.0, 0.62 * h),
+            semi: Vector3::new(0.06, 0.05, 0.15 * h),
+            colour: person.shirt,
+        };
+        let parts = vec![
+            leg(1.0, swing),
+            leg(-1.0, -swing),
+            arm(1.0, -0.6 * swing),
+            arm(-1.0, 0.6 * swing),
+            Ellipsoid {
+                centre: f + Vector3::new(0.0, 0.0, 0.66 * h),
+                semi: Vector3::new(0.13, 0.21, 0.17 * h),
+                colour: person.shirt,
+            },
+            Ellipsoid {
+                centre: pose.head_top - Vector3::new(0.0, 0.0, HEAD_RADIUS_M + 0.006),
+                semi: Vector3::new(HEAD_RADIUS_M, HEAD_RADIUS_M * 0.9, HEAD_RADIUS_M),
+                colour: person.hair,
+            },
+        ];
+        Body {
+            parts,
+            heading: pose.heading,
+            hat: hat.map(|c| (pose.head_top, c)),
+            bounds: (
+                f - Vector3::new(0.5, 0.5, 0.01),
+                f + Vector3::new(0.5, 0.5, h + 0.02),
+            ),
+        }
+    }
+
+    /// Whether a ray passes within `margin_m` of the bounding box (slab test).
+    pub fn may_hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, margin_m: f64) -> bool {
+        let (lo, hi) = (
+            self.bounds.0.add_scalar(-margin_m),
+            self.bounds.1.add_scalar(margin_m),
+        );
+        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+        for k in 0..3 {
+            if dir[k].abs() < 1e-12 {
+                if origin[k] < lo[k] || origin[k] > hi[k] {
+                    return false;
+                }
+                continue;
+            }
+            let (a, b) = ((lo[k] - origin[k]) / dir[k], (hi[k] - origin[k]) / dir[k]);
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+            if t0 > t1 {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// The shaded colour of the nearest hit of a ray with the body, if any.
+    pub fn hit(
+        &self,
+        origin: &Vector3<f64>,
+        dir: &Vector3<f64>,
+        sun: &Vector3<f64>,
+    ) -> Option<Rgb> {
+        let shade = |n: &Vector3<f64>, c: &Rgb| -> Rgb {
+            let l = (0.45 + 0.55 * n.dot(sun).max(0.0)) as f32;
+            [c[0] * l, c[1] * l, c[2] * l]
+        };
+        let mut best_t = f64::INFINITY;
+        let mut hat_hit = false;
+        if let Some((centre, _)) = &self.hat {
+            // A horizontal disc facing up.
+            if dir.z < 0.0 {
+                let t = (centre.z - origin.z) / dir.z;
+                let p = origin + dir * t;
+                if t > 0.0 && (p - centre).xy().norm() <= HAT_RADIUS_M {
+                    best_t = t;
+                    hat_hit = true;
+                }
+            }
+        }
+        let fwd = Vector3::new(self.heading.x, self.heading.y, 0.0);
+        let left = Vector3::new(-self.heading.y, self.heading.x, 0.0);
+        // Direction in each body frame is the same rotation; only the scale differs.
+        let (d_f, d_l) = (dir.dot(&fwd), dir.dot(&left));
+        let mut best: Option<(usize, Vector3<f64>)> = None;
+        for (i, e) in self.parts.iter().enumerate() {
+            let o = origin - e.centre;
+            let lo = Vector3::new(
+                o.dot(&fwd) / e.semi.x,
+                o.dot(&left) / e.semi.y,
+                o.z / e.semi.z,
+            );
+            let ld = Vector3::new(d_f / e.semi.x, d_l / e.semi.y, dir.z / e.semi.z);
+            let a = ld.norm_squared();
+            let b = lo.dot(&ld);
+            let disc = b * b - a * (lo.norm_squared() - 1.0);
+            if disc < 0.0 {
+                continue;
+            }
+            let t = (-b - disc.sqrt()) / a;
+            if t > 0.0 && t < best_t {
+                best_t = t;
+                best = Some((i, lo + ld * t));
+                hat_hit = false;
+            }
+        }
+        if hat_hit {
+            return self.hat.as_ref().map(|(_, c)| shade(&Vector3::z(), c));
+        }
+        let (i, lp) = best?;
+        let e = &self.parts[i];
+        // The unit sphere's normal back through the inverse-transpose scale.
+        let n_local = Vector3::new(lp.x / e.semi.x, lp.y / e.semi.y, lp.z / e.semi.z);
+        let n = (fwd * n_local.x + left * n_local.y + Vector3::z() * n_local.z).normalize();
+        Some(shade(&n, &e.colour))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::scene::Ground;
+
+    fn deck_world() -> World {
+        World::new(
+            &Ground::Deck {
+                centre: [0.0, 0.0],
+                heading_deg: 0.0,
+                width_m: 4.0,
+                length_m: 60.0,
+                height_m: 6.0,
+                camber_m: 0.0,
+            },
+            &[],
+            3,
+        )
+    }
+
+    #[test]
+    fn streams_arrive_at_the_rate_and_cross_the_deck() {
+        let world = deck_world();
+        let spec = PeopleSpec {
+            rate_per_s: 2.0,
+            ..PeopleSpec::default()
+        };
+        let people = spawn(&spec, &world, 100.0, 7);
+        // Arrivals over the 100 s and one crossing before (60 m at 3.5 m/s): Poisson, σ = √n.
+        let expected = 2.0 * (100.0 + 60.0 / 3.5);
+        assert!(
+            (people.len() as f64 - expected).abs() < 4.0 * expected.sqrt(),
+            "{} vs {expected}",
+            people.len()
+        );
+        let p = &people[3];
+        assert!(p.pose(&world, p.start_s - 0.1).is_none());
+        let pose = p.pose(&world, p.start_s + 2.0).unwrap();
+        assert!((pose.foot.z - 6.0).abs() < 1e-9, "on the deck");
+        let h = pose.head_top.z - pose.foot.z;
+        assert!((h - p.height_m).abs() <= p.bob_m + 1e-12);
+        assert!(pose.foot.y < -30.0 + p.speed_m_s * 2.0 + 1e-9);
+        assert!(
+            p.pose(&world, p.start_s + 60.0 / p.speed_m_s + 1.0)
+                .is_none(),
+            "off the far end"
+        );
+        // Deterministic.
+        let again = spawn(&spec, &world, 100.0, 7);
+        assert_eq!(again[10].height_m, people[10].height_m);
+        let heights: Vec<f64> = people.iter().map(|p| p.height_m).collect();
+        let m = heights.iter().sum::<f64>() / heights.len() as f64;
+        assert!((m - 1.7).abs() < 0.03, "{m}");
+    }
+
+    #[test]
+    fn a_ray_straight_down_hits_the_hat_at_the_head_top() {
+        let world = deck_world();
+        let spec = PeopleSpec {
+            mode: "group".into(),
+            count: 1,
+            ..PeopleSpec::default()
+        };
+        let people = spawn(&spec, &world, 10.0, 1);
+        let pose = people[0].pose(&world, 1.0).unwrap();
+        let body = Body::new(&people[0], &pose, Some([1.0, 0.0, 1.0]));
+        let origin = pose.head_top + Vector3::new(0.0, 0.0, 20.0);
+        let c = body
+            .hit(&origin, &-Vector3::z(), &Vector3::new(0.0, 0.0, 1.0))
+            .unwrap();
+        assert_eq!(c, [1.0, 0.0, 1.0]);
+        assert!(body.may_hit(&origin, &-Vector3::z(), 0.0));
+        // Beside the hat but over the shoulder: the shirt.
+        let c = body
+            .hit(
+                &(pose.foot + Vector3::new(0.18, 0.0, 20.0)),
+                &-Vector3::z(),
+                &Vector3::z(),
+            )
+            .unwrap();
+        let shirt = people[0].shirt;
+        let ratio: Vec<f32> = (0..3)
+            .filter(|&k| shirt[k] > 0.05)
+            .map(|k| c[k] / shirt[k])
+            .collect();
+        assert!(
+            ratio.windows(2).all(|w| (w[0] - w[1]).abs() < 1e-5) && ratio[0] < 1.0,
+            "the shirt, shaded: {c:?} vs {shirt:?}"
+        );
+        assert!(
+            body.hit(
+                &(pose.foot + Vector3::new(0.6, 0.0, 20.0)),
+                &-Vector3::z(),
+                &Vector3::z()
+            )
+            .is_none()
+        );
+    }
+}

@@ -1,0 +1,483 @@
+//! Running a scene: frames, video, truth files, GCP exports and checkerboard images. This ties the
+//! pure simulation to its adapters (OpenCV video and images, PROJ for the site CRS).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Vector2, Vector3};
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+use super::board::{BoardRenderer, random_board_poses};
+use super::flight::camera_pose;
+use super::people::{Body, Person, Pose, spawn};
+use super::render::{CameraPose, FrameInput, RenderSettings, Renderer, Shadow};
+use super::scene::{Gait, Motion, Scene};
+use super::world::World;
+use crate::camera::{BoardSpec, Camera};
+use crate::geom::geodesy::{Geodetic, LocalTangentFrame};
+use crate::progress::Progress;
+use crate::survey::crs::{Crs, HeightKind, Horizontal};
+use crate::survey::model::{Gcp, SolutionStatus};
+use crate::survey::write::{OutCrs, OutPoint, emlid};
+
+/// Overrides from the command line.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    pub seed: Option<u64>,
+    pub duration_s: Option<f64>,
+    pub no_video: bool,
+    pub frames_every: Option<u32>,
+}
+
+/// What a run produced.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    pub frames: usize,
+    pub people: usize,
+    /// People whose head was in view in at least one frame.
+    pub people_in_view: usize,
+    pub image_size: [u32; 2],
+    pub video: Option<PathBuf>,
+    pub codec: Option<String>,
+    pub files: Vec<PathBuf>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("{0}")]
+    Input(String),
+    #[error("{0}")]
+    Output(String),
+}
+
+/// The sun's direction (towards the sun) from azimuth and elevation in degrees.
+pub fn sun_vector(azimuth_deg: f64, elevation_deg: f64) -> Vector3<f64> {
+    let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+    Vector3::new(a.sin() * e.cos(), a.cos() * e.cos(), e.sin())
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), SimError> {
+    crate::io::write_atomic(path, text.as_bytes())
+        .map_err(|e| SimError::Output(format!("{}: {e}", path.display())))
+}
+
+/// The poses of everyone present at a time.
+fn poses_at<'a>(people: &'a [Person], world: &World, t: f64) -> Vec<(&'a Person, Pose)> {
+    people
+        .iter()
+        .filter_map(|p| p.pose(world, t).map(|pose| (p, pose)))
+        .collect()
+}
+
+/// Area the camera sees over the scene (ground plane and deck top), with a margin.
+fn view_box(camera: &Camera, world: &World, poses: &[CameraPose]) -> (Vector2<f64>, Vector2<f64>) {
+    let size = camera.image_size.expect("size");
+    let (w, h) = (f64::from(size.width), f64::from(size.height));
+    let mut border = Vec::new();
+    for k in 0..=16 {
+        let f = f64::from(k) / 16.0;
+        border.extend([
+            Vector2::new(f * (w - 1.0), 0.0),
+            Vector2::new(f * (w - 1.0), h - 1.0),
+            Vector2::new(0.0, f * (h - 1.0)),
+            Vector2::new(w - 1.0, f * (h - 1.0)),
+        ]);
+    }
+    let (mut lo, mut hi) = (
+        Vector2::repeat(f64::INFINITY),
+        Vector2::repeat(f64::NEG_INFINITY),
+    );
+    let step = (poses.len() / 20).max(1);
+    for pose in poses.iter().step_by(step).chain(poses.last()) {
+        for uv in &border {
+            let Ok(ray) = camera.unproject(uv) else {
+                continue;
+            };
+            let dir = pose.world_from_cam * ray.into_inner();
+            if let Some((p, _)) = world.intersect(&pose.centre, &dir) {
+                lo = lo.inf(&p.xy());
+                hi = hi.sup(&p.xy());
+            }
+            // The ground under a deck too.
+            if dir.z < 0.0 {
+                let p = pose.centre + dir * (-pose.centre.z / dir.z);
+                lo = lo.inf(&p.xy());
+                hi = hi.sup(&p.xy());
+            }
+        }
+    }
+    (lo - Vector2::repeat(3.0), hi + Vector2::repeat(3.0))
+}
+
+/// Runs a scene into `out`.
+pub fn simulate(
+    scene: &Scene,
+    camera: &Camera,
+    out: &Path,
+    over: &Overrides,
+    progress: &dyn Progress,
+) -> Result<Summary, SimError> {
+    let seed = over.seed.unwrap_or(scene.seed);
+    let frames_every = over.frames_every.unwrap_or(scene.output.frames_every);
+    let duration = over.duration_s.unwrap_or(scene.duration_s);
+    let frames = ((duration * scene.fps).round() as usize).max(1);
+    let size = camera
+        .image_size
+        .ok_or_else(|| SimError::Input("the camera has no image size".into()))?;
+    let world = World::new(&scene.ground, &scene.gcp, seed);
+    let people = spawn(&scene.people, &world, duration, seed);
+    let sun = sun_vector(scene.people.sun_azimuth_deg, scene.people.sun_elevation_deg);
+    let hat = scene
+        .people
+        .hats
+        .then(|| scene.people.hat_colour.map(|c| f32::from(c) / 255.0));
+    for sub in ["truth", "checkerboards"] {
+        std::fs::create_dir_all(out.join(sub))
+            .map_err(|e| SimError::Output(format!("{}: {e}", out.join(sub).display())))?;
+    }
+    if frames_every > 0 {
+        std::fs::create_dir_all(out.join("frames")).map_err(|e| SimError::Output(e.to_string()))?;
+    }
+
+    // Camera poses first: they set the area to texture.
+    let times: Vec<f64> = (0..frames).map(|i| i as f64 / scene.fps).collect();
+    let poses: Vec<CameraPose> = times
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| {
+            let centre = match scene.camera.motion {
+                Motion::Follow { .. } => {
+                    let ps = poses_at(&people, &world, t);
+                    (!ps.is_empty()).then(|| {
+                        ps.iter().fold(Vector3::zeros(), |a, (_, p)| a + p.foot) / ps.len() as f64
+                    })
+                }
+                _ => None,
+            };
+            camera_pose(&scene.camera.motion, seed, i, t, centre)
+        })
+        .collect();
+    let (lo, hi) = view_box(camera, &world, &poses);
+    let gsd = poses
+        .iter()
+        .map(|p| p.centre.z)
+        .fold(f64::INFINITY, f64::min)
+        .max(1.0)
+        / camera.fx.max(camera.fy);
+    let texel = (0.7 * gsd).clamp(0.004, 0.05);
+    let settings = RenderSettings {
+        texel_m: texel,
+        sun,
+        image_noise: scene.output.image_noise,
+        seed,
+    };
+    let renderer = Renderer::new(&world, camera.clone(), (lo, hi), &settings);
+
+    let mut sink = if scene.output.video && !over.no_video {
+        Some(
+            crate::video::VideoSink::create(
+                &out.join("video"),
+                size.width,
+                size.height,
+                scene.fps,
+                true,
+            )
+            .map_err(SimError::Output)?,
+        )
+    } else {
+        None
+    };
+    let video_name = sink
+        .as_ref()
+        .and_then(|s| s.path.file_name().map(|n| n.to_string_lossy().into_owned()));
+
+    let mut cam_csv = String::from(
+        "frame,time_s,centre_e_m,centre_n_m,centre_u_m,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
+    );
+    let mut heads_csv = String::from("frame,time_s,person,e_m,n_m,u_m,px,py,in_view\n");
+    let mut seen = vec![false; people.len()];
+    progress.set_length(frames as u64);
+    let (w, h) = (f64::from(size.width), f64::from(size.height));
+    let light_amp = scene.people.light_change;
+    for (i, (&t, pose)) in times.iter().zip(&poses).enumerate() {
+        let present = poses_at(&people, &world, t);
+        let bodies: Vec<Body> = present
+            .iter()
+            .map(|(p, ps)| Body::new(p, ps, hat))
+            .collect();
+        let shadows: Vec<Shadow> = if scene.people.shadows {
+            present
+                .iter()
+                .map(|(p, ps)| Shadow::of(&ps.foot, p.height_m, &sun))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let light = 1.0
+            + light_amp
+                * (0.6 * (std::f64::consts::TAU * t / 17.0).sin()
+                    + 0.4 * (std::f64::consts::TAU * t / 7.3 + 1.0).sin());
+        let rgb = renderer.render(&FrameInput {
+            index: i,
+            pose,
+            bodies: &bodies,
+            shadows: &shadows,
+            light,
+        });
+        if let Some(s) = sink.as_mut() {
+            s.write_rgb(&rgb).map_err(SimError::Output)?;
+        }
+        if frames_every > 0 && i % frames_every as usize == 0 {
+            let p = out.join("frames").join(format!("frame-{i:05}.png"));
+            crate::imageio::write_rgb(&p, size.width, size.height, &rgb)
+                .map_err(SimError::Output)?;
+        }
+        // Truth: camera (cam_from_world as OpenCV's rvec, tvec) and heads.
+        let r_cw = pose.world_from_cam.transpose();
+        let rvec = nalgebra::Rotation3::from_matrix_unchecked(r_cw).scaled_axis();
+        let tvec = -(r_cw * pose.centre);
+        let _ = writeln!(
+            cam_csv,
+            "{i},{t:.6},{:.6},{:.6},{:.6},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
+            pose.centre.x,
+            pose.centre.y,
+            pose.centre.z,
+            rvec.x,
+            rvec.y,
+            rvec.z,
+            tvec.x,
+            tvec.y,
+            tvec.z
+        );
+        for (p, ps) in &present {
+            let uv = pose.project(camera, &ps.head_top);
+            let in_view = uv.is_some_and(|uv| {
+                uv.x >= -0.5 && uv.y >= -0.5 && uv.x <= w - 0.5 && uv.y <= h - 0.5
+            });
+            if !in_view {
+                continue;
+            }
+            seen[p.id] = true;
+            let uv = uv.expect("in view");
+            let _ = writeln!(
+                heads_csv,
+                "{i},{t:.6},{},{:.6},{:.6},{:.6},{:.4},{:.4},1",
+                p.id, ps.head_top.x, ps.head_top.y, ps.head_top.z, uv.x, uv.y
+            );
+        }
+        progress.inc(1);
+    }
+    let mut files = Vec::new();
+    let (video, codec) = match sink {
+        Some(s) => {
+            let codec = s.codec.to_string();
+            (Some(s.finish().map_err(SimError::Output)?), Some(codec))
+        }
+        None => (None, None),
+    };
+    let truth = out.join("truth");
+    write_file(&truth.join("camera.csv"), &cam_csv)?;
+    write_file(&truth.join("heads.csv"), &heads_csv)?;
+    let mut people_csv = String::from("person,height_m,speed_m_s,gait,start_s,hat\n");
+    for p in &people {
+        let gait = match p.gait {
+            Gait::Walk => "walk",
+            Gait::Run => "run",
+        };
+        let _ = writeln!(
+            people_csv,
+            "{},{:.4},{:.4},{gait},{:.4},{}",
+            p.id,
+            p.height_m,
+            p.speed_m_s,
+            p.start_s,
+            u8::from(hat.is_some())
+        );
+    }
+    write_file(&truth.join("people.csv"), &people_csv)?;
+    files.extend([
+        truth.join("camera.csv"),
+        truth.join("heads.csv"),
+        truth.join("people.csv"),
+    ]);
+
+    files.extend(write_gcps(
+        scene,
+        &world,
+        camera,
+        &poses[0],
+        out,
+        seed,
+        video_name.as_deref(),
+    )?);
+    files.extend(write_checkerboards(scene, camera, out, seed)?);
+
+    let meta = serde_json::json!({
+        "name": scene.name,
+        "seed": seed,
+        "fps": scene.fps,
+        "frames": frames,
+        "duration_s": duration,
+        "image_size": [size.width, size.height],
+        "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy, "dist": camera.dist},
+        "site": {"crs": scene.site.crs, "origin": scene.site.origin},
+        "sun": {"azimuth_deg": scene.people.sun_azimuth_deg, "elevation_deg": scene.people.sun_elevation_deg},
+        "frames_in_site_frame": "east, north, up in metres from the site origin",
+    });
+    let meta_path = truth.join("scene.json");
+    write_file(
+        &meta_path,
+        &(serde_json::to_string_pretty(&meta).expect("json") + "\n"),
+    )?;
+    files.push(meta_path);
+    if let Some(v) = &video {
+        files.push(v.clone());
+    }
+    Ok(Summary {
+        frames,
+        people: people.len(),
+        people_in_view: seen.iter().filter(|s| **s).count(),
+        image_size: [size.width, size.height],
+        video,
+        codec,
+        files,
+    })
+}
+
+/// GCPs: an Emlid CSV in the site CRS with RTK-like noise, the exact positions, and picks on the
+/// first frame with pixel noise.
+fn write_gcps(
+    scene: &Scene,
+    world: &World,
+    camera: &Camera,
+    first: &CameraPose,
+    out: &Path,
+    seed: u64,
+    video: Option<&str>,
+) -> Result<Vec<PathBuf>, SimError> {
+    if world.gcps.is_empty() {
+        return Ok(Vec::new());
+    }
+    let crs = Crs::new(&scene.site.crs).map_err(|e| SimError::Input(format!("site.crs: {e}")))?;
+    let o = scene.site.origin;
+    let (lon, lat) = crs
+        .to_lon_lat(o[0], o[1])
+        .map_err(|e| SimError::Input(format!("site.origin: {e}")))?;
+    let tangent = LocalTangentFrame::new(crs.ellipsoid, Geodetic::from_degrees(lat, lon, o[2]));
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x6C9_5EED);
+    let [sh, sv] = scene.output.gcp_noise_m;
+    let (nh, nv) = (
+        Normal::new(0.0, sh.max(1e-12)).expect("sigma"),
+        Normal::new(0.0, sv.max(1e-12)).expect("sigma"),
+    );
+    let pick_noise = Normal::new(0.0, scene.output.pick_noise_px.max(1e-12)).expect("sigma");
+    let mut gcps = Vec::new();
+    let mut truth = String::from("name,e_m,n_m,u_m,x,y,ellipsoidal_height_m\n");
+    let mut picks = String::from("name,image,u,v,sigma\n");
+    let image = video.map_or_else(|| "frame-00000".to_string(), |v| format!("{v}#0"));
+    let (w, h) = (
+        camera.image_size.expect("size").width as f64,
+        camera.image_size.expect("size").height as f64,
+    );
+    for (line, (name, p)) in world.gcps.iter().enumerate() {
+        let g = tangent.geodetic_from_enu(p);
+        let (x, y) = crs
+            .from_lon_lat(g.lon.to_degrees(), g.lat.to_degrees())
+            .map_err(|e| SimError::Input(e.to_string()))?;
+        let _ = writeln!(
+            truth,
+            "{name},{:.6},{:.6},{:.6},{x:.6},{y:.6},{:.6}",
+            p.x, p.y, p.z, g.h
+        );
+        // RTK noise in metres, converted to the CRS's horizontal unit.
+        let unit = if crs.horizontal == Horizontal::Projected {
+            crs.unit_m
+        } else {
+            1.0
+        };
+        let mut gcp = Gcp::new(
+            name.clone(),
+            Vector3::new(
+                x + nh.sample(&mut rng) / unit,
+                y + nh.sample(&mut rng) / unit,
+                g.h + nv.sample(&mut rng),
+            ),
+            line + 2,
+        );
+        gcp.sigma_m = Some(Vector3::new(sh, sh, sv));
+        gcp.status = Some(SolutionStatus::Fix);
+        gcps.push(gcp);
+        if let Some(uv) = first.project(camera, p)
+            && uv.x >= 0.0
+            && uv.y >= 0.0
+            && uv.x <= w - 1.0
+            && uv.y <= h - 1.0
+        {
+            let (u, v) = (
+                uv.x + pick_noise.sample(&mut rng),
+                uv.y + pick_noise.sample(&mut rng),
+            );
+            let _ = writeln!(
+                picks,
+                "{name},{image},{u:.3},{v:.3},{}",
+                scene.output.pick_noise_px
+            );
+        }
+    }
+    let out_crs = OutCrs {
+        spec: Some(crs.id.clone().unwrap_or_else(|| scene.site.crs.clone())),
+        name: crs.name.clone(),
+        projected: crs.horizontal == Horizontal::Projected,
+        height: HeightKind::Ellipsoidal,
+    };
+    let points: Vec<OutPoint> = gcps
+        .iter()
+        .map(|g| OutPoint {
+            gcp: g,
+            position: g.position,
+            lon_lat: crs.to_lon_lat(g.position.x, g.position.y).ok(),
+            local: Vector3::zeros(),
+            residual: None,
+        })
+        .collect();
+    let csv = emlid(&out_crs, &points).map_err(|e| SimError::Output(e.0))?;
+    let paths = [
+        out.join("gcps.csv"),
+        out.join("truth").join("gcps.csv"),
+        out.join("picks.csv"),
+    ];
+    write_file(&paths[0], &csv)?;
+    write_file(&paths[1], &truth)?;
+    write_file(&paths[2], &picks)?;
+    Ok(paths.to_vec())
+}
+
+/// Checkerboard images taken with the scene's camera (9x6 inner corners, 5 cm squares).
+fn write_checkerboards(
+    scene: &Scene,
+    camera: &Camera,
+    out: &Path,
+    seed: u64,
+) -> Result<Vec<PathBuf>, SimError> {
+    let n = scene.output.checkerboards as usize;
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let board = BoardSpec {
+        cols: 9,
+        rows: 6,
+        square_m: 0.05,
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xB0A2D);
+    let poses = random_board_poses(camera, &board, n, &mut rng);
+    let renderer = BoardRenderer::new(camera, 2);
+    let mut files = Vec::new();
+    for (i, p) in poses.iter().enumerate() {
+        let img = renderer.render(&board, p, 2.0, &mut rng);
+        let path = out.join("checkerboards").join(format!("board-{i:02}.png"));
+        crate::imageio::write_gray(&path, &img).map_err(SimError::Output)?;
+        files.push(path);
+    }
+    Ok(files)
+}

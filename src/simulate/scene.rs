@@ -1,0 +1,449 @@
+//! Scene descriptions (`SCENE.toml`) for `geostride simulate`: the ground, the camera and its
+//! motion, the people, and what to write. Everything has a documented default; unknown keys are
+//! errors, so a misspelt option never goes unnoticed. Lengths in metres, angles in degrees in
+//! the file, times in seconds. Positions are in the site frame (east, north, up from the site
+//! origin).
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::io::{FileCtx, FileError};
+
+fn default_fps() -> f64 {
+    25.0
+}
+fn default_duration() -> f64 {
+    10.0
+}
+fn default_height() -> [f64; 2] {
+    [1.7, 0.1]
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// A title for reports.
+    #[serde(default)]
+    pub name: String,
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default = "default_duration")]
+    pub duration_s: f64,
+    #[serde(default = "default_fps")]
+    pub fps: f64,
+    /// CRS of the exported GCP file and the site origin's position in it.
+    #[serde(default)]
+    pub site: Site,
+    pub camera: CameraSpec,
+    pub ground: Ground,
+    #[serde(default)]
+    pub gcp: Vec<GcpSpec>,
+    #[serde(default)]
+    pub people: PeopleSpec,
+    #[serde(default)]
+    pub output: OutputSpec,
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Site {
+    pub crs: String,
+    /// The site origin in that CRS: easting, northing (or longitude, latitude) and ellipsoidal height.
+    pub origin: [f64; 3],
+}
+
+impl Default for Site {
+    fn default() -> Self {
+        // Ghent, Belgium (the paper's footbridges), in Belgian Lambert 2008.
+        Site {
+            crs: "EPSG:3812".into(),
+            origin: [654_500.0, 696_000.0, 52.0],
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, rename_all = "snake_case", tag = "kind")]
+pub enum Motion {
+    /// Hovering: slow sinusoidal drift and per-frame rotation jitter.
+    Hover {
+        position: [f64; 3],
+        #[serde(default)]
+        heading_deg: f64,
+        #[serde(default = "Motion::default_drift")]
+        drift_m: f64,
+        #[serde(default = "Motion::default_drift_period")]
+        drift_period_s: f64,
+        #[serde(default = "Motion::default_jitter")]
+        jitter_deg: f64,
+    },
+    /// Along waypoints at a constant speed (the last waypoint holds).
+    Path {
+        waypoints: Vec<[f64; 3]>,
+        speed_m_s: f64,
+        #[serde(default)]
+        heading_deg: f64,
+        #[serde(default = "Motion::default_jitter")]
+        jitter_deg: f64,
+    },
+    /// Above the centroid of the group, at a height, smoothed (the paper's group events).
+    Follow {
+        altitude_m: f64,
+        #[serde(default)]
+        heading_deg: f64,
+        #[serde(default = "Motion::default_jitter")]
+        jitter_deg: f64,
+    },
+}
+
+impl Motion {
+    fn default_drift() -> f64 {
+        0.3
+    }
+    fn default_drift_period() -> f64 {
+        40.0
+    }
+    fn default_jitter() -> f64 {
+        0.02
+    }
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// A calibration file (relative to the scene file) or a preset name (`mavic3e`, `mini3pro`).
+    pub calibration: String,
+    /// Scale the camera to this resolution (same aspect ratio).
+    #[serde(default)]
+    pub video_mode: Option<[u32; 2]>,
+    /// `[camera.motion]` with `kind = "hover" | "path" | "follow"`.
+    pub motion: Motion,
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, rename_all = "snake_case", tag = "kind")]
+pub enum Ground {
+    /// A 400 m athletics track: two straights and two semicircles, lanes outward from the inner
+    /// edge; reddish surface, white lane lines, grass infield.
+    Track {
+        #[serde(default)]
+        centre: [f64; 2],
+        /// Direction of the straights, degrees from north.
+        #[serde(default)]
+        heading_deg: f64,
+        #[serde(default = "Ground::default_lanes")]
+        lanes: u32,
+        #[serde(default = "Ground::default_lane_width")]
+        lane_width_m: f64,
+        #[serde(default = "Ground::default_straight")]
+        straight_m: f64,
+        /// Radius of the inner edge of lane 1.
+        #[serde(default = "Ground::default_radius")]
+        radius_m: f64,
+    },
+    /// A footbridge deck over lower surroundings, along a straight centre line through `centre`.
+    Deck {
+        #[serde(default)]
+        centre: [f64; 2],
+        /// Direction of the deck, degrees from north.
+        #[serde(default)]
+        heading_deg: f64,
+        width_m: f64,
+        length_m: f64,
+        /// Height of the deck's ends above the surroundings.
+        #[serde(default = "Ground::default_deck_height")]
+        height_m: f64,
+        /// The rise of the deck's middle above its ends (a parabolic profile).
+        #[serde(default)]
+        camber_m: f64,
+    },
+}
+
+impl Ground {
+    fn default_lanes() -> u32 {
+        8
+    }
+    fn default_lane_width() -> f64 {
+        1.22
+    }
+    fn default_straight() -> f64 {
+        84.39
+    }
+    fn default_radius() -> f64 {
+        36.5
+    }
+    fn default_deck_height() -> f64 {
+        6.0
+    }
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GcpSpec {
+    pub name: String,
+    /// East, north; the height is that of the surface there.
+    pub position: [f64; 2],
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Gait {
+    Walk,
+    Run,
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PeopleSpec {
+    /// `stream`: arrivals at `rate_per_s` at one end of the deck (or the track's start line);
+    /// `group`: `count` people together from the start.
+    #[serde(default = "PeopleSpec::default_mode")]
+    pub mode: String,
+    #[serde(default = "PeopleSpec::default_count")]
+    pub count: u32,
+    #[serde(default = "PeopleSpec::default_rate")]
+    pub rate_per_s: f64,
+    #[serde(default = "PeopleSpec::default_gait")]
+    pub gait: Gait,
+    /// Mean and standard deviation, m/s.
+    #[serde(default = "PeopleSpec::default_speed")]
+    pub speed_m_s: [f64; 2],
+    /// Mean and standard deviation, metres.
+    #[serde(default = "default_height")]
+    pub height_m: [f64; 2],
+    #[serde(default = "PeopleSpec::yes")]
+    pub hats: bool,
+    /// RGB.
+    #[serde(default = "PeopleSpec::default_hat")]
+    pub hat_colour: [u8; 3],
+    #[serde(default = "PeopleSpec::yes")]
+    pub shadows: bool,
+    #[serde(default = "PeopleSpec::default_sun_azimuth")]
+    pub sun_azimuth_deg: f64,
+    #[serde(default = "PeopleSpec::default_sun_elevation")]
+    pub sun_elevation_deg: f64,
+    /// Lane (lateral position) changes per person per minute.
+    #[serde(default = "PeopleSpec::default_lane_changes")]
+    pub lane_changes_per_min: f64,
+    /// Amplitude of the slow brightness changes (clouds), 0 to 1.
+    #[serde(default = "PeopleSpec::default_light")]
+    pub light_change: f64,
+}
+
+impl PeopleSpec {
+    fn default_mode() -> String {
+        "stream".into()
+    }
+    fn default_count() -> u32 {
+        20
+    }
+    fn default_rate() -> f64 {
+        2.0
+    }
+    fn default_gait() -> Gait {
+        Gait::Run
+    }
+    fn default_speed() -> [f64; 2] {
+        [3.5, 0.4]
+    }
+    fn yes() -> bool {
+        true
+    }
+    fn default_hat() -> [u8; 3] {
+        [255, 0, 255]
+    }
+    fn default_sun_azimuth() -> f64 {
+        135.0
+    }
+    fn default_sun_elevation() -> f64 {
+        50.0
+    }
+    fn default_lane_changes() -> f64 {
+        0.5
+    }
+    fn default_light() -> f64 {
+        0.1
+    }
+}
+
+impl Default for PeopleSpec {
+    fn default() -> Self {
+        toml::from_str("").expect("every field has a default")
+    }
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// Write a video (`video.mp4` in H.264 where OpenCV can, else `video.avi` in MJPEG).
+    #[serde(default = "PeopleSpec::yes")]
+    pub video: bool,
+    /// Write every n-th frame as PNG (0 = none).
+    #[serde(default)]
+    pub frames_every: u32,
+    /// Checkerboard images taken with the same camera.
+    #[serde(default = "OutputSpec::default_boards")]
+    pub checkerboards: u32,
+    /// RTK noise of the exported GCP coordinates: horizontal and vertical σ, metres.
+    #[serde(default = "OutputSpec::default_gcp_noise")]
+    pub gcp_noise_m: [f64; 2],
+    /// Noise of the GCP picks on the first frame, pixels.
+    #[serde(default = "OutputSpec::default_pick_noise")]
+    pub pick_noise_px: f64,
+    /// Grey-level noise of the rendered frames (σ, 0-255).
+    #[serde(default = "OutputSpec::default_image_noise")]
+    pub image_noise: f64,
+}
+
+impl OutputSpec {
+    fn default_boards() -> u32 {
+        10
+    }
+    fn default_gcp_noise() -> [f64; 2] {
+        [0.01, 0.02]
+    }
+    fn default_pick_noise() -> f64 {
+        0.5
+    }
+    fn default_image_noise() -> f64 {
+        1.5
+    }
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        toml::from_str("").expect("every field has a default")
+    }
+}
+
+impl Scene {
+    /// Reads and checks a scene file.
+    pub fn load(path: &Path) -> Result<Scene, FileError> {
+        let ctx = FileCtx { path };
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+        Self::parse(&ctx, &text)
+    }
+
+    pub fn parse(ctx: &FileCtx, text: &str) -> Result<Scene, FileError> {
+        let scene: Scene = toml::from_str(text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            ctx.err(line, None, format!("not a valid scene: {}", e.message()))
+        })?;
+        let bad = |field: &str, m: &str| Err(ctx.err(None, Some(field), m.to_string()));
+        if !(scene.fps > 0.0 && scene.fps <= 240.0) {
+            return bad("fps", "must be in (0, 240]");
+        }
+        if !(scene.duration_s > 0.0 && scene.duration_s <= 3600.0) {
+            return bad("duration_s", "must be in (0, 3600]");
+        }
+        match scene.people.mode.as_str() {
+            "stream" | "group" => {}
+            _ => return bad("people.mode", "must be 'stream' or 'group'"),
+        }
+        if scene.people.height_m[0] <= 0.5 || scene.people.height_m[1] < 0.0 {
+            return bad(
+                "people.height_m",
+                "expected [mean, sd] with a mean above 0.5 m",
+            );
+        }
+        if scene.people.speed_m_s[0] <= 0.0 || scene.people.speed_m_s[1] < 0.0 {
+            return bad(
+                "people.speed_m_s",
+                "expected [mean, sd] with a positive mean",
+            );
+        }
+        if !(1.0..=89.0).contains(&scene.people.sun_elevation_deg) {
+            return bad(
+                "people.sun_elevation_deg",
+                "must be between 1 and 89 degrees",
+            );
+        }
+        if let Motion::Path {
+            waypoints,
+            speed_m_s,
+            ..
+        } = &scene.camera.motion
+            && (waypoints.is_empty() || *speed_m_s <= 0.0)
+        {
+            return bad(
+                "camera.waypoints",
+                "a path needs waypoints and a positive speed_m_s",
+            );
+        }
+        if let Ground::Deck {
+            width_m, length_m, ..
+        } = &scene.ground
+            && (*width_m <= 0.0 || *length_m <= 0.0)
+        {
+            return bad("ground.width_m", "a deck needs a positive width and length");
+        }
+        if matches!(scene.camera.motion, Motion::Follow { .. }) && scene.people.mode != "group" {
+            return bad(
+                "camera.motion",
+                "'follow' follows a group: set people.mode = \"group\"",
+            );
+        }
+        Ok(scene)
+    }
+
+    /// Number of frames.
+    pub fn frame_count(&self) -> usize {
+        (self.duration_s * self.fps).round() as usize
+    }
+
+    /// The calibration file a scene names, relative to the scene file's folder.
+    pub fn calibration_path(&self, scene_path: &Path) -> PathBuf {
+        let p = Path::new(&self.camera.calibration);
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            scene_path.parent().unwrap_or(Path::new(".")).join(p)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = "[camera]\ncalibration = \"mini3pro\"\n[camera.motion]\nkind = \"hover\"\nposition = [0, 0, 30]\n\n[ground]\nkind = \"deck\"\nwidth_m = 4\nlength_m = 60\n";
+
+    #[test]
+    fn minimal_scene_takes_the_defaults() {
+        let ctx = FileCtx {
+            path: Path::new("s.toml"),
+        };
+        let s = Scene::parse(&ctx, MINIMAL).unwrap();
+        assert_eq!(s.fps, 25.0);
+        assert_eq!(s.frame_count(), 250);
+        assert_eq!(s.people.hat_colour, [255, 0, 255]);
+        assert_eq!(s.people.height_m, [1.7, 0.1]);
+        assert!(matches!(s.camera.motion, Motion::Hover { drift_m, .. } if drift_m == 0.3));
+        assert!(s.output.video);
+    }
+
+    #[test]
+    fn mistakes_are_reported_with_their_line_or_field() {
+        let ctx = FileCtx {
+            path: Path::new("s.toml"),
+        };
+        let e = Scene::parse(
+            &ctx,
+            &format!("{MINIMAL}\n[people]\nheigth_m = [1.7, 0.1]\n"),
+        )
+        .unwrap_err();
+        assert_eq!(e.line, Some(12), "{e}");
+        assert!(e.message.contains("heigth_m"), "{e}");
+        let e = Scene::parse(&ctx, &format!("fps = -1\n{MINIMAL}")).unwrap_err();
+        assert_eq!(e.field.as_deref(), Some("fps"));
+        let e = Scene::parse(&ctx, &MINIMAL.replace("hover", "teleport")).unwrap_err();
+        assert!(
+            e.message.contains("teleport") || e.message.contains("motion"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,98 @@
+//! Video I/O (OpenCV adapter).
+
+use std::path::{Path, PathBuf};
+
+use opencv::core::{CV_8UC3, Mat, Size};
+use opencv::prelude::*;
+use opencv::{imgproc, videoio};
+
+/// Writes RGB frames to a video: H.264 in MP4 when OpenCV's backend can encode it, else MJPEG in
+/// AVI. Frames go to a temporary file renamed when finished, so an interrupted run leaves none.
+pub struct VideoSink {
+    writer: videoio::VideoWriter,
+    tmp: PathBuf,
+    pub path: PathBuf,
+    pub codec: &'static str,
+    width: i32,
+    height: i32,
+}
+
+impl VideoSink {
+    /// `stem` is the output path without extension; the chosen one is added.
+    pub fn create(
+        stem: &Path,
+        width: u32,
+        height: u32,
+        fps: f64,
+        prefer_h264: bool,
+    ) -> Result<VideoSink, String> {
+        let size = Size::new(width as i32, height as i32);
+        let mut tried = Vec::new();
+        let options: &[(&str, [char; 4], &str)] = if prefer_h264 {
+            &[
+                ("H.264", ['a', 'v', 'c', '1'], "mp4"),
+                ("MJPEG", ['M', 'J', 'P', 'G'], "avi"),
+            ]
+        } else {
+            &[("MJPEG", ['M', 'J', 'P', 'G'], "avi")]
+        };
+        for (codec, cc, ext) in options {
+            let path = stem.with_extension(ext);
+            let tmp = path.with_file_name(format!(
+                ".{}.tmp-{}.{ext}",
+                path.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+                std::process::id()
+            ));
+            let fourcc = videoio::VideoWriter::fourcc(cc[0], cc[1], cc[2], cc[3])
+                .map_err(|e| e.to_string())?;
+            // OpenCV may print warnings for codecs it lacks; the result decides.
+            if let Ok(writer) =
+                videoio::VideoWriter::new(tmp.to_str().unwrap_or_default(), fourcc, fps, size, true)
+                && writer.is_opened().unwrap_or(false)
+            {
+                return Ok(VideoSink {
+                    writer,
+                    tmp,
+                    path,
+                    codec,
+                    width: size.width,
+                    height: size.height,
+                });
+            }
+            let _ = std::fs::remove_file(&tmp);
+            tried.push(*codec);
+        }
+        Err(format!(
+            "OpenCV cannot write video here (tried {})",
+            tried.join(", ")
+        ))
+    }
+
+    /// Appends a frame of 8-bit RGB, row-major.
+    pub fn write_rgb(&mut self, rgb: &[u8]) -> Result<(), String> {
+        let mat = Mat::new_rows_cols_with_data(self.height, self.width * 3, rgb)
+            .map_err(|e| e.to_string())?;
+        let mat = mat.reshape(3, self.height).map_err(|e| e.to_string())?;
+        debug_assert_eq!(mat.typ(), CV_8UC3);
+        let mut bgr = Mat::default();
+        imgproc::cvt_color_def(&mat, &mut bgr, imgproc::COLOR_RGB2BGR)
+            .map_err(|e| e.to_string())?;
+        self.writer.write(&bgr).map_err(|e| e.to_string())
+    }
+
+    /// Finishes the file and moves it into place.
+    pub fn finish(mut self) -> Result<PathBuf, String> {
+        self.writer.release().map_err(|e| e.to_string())?;
+        std::fs::rename(&self.tmp, &self.path)
+            .map_err(|e| format!("{}: {e}", self.path.display()))?;
+        Ok(self.path.clone())
+    }
+}
+
+impl Drop for VideoSink {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.tmp);
+    }
+}

@@ -8,12 +8,8 @@ use opencv::prelude::*;
 
 use crate::simulate::board::GrayImage;
 
-/// Writes a greyscale image; the format follows the extension. Written to a temporary name and
-/// renamed, like every output.
-pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
-    let mat = Mat::new_rows_cols_with_data(image.height as i32, image.width as i32, &image.pixels)
-        .map_err(|e| e.to_string())?;
-    debug_assert_eq!(mat.typ(), CV_8UC1);
+/// Encodes a Mat in the format of `path`'s extension and writes it atomically.
+fn encode_to(path: &Path, mat: &impl opencv::core::ToInputArray) -> Result<(), String> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -25,8 +21,8 @@ pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
             )
         })?;
     let mut buf = Vector::<u8>::new();
-    let ok =
-        imgcodecs::imencode(&ext, &mat, &mut buf, &Vector::new()).map_err(|e| e.to_string())?;
+    let ok = imgcodecs::imencode(&ext, mat, &mut buf, &Vector::new())
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     if !ok {
         return Err(format!(
             "{}: OpenCV cannot encode '{ext}' images",
@@ -36,6 +32,15 @@ pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
     crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// Writes a greyscale image; the format follows the extension. Written to a temporary name and
+/// renamed, like every output.
+pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
+    let mat = Mat::new_rows_cols_with_data(image.height as i32, image.width as i32, &image.pixels)
+        .map_err(|e| e.to_string())?;
+    debug_assert_eq!(mat.typ(), CV_8UC1);
+    encode_to(path, &mat)
+}
+
 /// Writes an 8-bit RGB image (row-major); the format follows the extension.
 pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), String> {
     let err = |e: opencv::Error| format!("{}: {e}", path.display());
@@ -43,19 +48,7 @@ pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(),
     let mat = mat.reshape(3, height as i32).map_err(err)?;
     let mut bgr = Mat::default();
     opencv::imgproc::cvt_color_def(&mat, &mut bgr, opencv::imgproc::COLOR_RGB2BGR).map_err(err)?;
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| format!(".{e}"))
-        .ok_or_else(|| {
-            format!(
-                "{}: no file extension to choose the image format",
-                path.display()
-            )
-        })?;
-    let mut buf = Vector::<u8>::new();
-    imgcodecs::imencode(&ext, &bgr, &mut buf, &Vector::new()).map_err(err)?;
-    crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
+    encode_to(path, &bgr)
 }
 
 /// A scalar map for [`write_heatmap`]: row-major values, a title, and the unit of the labels
@@ -186,7 +179,5 @@ pub fn write_heatmap(path: &Path, map: &HeatMap, width_px: i32) -> Result<(), St
         false,
     )
     .map_err(err)?;
-    let mut buf = Vector::<u8>::new();
-    imgcodecs::imencode(".png", &canvas, &mut buf, &Vector::new()).map_err(err)?;
-    crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
+    encode_to(path, &canvas)
 }

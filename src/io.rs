@@ -33,6 +33,19 @@ pub struct FileCtx<'a> {
 }
 
 impl FileCtx<'_> {
+    /// Reads the file as UTF-8 text (a byte-order mark is dropped); `what` says what the file
+    /// should be, for the message when it is not text.
+    pub fn read_text(&self, what: &str) -> Result<String, FileError> {
+        let bytes = std::fs::read(self.path)
+            .map_err(|e| self.err(None, None, format!("cannot read: {e}")))?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| self.err(None, None, format!("not UTF-8 text ({e}); expected {what}")))?;
+        Ok(match text.strip_prefix('\u{feff}') {
+            Some(t) => t.to_string(),
+            None => text,
+        })
+    }
+
     pub fn err(
         &self,
         line: Option<usize>,

@@ -314,7 +314,10 @@ fn calibrates_from_a_video_skipping_blur_and_duplicates() {
 #[test]
 fn demo_runs_and_its_outputs_convert_between_formats() {
     let tmp = tempfile::tempdir().unwrap();
-    let o = run(&["demo", "-q", "--views", "8", "--skip-scenes", "--out"], &[tmp.path()]);
+    let o = run(
+        &["demo", "-q", "--views", "8", "--skip-scenes", "--out"],
+        &[tmp.path()],
+    );
     assert!(
         o.status.success(),
         "{}\n{}",

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use anyhow::{Context, anyhow};
 use clap::ValueEnum;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{bad_input, check_output_path, parse_board_size, parse_fraction, parse_positive};
 use crate::calibration::detect::{DetectSettings, Detector};
@@ -143,18 +142,11 @@ pub(crate) struct Outcome {
 
 /// Collects views and calibrates; input problems are [`bad_input`] errors.
 pub(crate) fn run_job(job: &Job) -> anyhow::Result<Outcome> {
-    let bar = if job.quiet {
-        ProgressBar::hidden()
-    } else {
-        let b = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
-        b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} detecting corners {bar:30} {pos}/{len} {msg} ({eta})",
-            )
-            .expect("template"),
-        );
-        b
-    };
+    let bar = super::progress_bar(
+        job.quiet,
+        0,
+        "{spinner} detecting corners {bar:30} {pos}/{len} {msg} ({eta})",
+    );
     let collected = collect(&job.inputs, &job.board, &job.collect, &bar).map_err(|e| match e {
         InputError::OpenCv { .. } => anyhow!(e),
         other => bad_input(other),

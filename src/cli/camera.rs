@@ -40,21 +40,9 @@ Conversions and the conventions they rest on are in docs/formats.md."
         #[arg(long, value_enum)]
         to: Option<FormatArg>,
         /// Image size WIDTHxHEIGHT, for inputs that lack it (needed by Metashape output)
-        #[arg(long, value_parser = parse_size, value_name = "WxH")]
+        #[arg(long, value_parser = super::parse_size, value_name = "WxH")]
         image_size: Option<(u32, u32)>,
     },
-}
-
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT in pixels, e.g. 3840x2160; got '{s}'"))?;
-    match (w.parse::<u32>(), h.parse::<u32>()) {
-        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
-        _ => Err(format!(
-            "expected WIDTHxHEIGHT in pixels, e.g. 3840x2160; got '{s}'"
-        )),
-    }
 }
 
 pub fn run(cmd: Command) -> anyhow::Result<()> {

@@ -8,7 +8,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow, bail};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rand::SeedableRng;
 
 use super::calibrate::{Job, run_job, summary};
@@ -81,17 +80,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let poses = random_board_poses(&truth, &BOARD, args.views as usize, &mut rng);
     let renderer = BoardRenderer::new(&truth, 3);
-    let bar = if args.quiet {
-        ProgressBar::hidden()
-    } else {
-        let b =
-            ProgressBar::with_draw_target(Some(poses.len() as u64), ProgressDrawTarget::stderr());
-        b.set_style(
-            ProgressStyle::with_template("{spinner} rendering {bar:30} {pos}/{len}")
-                .expect("template"),
-        );
-        b
-    };
+    let bar = super::progress_bar(
+        args.quiet,
+        poses.len() as u64,
+        "{spinner} rendering {bar:30} {pos}/{len}",
+    );
     for (i, pose) in poses.iter().enumerate() {
         let image = renderer.render(&BOARD, pose, args.noise, &mut rng);
         crate::imageio::write_gray(&boards.join(format!("board-{i:02}.png")), &image)

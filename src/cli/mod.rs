@@ -128,6 +128,29 @@ pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf]) -> anyhow::Resul
     Ok(())
 }
 
+/// `WIDTHxHEIGHT` in pixels, e.g. `3840x2160`.
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("expected WIDTHxHEIGHT in pixels, e.g. 3840x2160; got '{s}'");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    match (w.parse::<u32>(), h.parse::<u32>()) {
+        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
+        _ => Err(bad()),
+    }
+}
+
+/// A progress bar on stderr with a template, or a hidden one when `quiet`.
+pub(crate) fn progress_bar(quiet: bool, len: u64, template: &str) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let b = indicatif::ProgressBar::with_draw_target(
+        Some(len),
+        indicatif::ProgressDrawTarget::stderr(),
+    );
+    b.set_style(indicatif::ProgressStyle::with_template(template).expect("progress template"));
+    b
+}
+
 /// A number from 0 to 1.
 pub(crate) fn parse_fraction(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {

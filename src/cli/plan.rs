@@ -10,16 +10,6 @@ use crate::camera::{formats, presets};
 use crate::imageio::HeatMap;
 use crate::simulate::plan::{PixelNoise, PlanSettings, plan};
 
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
-    match (w.parse::<u32>(), h.parse::<u32>()) {
-        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
-        _ => Err(format!("expected WIDTHxHEIGHT in pixels, got '{s}'")),
-    }
-}
-
 fn parse_detector(s: &str) -> Result<(f64, f64, f64), String> {
     let v: Vec<f64> = s
         .split(',')
@@ -48,7 +38,7 @@ pub struct Args {
     #[arg(long, value_parser = parse_positive, value_name = "M")]
     altitude: f64,
     /// Video resolution WIDTHxHEIGHT; the camera is scaled to it (same aspect ratio only)
-    #[arg(long, value_parser = parse_size, value_name = "WxH")]
+    #[arg(long, value_parser = super::parse_size, value_name = "WxH")]
     video_mode: Option<(u32, u32)>,
     /// Height of the heads above the ground (the homography plane), metres
     #[arg(long, default_value_t = 1.7, value_name = "M")]

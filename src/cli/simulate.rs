@@ -3,7 +3,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::bad_input;
 use super::plan::{load_camera, scale_to};
@@ -71,18 +70,11 @@ pub(crate) fn run_scene(
         return Err(bad_input(anyhow!("--duration must be positive")));
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let bar = if quiet {
-        ProgressBar::hidden()
-    } else {
-        let b = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
-        b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} rendering {bar:30} {pos}/{len} frames ({per_sec}, {eta})",
-            )
-            .expect("template"),
-        );
-        b
-    };
+    let bar = super::progress_bar(
+        quiet,
+        0,
+        "{spinner} rendering {bar:30} {pos}/{len} frames ({per_sec}, {eta})",
+    );
     if !quiet {
         eprintln!(
             "{}: {} with {}",

@@ -87,16 +87,6 @@ fn parse_delimiter(s: &str) -> Result<u8, String> {
     }
 }
 
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
-    match (w.parse::<u32>(), h.parse::<u32>()) {
-        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
-        _ => Err(format!("expected WIDTHxHEIGHT in pixels, got '{s}'")),
-    }
-}
-
 /// How to read the survey and what to do with it; shared by `inspect` and `convert`.
 #[derive(clap::Args)]
 pub struct Input {
@@ -123,7 +113,7 @@ pub struct Input {
     #[arg(long, value_parser = parse_delimiter, value_name = "C")]
     delimiter: Option<u8>,
     /// Image size WIDTHxHEIGHT, to convert OpenSfM's normalised image coordinates
-    #[arg(long, value_parser = parse_size, value_name = "WxH")]
+    #[arg(long, value_parser = super::parse_size, value_name = "WxH")]
     image_size: Option<(u32, u32)>,
     /// Image name of PeTrack's pixel picks
     #[arg(long, value_name = "NAME")]

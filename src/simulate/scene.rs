@@ -321,8 +321,7 @@ impl Scene {
     /// Reads and checks a scene file.
     pub fn load(path: &Path) -> Result<Scene, FileError> {
         let ctx = FileCtx { path };
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+        let text = ctx.read_text("a TOML scene")?;
         Self::parse(&ctx, &text)
     }
 

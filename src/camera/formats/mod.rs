@@ -64,15 +64,7 @@ pub(crate) use crate::io::FileCtx as Ctx;
 /// Reads a calibration file, detecting its format from the content unless `format` is given.
 pub fn read(path: &Path, format: Option<Format>) -> Result<Calibration, FormatError> {
     let ctx = Ctx { path };
-    let bytes =
-        std::fs::read(path).map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
-    let text = String::from_utf8(bytes).map_err(|e| {
-        ctx.err(
-            None,
-            None,
-            format!("not UTF-8 text ({e}); expected a YAML, XML or JSON calibration"),
-        )
-    })?;
+    let text = ctx.read_text("a YAML, XML or JSON calibration")?;
     parse(path, &text, format)
 }
 

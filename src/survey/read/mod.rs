@@ -107,16 +107,8 @@ pub fn detect(text: &str) -> Option<SurveyFormat> {
 /// Reads a survey file.
 pub fn read(path: &Path, opts: &ReadOptions) -> Result<Survey, SurveyError> {
     let ctx = Ctx { path };
-    let bytes =
-        std::fs::read(path).map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
-    let text = String::from_utf8(bytes).map_err(|e| {
-        ctx.err(
-            None,
-            None,
-            format!("not UTF-8 text ({e}); save the file as UTF-8"),
-        )
-    })?;
-    let text = text.trim_start_matches('\u{feff}');
+    let text = ctx.read_text("a survey file saved as UTF-8")?;
+    let text = text.as_str();
     let format = match opts.format.or_else(|| detect(text)) {
         Some(f) => f,
         None => {

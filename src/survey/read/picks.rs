@@ -12,8 +12,7 @@ use crate::survey::model::{Ctx, Dropped, Observation, Survey, SurveyError};
 /// recorded as dropped rows, not lost silently.
 pub fn read_picks(path: &Path, survey: &mut Survey) -> Result<usize, SurveyError> {
     let ctx = Ctx { path };
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    let text = ctx.read_text("a CSV of picks")?;
     let table = read_table(&ctx, &text, sniff_delimiter(&text))?;
     let mut added = 0;
     for (i, r) in table.rows.iter().enumerate() {

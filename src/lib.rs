@@ -19,6 +19,7 @@ pub mod geom;
 pub mod imageio;
 pub mod io;
 pub mod optim;
+pub mod pose;
 pub mod progress;
 pub mod simulate;
 pub mod survey;

@@ -4,6 +4,7 @@ use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, Dyn, Matrix3, OMatrix, OVector, Owned, U8, Vector2, Vector3};
 
 use super::EstimateError;
+use super::ransac::{Estimator, RansacResult, RansacSettings, msac};
 
 /// A similarity that moves the centroid to the origin and the mean distance to √2.
 fn normalizer(pts: &[Vector2<f64>]) -> Result<Matrix3<f64>, EstimateError> {
@@ -180,6 +181,90 @@ pub fn homography_refined(
     Ok(solved.matrix())
 }
 
+/// Applies a homography to a point; `None` at or beyond the line at infinity.
+pub fn transfer(h: &Matrix3<f64>, p: &Vector2<f64>) -> Option<Vector2<f64>> {
+    let q = h * Vector3::new(p.x, p.y, 1.0);
+    (q.z.abs() > 1e-12 * (q.x.abs() + q.y.abs() + 1e-300))
+        .then(|| Vector2::new(q.x / q.z, q.y / q.z))
+}
+
+/// Whether three points are (nearly) collinear relative to their spread.
+fn collinear2(a: &Vector2<f64>, b: &Vector2<f64>, c: &Vector2<f64>) -> bool {
+    let (ab, ac) = (b - a, c - a);
+    let scale = ab
+        .norm_squared()
+        .max(ac.norm_squared())
+        .max((c - b).norm_squared());
+    let cross = ab.x * ac.y - ab.y * ac.x;
+    scale == 0.0 || cross * cross < 1e-8 * scale * scale
+}
+
+/// Homography as an MSAC problem; residuals are transfer errors in `dst` (pixels).
+pub struct HomographyEstimator<'a> {
+    pub src: &'a [Vector2<f64>],
+    pub dst: &'a [Vector2<f64>],
+}
+
+impl Estimator for HomographyEstimator<'_> {
+    type Model = Matrix3<f64>;
+
+    fn sample_size(&self) -> usize {
+        4
+    }
+
+    fn len(&self) -> usize {
+        self.src.len()
+    }
+
+    fn is_degenerate(&self, s: &[usize]) -> bool {
+        [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]
+            .iter()
+            .any(|t| {
+                collinear2(&self.src[s[t[0]]], &self.src[s[t[1]]], &self.src[s[t[2]]])
+                    || collinear2(&self.dst[s[t[0]]], &self.dst[s[t[1]]], &self.dst[s[t[2]]])
+            })
+    }
+
+    fn fit_minimal(&self, s: &[usize]) -> Vec<Matrix3<f64>> {
+        let src: Vec<_> = s.iter().map(|&i| self.src[i]).collect();
+        let dst: Vec<_> = s.iter().map(|&i| self.dst[i]).collect();
+        homography_dlt(&src, &dst).into_iter().collect()
+    }
+
+    fn fit_nonminimal(&self, data: &[usize], _start: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+        let src: Vec<_> = data.iter().map(|&i| self.src[i]).collect();
+        let dst: Vec<_> = data.iter().map(|&i| self.dst[i]).collect();
+        homography_dlt(&src, &dst).ok()
+    }
+
+    fn residual_sq(&self, h: &Matrix3<f64>, i: usize) -> f64 {
+        transfer(h, &self.src[i]).map_or(f64::INFINITY, |p| (p - self.dst[i]).norm_squared())
+    }
+}
+
+/// Robust homography: MSAC over 4-point samples, then least squares on the geometric error of
+/// the inliers. The inliers are those of the refined homography.
+pub fn homography_robust(
+    src: &[Vector2<f64>],
+    dst: &[Vector2<f64>],
+    settings: &RansacSettings,
+) -> Result<RansacResult<Matrix3<f64>>, EstimateError> {
+    assert_eq!(src.len(), dst.len(), "src and dst must pair up");
+    let est = HomographyEstimator { src, dst };
+    let mut result = msac(&est, settings)?;
+    let idx: Vec<usize> = (0..src.len()).filter(|&i| result.inliers[i]).collect();
+    let (s, d): (Vec<_>, Vec<_>) = idx.iter().map(|&i| (src[i], dst[i])).unzip();
+    if let Ok(h) = homography_refined(&s, &d) {
+        let t2 = settings.threshold * settings.threshold;
+        result.inliers = (0..src.len())
+            .map(|i| est.residual_sq(&h, i) < t2)
+            .collect();
+        result.inlier_count = result.inliers.iter().filter(|&&b| b).count();
+        result.model = h;
+    }
+    Ok(result)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -253,6 +338,32 @@ mod tests {
             let fd = (rp - rm) / (2.0 * step);
             let err = (&fd - j.column(k)).amax();
             assert!(err < 1e-6 * (1.0 + fd.amax()), "column {k}: {err}");
+        }
+    }
+
+    #[test]
+    fn robust_fit_ignores_outliers() {
+        let h = Matrix3::new(1.01, 0.02, 12.0, -0.015, 0.99, -7.0, 1e-6, -2e-6, 1.0);
+        let src: Vec<_> = (0..200)
+            .map(|i| Vector2::new(((i * 97) % 1900) as f64, ((i * 61) % 1070) as f64))
+            .collect();
+        let mut dst: Vec<_> = src.iter().map(|p| apply(&h, p)).collect();
+        for (i, d) in dst.iter_mut().enumerate().take(60) {
+            *d += Vector2::new(20.0 + i as f64, -15.0);
+        }
+        let r = homography_robust(
+            &src,
+            &dst,
+            &RansacSettings {
+                threshold: 1.0,
+                ..RansacSettings::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(r.inlier_count, 140);
+        assert!(r.inliers[60..].iter().all(|&b| b));
+        for p in &src {
+            assert!((transfer(&r.model, p).unwrap() - apply(&h, p)).norm() < 1e-6);
         }
     }
 

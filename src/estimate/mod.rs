@@ -1,6 +1,11 @@
-//! Estimation from correspondences (pure): minimal and linear solvers.
+//! Estimation from correspondences (pure): a robust MSAC framework and minimal and linear
+//! solvers (homography DLT, P3P, EPnP).
 
+pub mod epnp;
 pub mod homography;
+pub mod p3p;
+pub mod pnp;
+pub mod ransac;
 
 use thiserror::Error;
 

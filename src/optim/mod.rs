@@ -111,9 +111,100 @@ impl Damping {
     }
 }
 
+/// A robust loss on a whitened residual of squared norm `s` (units of σ²): the least-squares
+/// weight of an iteratively reweighted step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RobustLoss {
+    /// Plain least squares.
+    Squared,
+    /// Quadratic up to `k` σ, linear beyond.
+    Huber(f64),
+    /// `k² log(1 + s/k²)`: outliers lose influence altogether.
+    Cauchy(f64),
+}
+
+impl RobustLoss {
+    /// The loss `ρ(s)` (equal to `s` for small residuals).
+    pub fn rho(self, s: f64) -> f64 {
+        match self {
+            RobustLoss::Squared => s,
+            RobustLoss::Huber(k) => {
+                if s <= k * k {
+                    s
+                } else {
+                    2.0 * k * s.sqrt() - k * k
+                }
+            }
+            RobustLoss::Cauchy(k) => k * k * (s / (k * k)).ln_1p(),
+        }
+    }
+
+    /// The weight `ρ'(s)` of a residual in a reweighted least-squares step.
+    pub fn weight(self, s: f64) -> f64 {
+        match self {
+            RobustLoss::Squared => 1.0,
+            RobustLoss::Huber(k) => {
+                if s <= k * k {
+                    1.0
+                } else {
+                    k / s.sqrt()
+                }
+            }
+            RobustLoss::Cauchy(k) => 1.0 / (1.0 + s / (k * k)),
+        }
+    }
+}
+
+impl std::str::FromStr for RobustLoss {
+    type Err = String;
+
+    /// `none`, `huber[:K]` or `cauchy[:K]` (K in σ; default 2).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, k) = match s.split_once(':') {
+            Some((n, k)) => (
+                n,
+                k.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|k| *k > 0.0 && k.is_finite())
+                    .ok_or_else(|| format!("loss scale must be a positive number, got '{k}'"))?,
+            ),
+            None => (s, 2.0),
+        };
+        match name.trim().to_ascii_lowercase().as_str() {
+            "none" | "squared" => Ok(RobustLoss::Squared),
+            "huber" => Ok(RobustLoss::Huber(k)),
+            "cauchy" => Ok(RobustLoss::Cauchy(k)),
+            _ => Err(format!(
+                "expected 'none', 'huber[:K]' or 'cauchy[:K]', got '{s}'"
+            )),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn robust_weights_are_the_derivatives_of_the_losses() {
+        for loss in [
+            RobustLoss::Squared,
+            RobustLoss::Huber(2.0),
+            RobustLoss::Cauchy(1.5),
+        ] {
+            for s in [0.1, 1.0, 3.9, 4.1, 30.0] {
+                let fd = (loss.rho(s + 1e-6) - loss.rho(s - 1e-6)) / 2e-6;
+                assert!((fd - loss.weight(s)).abs() < 1e-6, "{loss:?} at {s}");
+            }
+        }
+        assert_eq!(
+            "huber:1.5".parse::<RobustLoss>(),
+            Ok(RobustLoss::Huber(1.5))
+        );
+        assert_eq!("none".parse::<RobustLoss>(), Ok(RobustLoss::Squared));
+        assert!("tukey".parse::<RobustLoss>().is_err());
+    }
 
     #[test]
     fn damping_shrinks_on_good_steps_and_grows_on_bad_ones() {

@@ -1,0 +1,419 @@
+//! The pose of one image from ground control points: checks, P3P + MSAC, refinement with
+//! weights that carry both the pick's and the survey's uncertainty, outlier flags, covariance
+//! and per-GCP residuals in pixels and on the ground.
+
+use nalgebra::{Matrix2, Matrix3, Matrix6, SymmetricEigen, Vector2, Vector3};
+
+use super::PoseError;
+use super::refine::{PointObs, RefinedPose, project_pose, refine_pose, world_covariance};
+use crate::camera::Camera;
+use crate::estimate::epnp::epnp;
+use crate::estimate::p3p::RigidPose;
+use crate::estimate::pnp::PnpEstimator;
+use crate::estimate::ransac::{RansacSettings, msac};
+use crate::geom::Pose;
+use crate::optim::{LmSettings, RobustLoss, Termination};
+
+/// χ² with 2 degrees of freedom at 99.9 %: the outlier test on a normalised pixel residual.
+pub const CHI2_2DOF_999: f64 = 13.815510557964274;
+
+/// A GCP seen in the image.
+#[derive(Clone, Debug)]
+pub struct GcpObservation {
+    pub name: String,
+    /// Position in the local frame, metres.
+    pub world: Vector3<f64>,
+    /// Covariance of the surveyed position (m²); zero for exact points.
+    pub world_cov: Matrix3<f64>,
+    /// The pick, pixels.
+    pub uv: Vector2<f64>,
+    /// σ of the pick, pixels.
+    pub sigma_px: f64,
+}
+
+/// How to solve.
+#[derive(Clone, Debug)]
+pub struct PoseSettings {
+    /// MSAC inlier threshold in pixels; by default `max(4, 3.72 σ)` of the largest pick σ.
+    pub threshold_px: Option<f64>,
+    pub confidence: f64,
+    pub max_iterations: usize,
+    pub seed: u64,
+    pub loss: RobustLoss,
+    /// Outlier test on the squared normalised residual after refinement.
+    pub outlier_chi2: f64,
+    /// Fewest GCPs, as a fraction of all, that must agree on the pose: a handful agreeing among
+    /// many is a coincidence, not a pose.
+    pub min_inlier_fraction: f64,
+}
+
+impl Default for PoseSettings {
+    fn default() -> Self {
+        PoseSettings {
+            threshold_px: None,
+            confidence: 0.9999,
+            max_iterations: 10_000,
+            seed: 0,
+            loss: RobustLoss::Squared,
+            outlier_chi2: CHI2_2DOF_999,
+            min_inlier_fraction: 0.5,
+        }
+    }
+}
+
+/// One GCP's fit.
+#[derive(Clone, Debug)]
+pub struct GcpResidual {
+    pub name: String,
+    pub uv: Vector2<f64>,
+    /// The GCP projected with the solved pose; `None` behind the camera.
+    pub projected: Option<Vector2<f64>>,
+    /// Pick minus projection, pixels.
+    pub residual_px: Option<Vector2<f64>>,
+    /// Where the pick's ray meets the horizontal plane through the GCP, minus the GCP: east and
+    /// north, metres.
+    pub ground_m: Option<Vector2<f64>>,
+    /// `√(rᵀ Σ⁻¹ r)` with Σ the pick's and the projected survey covariance.
+    pub normalised: Option<f64>,
+    pub depth_m: Option<f64>,
+    pub outlier: bool,
+}
+
+/// A solved pose.
+#[derive(Clone, Debug)]
+pub struct PoseSolution {
+    pub cam_from_world: Pose,
+    /// Covariance of `(δφ_e, δφ_n, δφ_u, C_e, C_n, C_u)`: rotation errors about the world axes
+    /// (radians) and the camera centre (metres).
+    pub covariance: Matrix6<f64>,
+    pub centre: Vector3<f64>,
+    pub centre_sigma_m: Vector3<f64>,
+    pub residuals: Vec<GcpResidual>,
+    pub inliers: usize,
+    /// RMS of the inliers' pixel residuals.
+    pub rms_px: f64,
+    /// A-posteriori σ₀ = √(χ² / (2m − 6)): near 1 when the stated σ are right.
+    pub sigma0: f64,
+    pub threshold_px: f64,
+    pub ransac_iterations: usize,
+    pub termination: Termination,
+}
+
+/// Ascending eigenvalues of a scatter matrix, relative to the largest.
+fn relative(mut e: Vec<f64>) -> Vec<f64> {
+    e.sort_by(f64::total_cmp);
+    let top = *e.last().expect("non-empty");
+    e.iter()
+        .map(|x| if top > 0.0 { x / top } else { 0.0 })
+        .collect()
+}
+
+fn spread3(pts: &[Vector3<f64>]) -> Vec<f64> {
+    let c = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+    let s = pts
+        .iter()
+        .fold(Matrix3::zeros(), |s, p| s + (p - c) * (p - c).transpose());
+    relative(SymmetricEigen::new(s).eigenvalues.iter().copied().collect())
+}
+
+fn spread2(pts: &[Vector2<f64>]) -> Vec<f64> {
+    let c = pts.iter().sum::<Vector2<f64>>() / pts.len() as f64;
+    let s = pts
+        .iter()
+        .fold(Matrix2::zeros(), |s, p| s + (p - c) * (p - c).transpose());
+    relative(SymmetricEigen::new(s).eigenvalues.iter().copied().collect())
+}
+
+/// Rejects inputs no pose can come from: too few points, coincident or collinear GCPs or picks.
+pub fn check_geometry(obs: &[GcpObservation]) -> Result<(), PoseError> {
+    if obs.len() < 4 {
+        return Err(PoseError::TooFewPoints { got: obs.len() });
+    }
+    let world: Vec<Vector3<f64>> = obs.iter().map(|o| o.world).collect();
+    let uv: Vec<Vector2<f64>> = obs.iter().map(|o| o.uv).collect();
+    let ws = spread3(&world);
+    if ws[2] == 0.0 {
+        return Err(PoseError::Degenerate(
+            "all GCPs are at the same position".into(),
+        ));
+    }
+    if ws[1] < 1e-8 {
+        return Err(PoseError::Degenerate(
+            "the GCPs lie on one line: a pose needs GCPs spread over an area".into(),
+        ));
+    }
+    let ps = spread2(&uv);
+    if ps[1] == 0.0 && ps[0] == 0.0 {
+        return Err(PoseError::Degenerate(
+            "all picks are at the same pixel".into(),
+        ));
+    }
+    if ps[0] < 1e-8 {
+        return Err(PoseError::Degenerate(
+            "the picks lie on one image line".into(),
+        ));
+    }
+    for (i, a) in obs.iter().enumerate() {
+        if let Some(b) = obs[..i].iter().find(|b| (b.uv - a.uv).norm() < 1e-6) {
+            return Err(PoseError::Degenerate(format!(
+                "GCPs '{}' and '{}' are picked at the same pixel",
+                b.name, a.name
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Pixel covariance of a residual: the pick's, plus the survey's projected through the pose.
+pub fn residual_covariance(jx: &nalgebra::Matrix2x3<f64>, o: &GcpObservation) -> Matrix2<f64> {
+    Matrix2::identity() * (o.sigma_px * o.sigma_px) + jx * o.world_cov * jx.transpose()
+}
+
+fn point_obs(
+    camera: &Camera,
+    pose: &RigidPose,
+    o: &GcpObservation,
+) -> Option<(PointObs, Matrix2<f64>)> {
+    let (_, _, jx) = project_pose(camera, pose, &o.world)?;
+    let cov = residual_covariance(&jx, o);
+    Some((
+        PointObs {
+            world: o.world,
+            uv: o.uv,
+            info: cov.try_inverse()?,
+        },
+        cov,
+    ))
+}
+
+/// The MSAC threshold: the 99.9 % radius of the largest pick σ combined with the typical survey σ
+/// seen at the typical depth, at least 4 px. The depth comes from the median ratio of world to
+/// normalised image distances, which needs no pose.
+fn default_threshold(obs: &[GcpObservation], xy: &[Vector2<f64>], focal: f64) -> f64 {
+    let mut ratios = Vec::new();
+    for i in 0..obs.len() {
+        for j in 0..i {
+            let d_img = (xy[i] - xy[j]).norm();
+            if d_img > 0.0 {
+                ratios.push((obs[i].world - obs[j].world).norm() / d_img);
+            }
+        }
+    }
+    let median = |v: &mut Vec<f64>| -> f64 {
+        if v.is_empty() {
+            return 0.0;
+        }
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let depth = median(&mut ratios);
+    let mut survey: Vec<f64> = obs
+        .iter()
+        .map(|o| {
+            (0.5 * (o.world_cov[(0, 0)] + o.world_cov[(1, 1)]))
+                .max(0.0)
+                .sqrt()
+        })
+        .collect();
+    let survey_px = if depth > 0.0 {
+        focal * median(&mut survey) / depth
+    } else {
+        0.0
+    };
+    let pick = obs.iter().map(|o| o.sigma_px).fold(0.0, f64::max);
+    (CHI2_2DOF_999.sqrt() * (pick * pick + survey_px * survey_px).sqrt()).max(4.0)
+}
+
+/// Squared normalised residual of one GCP under `pose`; `None` behind the camera.
+fn normalised_sq(camera: &Camera, pose: &RigidPose, o: &GcpObservation) -> Option<f64> {
+    let (uv, _, jx) = project_pose(camera, pose, &o.world)?;
+    let r = o.uv - uv;
+    let info = residual_covariance(&jx, o).try_inverse()?;
+    Some(r.dot(&(info * r)))
+}
+
+fn refine_on(
+    camera: &Camera,
+    start: &RigidPose,
+    obs: &[GcpObservation],
+    inliers: &[bool],
+    loss: RobustLoss,
+) -> Result<RefinedPose, PoseError> {
+    let mut pts = Vec::new();
+    let mut behind = Vec::new();
+    for (i, o) in obs.iter().enumerate().filter(|(i, _)| inliers[*i]) {
+        match point_obs(camera, start, o) {
+            Some((p, _)) => pts.push(p),
+            None => behind.push(i),
+        }
+    }
+    if !behind.is_empty() {
+        return Err(PoseError::BehindCamera { points: behind });
+    }
+    let lm = LmSettings::default();
+    let first = refine_pose(camera, start, &pts, loss, &lm)?;
+    // The survey term of the weights depends on the pose: re-weight once at the solution.
+    let mut pts = Vec::new();
+    for o in obs
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| inliers[*i])
+        .map(|(_, o)| o)
+    {
+        pts.push(
+            point_obs(camera, &first.cam_from_world, o)
+                .ok_or_else(|| {
+                    PoseError::Degenerate("a GCP went behind the camera during refinement".into())
+                })?
+                .0,
+        );
+    }
+    refine_pose(camera, &first.cam_from_world, &pts, loss, &lm)
+}
+
+/// Solves the pose of one image from its GCP observations.
+pub fn solve_pose(
+    camera: &Camera,
+    obs: &[GcpObservation],
+    settings: &PoseSettings,
+) -> Result<PoseSolution, PoseError> {
+    check_geometry(obs)?;
+    let n = obs.len();
+    let world: Vec<Vector3<f64>> = obs.iter().map(|o| o.world).collect();
+    let mut xy = Vec::with_capacity(n);
+    for o in obs {
+        xy.push(
+            camera
+                .pixel_to_normalized(&o.uv)
+                .map_err(|e| PoseError::BadPick {
+                    name: o.name.clone(),
+                    message: e.to_string(),
+                })?,
+        );
+    }
+    let focal = 0.5 * (camera.fx + camera.fy);
+    let threshold = settings
+        .threshold_px
+        .unwrap_or_else(|| default_threshold(obs, &xy, focal));
+    let est = PnpEstimator::new(&world, &xy, focal);
+    let ransac = msac(
+        &est,
+        &RansacSettings {
+            threshold,
+            confidence: settings.confidence,
+            max_iterations: settings.max_iterations,
+            min_iterations: 10,
+            local_optimisation: true,
+            // P3P models from noisy picks are often poor: optimise every promising one.
+            lo_count_fraction: 0.5,
+            seed: settings.seed,
+        },
+    )
+    .map_err(|e| PoseError::Degenerate(e.to_string()))?;
+    let no_consensus = |count: usize| PoseError::NoConsensus {
+        agreeing: count,
+        total: n,
+        threshold_px: threshold,
+    };
+    let min_inliers = ((settings.min_inlier_fraction * n as f64).ceil() as usize).max(4);
+    if ransac.inlier_count < min_inliers {
+        return Err(no_consensus(ransac.inlier_count));
+    }
+    let mut inliers = ransac.inliers.clone();
+    let mut start = ransac.model;
+    let mut refined = None;
+    // Refine, re-test every GCP on its normalised residual, repeat until the set is stable.
+    for _ in 0..10 {
+        let count = inliers.iter().filter(|&&b| b).count();
+        let subset: Vec<GcpObservation> = obs
+            .iter()
+            .zip(&inliers)
+            .filter(|(_, b)| **b)
+            .map(|(o, _)| o.clone())
+            .collect();
+        if count < min_inliers {
+            return Err(no_consensus(count));
+        }
+        check_geometry(&subset).map_err(|e| {
+            PoseError::Degenerate(format!("the GCPs that agree on a pose are degenerate: {e}"))
+        })?;
+        let mut best = refine_on(camera, &start, obs, &inliers, settings.loss)?;
+        // A second start from EPnP on the inliers guards against a poor local minimum.
+        let (w, m): (Vec<_>, Vec<_>) = (0..n)
+            .filter(|&i| inliers[i])
+            .map(|i| (world[i], xy[i]))
+            .unzip();
+        if let Ok(alt) = epnp(&w, &m)
+            && let Ok(r) = refine_on(camera, &alt, obs, &inliers, settings.loss)
+            && r.chi2 < best.chi2 * (1.0 - 1e-9)
+        {
+            best = r;
+        }
+        let next: Vec<bool> = obs
+            .iter()
+            .map(|o| {
+                normalised_sq(camera, &best.cam_from_world, o)
+                    .is_some_and(|s| s < settings.outlier_chi2)
+            })
+            .collect();
+        start = best.cam_from_world;
+        let stable = next == inliers;
+        refined = Some(best);
+        if stable {
+            break;
+        }
+        inliers = next;
+    }
+    let refined = refined.expect("at least one refinement");
+    let count = inliers.iter().filter(|&&b| b).count();
+    if count < min_inliers {
+        return Err(no_consensus(count));
+    }
+    let pose = refined.cam_from_world;
+    let covariance = world_covariance(&pose, &refined.covariance);
+    let centre = pose.centre();
+    let r_wc = pose.rotation.inverse();
+    let mut residuals = Vec::with_capacity(n);
+    let mut sum_sq = 0.0;
+    for (o, &inlier) in obs.iter().zip(&inliers) {
+        let proj = project_pose(camera, &pose, &o.world);
+        let residual_px = proj.as_ref().map(|(uv, _, _)| o.uv - uv);
+        if inlier {
+            sum_sq += residual_px.map_or(0.0, |r| r.norm_squared());
+        }
+        // The pick's ray meets the horizontal plane through the GCP.
+        let ground_m = camera.unproject(&o.uv).ok().and_then(|b| {
+            let d = r_wc * b.into_inner();
+            let s = (o.world.z - centre.z) / d.z;
+            (d.z < 0.0 && s > 0.0).then(|| (centre + d * s).xy() - o.world.xy())
+        });
+        residuals.push(GcpResidual {
+            name: o.name.clone(),
+            uv: o.uv,
+            projected: proj.as_ref().map(|p| p.0),
+            residual_px,
+            ground_m,
+            normalised: normalised_sq(camera, &pose, o).map(f64::sqrt),
+            depth_m: Some(pose.apply(&o.world).z).filter(|z| *z > 0.0),
+            outlier: !inlier,
+        });
+    }
+    let dof = (2 * count).saturating_sub(6).max(1) as f64;
+    Ok(PoseSolution {
+        cam_from_world: pose.into(),
+        centre,
+        centre_sigma_m: Vector3::new(
+            covariance[(3, 3)].sqrt(),
+            covariance[(4, 4)].sqrt(),
+            covariance[(5, 5)].sqrt(),
+        ),
+        covariance,
+        residuals,
+        inliers: count,
+        rms_px: (sum_sq / count as f64).sqrt(),
+        sigma0: (refined.chi2 / dof).sqrt(),
+        threshold_px: threshold,
+        ransac_iterations: ransac.iterations,
+        termination: refined.termination,
+    })
+}

@@ -28,6 +28,7 @@ test: bootstrap
 
 bench: bootstrap
 	$(CARGO) bench --locked --bench calibrate_vs_opencv
+	$(CARGO) bench --locked --bench pnp_vs_opencv
 	$(CARGO) bench --locked --bench simulate
 
 fmt:

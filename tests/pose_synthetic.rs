@@ -3,86 +3,26 @@
 
 use geostride::camera::Camera;
 use geostride::estimate::p3p::RigidPose;
-use geostride::pose::attitude::Attitude;
 use geostride::pose::{GcpObservation, PoseError, PoseSettings, solve_pose};
-use nalgebra::{Matrix3, Rotation3, Vector2, Vector3};
+use geostride::simulate::gcp_view::{GcpView, GcpViewSpec, drone_camera_4k, gcp_view};
+use nalgebra::{Matrix3, Vector2, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
-/// A DJI-like 4K camera with mild distortion.
 fn camera() -> Camera {
-    Camera::pinhole(2756.0, 2756.0, 1919.5, 1079.5)
-        .with_image_size(3840, 2160)
-        .with_distortion(&[-0.08, 0.05, 0.0004, -0.0003, -0.01])
+    drone_camera_4k()
 }
 
-/// A nadir camera 30 m above undulating ground, slightly tilted, any heading.
-fn true_pose(rng: &mut impl rand::Rng) -> RigidPose {
-    let att = Attitude {
-        yaw_deg: rng.random_range(0.0..360.0),
-        pitch_deg: rng.random_range(-3.0..3.0),
-        roll_deg: rng.random_range(-3.0..3.0),
-        off_nadir_deg: 0.0,
-    };
-    let world_from_cam = Rotation3::from_matrix_unchecked(att.world_from_cam());
-    let centre = Vector3::new(
-        rng.random_range(-2.0..2.0),
-        rng.random_range(-2.0..2.0),
-        30.0,
-    );
-    let rotation = world_from_cam.inverse();
-    RigidPose {
-        rotation,
-        translation: -(rotation * centre),
-    }
-}
-
-struct Case {
-    obs: Vec<GcpObservation>,
-    outlier: Vec<bool>,
-    truth: RigidPose,
-}
-
-/// 20 GCPs inside the image, 1 px Gaussian noise, the first 30 % displaced by `gross_px` to
-/// 10 times that.
-fn case(seed: u64, gross_px: f64) -> Case {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let cam = camera();
-    let truth = true_pose(&mut rng);
-    let noise = Normal::new(0.0, 1.0).unwrap();
-    let mut obs = Vec::new();
-    let mut outlier = Vec::new();
-    while obs.len() < 20 {
-        // Sample a pixel, cast it to ground of height h.
-        let uv = Vector2::new(
-            rng.random_range(100.0..3740.0),
-            rng.random_range(100.0..2060.0),
-        );
-        let h = rng.random_range(-1.0..1.5);
-        let d = truth.rotation.inverse() * cam.unproject(&uv).unwrap().into_inner();
-        let c = truth.centre();
-        let world = c + d * ((h - c.z) / d.z);
-        let mut pick = cam.project(&truth.apply(&world)).unwrap()
-            + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng));
-        let gross = obs.len() < 6;
-        if gross {
-            let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
-            pick += Vector2::new(a.cos(), a.sin()) * rng.random_range(gross_px..10.0 * gross_px);
-        }
-        obs.push(GcpObservation {
-            name: format!("P{}", obs.len() + 1),
-            world,
-            world_cov: Matrix3::zeros(),
-            uv: pick,
-            sigma_px: 1.0,
-        });
-        outlier.push(gross);
-    }
-    Case {
-        obs,
-        outlier,
-        truth,
-    }
+/// 20 GCPs, 1 px noise, 30 % displaced by `gross_px` to ten times that.
+fn case(seed: u64, gross_px: f64) -> GcpView {
+    gcp_view(
+        &camera(),
+        &GcpViewSpec {
+            gross_px,
+            ..GcpViewSpec::default()
+        },
+        seed,
+    )
 }
 
 #[test]
@@ -95,7 +35,7 @@ fn covariance_matches_the_spread_and_outliers_are_flagged() {
         let c = case(seed, 15.0);
         let sol = solve_pose(
             &cam,
-            &c.obs,
+            &c.observations,
             &PoseSettings {
                 seed,
                 ..PoseSettings::default()
@@ -116,8 +56,8 @@ fn covariance_matches_the_spread_and_outliers_are_flagged() {
         // Error in (rotation about the world axes, centre).
         let est = RigidPose::from(&sol.cam_from_world);
         // world_from_cam_est = exp(δφ) world_from_cam_true.
-        let dphi = (est.rotation.inverse() * c.truth.rotation).scaled_axis();
-        let dc = est.centre() - c.truth.centre();
+        let dphi = (est.rotation.inverse() * c.cam_from_world.rotation).scaled_axis();
+        let dc = est.centre() - c.cam_from_world.centre();
         let e = nalgebra::Vector6::new(dphi.x, dphi.y, dphi.z, dc.x, dc.y, dc.z);
         let info = sol.covariance.try_inverse().unwrap();
         mahalanobis += e.dot(&(info * e));
@@ -159,7 +99,7 @@ fn survey_uncertainty_enters_the_covariance() {
         let mut c = case(1000 + seed, 60.0);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let noise = Normal::new(0.0, 0.05).unwrap();
-        for o in &mut c.obs {
+        for o in &mut c.observations {
             o.world += Vector3::new(
                 noise.sample(&mut rng),
                 noise.sample(&mut rng),
@@ -169,7 +109,7 @@ fn survey_uncertainty_enters_the_covariance() {
         }
         let sol = solve_pose(
             &cam,
-            &c.obs,
+            &c.observations,
             &PoseSettings {
                 seed,
                 ..PoseSettings::default()
@@ -187,7 +127,7 @@ fn survey_uncertainty_enters_the_covariance() {
                 sol.inliers
             );
         }
-        let dc = RigidPose::from(&sol.cam_from_world).centre() - c.truth.centre();
+        let dc = RigidPose::from(&sol.cam_from_world).centre() - c.cam_from_world.centre();
         for k in 0..3 {
             z2.push((dc[k] / sol.centre_sigma_m[k]).powi(2));
         }
@@ -216,7 +156,7 @@ fn expect_error(obs: &[GcpObservation], what: &str) -> PoseError {
 #[test]
 fn degenerate_inputs_are_clear_errors() {
     let c = case(7, 15.0);
-    let good: Vec<GcpObservation> = c.obs[6..].to_vec();
+    let good: Vec<GcpObservation> = c.observations[6..].to_vec();
 
     let e = expect_error(&good[..3], "three points");
     assert!(matches!(e, PoseError::TooFewPoints { got: 3 }));
@@ -261,14 +201,14 @@ fn degenerate_inputs_are_clear_errors() {
     // (x/z is unchanged) but lie behind it. Over relief (±8 m) no pose puts them in front.
     let cam = camera();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-    let centre = c.truth.centre();
+    let centre = c.cam_from_world.centre();
     let behind: Vec<GcpObservation> = (0..12)
         .map(|i| {
             let uv = Vector2::new(
                 rng.random_range(200.0..3600.0),
                 rng.random_range(200.0..1900.0),
             );
-            let d = c.truth.rotation.inverse() * cam.unproject(&uv).unwrap().into_inner();
+            let d = c.cam_from_world.rotation.inverse() * cam.unproject(&uv).unwrap().into_inner();
             let front = centre + d * ((rng.random_range(-8.0..8.0) - centre.z) / d.z);
             GcpObservation {
                 name: format!("B{i}"),
@@ -279,7 +219,11 @@ fn degenerate_inputs_are_clear_errors() {
             }
         })
         .collect();
-    assert!(behind.iter().all(|o| c.truth.apply(&o.world).z < 0.0));
+    assert!(
+        behind
+            .iter()
+            .all(|o| c.cam_from_world.apply(&o.world).z < 0.0)
+    );
     let e = expect_error(&behind, "points behind the camera");
     assert!(
         matches!(

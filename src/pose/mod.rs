@@ -2,6 +2,7 @@
 //! every frame of a hovering camera from key frames, carried picks and a joint refinement.
 
 pub mod attitude;
+pub mod oracle;
 pub mod refine;
 pub mod solve;
 

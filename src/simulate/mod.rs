@@ -2,6 +2,7 @@
 
 pub mod board;
 pub mod flight;
+pub mod gcp_view;
 pub mod noise;
 pub mod people;
 pub mod plan;

@@ -9,7 +9,7 @@ use opencv::prelude::*;
 use crate::simulate::board::GrayImage;
 
 /// Encodes a Mat in the format of `path`'s extension and writes it atomically.
-fn encode_to(path: &Path, mat: &impl opencv::core::ToInputArray) -> Result<(), String> {
+pub(crate) fn encode_to(path: &Path, mat: &impl opencv::core::ToInputArray) -> Result<(), String> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

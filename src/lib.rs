@@ -14,6 +14,7 @@
 pub mod calibration;
 pub mod camera;
 pub mod cli;
+pub mod draw;
 pub mod estimate;
 pub mod geom;
 pub mod imageio;

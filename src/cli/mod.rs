@@ -4,13 +4,16 @@ mod calibrate;
 mod camera;
 mod demo;
 mod plan;
+mod pose;
 mod simulate;
-mod survey;
+pub(crate) mod survey;
 
 use std::path::{Path, PathBuf};
 
 use anyhow::anyhow;
 use clap::{Parser, Subcommand};
+
+use crate::camera::{Camera, formats, presets};
 
 /// An error caused by the user's input or usage (exit code 2), as opposed to a failure while
 /// running (exit code 1).
@@ -55,6 +58,8 @@ enum Command {
     Demo(demo::Args),
     /// Render a simulated scene (drone video of walkers or runners) with exact ground truth
     Simulate(simulate::Args),
+    /// Camera pose from ground control points: one image, or every frame of a hovering video
+    Pose(pose::Args),
     /// Plan a flight: footprint, ground sample distance and error maps for a camera and altitude
     Plan(plan::Args),
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
@@ -70,6 +75,7 @@ impl Cli {
             Command::Demo(args) => demo::run(args),
             Command::Survey(cmd) => survey::run(cmd),
             Command::Plan(args) => plan::run(args),
+            Command::Pose(args) => pose::run(args),
             Command::Simulate(args) => simulate::run(args),
         }
     }
@@ -149,6 +155,36 @@ pub(crate) fn progress_bar(quiet: bool, len: u64, template: &str) -> indicatif::
     );
     b.set_style(indicatif::ProgressStyle::with_template(template).expect("progress template"));
     b
+}
+
+/// A preset by name or a calibration file.
+pub(crate) fn load_camera(spec: &str) -> anyhow::Result<(Camera, String)> {
+    if let Some(cal) = presets::preset(spec) {
+        return Ok((cal.camera, format!("preset {spec} (nominal)")));
+    }
+    let path = Path::new(spec);
+    if !path.exists() {
+        return Err(bad_input(anyhow!(
+            "--camera '{spec}' is neither a preset ({}) nor a file",
+            presets::names().join(", ")
+        )));
+    }
+    let cal = formats::read(path, None).map_err(bad_input)?;
+    Ok((cal.camera, spec.to_string()))
+}
+
+/// The camera scaled to another resolution of the same aspect ratio.
+pub(crate) fn scale_to(camera: Camera, w: u32, h: u32) -> anyhow::Result<Camera> {
+    let size = camera
+        .image_size
+        .ok_or_else(|| bad_input(anyhow!("the camera has no image size to scale from")))?;
+    camera.scaled_to(w, h).ok_or_else(|| {
+        bad_input(anyhow!(
+            "video mode {w}x{h} has another aspect ratio than the camera's {}x{}: the sensor crop is unknown; use a calibration made in that mode",
+            size.width,
+            size.height
+        ))
+    })
 }
 
 /// A number from 0 to 1.

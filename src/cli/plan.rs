@@ -1,12 +1,10 @@
 //! `geostride plan`: footprint, ground sample distance and the paper's error maps for a flight.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, anyhow};
 
-use super::{bad_input, parse_positive};
-use crate::camera::Camera;
-use crate::camera::{formats, presets};
+use super::{bad_input, load_camera, parse_positive, scale_to};
 use crate::imageio::HeatMap;
 use crate::simulate::plan::{PixelNoise, PlanSettings, plan};
 
@@ -62,36 +60,6 @@ pub struct Args {
     /// Print the numbers as JSON
     #[arg(long)]
     json: bool,
-}
-
-/// A preset by name or a calibration file.
-pub(crate) fn load_camera(spec: &str) -> anyhow::Result<(Camera, String)> {
-    if let Some(cal) = presets::preset(spec) {
-        return Ok((cal.camera, format!("preset {spec} (nominal)")));
-    }
-    let path = Path::new(spec);
-    if !path.exists() {
-        return Err(bad_input(anyhow!(
-            "--camera '{spec}' is neither a preset ({}) nor a file",
-            presets::names().join(", ")
-        )));
-    }
-    let cal = formats::read(path, None).map_err(bad_input)?;
-    Ok((cal.camera, spec.to_string()))
-}
-
-/// The camera scaled to another resolution of the same aspect ratio.
-pub(crate) fn scale_to(camera: Camera, w: u32, h: u32) -> anyhow::Result<Camera> {
-    let size = camera
-        .image_size
-        .ok_or_else(|| bad_input(anyhow!("the camera has no image size to scale from")))?;
-    camera.scaled_to(w, h).ok_or_else(|| {
-        bad_input(anyhow!(
-            "video mode {w}x{h} has another aspect ratio than the camera's {}x{}: the sensor crop is unknown; use a calibration made in that mode",
-            size.width,
-            size.height
-        ))
-    })
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {

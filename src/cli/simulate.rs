@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, anyhow};
 
 use super::bad_input;
-use super::plan::{load_camera, scale_to};
+use super::{load_camera, scale_to};
 use crate::simulate::run::{Overrides, SimError, Summary, simulate};
 use crate::simulate::scene::Scene;
 

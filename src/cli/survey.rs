@@ -87,11 +87,9 @@ fn parse_delimiter(s: &str) -> Result<u8, String> {
     }
 }
 
-/// How to read the survey and what to do with it; shared by `inspect` and `convert`.
+/// How to read a survey file into the site frame; shared by `survey` and `pose`.
 #[derive(clap::Args)]
-pub struct Input {
-    /// Survey file: Emlid CSV, OpenDroneMap gcp_list.txt, OpenSfM JSON, Metashape CSV, PeTrack .3dc, CSV
-    file: PathBuf,
+pub struct ReadArgs {
     /// Input format, when detection from the content is not wanted (csv needs --columns)
     #[arg(long, value_enum)]
     format: Option<InFormat>,
@@ -112,15 +110,13 @@ pub struct Input {
     /// Field delimiter for CSV formats: a character, 'tab' or 'space' [default: detected]
     #[arg(long, value_parser = parse_delimiter, value_name = "C")]
     delimiter: Option<u8>,
-    /// Image size WIDTHxHEIGHT, to convert OpenSfM's normalised image coordinates
+    /// Size WIDTHxHEIGHT of the picked images: converts OpenSfM's normalised image coordinates;
+    /// `pose` scales the camera to it
     #[arg(long, value_parser = super::parse_size, value_name = "WxH")]
-    image_size: Option<(u32, u32)>,
-    /// Image name of PeTrack's pixel picks
-    #[arg(long, value_name = "NAME")]
-    image: Option<String>,
+    pub image_size: Option<(u32, u32)>,
     /// CSV of pixel picks 'name,image,u,v[,sigma]' to add (repeatable)
     #[arg(long, value_name = "FILE")]
-    picks: Vec<PathBuf>,
+    pub picks: Vec<PathBuf>,
     /// Points whose names start with this are check points ('' for none)
     #[arg(long, default_value = "CHK-", value_name = "PREFIX")]
     check_prefix: String,
@@ -134,6 +130,18 @@ pub struct Input {
     /// or 'LAT,LON,H'
     #[arg(long, default_value = "centroid", value_name = "ORIGIN")]
     origin: Origin,
+}
+
+/// How to read the survey and what to do with it; shared by `inspect` and `convert`.
+#[derive(clap::Args)]
+pub struct Input {
+    /// Survey file: Emlid CSV, OpenDroneMap gcp_list.txt, OpenSfM JSON, Metashape CSV, PeTrack .3dc, CSV
+    file: PathBuf,
+    #[command(flatten)]
+    read: ReadArgs,
+    /// Image name of PeTrack's pixel picks
+    #[arg(long, value_name = "NAME")]
+    image: Option<String>,
     /// Fit a 7-parameter Helmert transform from this file's points onto a reference file's
     /// (matched by name) and report control and check residuals
     #[arg(long, value_name = "REF")]
@@ -175,6 +183,53 @@ pub enum Command {
     },
 }
 
+/// A survey read into its site frame.
+pub(crate) struct Framed {
+    pub survey: Survey,
+    pub frame: SiteFrame,
+    /// Every point's site-frame position, in the survey's order.
+    pub local: Vec<Vector3<f64>>,
+}
+
+/// Reads a survey file (and its picks), assigns roles and sets up the site frame.
+pub(crate) fn read_framed(
+    file: &Path,
+    args: &ReadArgs,
+    petrack_image: Option<String>,
+) -> anyhow::Result<Framed> {
+    let opts = ReadOptions {
+        format: args.format.map(SurveyFormat::from),
+        crs: args.crs.clone(),
+        height: args.height.map(|h| match h {
+            HeightArg::Orthometric => HeightChoice::Orthometric,
+            HeightArg::Ellipsoidal => HeightChoice::Ellipsoidal,
+        }),
+        fix_only: args.fix_only,
+        columns: args.columns.clone(),
+        delimiter: args.delimiter,
+        image_size: args.image_size,
+        image: petrack_image,
+    };
+    let mut survey = read(file, &opts).map_err(bad_input)?;
+    for p in &args.picks {
+        read_picks(p, &mut survey).map_err(bad_input)?;
+    }
+    let prefix = Some(args.check_prefix.as_str());
+    assign_roles(&mut survey, prefix, &args.check, &args.disable).map_err(bad_input)?;
+    let frame = SiteFrame::new(&survey, &args.origin).map_err(bad_input)?;
+    let local = survey
+        .points
+        .iter()
+        .map(|p| frame.local_from_source(&p.position))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| bad_input(anyhow!("{}: {e}", file.display())))?;
+    Ok(Framed {
+        survey,
+        frame,
+        local,
+    })
+}
+
 /// A survey read, framed and (optionally) fitted.
 struct Loaded {
     survey: Survey,
@@ -184,32 +239,12 @@ struct Loaded {
 }
 
 fn load(input: &Input) -> anyhow::Result<Loaded> {
-    let opts = ReadOptions {
-        format: input.format.map(SurveyFormat::from),
-        crs: input.crs.clone(),
-        height: input.height.map(|h| match h {
-            HeightArg::Orthometric => HeightChoice::Orthometric,
-            HeightArg::Ellipsoidal => HeightChoice::Ellipsoidal,
-        }),
-        fix_only: input.fix_only,
-        columns: input.columns.clone(),
-        delimiter: input.delimiter,
-        image_size: input.image_size,
-        image: input.image.clone(),
-    };
-    let mut survey = read(&input.file, &opts).map_err(bad_input)?;
-    for p in &input.picks {
-        read_picks(p, &mut survey).map_err(bad_input)?;
-    }
-    let prefix = Some(input.check_prefix.as_str());
-    assign_roles(&mut survey, prefix, &input.check, &input.disable).map_err(bad_input)?;
-    let frame = SiteFrame::new(&survey, &input.origin).map_err(bad_input)?;
-    let local = survey
-        .points
-        .iter()
-        .map(|p| frame.local_from_source(&p.position))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| bad_input(anyhow!("{}: {e}", input.file.display())))?;
+    let Framed {
+        survey,
+        frame,
+        local,
+    } = read_framed(&input.file, &input.read, input.image.clone())?;
+    let prefix = Some(input.read.check_prefix.as_str());
     let fit = match &input.fit_to {
         None => None,
         Some(ref_path) => {
@@ -283,7 +318,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
         } => {
             check_output_path(&output, std::slice::from_ref(&input.file))?;
             let l = load(&input)?;
-            let notes = convert(&l, to, &output, to_crs.as_deref(), input.image_size)?;
+            let notes = convert(&l, to, &output, to_crs.as_deref(), input.read.image_size)?;
             for w in &l.survey.warnings {
                 eprintln!("warning: {w}");
             }

@@ -49,9 +49,55 @@ impl Attitude {
     }
 }
 
+/// σ of yaw, pitch and roll (degrees) from the covariance of a rotation error `δφ` about the
+/// world axes (`world_from_cam' = exp(δφ) world_from_cam`), by central differences.
+pub fn attitude_sigma_deg(world_from_cam: &Matrix3<f64>, cov_phi: &Matrix3<f64>) -> [f64; 3] {
+    let eps = 1e-6;
+    let mut j = Matrix3::zeros();
+    for k in 0..3 {
+        let mut d = Vector3::zeros();
+        d[k] = eps;
+        let a = Attitude::from_world_from_cam(&(Rotation3::new(d).matrix() * world_from_cam));
+        let b = Attitude::from_world_from_cam(&(Rotation3::new(-d).matrix() * world_from_cam));
+        // Yaw wraps at 0/360.
+        let dyaw = (a.yaw_deg - b.yaw_deg + 540.0).rem_euclid(360.0) - 180.0;
+        j.set_column(
+            k,
+            &(Vector3::new(dyaw, a.pitch_deg - b.pitch_deg, a.roll_deg - b.roll_deg) / (2.0 * eps)),
+        );
+    }
+    let c = j * cov_phi * j.transpose();
+    [
+        c[(0, 0)].max(0.0).sqrt(),
+        c[(1, 1)].max(0.0).sqrt(),
+        c[(2, 2)].max(0.0).sqrt(),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sigmas_of_a_nadir_camera_follow_the_world_axes() {
+        let r = Attitude {
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
+            off_nadir_deg: 0.0,
+        }
+        .world_from_cam();
+        let cov = Matrix3::from_diagonal(&Vector3::new(1e-6, 4e-6, 9e-6));
+        let s = attitude_sigma_deg(&r, &cov);
+        // Yaw about up, pitch about east, roll about north.
+        let deg = 1e-3f64.to_degrees();
+        assert!(
+            (s[0] - 3.0 * deg).abs() < 1e-6
+                && (s[1] - deg).abs() < 1e-6
+                && (s[2] - 2.0 * deg).abs() < 1e-6,
+            "{s:?}"
+        );
+    }
 
     #[test]
     fn angles_round_trip_and_mean_what_they_say() {

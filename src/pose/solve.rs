@@ -271,6 +271,33 @@ fn refine_on(
     refine_pose(camera, &first.cam_from_world, &pts, loss, &lm)
 }
 
+/// How one GCP fits a pose: pixel residual, its normalised size, and where the pick's ray meets
+/// the horizontal plane through the GCP.
+pub fn gcp_residual(
+    camera: &Camera,
+    pose: &RigidPose,
+    o: &GcpObservation,
+    outlier: bool,
+) -> GcpResidual {
+    let centre = pose.centre();
+    let proj = project_pose(camera, pose, &o.world);
+    let ground_m = camera.unproject(&o.uv).ok().and_then(|b| {
+        let d = pose.rotation.inverse() * b.into_inner();
+        let s = (o.world.z - centre.z) / d.z;
+        (s > 0.0 && s.is_finite()).then(|| (centre + d * s).xy() - o.world.xy())
+    });
+    GcpResidual {
+        name: o.name.clone(),
+        uv: o.uv,
+        projected: proj.as_ref().map(|p| p.0),
+        residual_px: proj.as_ref().map(|(uv, _, _)| o.uv - uv),
+        ground_m,
+        normalised: normalised_sq(camera, pose, o).map(f64::sqrt),
+        depth_m: Some(pose.apply(&o.world).z).filter(|z| *z > 0.0),
+        outlier,
+    }
+}
+
 /// Solves the pose of one image from its GCP observations.
 pub fn solve_pose(
     camera: &Camera,
@@ -372,32 +399,17 @@ pub fn solve_pose(
     let pose = refined.cam_from_world;
     let covariance = world_covariance(&pose, &refined.covariance);
     let centre = pose.centre();
-    let r_wc = pose.rotation.inverse();
-    let mut residuals = Vec::with_capacity(n);
-    let mut sum_sq = 0.0;
-    for (o, &inlier) in obs.iter().zip(&inliers) {
-        let proj = project_pose(camera, &pose, &o.world);
-        let residual_px = proj.as_ref().map(|(uv, _, _)| o.uv - uv);
-        if inlier {
-            sum_sq += residual_px.map_or(0.0, |r| r.norm_squared());
-        }
-        // The pick's ray meets the horizontal plane through the GCP.
-        let ground_m = camera.unproject(&o.uv).ok().and_then(|b| {
-            let d = r_wc * b.into_inner();
-            let s = (o.world.z - centre.z) / d.z;
-            (d.z < 0.0 && s > 0.0).then(|| (centre + d * s).xy() - o.world.xy())
-        });
-        residuals.push(GcpResidual {
-            name: o.name.clone(),
-            uv: o.uv,
-            projected: proj.as_ref().map(|p| p.0),
-            residual_px,
-            ground_m,
-            normalised: normalised_sq(camera, &pose, o).map(f64::sqrt),
-            depth_m: Some(pose.apply(&o.world).z).filter(|z| *z > 0.0),
-            outlier: !inlier,
-        });
-    }
+    let residuals: Vec<GcpResidual> = obs
+        .iter()
+        .zip(&inliers)
+        .map(|(o, &inlier)| gcp_residual(camera, &pose, o, !inlier))
+        .collect();
+    let sum_sq: f64 = residuals
+        .iter()
+        .filter(|r| !r.outlier)
+        .filter_map(|r| r.residual_px)
+        .map(|r| r.norm_squared())
+        .sum();
     let dof = (2 * count).saturating_sub(6).max(1) as f64;
     Ok(PoseSolution {
         cam_from_world: pose.into(),

@@ -1,0 +1,464 @@
+//! Annotated images and simple charts (OpenCV adapter): a canvas to draw on in pixel
+//! coordinates (sub-pixel, (0, 0) the centre of the top-left pixel), and a line chart.
+
+use std::path::Path;
+
+use nalgebra::Vector2;
+use opencv::core::{CV_8UC3, Mat, Point, Rect, Scalar, Size};
+use opencv::imgproc;
+use opencv::prelude::*;
+
+/// Sub-pixel bits for OpenCV's drawing functions.
+const SHIFT: i32 = 4;
+
+fn pt(p: &Vector2<f64>) -> Point {
+    let s = f64::from(1 << SHIFT);
+    Point::new((p.x * s).round() as i32, (p.y * s).round() as i32)
+}
+
+fn colour(rgb: [u8; 3]) -> Scalar {
+    Scalar::new(f64::from(rgb[2]), f64::from(rgb[1]), f64::from(rgb[0]), 0.0)
+}
+
+fn err(e: opencv::Error) -> String {
+    e.to_string()
+}
+
+/// An 8-bit colour image to draw on.
+pub struct Canvas {
+    mat: Mat,
+}
+
+impl Canvas {
+    /// Reads an image file (any format OpenCV decodes) in colour.
+    pub fn read(path: &Path) -> Result<Canvas, String> {
+        let name = path
+            .to_str()
+            .ok_or_else(|| format!("{}: not a UTF-8 path", path.display()))?;
+        let mat = opencv::imgcodecs::imread(name, opencv::imgcodecs::IMREAD_COLOR)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        if mat.empty() {
+            return Err(format!("{}: not an image OpenCV can read", path.display()));
+        }
+        Ok(Canvas { mat })
+    }
+
+    /// A canvas from an OpenCV colour (BGR) image.
+    pub fn from_bgr(mat: Mat) -> Canvas {
+        Canvas { mat }
+    }
+
+    /// A plain canvas.
+    pub fn blank(width: u32, height: u32, rgb: [u8; 3]) -> Result<Canvas, String> {
+        let mat =
+            Mat::new_rows_cols_with_default(height as i32, width as i32, CV_8UC3, colour(rgb))
+                .map_err(err)?;
+        Ok(Canvas { mat })
+    }
+
+    pub fn width(&self) -> u32 {
+        self.mat.cols() as u32
+    }
+
+    pub fn height(&self) -> u32 {
+        self.mat.rows() as u32
+    }
+
+    pub fn line(
+        &mut self,
+        a: &Vector2<f64>,
+        b: &Vector2<f64>,
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), String> {
+        imgproc::line(
+            &mut self.mat,
+            pt(a),
+            pt(b),
+            colour(rgb),
+            thickness,
+            imgproc::LINE_AA,
+            SHIFT,
+        )
+        .map_err(err)
+    }
+
+    /// A dashed line, `dash` pixels on and off.
+    pub fn dashed_line(
+        &mut self,
+        a: &Vector2<f64>,
+        b: &Vector2<f64>,
+        rgb: [u8; 3],
+        thickness: i32,
+        dash: f64,
+    ) -> Result<(), String> {
+        let len = (b - a).norm();
+        let steps = (len / dash).ceil().max(1.0) as usize;
+        for k in (0..steps).step_by(2) {
+            let t0 = k as f64 / steps as f64;
+            let t1 = ((k + 1) as f64 / steps as f64).min(1.0);
+            self.line(&(a + (b - a) * t0), &(a + (b - a) * t1), rgb, thickness)?;
+        }
+        Ok(())
+    }
+
+    pub fn circle(
+        &mut self,
+        c: &Vector2<f64>,
+        radius: f64,
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), String> {
+        let r = (radius * f64::from(1 << SHIFT)).round() as i32;
+        imgproc::circle(
+            &mut self.mat,
+            pt(c),
+            r,
+            colour(rgb),
+            thickness,
+            imgproc::LINE_AA,
+            SHIFT,
+        )
+        .map_err(err)
+    }
+
+    /// An upright cross of half-size `half` pixels.
+    pub fn cross(
+        &mut self,
+        c: &Vector2<f64>,
+        half: f64,
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), String> {
+        self.line(
+            &(c - Vector2::new(half, 0.0)),
+            &(c + Vector2::new(half, 0.0)),
+            rgb,
+            thickness,
+        )?;
+        self.line(
+            &(c - Vector2::new(0.0, half)),
+            &(c + Vector2::new(0.0, half)),
+            rgb,
+            thickness,
+        )
+    }
+
+    pub fn arrow(
+        &mut self,
+        from: &Vector2<f64>,
+        to: &Vector2<f64>,
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), String> {
+        let len = (to - from).norm().max(1e-9);
+        let tip = (12.0 / len).min(0.4);
+        imgproc::arrowed_line(
+            &mut self.mat,
+            pt(from),
+            pt(to),
+            colour(rgb),
+            thickness,
+            imgproc::LINE_AA,
+            SHIFT,
+            tip,
+        )
+        .map_err(err)
+    }
+
+    /// Text with its baseline starting at `at`, outlined in black so that it reads on any
+    /// background. `scale` 1 is about 22 px high.
+    pub fn text(
+        &mut self,
+        at: &Vector2<f64>,
+        s: &str,
+        scale: f64,
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), String> {
+        let p = Point::new(at.x.round() as i32, at.y.round() as i32);
+        if rgb != [0, 0, 0] {
+            imgproc::put_text(
+                &mut self.mat,
+                s,
+                p,
+                imgproc::FONT_HERSHEY_SIMPLEX,
+                scale,
+                colour([0, 0, 0]),
+                thickness + 2,
+                imgproc::LINE_AA,
+                false,
+            )
+            .map_err(err)?;
+        }
+        imgproc::put_text(
+            &mut self.mat,
+            s,
+            p,
+            imgproc::FONT_HERSHEY_SIMPLEX,
+            scale,
+            colour(rgb),
+            thickness,
+            imgproc::LINE_AA,
+            false,
+        )
+        .map_err(err)
+    }
+
+    /// A filled rectangle (integer pixels), clipped to the canvas.
+    pub fn fill_rect(
+        &mut self,
+        x: i32,
+        y: i32,
+        w: i32,
+        h: i32,
+        rgb: [u8; 3],
+    ) -> Result<(), String> {
+        imgproc::rectangle(
+            &mut self.mat,
+            Rect::new(x, y, w, h),
+            colour(rgb),
+            -1,
+            imgproc::LINE_8,
+            0,
+        )
+        .map_err(err)
+    }
+
+    /// A darkened band over the rectangle, to put text on.
+    pub fn shade_rect(&mut self, x: i32, y: i32, w: i32, h: i32) -> Result<(), String> {
+        let r = Rect::new(
+            x.max(0),
+            y.max(0),
+            w.min(self.mat.cols() - x.max(0)),
+            h.min(self.mat.rows() - y.max(0)),
+        );
+        if r.width <= 0 || r.height <= 0 {
+            return Ok(());
+        }
+        let mut roi = Mat::roi_mut(&mut self.mat, r).map_err(err)?;
+        let mut dark = Mat::default();
+        roi.convert_to(&mut dark, -1, 0.35, 0.0).map_err(err)?;
+        dark.copy_to(&mut roi).map_err(err)
+    }
+
+    /// Writes the canvas; the format follows the extension; written atomically.
+    pub fn save(&self, path: &Path) -> Result<(), String> {
+        crate::imageio::encode_to(path, &self.mat)
+    }
+
+    /// Text width in pixels at `scale`.
+    pub fn text_width(s: &str, scale: f64, thickness: i32) -> i32 {
+        let mut base = 0;
+        imgproc::get_text_size(
+            s,
+            imgproc::FONT_HERSHEY_SIMPLEX,
+            scale,
+            thickness,
+            &mut base,
+        )
+        .map_or(0, |sz: Size| sz.width)
+    }
+}
+
+/// How a series is drawn.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Style {
+    Line,
+    Dashed,
+    Dots,
+}
+
+/// One series of a chart.
+#[derive(Clone, Debug)]
+pub struct Series {
+    pub label: String,
+    pub xy: Vec<(f64, f64)>,
+    pub rgb: [u8; 3],
+    pub style: Style,
+}
+
+/// A line chart: series over shared axes, and optional vertical ticks (key frames, say).
+#[derive(Clone, Debug, Default)]
+pub struct Chart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+    /// Short vertical marks along the bottom of the plot area, with their legend label.
+    pub ticks: Vec<f64>,
+    pub ticks_label: String,
+}
+
+/// A "nice" step (1, 2 or 5 times a power of ten) for about `n` intervals over `span`.
+fn nice_step(span: f64, n: f64) -> f64 {
+    let raw = (span / n).max(1e-300);
+    let p = 10f64.powf(raw.log10().floor());
+    [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * p)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * p)
+}
+
+fn label(v: f64, step: f64) -> String {
+    let decimals = if step >= 1.0 {
+        0
+    } else {
+        (-step.log10().floor()) as usize
+    };
+    format!("{v:.decimals$}")
+}
+
+/// Draws a chart on a white canvas of `width` × `height` pixels. The y axis starts at 0.
+pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, String> {
+    let mut c = Canvas::blank(width, height, [255, 255, 255])?;
+    let (left, right, top, bottom) = (70.0, 20.0, 50.0, 55.0);
+    let (w, h) = (
+        f64::from(width) - left - right,
+        f64::from(height) - top - bottom,
+    );
+    let pts = chart
+        .series
+        .iter()
+        .flat_map(|s| s.xy.iter())
+        .filter(|(x, y)| x.is_finite() && y.is_finite());
+    let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+    for &(x, y) in pts {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y1 = y1.max(y);
+    }
+    if !x0.is_finite() {
+        (x0, x1) = (0.0, 1.0);
+    }
+    if x1 <= x0 {
+        x1 = x0 + 1.0;
+    }
+    let y_step = nice_step(if y1 > 0.0 { y1 } else { 1.0 }, 5.0);
+    let y1 = (y1 / y_step).ceil().max(1.0) * y_step;
+    let to_px =
+        |x: f64, y: f64| Vector2::new(left + (x - x0) / (x1 - x0) * w, top + h - y / y1 * h);
+    let grey = [200, 200, 200];
+    let black = [0, 0, 0];
+    // Grid and labels.
+    let mut y = 0.0;
+    while y <= y1 + 1e-9 * y1 {
+        let p = to_px(x0, y);
+        c.line(&p, &to_px(x1, y), grey, 1)?;
+        let s = label(y, y_step);
+        c.text(
+            &Vector2::new(
+                left - 8.0 - f64::from(Canvas::text_width(&s, 0.45, 1)),
+                p.y + 5.0,
+            ),
+            &s,
+            0.45,
+            black,
+            1,
+        )?;
+        y += y_step;
+    }
+    let x_step = nice_step(x1 - x0, 8.0);
+    let mut x = (x0 / x_step).ceil() * x_step;
+    while x <= x1 + 1e-9 * x_step {
+        let p = to_px(x, 0.0);
+        c.line(&p, &(p + Vector2::new(0.0, 5.0)), black, 1)?;
+        let s = label(x, x_step);
+        c.text(
+            &Vector2::new(
+                p.x - f64::from(Canvas::text_width(&s, 0.45, 1)) / 2.0,
+                p.y + 20.0,
+            ),
+            &s,
+            0.45,
+            black,
+            1,
+        )?;
+        x += x_step;
+    }
+    c.line(&to_px(x0, 0.0), &to_px(x1, 0.0), black, 1)?;
+    c.line(&to_px(x0, 0.0), &to_px(x0, y1), black, 1)?;
+    for &t in &chart.ticks {
+        let p = to_px(t, 0.0);
+        c.line(&p, &(p - Vector2::new(0.0, 10.0)), [30, 120, 200], 2)?;
+    }
+    for s in &chart.series {
+        let mut prev: Option<Vector2<f64>> = None;
+        for &(x, y) in &s.xy {
+            if !(x.is_finite() && y.is_finite()) {
+                prev = None;
+                continue;
+            }
+            let p = to_px(x, y);
+            match s.style {
+                Style::Dots => c.circle(&p, 1.5, s.rgb, -1)?,
+                Style::Line => {
+                    if let Some(q) = prev {
+                        c.line(&q, &p, s.rgb, 1)?;
+                    }
+                }
+                Style::Dashed => {
+                    if let Some(q) = prev {
+                        c.dashed_line(&q, &p, s.rgb, 1, 6.0)?;
+                    }
+                }
+            }
+            prev = Some(p);
+        }
+    }
+    // Titles and legend.
+    c.text(&Vector2::new(left, 28.0), &chart.title, 0.6, black, 1)?;
+    let xl = &chart.x_label;
+    c.text(
+        &Vector2::new(
+            left + w / 2.0 - f64::from(Canvas::text_width(xl, 0.5, 1)) / 2.0,
+            f64::from(height) - 10.0,
+        ),
+        xl,
+        0.5,
+        black,
+        1,
+    )?;
+    c.text(
+        &Vector2::new(8.0, top - 10.0),
+        &chart.y_label,
+        0.45,
+        black,
+        1,
+    )?;
+    let mut lx = left + w;
+    let mut entries: Vec<(String, [u8; 3])> = chart
+        .series
+        .iter()
+        .map(|s| (s.label.clone(), s.rgb))
+        .collect();
+    if !chart.ticks.is_empty() {
+        entries.push((chart.ticks_label.clone(), [30, 120, 200]));
+    }
+    for (l, rgb) in entries.iter().rev() {
+        lx -= f64::from(Canvas::text_width(l, 0.45, 1)) + 30.0;
+        c.line(
+            &Vector2::new(lx, top - 14.0),
+            &Vector2::new(lx + 18.0, top - 14.0),
+            *rgb,
+            2,
+        )?;
+        c.text(&Vector2::new(lx + 22.0, top - 10.0), l, 0.45, black, 1)?;
+    }
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nice_steps() {
+        assert_eq!(nice_step(10.0, 5.0), 2.0);
+        assert_eq!(nice_step(0.9, 5.0), 0.2);
+        assert_eq!(nice_step(730.0, 8.0), 100.0);
+        assert_eq!(label(0.4, 0.2), "0.4");
+        assert_eq!(label(300.0, 100.0), "300");
+    }
+}

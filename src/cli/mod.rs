@@ -5,6 +5,7 @@ mod camera;
 mod demo;
 mod plan;
 mod pose;
+mod pose_video;
 mod simulate;
 pub(crate) mod survey;
 

@@ -28,13 +28,13 @@ pub struct Args {
     /// Camera calibration (OpenCV YAML, Metashape XML, geostride JSON) or a preset name; scaled
     /// to the image or video size when the aspect ratio matches
     #[arg(long, value_name = "CAL")]
-    camera: String,
+    pub(crate) camera: String,
     /// Ground control points: any survey file `geostride survey` reads (Emlid CSV, ODM
     /// gcp_list.txt, Metashape CSV, PeTrack .3dc, ...); its picks are used too
     #[arg(long, value_name = "FILE")]
-    gcps: PathBuf,
+    pub(crate) gcps: PathBuf,
     #[command(flatten)]
-    read: ReadArgs,
+    pub(crate) read: ReadArgs,
     /// The photo: its size sets the camera's, its picks are those named after it, and an
     /// annotated copy (GCPs projected, residual vectors) is written
     #[arg(long, value_name = "IMG", conflicts_with = "video")]
@@ -46,32 +46,60 @@ pub struct Args {
     /// Use the picks of this image name [default: --image's file name, or the only image the
     /// picks name]
     #[arg(long, value_name = "NAME")]
-    picks_image: Option<String>,
+    pub(crate) picks_image: Option<String>,
     /// σ of picks that do not state one, pixels
     #[arg(long, default_value = "1.0", value_parser = parse_positive, value_name = "PX")]
-    pick_sigma: f64,
+    pub(crate) pick_sigma: f64,
     /// σ of GCP positions that the file does not state, metres (horizontal and vertical)
     #[arg(long, default_value = "0.02", value_parser = parse_positive, value_name = "M")]
-    gcp_sigma: f64,
+    pub(crate) gcp_sigma: f64,
     /// MSAC inlier threshold, pixels [default: 3.72 σ of the picks and the projected survey σ,
     /// at least 4]
     #[arg(long, value_parser = parse_positive, value_name = "PX")]
-    threshold: Option<f64>,
+    pub(crate) threshold: Option<f64>,
     /// Robust loss of the refinement: none, huber[:K] or cauchy[:K] (K in σ)
     #[arg(long, default_value = "none", value_name = "LOSS")]
-    loss: RobustLoss,
+    pub(crate) loss: RobustLoss,
     /// Seed of the MSAC sampler
     #[arg(long, default_value = "0")]
-    seed: u64,
+    pub(crate) seed: u64,
     /// Print JSON instead of the report
-    #[arg(long)]
+    #[arg(long, conflicts_with = "video")]
     json: bool,
+    /// A hovering video: stabilise it, choose key frames, carry the picks (made on one frame)
+    /// to every frame and solve every frame's pose; needs --out
+    #[arg(long, value_name = "VIDEO", requires = "out")]
+    pub(crate) video: Option<PathBuf>,
+    /// The frame the picks were made on [default: the '#N' ending of the picks' image name,
+    /// e.g. 'video.mp4#0', else 0]
+    #[arg(long, value_name = "N", requires = "video")]
+    pub(crate) picks_frame: Option<usize>,
+    /// Folder for the video results (created if missing): poses.csv, reprojection.csv and .png,
+    /// key_frames.csv, gcps_adjusted.csv, pose.json
+    #[arg(long, value_name = "DIR", requires = "video")]
+    pub(crate) out: Option<PathBuf>,
+    /// Process only the first this many seconds of the video
+    #[arg(long, value_parser = parse_positive, value_name = "S", requires = "video")]
+    pub(crate) duration: Option<f64>,
+    /// Renew the reference frame when fewer tracked features than this agree with it
+    #[arg(long, default_value = "40", value_name = "N", requires = "video")]
+    pub(crate) min_features: usize,
+    /// Renew the reference frame when the agreeing features fall below this fraction of its own
+    #[arg(long, default_value = "0.5", value_parser = super::parse_fraction, value_name = "F", requires = "video")]
+    pub(crate) key_fraction: f64,
+    /// Renew the reference frame at least every this many seconds [default: only on the
+    /// feature and conditioning criteria]
+    #[arg(long, value_parser = parse_positive, value_name = "S", requires = "video")]
+    pub(crate) key_every: Option<f64>,
+    /// No progress bar
+    #[arg(short, long)]
+    pub(crate) quiet: bool,
 }
 
 /// The GCPs seen in one image, split by role.
-struct Seen {
-    control: Vec<GcpObservation>,
-    check: Vec<GcpObservation>,
+pub(crate) struct Seen {
+    pub control: Vec<GcpObservation>,
+    pub check: Vec<GcpObservation>,
 }
 
 /// The names of the images that the survey's picks refer to, with their pick counts.
@@ -91,7 +119,7 @@ fn picked_images(framed: &Framed) -> BTreeMap<String, usize> {
 }
 
 /// Which image's picks to use.
-fn choose_image(
+pub(crate) fn choose_image(
     framed: &Framed,
     wanted: Option<&str>,
     photo: Option<&Path>,
@@ -154,7 +182,7 @@ fn choose_image(
 }
 
 /// Site-frame observations of the GCPs picked in `image`.
-fn seen_in(
+pub(crate) fn seen_in(
     framed: &Framed,
     image: &str,
     pick_sigma: f64,
@@ -224,7 +252,7 @@ fn seen_in(
 }
 
 /// The camera, scaled to `size` when given.
-fn camera_for(spec: &str, size: Option<(u32, u32)>) -> anyhow::Result<(Camera, String)> {
+pub(crate) fn camera_for(spec: &str, size: Option<(u32, u32)>) -> anyhow::Result<(Camera, String)> {
     let (camera, source) = load_camera(spec)?;
     let Some((w, h)) = size else {
         return Ok((camera, source));
@@ -650,6 +678,9 @@ fn annotate(path_in: &Path, path_out: &Path, report: &Report) -> anyhow::Result<
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.video.is_some() {
+        return super::pose_video::run(&args);
+    }
     let size = match &args.image {
         Some(img) => {
             let c = Canvas::read(img).map_err(|e| bad_input(anyhow!(e)))?;

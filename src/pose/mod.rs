@@ -2,9 +2,12 @@
 //! every frame of a hovering camera from key frames, carried picks and a joint refinement.
 
 pub mod attitude;
+pub mod hover;
+pub mod joint;
 pub mod oracle;
 pub mod refine;
 pub mod solve;
+pub mod stabilise;
 
 use thiserror::Error;
 

@@ -1,4 +1,7 @@
-//! Video I/O (OpenCV adapter).
+//! Video I/O and feature tracking (OpenCV adapters).
+
+pub mod klt;
+pub mod source;
 
 use std::path::{Path, PathBuf};
 

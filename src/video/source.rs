@@ -1,0 +1,97 @@
+//! Reading video frames (OpenCV adapter).
+
+use std::path::Path;
+
+use opencv::core::Mat;
+use opencv::prelude::*;
+use opencv::{imgproc, videoio};
+
+/// Frames of a video file, in order, as 8-bit greyscale.
+pub struct FrameReader {
+    cap: videoio::VideoCapture,
+    /// Frames per second as the container states it.
+    pub fps: f64,
+    /// The container's frame count, when it states one (it may be approximate).
+    pub frame_count: Option<usize>,
+    pub width: u32,
+    pub height: u32,
+    next: usize,
+}
+
+impl FrameReader {
+    pub fn open(path: &Path) -> Result<FrameReader, String> {
+        if !path.is_file() {
+            return Err(format!("{}: no such video file", path.display()));
+        }
+        let name = path
+            .to_str()
+            .ok_or_else(|| format!("{}: not a UTF-8 path", path.display()))?;
+        let cap = videoio::VideoCapture::from_file(name, videoio::CAP_ANY)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        if !cap.is_opened().unwrap_or(false) {
+            return Err(format!(
+                "{}: OpenCV cannot open this video (unknown container or codec)",
+                path.display()
+            ));
+        }
+        let get = |p: i32| cap.get(p).unwrap_or(0.0);
+        let fps = get(videoio::CAP_PROP_FPS);
+        let count = get(videoio::CAP_PROP_FRAME_COUNT);
+        let (width, height) = (
+            get(videoio::CAP_PROP_FRAME_WIDTH),
+            get(videoio::CAP_PROP_FRAME_HEIGHT),
+        );
+        if !(width >= 1.0 && height >= 1.0) {
+            return Err(format!(
+                "{}: the video states no frame size",
+                path.display()
+            ));
+        }
+        Ok(FrameReader {
+            cap,
+            fps: if fps > 0.0 && fps.is_finite() {
+                fps
+            } else {
+                0.0
+            },
+            frame_count: (count >= 1.0 && count.is_finite()).then_some(count as usize),
+            width: width as u32,
+            height: height as u32,
+            next: 0,
+        })
+    }
+
+    /// The next frame's index and its greyscale image; `None` at the end.
+    pub fn next_gray(&mut self) -> Result<Option<(usize, Mat)>, String> {
+        let mut frame = Mat::default();
+        if !self.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
+            return Ok(None);
+        }
+        let gray = if frame.channels() == 1 {
+            frame
+        } else {
+            let mut g = Mat::default();
+            imgproc::cvt_color_def(&frame, &mut g, imgproc::COLOR_BGR2GRAY)
+                .map_err(|e| e.to_string())?;
+            g
+        };
+        let i = self.next;
+        self.next += 1;
+        Ok(Some((i, gray)))
+    }
+
+    /// The colour (BGR) frame at `index`, read from the start.
+    pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, String> {
+        let mut r = FrameReader::open(path)?;
+        let mut frame = Mat::default();
+        for i in 0..=index {
+            if !r.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
+                return Err(format!(
+                    "{}: the video ends before frame {index} (at {i})",
+                    path.display()
+                ));
+            }
+        }
+        Ok(frame)
+    }
+}

@@ -1,0 +1,172 @@
+//! `geostride pose --video` on a drifting hovering camera from the simulator: key frames are
+//! chosen, and every frame's pose projects the GCPs within 1 px (mean) of where the true pose
+//! puts them.
+
+mod common;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use common::geostride;
+use geostride::camera::Camera;
+use geostride::geom::{Pose, pose_from_rvec_tvec};
+use geostride::survey::crs::Crs;
+use nalgebra::{Point3, Vector3};
+
+/// Rows of a CSV as maps from header to field.
+fn read_csv(path: &Path) -> Vec<HashMap<String, String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header: Vec<String> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    lines
+        .map(|l| {
+            header
+                .iter()
+                .cloned()
+                .zip(l.split(',').map(str::to_string))
+                .collect()
+        })
+        .collect()
+}
+
+fn num(row: &HashMap<String, String>, key: &str) -> f64 {
+    row[key]
+        .parse()
+        .unwrap_or_else(|_| panic!("{key}: '{}'", row[key]))
+}
+
+fn pose_of(row: &HashMap<String, String>) -> Pose {
+    pose_from_rvec_tvec(
+        &Vector3::new(num(row, "rvec_x"), num(row, "rvec_y"), num(row, "rvec_z")),
+        &Vector3::new(num(row, "tvec_x"), num(row, "tvec_y"), num(row, "tvec_z")),
+    )
+}
+
+#[test]
+fn every_frame_of_a_drifting_hover_is_within_a_pixel_of_the_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = dir.path().join("sim");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/hover-drift.toml");
+    let seed = std::env::var("HOVER_SEED").unwrap_or_else(|_| "21".into());
+    let out = geostride()
+        .args([
+            "simulate",
+            scene.to_str().unwrap(),
+            "--out",
+            sim.to_str().unwrap(),
+            "--seed",
+            &seed,
+            "-q",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // The simulator's site frame is the tangent frame at its origin: use the same one.
+    let scene_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sim.join("truth/scene.json")).unwrap())
+            .unwrap();
+    let origin: Vec<f64> = scene_json["site"]["origin"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let crs = Crs::new(scene_json["site"]["crs"].as_str().unwrap()).unwrap();
+    let (lon, lat) = crs.to_lon_lat(origin[0], origin[1]).unwrap();
+    let origin_arg = format!("{lat:.10},{lon:.10},{}", origin[2]);
+    let video = if sim.join("video.mp4").is_file() {
+        "video.mp4"
+    } else {
+        "video.avi"
+    };
+
+    let res = dir.path().join("pose");
+    let out = geostride()
+        .current_dir(&sim)
+        .args([
+            "pose",
+            "--camera",
+            "mini3pro",
+            "--gcps",
+            "gcps.csv",
+            "--height",
+            "ellipsoidal",
+            "--picks",
+            "picks.csv",
+            "--video",
+            video,
+            "--out",
+        ])
+        .arg(&res)
+        .args(["--origin", &origin_arg, "-q"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}\n{stdout}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    println!("{stdout}");
+
+    let camera: Camera = geostride::camera::presets::preset("mini3pro")
+        .unwrap()
+        .camera
+        .scaled_to(1280, 720)
+        .unwrap();
+    let gcps: Vec<Vector3<f64>> = read_csv(&sim.join("truth/gcps.csv"))
+        .iter()
+        .map(|r| Vector3::new(num(r, "e_m"), num(r, "n_m"), num(r, "u_m")))
+        .collect();
+    let truth = read_csv(&sim.join("truth/camera.csv"));
+    let est = read_csv(&res.join("poses.csv"));
+    assert_eq!(est.len(), truth.len(), "a pose for every frame");
+    let (mut worst, mut sum, mut keys) = (0.0f64, 0.0, 0);
+    for (t, e) in truth.iter().zip(&est) {
+        assert_eq!(t["frame"], e["frame"]);
+        let (pt, pe) = (pose_of(t), pose_of(e));
+        let mean = gcps
+            .iter()
+            .map(|g| {
+                let a = camera.project(&(pt * Point3::from(*g)).coords).unwrap();
+                let b = camera.project(&(pe * Point3::from(*g)).coords).unwrap();
+                (a - b).norm()
+            })
+            .sum::<f64>()
+            / gcps.len() as f64;
+        worst = worst.max(mean);
+        sum += mean;
+        keys += usize::from(e["key"] == "1");
+        assert_eq!(
+            e["interpolated"], "0",
+            "frame {} was not solved",
+            e["frame"]
+        );
+    }
+    println!(
+        "{} frames, {keys} key frames; mean reprojection against the truth: average {:.3} px, worst frame {worst:.3} px",
+        est.len(),
+        sum / est.len() as f64
+    );
+    assert!(keys >= 2, "key frames chosen: {keys}");
+    assert!(worst < 1.0, "worst frame {worst} px from the truth");
+    for f in [
+        "reprojection.csv",
+        "reprojection.png",
+        "key_frames.csv",
+        "gcps_adjusted.csv",
+        "pose.json",
+    ] {
+        assert!(res.join(f).is_file(), "{f}");
+    }
+}

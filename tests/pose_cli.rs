@@ -150,4 +150,17 @@ fn bad_inputs_are_clear_errors() {
     );
     // No picks at all.
     fails(&[], Some("name,image,u,v\n"), "no pixel picks");
+    // A video that is not there, and one that is not a video.
+    std::fs::write(dir.path().join("picks.csv"), &good).unwrap();
+    fails(
+        &["--video", "missing.mp4", "--out", "o"],
+        None,
+        "no such video file",
+    );
+    std::fs::write(dir.path().join("junk.mp4"), "not a video").unwrap();
+    fails(&["--video", "junk.mp4", "--out", "o"], None, "junk.mp4");
+    assert!(
+        !dir.path().join("o").exists(),
+        "no output folder for a failed run"
+    );
 }

@@ -17,6 +17,9 @@ use crate::camera::formats::{self, Format};
 use crate::camera::{BoardSpec, PARAM_NAMES};
 use crate::simulate::board::{BoardRenderer, random_board_poses};
 use crate::simulate::run::Overrides;
+use crate::simulate::scene::Motion;
+use crate::simulate::scene::Scene;
+use crate::simulate::truth::{mean_reprojection_px, read_gcps, read_poses};
 
 /// The demo's ground-truth camera (`calib/demo-camera.json`).
 const TRUTH_JSON: &str = include_str!("../../calib/demo-camera.json");
@@ -184,6 +187,124 @@ fn run_scenes(args: &Args) -> anyhow::Result<()> {
                 scene.display()
             );
         }
+        let spec = Scene::load(&scene).map_err(|e| anyhow!(e))?;
+        if let (Motion::Hover { .. }, Some(video)) = (&spec.camera.motion, &s.video) {
+            hover_poses(args, &scene, &spec, &out, video)?;
+        }
     }
     Ok(())
+}
+
+/// Solves every frame's pose of a hovering scene with `geostride pose --video`, as a user would,
+/// and checks it against the truth: the GCPs must project within 1 px (mean) of where the true
+/// pose puts them, in every frame.
+fn hover_poses(
+    args: &Args,
+    scene_path: &Path,
+    scene: &Scene,
+    out: &Path,
+    video: &Path,
+) -> anyhow::Result<()> {
+    let camera_arg = if crate::camera::presets::preset(&scene.camera.calibration).is_some() {
+        scene.camera.calibration.clone()
+    } else {
+        scene.calibration_path(scene_path).display().to_string()
+    };
+    // The simulator's site frame is the tangent frame at the scene's origin: use the same one.
+    let crs = crate::survey::crs::Crs::new(&scene.site.crs)
+        .map_err(|e| anyhow!("{}: site.crs: {e}", scene_path.display()))?;
+    let o = scene.site.origin;
+    let (lon, lat) = crs
+        .to_lon_lat(o[0], o[1])
+        .map_err(|e| anyhow!("{}: site.origin: {e}", scene_path.display()))?;
+    let pose_dir = out.join("pose");
+    let path = |p: &Path| p.display().to_string();
+    let mut argv = vec![
+        "geostride".to_string(),
+        "pose".into(),
+        "--camera".into(),
+        camera_arg,
+        "--gcps".into(),
+        path(&out.join("gcps.csv")),
+        "--height".into(),
+        "ellipsoidal".into(),
+        "--picks".into(),
+        path(&out.join("picks.csv")),
+        "--video".into(),
+        path(video),
+        "--out".into(),
+        path(&pose_dir),
+        "--origin".into(),
+        format!("{lat:.10},{lon:.10},{}", o[2]),
+    ];
+    if args.quiet {
+        argv.push("-q".into());
+    }
+    println!(
+        "
+$ {}",
+        argv.join(" ")
+    );
+    use clap::Parser;
+    super::Cli::try_parse_from(&argv)
+        .map_err(|e| anyhow!("{e}"))?
+        .run()?;
+
+    let truth = read_poses(&out.join("truth/camera.csv")).map_err(|e| anyhow!(e))?;
+    let est = read_poses(&pose_dir.join("poses.csv")).map_err(|e| anyhow!(e))?;
+    let gcps: Vec<_> = read_gcps(&out.join("truth/gcps.csv"))
+        .map_err(|e| anyhow!(e))?
+        .into_iter()
+        .map(|g| g.1)
+        .collect();
+    let cal = match crate::camera::presets::preset(&scene.camera.calibration) {
+        Some(c) => c,
+        None => formats::read(&scene.calibration_path(scene_path), None).map_err(|e| anyhow!(e))?,
+    };
+    let (w, h) = video_size(&out.join("truth/scene.json"))?;
+    let camera = super::scale_to(cal.camera, w, h)?;
+    if truth.len() != est.len() {
+        bail!(
+            "demo self-check failed: {} poses for {} frames",
+            est.len(),
+            truth.len()
+        );
+    }
+    let (mut worst, mut worst_frame, mut sum) = (0.0f64, 0, 0.0);
+    for ((f, t), (_, e)) in truth.iter().zip(&est) {
+        let m = mean_reprojection_px(&camera, t, e, &gcps)
+            .ok_or_else(|| anyhow!("frame {f}: a GCP is behind the camera"))?;
+        sum += m;
+        if m > worst {
+            (worst, worst_frame) = (m, *f);
+        }
+    }
+    println!(
+        "Poses against the truth: the GCPs project {:.3} px (mean over {} frames) from where the true poses put them; worst frame {worst_frame} at {worst:.3} px",
+        sum / est.len() as f64,
+        est.len()
+    );
+    if worst > 1.0 {
+        bail!(
+            "demo self-check failed: frame {worst_frame}'s pose is {worst:.2} px from the truth (limit 1 px)"
+        );
+    }
+    Ok(())
+}
+
+/// The image size a scene was rendered at, from its `truth/scene.json`.
+fn video_size(scene_json: &Path) -> anyhow::Result<(u32, u32)> {
+    let v: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(scene_json).with_context(|| scene_json.display().to_string())?,
+    )?;
+    let size = v["image_size"]
+        .as_array()
+        .ok_or_else(|| anyhow!("{}: no image_size", scene_json.display()))?;
+    let get = |i: usize| {
+        size.get(i)
+            .and_then(|x| x.as_u64())
+            .map(|x| x as u32)
+            .ok_or_else(|| anyhow!("{}: bad image_size", scene_json.display()))
+    };
+    Ok((get(0)?, get(1)?))
 }

@@ -9,4 +9,5 @@ pub mod plan;
 pub mod render;
 pub mod run;
 pub mod scene;
+pub mod truth;
 pub mod world;

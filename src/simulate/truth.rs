@@ -1,0 +1,102 @@
+//! Reading truth back (pure): per-frame camera poses (`truth/camera.csv`, and geostride's own
+//! `poses.csv`, which share the `rvec_*`/`tvec_*` columns), the exact GCPs, and how far apart two
+//! poses put the GCPs in the image.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use nalgebra::{Point3, Vector3};
+
+use crate::camera::Camera;
+use crate::geom::{Pose, pose_from_rvec_tvec};
+use crate::io::{FileCtx, FileError};
+
+/// A data row: its line number and its fields by column name.
+type Row = (usize, HashMap<String, String>);
+
+/// A CSV with a header: each row as a map from column name to field, with its line number.
+fn rows(path: &Path, needed: &[&str]) -> Result<Vec<Row>, FileError> {
+    let ctx = FileCtx { path };
+    let text = ctx.read_text("a CSV table")?;
+    let mut lines = text.lines().enumerate();
+    let header: Vec<String> = lines
+        .next()
+        .map(|(_, h)| h.split(',').map(|s| s.trim().to_string()).collect())
+        .unwrap_or_default();
+    if let Some(missing) = needed.iter().find(|n| !header.iter().any(|h| h == *n)) {
+        return Err(ctx.at(1, format!("no column '{missing}' in the header")));
+    }
+    Ok(lines
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            (
+                i + 1,
+                header
+                    .iter()
+                    .cloned()
+                    .zip(l.split(',').map(|s| s.trim().to_string()))
+                    .collect(),
+            )
+        })
+        .collect())
+}
+
+/// `cam_from_world` of every frame, by frame number, from a CSV with `frame`, `rvec_x..z` and
+/// `tvec_x..z` columns.
+pub fn read_poses(path: &Path) -> Result<Vec<(usize, Pose)>, FileError> {
+    let cols = [
+        "frame", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y", "tvec_z",
+    ];
+    let ctx = FileCtx { path };
+    rows(path, &cols)?
+        .into_iter()
+        .map(|(line, r)| {
+            let v: Vec<f64> = cols
+                .iter()
+                .map(|c| ctx.number(&r[*c], line, c))
+                .collect::<Result<_, _>>()?;
+            Ok((
+                v[0] as usize,
+                pose_from_rvec_tvec(
+                    &Vector3::new(v[1], v[2], v[3]),
+                    &Vector3::new(v[4], v[5], v[6]),
+                ),
+            ))
+        })
+        .collect()
+}
+
+/// The exact GCPs of `truth/gcps.csv`: name and site-frame position.
+pub fn read_gcps(path: &Path) -> Result<Vec<(String, Vector3<f64>)>, FileError> {
+    let ctx = FileCtx { path };
+    rows(path, &["name", "e_m", "n_m", "u_m"])?
+        .into_iter()
+        .map(|(line, r)| {
+            Ok((
+                r["name"].clone(),
+                Vector3::new(
+                    ctx.number(&r["e_m"], line, "e_m")?,
+                    ctx.number(&r["n_m"], line, "n_m")?,
+                    ctx.number(&r["u_m"], line, "u_m")?,
+                ),
+            ))
+        })
+        .collect()
+}
+
+/// The mean distance in pixels between where `a` and `b` project `points`; `None` when a point
+/// is behind either camera.
+pub fn mean_reprojection_px(
+    camera: &Camera,
+    a: &Pose,
+    b: &Pose,
+    points: &[Vector3<f64>],
+) -> Option<f64> {
+    let mut sum = 0.0;
+    for p in points {
+        let pa = camera.project(&(a * Point3::from(*p)).coords).ok()?;
+        let pb = camera.project(&(b * Point3::from(*p)).coords).ok()?;
+        sum += (pa - pb).norm();
+    }
+    Some(sum / points.len().max(1) as f64)
+}

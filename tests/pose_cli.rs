@@ -164,3 +164,75 @@ fn bad_inputs_are_clear_errors() {
         "no output folder for a failed run"
     );
 }
+
+#[test]
+fn a_gcp_list_with_picks_needs_no_picks_file() {
+    // OpenDroneMap's gcp_list.txt carries the picks; coordinates in UTM 31N around a point.
+    let dir = tempfile::tempdir().unwrap();
+    let view = gcp_view(
+        &drone_camera_4k(),
+        &GcpViewSpec {
+            outlier_fraction: 0.0,
+            ..GcpViewSpec::default()
+        },
+        9,
+    );
+    formats::write(
+        &Calibration::from_camera(view.camera.clone()),
+        &dir.path().join("cam.yaml"),
+        None,
+    )
+    .unwrap();
+    let mut list = String::from("WGS84 UTM 31N\n");
+    for o in &view.observations {
+        list += &format!(
+            "{:.4} {:.4} {:.4} {:.3} {:.3} shot.jpg {}\n",
+            500000.0 + o.world.x,
+            5650000.0 + o.world.y,
+            50.0 + o.world.z,
+            o.uv.x,
+            o.uv.y,
+            o.name
+        );
+    }
+    std::fs::write(dir.path().join("gcp_list.txt"), list).unwrap();
+    let out = geostride()
+        .current_dir(dir.path())
+        .args([
+            "pose",
+            "--camera",
+            "cam.yaml",
+            "--gcps",
+            "gcp_list.txt",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(j["image"], "shot.jpg");
+    assert!(
+        j["camera_position"]["crs"]
+            .as_str()
+            .unwrap()
+            .contains("UTM zone 31N")
+    );
+    // UTM's scale factor (0.9996) and the grid's convergence separate the CRS from the local
+    // frame by centimetres over this site.
+    let c = view.cam_from_world.centre();
+    let p = &j["camera_position"];
+    let (dx, dy, dz) = (
+        p["x"].as_f64().unwrap() - 500000.0 - c.x,
+        p["y"].as_f64().unwrap() - 5650000.0 - c.y,
+        p["z"].as_f64().unwrap() - 50.0 - c.z,
+    );
+    assert!(
+        (dx * dx + dy * dy + dz * dz).sqrt() < 0.3,
+        "({dx}, {dy}, {dz})"
+    );
+    assert_eq!(j["outliers"], 0);
+}

@@ -170,3 +170,62 @@ fn every_frame_of_a_drifting_hover_is_within_a_pixel_of_the_truth() {
         assert!(res.join(f).is_file(), "{f}");
     }
 }
+
+/// Real footage from a fixed camera (OpenCV's vtest.avi, pedestrians on a plaza): the
+/// stabiliser must see no motion, keep its reference through the walkers, and drop them as
+/// outliers.
+#[test]
+fn a_fixed_real_camera_is_registered_to_itself() {
+    use geostride::pose::stabilise::{StabiliseSettings, Stabiliser};
+    use geostride::video::klt::{Klt, KltSettings};
+    use geostride::video::source::FrameReader;
+    let Some(dir) = common::data_dir("video") else {
+        return;
+    };
+    let path = dir.join("vtest_480x360_h264.avi");
+    let mut reader = FrameReader::open(&path).unwrap();
+    let klt = Klt::new(KltSettings::default());
+    let (_, first) = reader.next_gray().unwrap().unwrap();
+    let template = klt.frame(0, first.clone()).unwrap();
+    let mut stab = Stabiliser::new(
+        Klt::new(KltSettings::default()),
+        StabiliseSettings::default(),
+        (reader.width, reader.height),
+        template,
+        0,
+        Vec::new(),
+    );
+    let mut frame = Some((0, first));
+    let (mut keys, mut worst, mut frames, mut outliers) = (0, 0.0f64, 0, 0);
+    while let Some((i, gray)) = frame {
+        if i >= 200 {
+            break;
+        }
+        let t = stab.push(i, klt.frame(i, gray).unwrap()).unwrap();
+        keys += usize::from(t.key.is_some());
+        outliers += t.features - t.inliers;
+        // Where the homography moves the image's corners and centre.
+        let h = t.frame_from_ref;
+        for (x, y) in [
+            (0.0, 0.0),
+            (479.0, 0.0),
+            (0.0, 359.0),
+            (479.0, 359.0),
+            (240.0, 180.0),
+        ] {
+            let p = geostride::estimate::homography::transfer(&h, &nalgebra::Vector2::new(x, y))
+                .unwrap();
+            worst = worst.max((p - nalgebra::Vector2::new(x, y)).norm());
+        }
+        frames += 1;
+        frame = reader.next_gray().unwrap();
+    }
+    println!(
+        "{frames} frames of {}: {keys} key frame(s), the image moved at most {worst:.3} px, {outliers} feature tracks rejected",
+        path.display()
+    );
+    assert_eq!(frames, 200);
+    assert!(keys <= 3, "{keys} key frames for a fixed camera");
+    assert!(worst < 0.5, "a fixed camera moved {worst} px");
+    assert!(outliers > 0, "the walkers' features are rejected");
+}

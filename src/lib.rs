@@ -23,6 +23,7 @@ pub mod optim;
 pub mod pose;
 pub mod progress;
 pub mod simulate;
+pub mod smooth;
 pub mod survey;
 pub mod terrain;
 pub mod video;

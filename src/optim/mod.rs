@@ -7,6 +7,8 @@
 //! after a success and doubled-and-growing after a failure (Nielsen), and termination on the
 //! function, gradient and parameter tolerances.
 
+pub mod assignment;
+
 use serde::Serialize;
 
 /// Tolerances and limits of a Levenberg–Marquardt run.

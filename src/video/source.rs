@@ -80,6 +80,30 @@ impl FrameReader {
         Ok(Some((i, gray)))
     }
 
+    /// The next frame's index and its colour (BGR, continuous) image; `None` at the end.
+    pub fn next_bgr(&mut self) -> Result<Option<(usize, Mat)>, String> {
+        let mut frame = Mat::default();
+        if !self.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
+            return Ok(None);
+        }
+        let frame = if frame.channels() == 3 {
+            frame
+        } else {
+            let mut c = Mat::default();
+            imgproc::cvt_color_def(&frame, &mut c, imgproc::COLOR_GRAY2BGR)
+                .map_err(|e| e.to_string())?;
+            c
+        };
+        let frame = if frame.is_continuous() {
+            frame
+        } else {
+            frame.try_clone().map_err(|e| e.to_string())?
+        };
+        let i = self.next;
+        self.next += 1;
+        Ok(Some((i, frame)))
+    }
+
     /// The colour (BGR) frame at `index`, read from the start.
     pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, String> {
         let mut r = FrameReader::open(path)?;

@@ -1,0 +1,139 @@
+//! Trajectories as GeoPackage or GeoJSON through GDAL (adapter): a line per person and a point
+//! per position, in the output CRS (GeoPackage) or WGS 84 (GeoJSON, RFC 7946).
+
+use std::path::Path;
+
+use gdal::vector::{
+    Feature, Geometry, LayerAccess, LayerOptions, OGRFieldType, OGRwkbGeometryType,
+};
+use nalgebra::Vector3;
+
+use super::{Trajectory, TrajectoryPoint};
+use crate::gis::{FieldDef, GisFormat, layer_srs, set_integer, set_real, write_dataset};
+
+/// Which layers to write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layers {
+    Lines,
+    Points,
+    Both,
+}
+
+const LINE_FIELDS: [FieldDef; 7] = [
+    ("id", OGRFieldType::OFTInteger),
+    ("first_frame", OGRFieldType::OFTInteger),
+    ("last_frame", OGRFieldType::OFTInteger),
+    ("duration_s", OGRFieldType::OFTReal),
+    ("length_m", OGRFieldType::OFTReal),
+    ("mean_speed_m_s", OGRFieldType::OFTReal),
+    ("height_m", OGRFieldType::OFTReal),
+];
+
+const POINT_FIELDS: [FieldDef; 11] = [
+    ("id", OGRFieldType::OFTInteger),
+    ("frame", OGRFieldType::OFTInteger),
+    ("time_s", OGRFieldType::OFTReal),
+    ("e_m", OGRFieldType::OFTReal),
+    ("n_m", OGRFieldType::OFTReal),
+    ("u_m", OGRFieldType::OFTReal),
+    ("speed_m_s", OGRFieldType::OFTReal),
+    ("heading_deg", OGRFieldType::OFTReal),
+    ("sigma_e_m", OGRFieldType::OFTReal),
+    ("sigma_n_m", OGRFieldType::OFTReal),
+    ("observed", OGRFieldType::OFTInteger),
+];
+
+/// Writes the trajectories. `coords` gives each point's position in the file's CRS (the output
+/// CRS for a GeoPackage, longitude/latitude/height for GeoJSON); `crs_wkt` is the GeoPackage's.
+pub fn write_trajectories(
+    path: &Path,
+    format: GisFormat,
+    crs_wkt: &str,
+    layers: Layers,
+    trajectories: &[Trajectory],
+    coords: &dyn Fn(&TrajectoryPoint) -> Vector3<f64>,
+) -> Result<(), String> {
+    let srs = layer_srs(format, crs_wkt)?;
+    write_dataset(path, format, |ds| {
+        if layers != Layers::Points {
+            let layer = ds
+                .create_layer(LayerOptions {
+                    name: "trajectories",
+                    srs: srs.as_ref(),
+                    ty: OGRwkbGeometryType::wkbLineString25D,
+                    options: Some(format.layer_options()),
+                })
+                .map_err(|e| format!("cannot create the layer: {e}"))?;
+            layer
+                .create_defn_fields(&LINE_FIELDS)
+                .map_err(|e| e.to_string())?;
+            for t in trajectories.iter().filter(|t| t.points.len() >= 2) {
+                let mut f = Feature::new(layer.defn()).map_err(|e| e.to_string())?;
+                let (a, b) = (&t.points[0], &t.points[t.points.len() - 1]);
+                set_integer(&mut f, "id", t.id as i32)?;
+                set_integer(&mut f, "first_frame", a.frame as i32)?;
+                set_integer(&mut f, "last_frame", b.frame as i32)?;
+                set_real(&mut f, "duration_s", Some(b.time_s - a.time_s))?;
+                set_real(&mut f, "length_m", Some(t.length_m()))?;
+                set_real(&mut f, "mean_speed_m_s", Some(t.mean_speed()))?;
+                set_real(&mut f, "height_m", Some(t.height_m))?;
+                let mut g = Geometry::empty(OGRwkbGeometryType::wkbLineString25D)
+                    .map_err(|e| e.to_string())?;
+                for p in &t.points {
+                    let c = coords(p);
+                    g.add_point((c.x, c.y, c.z));
+                }
+                f.set_geometry(g).map_err(|e| e.to_string())?;
+                f.create(&layer)
+                    .map_err(|e| format!("cannot write trajectory {}: {e}", t.id))?;
+            }
+        }
+        if layers != Layers::Lines {
+            let layer = ds
+                .create_layer(LayerOptions {
+                    name: "positions",
+                    srs: srs.as_ref(),
+                    ty: OGRwkbGeometryType::wkbPoint25D,
+                    options: Some(format.layer_options()),
+                })
+                .map_err(|e| format!("cannot create the layer: {e}"))?;
+            layer
+                .create_defn_fields(&POINT_FIELDS)
+                .map_err(|e| e.to_string())?;
+            for t in trajectories {
+                for p in &t.points {
+                    let mut f = Feature::new(layer.defn()).map_err(|e| e.to_string())?;
+                    set_integer(&mut f, "id", t.id as i32)?;
+                    set_integer(&mut f, "frame", p.frame as i32)?;
+                    set_real(&mut f, "time_s", Some(p.time_s))?;
+                    set_real(&mut f, "e_m", Some(p.local.x))?;
+                    set_real(&mut f, "n_m", Some(p.local.y))?;
+                    set_real(&mut f, "u_m", Some(p.local.z))?;
+                    set_real(&mut f, "speed_m_s", Some(p.velocity.norm()))?;
+                    set_real(
+                        &mut f,
+                        "heading_deg",
+                        Some(
+                            p.velocity
+                                .x
+                                .atan2(p.velocity.y)
+                                .to_degrees()
+                                .rem_euclid(360.0),
+                        ),
+                    )?;
+                    set_real(&mut f, "sigma_e_m", Some(p.sigma_m.x))?;
+                    set_real(&mut f, "sigma_n_m", Some(p.sigma_m.y))?;
+                    set_integer(&mut f, "observed", i32::from(p.observed))?;
+                    let c = coords(p);
+                    let mut g = Geometry::empty(OGRwkbGeometryType::wkbPoint25D)
+                        .map_err(|e| e.to_string())?;
+                    g.add_point((c.x, c.y, c.z));
+                    f.set_geometry(g).map_err(|e| e.to_string())?;
+                    f.create(&layer)
+                        .map_err(|e| format!("cannot write a position of {}: {e}", t.id))?;
+                }
+            }
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,189 @@
+//! Trajectory outputs: CSV, PeTrack/JuPedSim text and MOTChallenge text (pure formatting), and
+//! GeoPackage/GeoJSON through GDAL (`gis`, an adapter).
+
+pub mod gis;
+
+use std::fmt::Write as _;
+
+use nalgebra::{Vector2, Vector3};
+
+use crate::track::ImageTrack;
+
+/// One point of a world trajectory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrajectoryPoint {
+    pub frame: usize,
+    pub time_s: f64,
+    /// East, north, up in the site frame, metres.
+    pub local: Vector3<f64>,
+    /// The same point in the output CRS (its units; heights as the survey's).
+    pub crs: Vector3<f64>,
+    /// East, north velocity, m/s.
+    pub velocity: Vector2<f64>,
+    /// Total σ east and north (random after smoothing, and systematic), metres.
+    pub sigma_m: Vector2<f64>,
+    /// Whether the frame had a detection (else predicted through a gap).
+    pub observed: bool,
+}
+
+/// A person's trajectory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Trajectory {
+    pub id: usize,
+    /// The head height used, metres, and where it came from.
+    pub height_m: f64,
+    pub height_source: String,
+    pub points: Vec<TrajectoryPoint>,
+}
+
+impl Trajectory {
+    /// Path length, metres.
+    pub fn length_m(&self) -> f64 {
+        self.points
+            .windows(2)
+            .map(|w| (w[1].local.xy() - w[0].local.xy()).norm())
+            .sum()
+    }
+
+    /// Mean speed over the trajectory, m/s.
+    pub fn mean_speed(&self) -> f64 {
+        match (self.points.first(), self.points.last()) {
+            (Some(a), Some(b)) if b.time_s > a.time_s => self.length_m() / (b.time_s - a.time_s),
+            _ => 0.0,
+        }
+    }
+}
+
+/// The trajectories as CSV: one row per point.
+pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
+    let mut s = String::from(
+        "id,frame,time_s,e_m,n_m,u_m,x,y,z,ve_m_s,vn_m_s,speed_m_s,sigma_e_m,sigma_n_m,observed,height_m\n",
+    );
+    for t in trajectories {
+        for p in &t.points {
+            let _ = writeln!(
+                s,
+                "{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.3}",
+                t.id,
+                p.frame,
+                p.time_s,
+                p.local.x,
+                p.local.y,
+                p.local.z,
+                p.crs.x,
+                p.crs.y,
+                p.crs.z,
+                p.velocity.x,
+                p.velocity.y,
+                p.velocity.norm(),
+                p.sigma_m.x,
+                p.sigma_m.y,
+                u8::from(p.observed),
+                t.height_m
+            );
+        }
+    }
+    s
+}
+
+/// PeTrack's and JuPedSim's trajectory text: comment lines, then `id frame x y z` in metres of
+/// the site frame (a local metric frame, as those tools expect).
+pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame_note: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# geostride trajectories: head positions, smoothed");
+    let _ = writeln!(s, "# framerate: {fps}");
+    let _ = writeln!(s, "# coordinates: {frame_note}");
+    let _ = writeln!(s, "# id\tframe\tx/m\ty/m\tz/m");
+    for t in trajectories {
+        for p in &t.points {
+            let _ = writeln!(
+                s,
+                "{}\t{}\t{:.4}\t{:.4}\t{:.4}",
+                t.id, p.frame, p.local.x, p.local.y, p.local.z
+            );
+        }
+    }
+    s
+}
+
+/// MOTChallenge text of the image tracks: `frame,id,left,top,width,height,conf,-1,-1,-1`, frames
+/// from 1, boxes in pixels with the first pixel numbered 1.
+pub fn mot_txt(tracks: &[ImageTrack]) -> String {
+    let mut rows: Vec<(usize, usize, [f64; 4])> = tracks
+        .iter()
+        .flat_map(|t| t.points.iter().map(move |p| (p.frame, t.id, p.bbox)))
+        .collect();
+    rows.sort_by_key(|r| (r.0, r.1));
+    let mut s = String::new();
+    for (frame, id, b) in rows {
+        // geostride's box corner is the left edge of the first pixel (−0.5 from its centre).
+        let _ = writeln!(
+            s,
+            "{},{},{:.2},{:.2},{:.2},{:.2},1,-1,-1,-1",
+            frame + 1,
+            id,
+            b[0] + 1.5,
+            b[1] + 1.5,
+            b[2],
+            b[3]
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::track::TrackPoint;
+    use nalgebra::Matrix2;
+
+    fn traj() -> Trajectory {
+        let points = (0..3)
+            .map(|k| TrajectoryPoint {
+                frame: 10 + k,
+                time_s: 0.4 + 0.04 * k as f64,
+                local: Vector3::new(1.0 + 0.14 * k as f64, 2.0, 8.2),
+                crs: Vector3::new(654501.0, 696002.0, 60.2),
+                velocity: Vector2::new(3.5, 0.0),
+                sigma_m: Vector2::new(0.02, 0.03),
+                observed: k != 1,
+            })
+            .collect();
+        Trajectory {
+            id: 7,
+            height_m: 1.7,
+            height_source: "default".into(),
+            points,
+        }
+    }
+
+    #[test]
+    fn formats_have_their_columns() {
+        let t = traj();
+        assert!((t.length_m() - 0.28).abs() < 1e-12 && (t.mean_speed() - 3.5).abs() < 1e-9);
+        let csv = trajectories_csv(std::slice::from_ref(&t));
+        assert_eq!(csv.lines().count(), 4);
+        assert!(
+            csv.lines()
+                .nth(2)
+                .unwrap()
+                .starts_with("7,11,0.4400,1.1400,2.0000,8.2000,")
+        );
+        let pt = petrack_txt(std::slice::from_ref(&t), 25.0, "site frame");
+        assert_eq!(pt.lines().filter(|l| !l.starts_with('#')).count(), 3);
+        assert!(pt.contains("7\t10\t1.0000\t2.0000\t8.2000"));
+        let it = ImageTrack {
+            id: 3,
+            points: vec![TrackPoint {
+                frame: 0,
+                uv: Vector2::new(10.0, 20.0),
+                cov: Matrix2::identity(),
+                bbox: [4.5, 14.5, 11.0, 11.0],
+            }],
+        };
+        assert_eq!(
+            mot_txt(&[it]).trim(),
+            "1,3,6.00,16.00,11.00,11.00,1,-1,-1,-1"
+        );
+    }
+}

@@ -161,7 +161,7 @@ impl Palette {
         if !hat.iter().any(|&b| b) {
             let nearest = centres
                 .iter()
-                .map(|c| hue_chroma(c))
+                .map(hue_chroma)
                 .min_by(|a, b| hue_difference(a.0, th).total_cmp(&hue_difference(b.0, th)))
                 .expect("clusters");
             return Err(ColourError::NoHatColour {

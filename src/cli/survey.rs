@@ -15,7 +15,8 @@ use crate::survey::crs::{Crs, HeightKind, Horizontal, Transform};
 use crate::survey::fit::{FitPoint, FitReport, helmert};
 use crate::survey::frame::{Origin, SiteFrame};
 use crate::survey::gis::{GisFormat, write_points};
-use crate::survey::read::{ColumnMap, HeightChoice, ReadOptions, assign_roles, read, read_picks};
+use crate::survey::load::{LoadOptions, load_framed};
+use crate::survey::read::{ColumnMap, HeightChoice, ReadOptions, assign_roles, read};
 use crate::survey::write::{self, OutCrs, OutPoint};
 use crate::survey::{Role, Survey, SurveyFormat};
 
@@ -183,13 +184,7 @@ pub enum Command {
     },
 }
 
-/// A survey read into its site frame.
-pub(crate) struct Framed {
-    pub survey: Survey,
-    pub frame: SiteFrame,
-    /// Every point's site-frame position, in the survey's order.
-    pub local: Vec<Vector3<f64>>,
-}
+pub(crate) use crate::survey::load::Framed;
 
 /// Reads a survey file (and its picks), assigns roles and sets up the site frame.
 pub(crate) fn read_framed(
@@ -197,37 +192,27 @@ pub(crate) fn read_framed(
     args: &ReadArgs,
     petrack_image: Option<String>,
 ) -> anyhow::Result<Framed> {
-    let opts = ReadOptions {
-        format: args.format.map(SurveyFormat::from),
-        crs: args.crs.clone(),
-        height: args.height.map(|h| match h {
-            HeightArg::Orthometric => HeightChoice::Orthometric,
-            HeightArg::Ellipsoidal => HeightChoice::Ellipsoidal,
-        }),
-        fix_only: args.fix_only,
-        columns: args.columns.clone(),
-        delimiter: args.delimiter,
-        image_size: args.image_size,
-        image: petrack_image,
+    let opts = LoadOptions {
+        read: ReadOptions {
+            format: args.format.map(SurveyFormat::from),
+            crs: args.crs.clone(),
+            height: args.height.map(|h| match h {
+                HeightArg::Orthometric => HeightChoice::Orthometric,
+                HeightArg::Ellipsoidal => HeightChoice::Ellipsoidal,
+            }),
+            fix_only: args.fix_only,
+            columns: args.columns.clone(),
+            delimiter: args.delimiter,
+            image_size: args.image_size,
+            image: petrack_image,
+        },
+        picks: args.picks.clone(),
+        check_prefix: Some(args.check_prefix.clone()),
+        check: args.check.clone(),
+        disable: args.disable.clone(),
+        origin: Some(args.origin.clone()),
     };
-    let mut survey = read(file, &opts).map_err(bad_input)?;
-    for p in &args.picks {
-        read_picks(p, &mut survey).map_err(bad_input)?;
-    }
-    let prefix = Some(args.check_prefix.as_str());
-    assign_roles(&mut survey, prefix, &args.check, &args.disable).map_err(bad_input)?;
-    let frame = SiteFrame::new(&survey, &args.origin).map_err(bad_input)?;
-    let local = survey
-        .points
-        .iter()
-        .map(|p| frame.local_from_source(&p.position))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| bad_input(anyhow!("{}: {e}", file.display())))?;
-    Ok(Framed {
-        survey,
-        frame,
-        local,
-    })
+    load_framed(file, &opts).map_err(bad_input)
 }
 
 /// A survey read, framed and (optionally) fitted.

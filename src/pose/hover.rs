@@ -329,6 +329,56 @@ pub fn solve_hover(
     })
 }
 
+/// Solves a video whose tracks carry the picks of `control` then `check` GCPs (in that order):
+/// the poses from the control picks, then each frame's mean reprojection error of the check
+/// points' carried picks (an independent accuracy check).
+pub fn solve_with_checks(
+    camera: &Camera,
+    control: &[GcpObservation],
+    check: &[GcpObservation],
+    tracks: &[FrameTrack],
+    settings: &PoseSettings,
+    progress: &dyn Progress,
+) -> Result<(HoverResult, Vec<Option<f64>>), PoseError> {
+    let nc = control.len();
+    let gcps: Vec<HoverGcp> = control
+        .iter()
+        .map(|o| HoverGcp {
+            name: o.name.clone(),
+            world: o.world,
+            world_cov: o.world_cov,
+            sigma_px: o.sigma_px,
+        })
+        .collect();
+    let control_tracks: Vec<FrameTrack> = tracks
+        .iter()
+        .map(|t| FrameTrack {
+            picks: t.picks[..nc].to_vec(),
+            ..t.clone()
+        })
+        .collect();
+    let result = solve_hover(camera, &gcps, &control_tracks, settings, progress)?;
+    let check_mean = tracks
+        .iter()
+        .zip(&result.frames)
+        .map(|(t, f)| {
+            let errs: Vec<f64> = check
+                .iter()
+                .enumerate()
+                .filter_map(|(k, o)| {
+                    Some(
+                        (t.picks.get(nc + k).copied().flatten()?
+                            - project_pose(camera, &f.cam_from_world, &o.world)?.0)
+                            .norm(),
+                    )
+                })
+                .collect();
+            (!errs.is_empty()).then(|| errs.iter().sum::<f64>() / errs.len() as f64)
+        })
+        .collect();
+    Ok((result, check_mean))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,6 +3,7 @@
 pub mod crs;
 pub mod fit;
 pub mod frame;
+pub mod load;
 pub mod model;
 pub mod read;
 

@@ -20,6 +20,12 @@ pub enum VerticalAlignment {
         pvi_z: f64,
         radius_m: f64,
     },
+    /// `z = Σ cₖ xᵏ` with `x = (s − centre) / scale`: a profile fitted through points.
+    Polynomial {
+        centre: f64,
+        scale: f64,
+        coeffs: Vec<f64>,
+    },
 }
 
 impl VerticalAlignment {
@@ -55,6 +61,22 @@ impl VerticalAlignment {
                     Some((z_start + g1 * x + k * x * x, g1 + 2.0 * k * x))
                 }
             }
+            VerticalAlignment::Polynomial {
+                centre,
+                scale,
+                coeffs,
+            } => {
+                let x = (s - centre) / scale;
+                // Horner's scheme for the value and for the derivative (coefficients k·cₖ).
+                let z = coeffs.iter().rev().fold(0.0, |acc, c| acc * x + c);
+                let d = coeffs
+                    .iter()
+                    .enumerate()
+                    .skip(1)
+                    .rev()
+                    .fold(0.0, |acc, (k, c)| acc * x + k as f64 * c);
+                Some((z, d / scale))
+            }
         }
     }
 }
@@ -75,6 +97,8 @@ pub enum DeckError {
     Stations,
     #[error("no deck points between chainages {0} and {1}: the heights there are not determined")]
     Gap(f64, f64),
+    #[error("a profile of this degree needs {needed} points on the deck, found {got}")]
+    TooFewPoints { needed: usize, got: usize },
 }
 
 impl DeckProfile {
@@ -143,6 +167,61 @@ impl DeckProfile {
         Ok((deck, rms))
     }
 
+    /// Fits a polynomial height profile of `degree` (0 to 3) along the centre line to points
+    /// measured on the deck (GCPs); points off the deck's width are ignored. Returns the profile
+    /// and the RMS height residual.
+    pub fn fit_polynomial(
+        centre_line: Vec<Vector2<f64>>,
+        start_s: f64,
+        width_m: f64,
+        degree: usize,
+        points: &[Vector3<f64>],
+    ) -> Result<(DeckProfile, f64), DeckError> {
+        let mut deck = DeckProfile {
+            centre_line,
+            start_s,
+            width_m,
+            alignment: VerticalAlignment::Stations(Vec::new()),
+        };
+        let on: Vec<(f64, f64)> = points
+            .iter()
+            .filter_map(|p| {
+                let (s, off, _) = deck.station(&p.xy())?;
+                (off.abs() <= width_m / 2.0).then_some((s, p.z))
+            })
+            .collect();
+        if on.len() <= degree {
+            return Err(DeckError::TooFewPoints {
+                needed: degree + 1,
+                got: on.len(),
+            });
+        }
+        let (lo, hi) = on.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| {
+            (a.0.min(p.0), a.1.max(p.0))
+        });
+        let centre = 0.5 * (lo + hi);
+        let scale = (0.5 * (hi - lo)).max(1.0);
+        let a = nalgebra::DMatrix::from_fn(on.len(), degree + 1, |i, k| {
+            ((on[i].0 - centre) / scale).powi(k as i32)
+        });
+        let b = nalgebra::DVector::from_iterator(on.len(), on.iter().map(|p| p.1));
+        let c =
+            a.clone()
+                .svd(true, true)
+                .solve(&b, 1e-12)
+                .map_err(|_| DeckError::TooFewPoints {
+                    needed: degree + 1,
+                    got: on.len(),
+                })?;
+        let r = &a * &c - &b;
+        deck.alignment = VerticalAlignment::Polynomial {
+            centre,
+            scale,
+            coeffs: c.iter().copied().collect(),
+        };
+        Ok((deck, (r.norm_squared() / on.len() as f64).sqrt()))
+    }
+
     /// Chainage, lateral offset (positive to the left) and unit direction at the closest point
     /// of the centre line.
     pub fn station(&self, en: &Vector2<f64>) -> Option<(f64, f64, Vector2<f64>)> {
@@ -203,6 +282,25 @@ mod tests {
             width_m: 4.0,
             alignment,
         }
+    }
+
+    #[test]
+    fn a_parabolic_camber_is_fitted_exactly() {
+        let line = vec![Vector2::new(-40.0, 0.0), Vector2::new(40.0, 0.0)];
+        let z = |x: f64| 6.0 + 0.5 * (1.0 - (x / 40.0).powi(2));
+        let pts: Vec<Vector3<f64>> = [-18.0, -9.0, 0.0, 9.0, 18.0]
+            .iter()
+            .flat_map(|&x| [Vector3::new(x, 1.9, z(x)), Vector3::new(x, -1.9, z(x))])
+            .collect();
+        let (d, rms) = DeckProfile::fit_polynomial(line.clone(), 0.0, 5.0, 2, &pts).unwrap();
+        assert!(rms < 1e-9);
+        for x in [-30.0, -5.0, 25.0] {
+            assert!((d.height(&Vector2::new(x, 0.5)).unwrap() - z(x)).abs() < 1e-9);
+            let n = d.normal(&Vector2::new(x, 0.0)).unwrap();
+            let slope = -0.5 * 2.0 * x / 1600.0;
+            assert!((n - Vector3::new(-slope, 0.0, 1.0).normalize()).norm() < 1e-9);
+        }
+        assert!(DeckProfile::fit_polynomial(line, 0.0, 5.0, 2, &pts[..2]).is_err());
     }
 
     #[test]

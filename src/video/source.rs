@@ -104,6 +104,18 @@ impl FrameReader {
         Ok(Some((i, frame)))
     }
 
+    /// Moves to frame `index` (the next frame read is that one); `false` when the backend cannot.
+    pub fn seek(&mut self, index: usize) -> bool {
+        let ok = self
+            .cap
+            .set(videoio::CAP_PROP_POS_FRAMES, index as f64)
+            .unwrap_or(false);
+        if ok {
+            self.next = index;
+        }
+        ok
+    }
+
     /// The colour (BGR) frame at `index`, read from the start.
     pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, String> {
         let mut r = FrameReader::open(path)?;

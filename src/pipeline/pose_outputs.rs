@@ -1,0 +1,256 @@
+//! The pose outputs of a hovering video: per-frame poses, the reprojection error per frame (table
+//! and plot), key frames and adjusted GCPs.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, anyhow};
+use nalgebra::Matrix3;
+
+use crate::camera::Camera;
+use crate::draw::{Chart, Series, Style, line_chart};
+use crate::estimate::p3p::RigidPose;
+use crate::geom::{Pose, rvec_of};
+use crate::io::write_atomic;
+use crate::pose::hover::HoverResult;
+use crate::pose::stabilise::FrameTrack;
+use crate::pose::{Attitude, GcpObservation};
+use crate::survey::load::Framed;
+
+/// A number for a CSV field; empty when unknown.
+pub fn csv_num(v: Option<f64>, decimals: usize) -> String {
+    v.filter(|v| v.is_finite())
+        .map_or(String::new(), |v| format!("{v:.decimals$}"))
+}
+
+/// What a video's pose solution produced, for the output files.
+pub struct PoseRun<'a> {
+    pub camera: &'a Camera,
+    pub result: &'a HoverResult,
+    pub tracks: &'a [FrameTrack],
+    /// Mean reprojection error of the check points' carried picks per frame.
+    pub check_mean: &'a [Option<f64>],
+    pub fps: f64,
+    pub framed: &'a Framed,
+    /// The control GCPs, in the order of the solution's points.
+    pub control: &'a [GcpObservation],
+}
+
+/// Writes `poses.csv`, `reprojection.csv` and `.png`, `key_frames.csv` and `gcps_adjusted.csv`
+/// into `out`; returns the paths.
+pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathBuf>> {
+    let PoseRun {
+        camera,
+        result: r,
+        tracks,
+        check_mean,
+        fps,
+        framed,
+        control,
+    } = *run;
+    let mut written = Vec::new();
+    let mut put = |name: &str, text: String| -> anyhow::Result<()> {
+        let p = out.join(name);
+        write_atomic(&p, text.as_bytes()).with_context(|| p.display().to_string())?;
+        written.push(p);
+        Ok(())
+    };
+    let mut poses = String::from(
+        "frame,time_s,key,reference,interpolated,features,feature_inliers,picks_used,mean_reprojection_px,max_reprojection_px,centre_e_m,centre_n_m,centre_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z,yaw_deg,pitch_deg,roll_deg,off_nadir_deg,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
+    );
+    let mut reproj = String::from(
+        "frame,time_s,key,picks_used,mean_reprojection_px,max_reprojection_px,check_mean_reprojection_px\n",
+    );
+    for ((f, t), chk) in r.frames.iter().zip(tracks).zip(check_mean) {
+        let time = f.index as f64 / fps;
+        let c = f.cam_from_world.centre();
+        let src = framed
+            .frame
+            .source_from_local(&c)
+            .map_err(|e| anyhow!("camera position to the GCP file's CRS: {e}"))?;
+        let att = Attitude::from_world_from_cam(&f.cam_from_world.rotation.inverse().into_inner());
+        let pose: Pose = f.cam_from_world.into();
+        let rv = rvec_of(&pose);
+        let tv = f.cam_from_world.translation;
+        let sg = f.centre_sigma_m;
+        writeln!(
+            poses,
+            "{},{time:.6},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
+            f.index,
+            u8::from(f.key),
+            t.reference,
+            u8::from(f.interpolated),
+            t.features,
+            t.inliers,
+            f.picks_used,
+            csv_num(f.mean_reprojection_px, 4),
+            csv_num(f.max_reprojection_px, 4),
+            c.x,
+            c.y,
+            c.z,
+            csv_num(sg.map(|s| s.x), 4),
+            csv_num(sg.map(|s| s.y), 4),
+            csv_num(sg.map(|s| s.z), 4),
+            src.x,
+            src.y,
+            src.z,
+            att.yaw_deg,
+            att.pitch_deg,
+            att.roll_deg,
+            att.off_nadir_deg,
+            rv.x,
+            rv.y,
+            rv.z,
+            tv.x,
+            tv.y,
+            tv.z
+        )?;
+        writeln!(
+            reproj,
+            "{},{time:.6},{},{},{},{},{}",
+            f.index,
+            u8::from(f.key),
+            f.picks_used,
+            csv_num(f.mean_reprojection_px, 4),
+            csv_num(f.max_reprojection_px, 4),
+            csv_num(*chk, 4)
+        )?;
+    }
+    put("poses.csv", poses)?;
+    put("reprojection.csv", reproj)?;
+
+    let mut keys =
+        String::from("frame,time_s,reason,features,picks,inliers,outliers,rms_px,sigma0,error\n");
+    for k in &r.key_frames {
+        let t = tracks.iter().find(|t| t.index == k.index);
+        match &k.solution {
+            Ok(s) => writeln!(
+                keys,
+                "{},{:.6},{},{},{},{},{},{:.4},{:.3},",
+                k.index,
+                k.index as f64 / fps,
+                k.reason.as_str(),
+                t.map_or(0, |t| t.features),
+                k.picks,
+                s.inliers,
+                k.picks - s.inliers,
+                s.rms_px,
+                s.sigma0
+            )?,
+            Err(e) => writeln!(
+                keys,
+                "{},{:.6},{},{},{},,,,,\"{}\"",
+                k.index,
+                k.index as f64 / fps,
+                k.reason.as_str(),
+                t.map_or(0, |t| t.features),
+                k.picks,
+                e.to_string().replace('"', "'")
+            )?,
+        }
+    }
+    put("key_frames.csv", keys)?;
+
+    let mut g = String::from(
+        "name,e_m,n_m,u_m,shift_e_m,shift_n_m,shift_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z\n",
+    );
+    for ((o, p), c) in control.iter().zip(&r.joint.points).zip(&r.joint.point_cov) {
+        let d = p - o.world;
+        let src = framed
+            .frame
+            .source_from_local(p)
+            .map_err(|e| anyhow!("GCP {} to the file's CRS: {e}", o.name))?;
+        let sd = |m: &Matrix3<f64>, k: usize| m[(k, k)].max(0.0).sqrt();
+        writeln!(
+            g,
+            "{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+            o.name,
+            p.x,
+            p.y,
+            p.z,
+            d.x,
+            d.y,
+            d.z,
+            sd(c, 0),
+            sd(c, 1),
+            sd(c, 2),
+            src.x,
+            src.y,
+            src.z
+        )?;
+    }
+    put("gcps_adjusted.csv", g)?;
+
+    // The paper's Fig. 13: mean reprojection error per frame, and the level the survey's
+    // uncertainty alone explains.
+    let mean: Vec<(f64, f64)> = r
+        .frames
+        .iter()
+        .map(|f| {
+            (
+                f.index as f64 / fps,
+                f.mean_reprojection_px.unwrap_or(f64::NAN),
+            )
+        })
+        .collect();
+    let mut series = vec![Series {
+        label: "mean reprojection error".into(),
+        xy: mean,
+        rgb: [0, 0, 0],
+        style: Style::Line,
+    }];
+    if check_mean.iter().any(Option::is_some) {
+        series.push(Series {
+            label: "check points".into(),
+            xy: r
+                .frames
+                .iter()
+                .zip(check_mean)
+                .map(|(f, c)| (f.index as f64 / fps, c.unwrap_or(f64::NAN)))
+                .collect(),
+            rgb: [230, 120, 0],
+            style: Style::Line,
+        });
+    }
+    if let Some(level) = survey_level_px(r, control, camera) {
+        series.push(Series {
+            label: format!("GCP survey sigma ({level:.2} px)"),
+            xy: vec![
+                (0.0, level),
+                (tracks.len().saturating_sub(1) as f64 / fps, level),
+            ],
+            rgb: [150, 150, 150],
+            style: Style::Dashed,
+        });
+    }
+    let chart = Chart {
+        title: "Mean reprojection error of the GCPs per frame".into(),
+        x_label: "time (s)".into(),
+        y_label: "pixels".into(),
+        series,
+        ticks: r.key_frames.iter().map(|k| k.index as f64 / fps).collect(),
+        ticks_label: "key frames".into(),
+    };
+    let png = out.join("reprojection.png");
+    line_chart(&chart, 1200, 500)
+        .and_then(|c| c.save(&png))
+        .map_err(|e| anyhow!(e))?;
+    written.push(png);
+    Ok(written)
+}
+
+/// The pixel error the GCPs' survey σ alone explains: the mean over GCPs of the horizontal σ
+/// seen at its depth in the first solved key frame.
+fn survey_level_px(r: &HoverResult, control: &[GcpObservation], camera: &Camera) -> Option<f64> {
+    let pose: RigidPose = *r.joint.poses.first()?;
+    let focal = 0.5 * (camera.fx + camera.fy);
+    let mut sum = 0.0;
+    for o in control {
+        let depth = pose.apply(&o.world).z;
+        if depth <= 0.0 {
+            return None;
+        }
+        sum += focal * (0.5 * (o.world_cov[(0, 0)] + o.world_cov[(1, 1)])).sqrt() / depth;
+    }
+    Some(sum / control.len() as f64)
+}

@@ -526,9 +526,9 @@ fn check(l: &Loaded) -> Result<(), FileError> {
             "gate_m must be positive, confirm_frames at least 1, max_gap_s not negative",
         ));
     }
-    if !(p.projection.head_height_m > 0.0 && p.projection.head_height_m < 3.0)
-        || !(p.projection.head_height_sd_m >= 0.0)
-    {
+    let height_ok = p.projection.head_height_m > 0.0 && p.projection.head_height_m < 3.0;
+    let sd_ok = p.projection.head_height_sd_m >= 0.0;
+    if !(height_ok && sd_ok) {
         return Err(l.error(
             "projection",
             "head_height_m",

@@ -63,8 +63,27 @@ fn by_frame(samples: &[Sample]) -> BTreeMap<usize, Vec<Sample>> {
     m
 }
 
-/// Evaluates `estimated` against `truth` with a match threshold in metres.
-pub fn evaluate(truth: &[Sample], estimated: &[Sample], threshold_m: f64) -> Evaluation {
+/// Evaluates `estimated` against `truth` with a match threshold in metres. Estimates within the
+/// threshold of an `ignored` truth position (someone the truth does not count in that frame: a
+/// head just outside the image, say) count neither way.
+pub fn evaluate(
+    truth: &[Sample],
+    estimated: &[Sample],
+    ignored: &[Sample],
+    threshold_m: f64,
+) -> Evaluation {
+    let ig = by_frame(ignored);
+    let estimated: Vec<Sample> = estimated
+        .iter()
+        .filter(|e| {
+            !ig.get(&e.frame).is_some_and(|v| {
+                v.iter()
+                    .any(|i| (i.position - e.position).norm() <= threshold_m)
+            })
+        })
+        .copied()
+        .collect();
+    let estimated = &estimated[..];
     let (tf, ef) = (by_frame(truth), by_frame(estimated));
     let frames: Vec<usize> = tf
         .keys()
@@ -271,7 +290,7 @@ mod tests {
                 ..*t
             })
             .collect();
-        let e = evaluate(&truth, &est, 0.5);
+        let e = evaluate(&truth, &est, &[], 0.5);
         assert_eq!(
             (e.misses, e.false_positives, e.id_switches, e.fragmentations),
             (0, 0, 0, 0)
@@ -300,7 +319,7 @@ mod tests {
                 est.push(s(f, 102, 9.0, 9.0));
             }
         }
-        let e = evaluate(&truth, &est, 0.2);
+        let e = evaluate(&truth, &est, &[s(40, 9, 9.0, 9.0)][..0], 0.2);
         assert_eq!(e.misses, 5);
         assert_eq!(e.false_positives, 1);
         // The swap changes both people's estimate: two switches.
@@ -311,5 +330,8 @@ mod tests {
         assert!(e.idf1 < 0.7 && e.idf1 > 0.5, "{}", e.idf1);
         // Person 0 is matched in 45 of 50 frames: exactly 90 %.
         assert_eq!(e.tracked_90, 2);
+        // The ghost sits where the truth says someone is but does not count: ignored.
+        let e = evaluate(&truth, &est, &[s(40, 9, 9.05, 9.0)], 0.2);
+        assert_eq!(e.false_positives, 0);
     }
 }

@@ -313,9 +313,10 @@ fn calibrates_from_a_video_skipping_blur_and_duplicates() {
 
 #[test]
 fn demo_runs_and_its_outputs_convert_between_formats() {
+    // A short demo: simulation, calibration from its checkerboards, two runs, evaluation.
     let tmp = tempfile::tempdir().unwrap();
     let o = run(
-        &["demo", "-q", "--views", "8", "--skip-scenes", "--out"],
+        &["demo", "-q", "--duration", "3", "--json", "--out"],
         &[tmp.path()],
     );
     assert!(
@@ -324,9 +325,23 @@ fn demo_runs_and_its_outputs_convert_between_formats() {
         String::from_utf8_lossy(&o.stdout),
         stderr(&o)
     );
-    assert!(String::from_utf8_lossy(&o.stdout).contains("Demo OK"));
-    let yaml = tmp.path().join("camera.yaml");
-    let xml = tmp.path().join("converted.xml");
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(j["rmse_m"].as_f64().unwrap() < 0.12, "{j}");
+    assert!(j["rmse_known_heights_m"].as_f64().unwrap() < 0.05);
+    assert_eq!(j["passed"], true);
+    assert!(stderr(&o).contains("Demo OK"));
+    let dir = tmp.path().join("bridge-stream");
+    for f in [
+        "run/trajectories.csv",
+        "run/trajectories.gpkg",
+        "run/report.md",
+        "run-heights/trajectories.csv",
+        "demo.json",
+    ] {
+        assert!(dir.join(f).is_file(), "{f}");
+    }
+    let yaml = dir.join("camera.yaml");
+    let xml = dir.join("converted.xml");
     let o = run(&["camera", "convert"], &[&yaml, &xml]);
     assert!(o.status.success(), "{}", stderr(&o));
     let a = formats::read(&yaml, None).unwrap();

@@ -3,9 +3,11 @@
 mod calibrate;
 mod camera;
 mod demo;
+mod evaluate;
 mod plan;
 mod pose;
 mod pose_video;
+mod run;
 mod simulate;
 pub(crate) mod survey;
 
@@ -57,10 +59,14 @@ enum Command {
     Camera(camera::Command),
     /// Run the bundled example end to end and check it against its ground truth
     Demo(demo::Args),
+    /// Compare trajectories with the truth: position errors and tracking metrics
+    Evaluate(evaluate::Args),
     /// Render a simulated scene (drone video of walkers or runners) with exact ground truth
     Simulate(simulate::Args),
     /// Camera pose from ground control points: one image, or every frame of a hovering video
     Pose(pose::Args),
+    /// Run a project: from a video to geolocated trajectories with their accuracy
+    Run(run::Args),
     /// Plan a flight: footprint, ground sample distance and error maps for a camera and altitude
     Plan(plan::Args),
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
@@ -74,6 +80,8 @@ impl Cli {
             Command::Calibrate(args) => calibrate::run(args),
             Command::Camera(cmd) => camera::run(cmd),
             Command::Demo(args) => demo::run(args),
+            Command::Evaluate(args) => evaluate::run(args),
+            Command::Run(args) => run::run(args),
             Command::Survey(cmd) => survey::run(cmd),
             Command::Plan(args) => plan::run(args),
             Command::Pose(args) => pose::run(args),

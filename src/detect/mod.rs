@@ -23,7 +23,7 @@ impl FrameView<'_> {
 }
 
 /// One detected head.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Detection {
     /// The head's centre, pixels ((0, 0) the centre of the top-left pixel).
     pub uv: Vector2<f64>,

@@ -10,7 +10,7 @@ use nalgebra::{Vector2, Vector3};
 use crate::track::ImageTrack;
 
 /// One point of a world trajectory.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrajectoryPoint {
     pub frame: usize,
     pub time_s: f64,
@@ -27,7 +27,7 @@ pub struct TrajectoryPoint {
 }
 
 /// A person's trajectory.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Trajectory {
     pub id: usize,
     /// The head height used, metres, and where it came from.

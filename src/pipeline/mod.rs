@@ -2,4 +2,6 @@
 
 pub mod pose_outputs;
 pub mod project;
+pub mod registry;
+pub mod run;
 pub mod scan;

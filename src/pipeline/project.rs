@@ -500,7 +500,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         GroundSection::Dem { path } => exists("ground", "path", path)?,
         GroundSection::Plane { .. } => {}
     }
-    if p.detect.kind != "colour" {
+    if !super::registry::DETECTORS.contains(&p.detect.kind.as_str()) {
         return Err(l.error("detect", "kind", format!("expected 'colour', got '{}' (external boxes and background subtraction come with the next detectors)", p.detect.kind)));
     }
     if !(2..=64).contains(&p.detect.clusters) {
@@ -512,7 +512,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if !(p.detect.hat_diameter_m > 0.0) {
         return Err(l.error("detect", "hat_diameter_m", "must be positive"));
     }
-    if p.track.kind != "association" {
+    if !super::registry::TRACKERS.contains(&p.track.kind.as_str()) {
         return Err(l.error(
             "track",
             "kind",
@@ -538,15 +538,12 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if let Some(h) = &p.projection.heights {
         exists("projection", "heights", h)?;
     }
-    match p.smooth.kind.as_str() {
-        "kalman_rts" | "none" => {}
-        k => {
-            return Err(l.error(
-                "smooth",
-                "kind",
-                format!("expected 'kalman_rts' or 'none', got '{k}'"),
-            ));
-        }
+    if !super::registry::SMOOTHERS.contains(&p.smooth.kind.as_str()) {
+        return Err(l.error(
+            "smooth",
+            "kind",
+            format!("expected 'kalman_rts' or 'none', got '{}'", p.smooth.kind),
+        ));
     }
     if p.smooth.model.parse::<crate::smooth::NoiseModel>().is_err() {
         return Err(l.error(

@@ -45,6 +45,8 @@ pub struct FramePose {
     pub cam_from_world: RigidPose,
     /// σ of the camera centre (east, north, up), metres; `None` when interpolated.
     pub centre_sigma_m: Option<Vector3<f64>>,
+    /// Covariance of the pose's increment (`refine` convention); `None` when interpolated.
+    pub covariance: Option<nalgebra::Matrix6<f64>>,
     /// Picks used, and their mean and largest reprojection error in pixels.
     pub picks_used: usize,
     pub mean_reprojection_px: Option<f64>,
@@ -74,8 +76,17 @@ fn obs_info(
     (Matrix2::identity() * (sigma_px * sigma_px) + jx * cov * jx.transpose()).try_inverse()
 }
 
+/// One frame's refined pose, its centre σ and increment covariance, and the picks it used.
+struct FrameSolve {
+    pose: RigidPose,
+    sigma: Vector3<f64>,
+    covariance: nalgebra::Matrix6<f64>,
+    used: Vec<bool>,
+}
+
 /// Refines one frame's pose from `start` on its picks, dropping picks that fail the χ² test
-/// (at most twice). Returns the pose, its centre σ and the flags of the picks used.
+/// (at most twice). Returns the pose, its centre σ, its increment covariance and the flags of
+/// the picks used.
 fn frame_pose(
     camera: &Camera,
     start: &RigidPose,
@@ -83,7 +94,7 @@ fn frame_pose(
     points: &[Vector3<f64>],
     point_cov: &[Matrix3<f64>],
     picks: &[Option<Vector2<f64>>],
-) -> Option<(RigidPose, Vector3<f64>, Vec<bool>)> {
+) -> Option<FrameSolve> {
     let info = |pose: &RigidPose, j: usize| {
         obs_info(camera, pose, &points[j], &point_cov[j], gcps[j].sigma_px)
     };
@@ -124,7 +135,12 @@ fn frame_pose(
             })
             .collect();
         if next == used || pass == 2 {
-            return Some((pose, sigma, used));
+            return Some(FrameSolve {
+                pose,
+                sigma,
+                covariance: refined.covariance,
+                used,
+            });
         }
         used = next;
     }
@@ -260,24 +276,34 @@ pub fn solve_hover(
             &joint.point_cov,
             &t.picks,
         )
-        .map(|(pose, sigma, used)| {
-            let errs: Vec<f64> = (0..gcps.len())
-                .filter(|&j| used[j])
-                .filter_map(|j| {
-                    Some((t.picks[j]? - project_pose(camera, &pose, &joint.points[j])?.0).norm())
-                })
-                .collect();
-            FramePose {
-                index: t.index,
-                key: t.key.is_some(),
-                cam_from_world: pose,
-                centre_sigma_m: sigma.iter().all(|s| s.is_finite()).then_some(sigma),
-                picks_used: errs.len(),
-                mean_reprojection_px: Some(errs.iter().sum::<f64>() / errs.len() as f64),
-                max_reprojection_px: errs.iter().copied().reduce(f64::max),
-                interpolated: false,
-            }
-        });
+        .map(
+            |FrameSolve {
+                 pose,
+                 sigma,
+                 covariance,
+                 used,
+             }| {
+                let errs: Vec<f64> = (0..gcps.len())
+                    .filter(|&j| used[j])
+                    .filter_map(|j| {
+                        Some(
+                            (t.picks[j]? - project_pose(camera, &pose, &joint.points[j])?.0).norm(),
+                        )
+                    })
+                    .collect();
+                FramePose {
+                    index: t.index,
+                    key: t.key.is_some(),
+                    cam_from_world: pose,
+                    centre_sigma_m: sigma.iter().all(|s| s.is_finite()).then_some(sigma),
+                    covariance: Some(covariance),
+                    picks_used: errs.len(),
+                    mean_reprojection_px: Some(errs.iter().sum::<f64>() / errs.len() as f64),
+                    max_reprojection_px: errs.iter().copied().reduce(f64::max),
+                    interpolated: false,
+                }
+            },
+        );
         if let Some(f) = &fp {
             last = Some(f.cam_from_world);
         }
@@ -316,6 +342,7 @@ pub fn solve_hover(
             key: tracks[i].key.is_some(),
             cam_from_world: pose,
             centre_sigma_m: None,
+            covariance: None,
             picks_used: 0,
             mean_reprojection_px: None,
             max_reprojection_px: None,

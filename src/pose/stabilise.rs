@@ -76,7 +76,8 @@ impl Default for StabiliseSettings {
 }
 
 /// Why a frame became a key frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum KeyReason {
     First,
     FewFeatures,
@@ -96,7 +97,7 @@ impl KeyReason {
 }
 
 /// One frame's stabilisation.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameTrack {
     pub index: usize,
     /// Set when this frame is a key frame (a new reference).

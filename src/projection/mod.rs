@@ -16,7 +16,7 @@ use crate::pose::refine::pose_step;
 use crate::terrain::HeightSurface;
 
 /// A projected detection.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct WorldPoint {
     /// East, north, up in the site frame, metres.
     pub position: Vector3<f64>,

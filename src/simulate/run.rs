@@ -251,19 +251,30 @@ pub fn simulate(
             tvec.z
         );
         for (p, ps) in &present {
-            let uv = pose.project(camera, &ps.head_top);
-            let in_view = uv.is_some_and(|uv| {
-                uv.x >= -0.5 && uv.y >= -0.5 && uv.x <= w - 0.5 && uv.y <= h - 0.5
-            });
-            if !in_view {
+            let Some(uv) = pose.project(camera, &ps.head_top) else {
+                continue;
+            };
+            let inside = |m: f64| {
+                uv.x >= -0.5 - m && uv.y >= -0.5 - m && uv.x <= w - 0.5 + m && uv.y <= h - 0.5 + m
+            };
+            // A head just outside the image still shows part of its hat: listed, not in view.
+            let depth = (pose.world_from_cam.transpose() * (ps.head_top - pose.centre)).z;
+            let hat_px = crate::simulate::people::HAT_RADIUS_M * camera.fx / depth.max(1e-6);
+            let in_view = inside(0.0);
+            if !in_view && !inside(hat_px) {
                 continue;
             }
-            seen[p.id] = true;
-            let uv = uv.expect("in view");
+            seen[p.id] |= in_view;
             let _ = writeln!(
                 heads_csv,
-                "{i},{t:.6},{},{:.6},{:.6},{:.6},{:.4},{:.4},1",
-                p.id, ps.head_top.x, ps.head_top.y, ps.head_top.z, uv.x, uv.y
+                "{i},{t:.6},{},{:.6},{:.6},{:.6},{:.4},{:.4},{}",
+                p.id,
+                ps.head_top.x,
+                ps.head_top.y,
+                ps.head_top.z,
+                uv.x,
+                uv.y,
+                u8::from(in_view)
             );
         }
         progress.inc(1);

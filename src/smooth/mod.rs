@@ -371,6 +371,62 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
     }
 }
 
+/// Turns observed tracks into smoothed states; chosen by name in a project.
+pub trait Smoother: Send {
+    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed;
+}
+
+/// The constant-velocity Kalman filter and RTS smoother, with EM.
+pub struct KalmanRts(pub SmoothSettings);
+
+impl Smoother for KalmanRts {
+    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed {
+        smooth(tracks, &self.0)
+    }
+}
+
+/// No smoothing: the observations themselves, with velocities by central differences.
+pub struct Unsmoothed {
+    pub dt: f64,
+}
+
+impl Smoother for Unsmoothed {
+    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed {
+        let tracks = tracks
+            .iter()
+            .map(|t| {
+                (0..t.len())
+                    .map(|k| {
+                        let (a, b) = (&t[k.saturating_sub(1)], &t[(k + 1).min(t.len() - 1)]);
+                        let span = (b.frame as f64 - a.frame as f64) * self.dt;
+                        let velocity = if span > 0.0 {
+                            (b.position - a.position) / span
+                        } else {
+                            Vector2::zeros()
+                        };
+                        let mut cov = Matrix4::zeros();
+                        cov.fixed_view_mut::<2, 2>(0, 0).copy_from(&t[k].cov);
+                        State {
+                            frame: t[k].frame,
+                            position: t[k].position,
+                            velocity,
+                            cov,
+                            observed: true,
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        Smoothed {
+            tracks,
+            q: Matrix4::zeros(),
+            em_iterations: 0,
+            converged: true,
+            log_likelihood: f64::NAN,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,7 +5,8 @@
 //! camera (the `Motion` of each frame). A detection no track takes starts a tentative track,
 //! confirmed after a few hits in a row; a confirmed track survives misses (occlusion, a missed
 //! detection) for a while, predicting on, with a gate that widens with the misses, so that it
-//! keeps its identity when the person reappears.
+//! keeps its identity when the person reappears. A stray detection right beside one a track took
+//! is a duplicate (a hat cut in two), not a new person.
 
 use nalgebra::Vector2;
 
@@ -24,6 +25,9 @@ pub struct AssociationSettings {
     pub max_misses: usize,
     /// Weight of a new velocity measurement (0..1).
     pub velocity_gain: f64,
+    /// A detection no track takes, this close to one a track took, is a duplicate (a piece of
+    /// the same head), not a new person, pixels.
+    pub duplicate_px: f64,
 }
 
 impl Default for AssociationSettings {
@@ -33,6 +37,7 @@ impl Default for AssociationSettings {
             confirm_hits: 3,
             max_misses: 12,
             velocity_gain: 0.5,
+            duplicate_px: 8.0,
         }
     }
 }
@@ -139,7 +144,16 @@ impl Tracker for AssociationTracker {
                 }
             }
         }
+        let taken_at: Vec<Vector2<f64>> = detections
+            .iter()
+            .zip(&taken)
+            .filter(|(_, t)| **t)
+            .map(|(d, _)| d.uv)
+            .collect();
         for (d, _) in detections.iter().zip(&taken).filter(|(_, t)| !**t) {
+            if taken_at.iter().any(|p| (p - d.uv).norm() < s.duplicate_px) {
+                continue;
+            }
             keep.push(Live {
                 id: (s.confirm_hits <= 1).then(|| {
                     self.next_id += 1;
@@ -162,7 +176,13 @@ impl Tracker for AssociationTracker {
     }
 
     fn finish(mut self: Box<Self>) -> Vec<ImageTrack> {
-        for t in std::mem::take(&mut self.live) {
+        for mut t in std::mem::take(&mut self.live) {
+            // Seen in every frame since it appeared, but the video ended before it could be
+            // confirmed: someone walking into view at the end.
+            if t.id.is_none() && t.hits >= 2 && t.misses == 0 {
+                t.id = Some(self.next_id);
+                self.next_id += 1;
+            }
             self.retire(t);
         }
         let mut done = std::mem::take(&mut self.done);

@@ -8,7 +8,7 @@ use nalgebra::{Matrix2, Vector2};
 use crate::detect::Detection;
 
 /// One observed point of an image track.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrackPoint {
     pub frame: usize,
     pub uv: Vector2<f64>,
@@ -17,7 +17,7 @@ pub struct TrackPoint {
 }
 
 /// A person's path through the image.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ImageTrack {
     pub id: usize,
     /// Observations in frame order; frames without one are gaps.

@@ -1,0 +1,82 @@
+//! `geostride run PROJECT.toml`: the whole job, from a video to trajectories.
+
+use std::path::PathBuf;
+
+use anyhow::anyhow;
+
+use super::bad_input;
+use crate::pipeline::project::load;
+use crate::pipeline::run::{RunError, StageProgress, run as run_project};
+use crate::progress::Progress;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The project file (TOML): camera, GCPs and picks, video, ground, stages, outputs
+    project: PathBuf,
+    /// Output folder [default: 'out' beside the project file]
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// No progress bars
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+struct Bars {
+    quiet: bool,
+}
+
+impl StageProgress for Bars {
+    fn stage(&self, name: &str) -> Box<dyn Progress> {
+        Box::new(super::progress_bar(
+            self.quiet,
+            0,
+            &format!("{name:>7} {{bar:40}} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}]"),
+        ))
+    }
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let loaded = load(&args.project).map_err(bad_input)?;
+    let out = args.out.clone().unwrap_or_else(|| loaded.resolve("out"));
+    let report = run_project(&loaded, &out, &Bars { quiet: args.quiet }).map_err(|e| match e {
+        RunError::Input(m) => bad_input(anyhow!(m)),
+        RunError::Failed(m) => anyhow!(m),
+    })?;
+    println!("Project: {} -> {}", report.project, out.display());
+    println!(
+        "  site frame: {}; output CRS: {}",
+        report.site_frame, report.output_crs
+    );
+    println!("{:<8} {:<9} {:>8}  numbers", "stage", "status", "seconds");
+    for s in &report.stages {
+        let nums: Vec<String> = s
+            .counts
+            .iter()
+            .map(|(k, v)| {
+                if v.fract() == 0.0 && v.abs() < 1e12 {
+                    format!("{k} {v:.0}")
+                } else {
+                    format!("{k} {v:.3}")
+                }
+            })
+            .collect();
+        println!(
+            "{:<8} {:<9} {:>8.2}  {}",
+            s.name,
+            s.status,
+            s.seconds,
+            nums.join(", ")
+        );
+    }
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
+    for o in report
+        .outputs
+        .iter()
+        .chain(["report.json".to_string(), "report.md".to_string()].iter())
+    {
+        println!("Written: {}", out.join(o).display());
+    }
+    Ok(())
+}

@@ -1,0 +1,1230 @@
+//! Running a project: the stages in order, each cached in the output folder under a key of its
+//! inputs and parameters, so that a re-run reuses what is done and an interrupted run resumes.
+//!
+//! Stages: `scan` (one decode pass: stabilisation and detection), `pose` (a pose for every
+//! frame), `track` (image tracks), `project` (to the head-height surface), `smooth` (Kalman/RTS
+//! with EM), `export` (the files). Every artifact is written atomically; a stage whose key
+//! matches its artifact is not run again.
+
+use std::collections::BTreeMap;
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::{Matrix2, Matrix3, Matrix6, Vector2, Vector3};
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::pose_outputs::{PoseRun, write_pose_outputs};
+use super::project::{GroundSection, Loaded};
+use super::scan::{ScanJob, ScanTimes, sample_pixels, scan};
+use crate::camera::{Camera, formats, presets};
+use crate::detect::Detection;
+use crate::detect::colour::{ColourSettings, Palette};
+use crate::estimate::p3p::RigidPose;
+use crate::export::gis::{Layers, write_trajectories};
+use crate::export::{Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv};
+use crate::gis::GisFormat;
+use crate::io::write_atomic;
+use crate::pose::hover::solve_with_checks;
+use crate::pose::stabilise::{FrameTrack, StabiliseSettings};
+use crate::pose::{GcpObservation, PoseSettings, solve_pose};
+use crate::progress::Progress;
+use crate::projection::{WorldPoint, project};
+use crate::smooth::{Observation, SmoothSettings};
+use crate::survey::Role;
+use crate::survey::crs::{Crs, Transform};
+use crate::survey::frame::Origin;
+use crate::survey::load::{Framed, LoadOptions, load_framed};
+use crate::survey::read::{HeightChoice, ReadOptions};
+use crate::terrain::{DeckProfile, HeightSurface, Plane};
+use crate::track::ImageTrack;
+use crate::track::association::AssociationSettings;
+
+/// A failure of a run: bad input (the user's to fix) or a failure while running.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("{0}")]
+    Input(String),
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// Shows progress per stage.
+pub trait StageProgress {
+    fn stage(&self, name: &str) -> Box<dyn Progress>;
+}
+
+/// Shows nothing.
+pub struct Silent;
+
+impl StageProgress for Silent {
+    fn stage(&self, _: &str) -> Box<dyn Progress> {
+        Box::new(crate::progress::NoProgress)
+    }
+}
+
+/// One input file of a run, with its checksum.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct InputRecord {
+    pub role: String,
+    pub path: String,
+    pub bytes: u64,
+    pub sha256: String,
+}
+
+/// One stage of a run.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StageRecord {
+    pub name: String,
+    /// `computed` or `reused`.
+    pub status: String,
+    pub seconds: f64,
+    pub counts: BTreeMap<String, f64>,
+}
+
+/// The run report.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunReport {
+    pub project: String,
+    pub geostride_version: String,
+    pub inputs: Vec<InputRecord>,
+    pub parameters: super::project::Project,
+    pub site_frame: String,
+    pub output_crs: String,
+    pub stages: Vec<StageRecord>,
+    pub outputs: Vec<String>,
+    pub warnings: Vec<String>,
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+fn file_record(role: &str, path: &Path) -> Result<InputRecord, RunError> {
+    let mut f = std::fs::File::open(path)
+        .map_err(|e| RunError::Input(format!("{}: {e}", path.display())))?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    let mut bytes = 0u64;
+    loop {
+        let n = f
+            .read(&mut buf)
+            .map_err(|e| RunError::Failed(format!("{}: {e}", path.display())))?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+        bytes += n as u64;
+    }
+    Ok(InputRecord {
+        role: role.into(),
+        path: path.display().to_string(),
+        bytes,
+        sha256: h.finalize().iter().map(|b| format!("{b:02x}")).collect(),
+    })
+}
+
+/// A cached stage artifact: the key it was made under and its data.
+#[derive(Serialize, Deserialize)]
+struct Artifact<T> {
+    key: String,
+    data: T,
+}
+
+struct Cache {
+    dir: PathBuf,
+}
+
+impl Cache {
+    fn path(&self, stage: &str) -> PathBuf {
+        self.dir.join(format!("{stage}.json"))
+    }
+
+    fn load<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<T> {
+        let text = std::fs::read_to_string(self.path(stage)).ok()?;
+        let a: Artifact<T> = serde_json::from_str(&text).ok()?;
+        (a.key == key).then_some(a.data)
+    }
+
+    fn store<T: Serialize>(&self, stage: &str, key: &str, data: &T) -> Result<(), RunError> {
+        let text = serde_json::to_string(&Artifact {
+            key: key.to_string(),
+            data,
+        })
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+        write_atomic(&self.path(stage), text.as_bytes())
+            .map_err(|e| RunError::Failed(format!("{}: {e}", self.path(stage).display())))
+    }
+}
+
+/// The build: geostride's version and the SHA-256 of the running executable, so that a cache
+/// made by another build is never reused.
+pub fn build_id() -> &'static str {
+    static ID: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    ID.get_or_init(|| {
+        let exe = std::env::current_exe()
+            .ok()
+            .and_then(|p| std::fs::read(p).ok())
+            .map(|b| sha256_hex(&b))
+            .unwrap_or_default();
+        format!(
+            "{}+{}",
+            env!("CARGO_PKG_VERSION"),
+            &exe[..exe.len().min(16)]
+        )
+    })
+}
+
+/// The key of a stage: its name, the build, the keys it depends on and its parameters.
+fn stage_key(stage: &str, parents: &[&str], params: &impl Serialize) -> String {
+    let mut text = format!("{stage}|{}|", build_id());
+    for p in parents {
+        text.push_str(p);
+        text.push('|');
+    }
+    text.push_str(&serde_json::to_string(params).unwrap_or_default());
+    sha256_hex(text.as_bytes())
+}
+
+/// What the scan stage keeps.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct ScanData {
+    fps: f64,
+    width: u32,
+    height: u32,
+    frames: usize,
+    px_per_m: f64,
+    palette_centres: Vec<[f64; 3]>,
+    palette_hat: Vec<bool>,
+    tracks: Vec<FrameTrack>,
+    detections: Vec<Vec<Detection>>,
+    times: ScanTimes,
+}
+
+/// A frame's pose as the later stages need it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct FramePoseData {
+    frame: usize,
+    rotation: Matrix3<f64>,
+    translation: Vector3<f64>,
+    covariance: Option<Matrix6<f64>>,
+    interpolated: bool,
+    mean_reprojection_px: Option<f64>,
+}
+
+impl FramePoseData {
+    fn pose(&self) -> RigidPose {
+        RigidPose {
+            rotation: nalgebra::Rotation3::from_matrix_unchecked(self.rotation),
+            translation: self.translation,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct PoseData {
+    frames: Vec<FramePoseData>,
+    key_frames: Vec<usize>,
+    key_frames_failed: Vec<usize>,
+    mean_reprojection_px: f64,
+    max_reprojection_px: f64,
+    check_mean_reprojection_px: Option<f64>,
+}
+
+/// A track projected to the world.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct WorldTrack {
+    id: usize,
+    height_m: f64,
+    height_sd_m: f64,
+    height_source: String,
+    points: Vec<(usize, WorldPoint)>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct SmoothData {
+    trajectories: Vec<Trajectory>,
+    em_iterations: usize,
+    em_converged: bool,
+    q: Vec<f64>,
+}
+
+/// The camera of the project, scaled to the video.
+fn project_camera(l: &Loaded, width: u32, height: u32) -> Result<Camera, RunError> {
+    let spec = &l.project.camera.calibration;
+    let cal = match presets::preset(spec) {
+        Some(c) => c,
+        None => {
+            formats::read(&l.resolve(spec), None).map_err(|e| RunError::Input(e.to_string()))?
+        }
+    };
+    let cam = cal.camera;
+    match cam.image_size {
+        Some(s) if s.width == width && s.height == height => Ok(cam),
+        Some(s) => cam.scaled_to(width, height).ok_or_else(|| {
+            RunError::Input(l.error("camera", "calibration", format!("the calibration is for {}x{}, the video is {width}x{height}: another aspect ratio", s.width, s.height)).to_string())
+        }),
+        None => Ok(cam.with_image_size(width, height)),
+    }
+}
+
+fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
+    let s = &l.project.survey;
+    let origin = match &s.origin {
+        Some(o) => Some(
+            o.parse::<Origin>()
+                .map_err(|e| RunError::Input(l.error("survey", "origin", e).to_string()))?,
+        ),
+        None => None,
+    };
+    let opts = LoadOptions {
+        read: ReadOptions {
+            crs: s.crs.clone(),
+            height: s.height.as_deref().map(|h| {
+                if h == "ellipsoidal" {
+                    HeightChoice::Ellipsoidal
+                } else {
+                    HeightChoice::Orthometric
+                }
+            }),
+            ..ReadOptions::default()
+        },
+        picks: s.picks.iter().map(|p| l.resolve(p)).collect(),
+        check_prefix: Some(s.check_prefix.clone()),
+        check: s.check.clone(),
+        disable: Vec::new(),
+        origin,
+    };
+    load_framed(&l.resolve(&s.gcps), &opts).map_err(|e| RunError::Input(e.to_string()))
+}
+
+/// The picks of the picked frame: (frame, control, check).
+fn picked(
+    l: &Loaded,
+    framed: &Framed,
+) -> Result<(usize, Vec<GcpObservation>, Vec<GcpObservation>), RunError> {
+    let s = &l.project.survey;
+    let mut images: BTreeMap<String, usize> = BTreeMap::new();
+    for p in framed
+        .survey
+        .points
+        .iter()
+        .filter(|p| p.role != Role::Disabled)
+    {
+        for o in &p.observations {
+            *images.entry(o.image.clone()).or_default() += 1;
+        }
+    }
+    let video_name = Path::new(&l.project.video.path)
+        .file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let image = images
+        .keys()
+        .find(|k| k.starts_with(&format!("{video_name}#")))
+        .or_else(|| (images.len() == 1).then(|| images.keys().next()).flatten())
+        .cloned()
+        .ok_or_else(|| RunError::Input(l.error("survey", "picks", format!("no picks of '{video_name}#N' (the frame N of the video); the picks name {:?}", images.keys().collect::<Vec<_>>())).to_string()))?;
+    let frame = l
+        .project
+        .pose
+        .picks_frame
+        .or_else(|| image.rsplit_once('#').and_then(|(_, n)| n.parse().ok()))
+        .unwrap_or(0);
+    let (mut control, mut check) = (Vec::new(), Vec::new());
+    for (p, local) in framed.survey.points.iter().zip(&framed.local) {
+        if p.role == Role::Disabled {
+            continue;
+        }
+        let Some(o) = p.observations.iter().find(|o| o.image == image) else {
+            continue;
+        };
+        let sigma = p.sigma_m.unwrap_or(Vector3::from_element(s.gcp_sigma_m));
+        let world_cov = framed
+            .frame
+            .local_covariance(&p.position, &sigma)
+            .unwrap_or_else(|_| Matrix3::from_diagonal(&sigma.component_mul(&sigma)));
+        let obs = GcpObservation {
+            name: p.name.clone(),
+            world: *local,
+            world_cov,
+            uv: o.uv,
+            sigma_px: o.sigma_px.unwrap_or(s.pick_sigma_px),
+        };
+        if p.role == Role::Check {
+            check.push(obs)
+        } else {
+            control.push(obs)
+        }
+    }
+    if control.len() < 4 {
+        return Err(RunError::Input(
+            l.error(
+                "survey",
+                "picks",
+                format!(
+                    "image '{image}' has picks of {} control point(s); a pose needs at least 4",
+                    control.len()
+                ),
+            )
+            .to_string(),
+        ));
+    }
+    Ok((frame, control, check))
+}
+
+/// The ground of the project in the site frame.
+fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunError> {
+    let control: Vec<Vector3<f64>> = framed
+        .survey
+        .points
+        .iter()
+        .zip(&framed.local)
+        .filter(|(p, _)| p.role == Role::Control)
+        .map(|(_, x)| *x)
+        .collect();
+    let err = |key: &str, m: String| RunError::Input(l.error("ground", key, m).to_string());
+    match &l.project.ground {
+        GroundSection::Plane { height_m: Some(h) } => {
+            Ok(Box::new(Plane::from_gradient(0.0, 0.0, *h)))
+        }
+        GroundSection::Plane { height_m: None } => {
+            let (plane, _) = Plane::fit(&control).map_err(|e| {
+                err(
+                    "height_m",
+                    format!("fitting a plane to the control GCPs: {e}"),
+                )
+            })?;
+            Ok(Box::new(plane))
+        }
+        GroundSection::Deck {
+            centre_line,
+            width_m,
+            stations,
+            degree,
+        } => {
+            let line = centre_line
+                .iter()
+                .map(|p| {
+                    framed
+                        .frame
+                        .local_from_source(&Vector3::new(p[0], p[1], f64::NAN))
+                        .map(|x| x.xy())
+                })
+                .collect::<Result<Vec<Vector2<f64>>, _>>()
+                .map_err(|e| err("centre_line", e.to_string()))?;
+            if stations.is_empty() {
+                let (deck, _) = DeckProfile::fit_polynomial(line, 0.0, *width_m, *degree, &control)
+                    .map_err(|e| {
+                        err(
+                            "degree",
+                            format!("fitting the deck profile to the control GCPs: {e}"),
+                        )
+                    })?;
+                Ok(Box::new(deck))
+            } else {
+                Ok(Box::new(DeckProfile {
+                    centre_line: line,
+                    start_s: 0.0,
+                    width_m: *width_m,
+                    alignment: crate::terrain::deck::VerticalAlignment::Stations(
+                        stations.iter().map(|s| (s[0], s[1])).collect(),
+                    ),
+                }))
+            }
+        }
+        GroundSection::Dem { path } => {
+            let (grid, wkt) =
+                crate::terrain::raster::load(&l.resolve(path)).map_err(|e| err("path", e))?;
+            // The DEM surface keeps its own handle on the site frame (PROJ handles are not shared).
+            let origin = match &l.project.survey.origin {
+                Some(o) => o.parse::<Origin>().map_err(|e| err("path", e))?,
+                None => Origin::Centroid,
+            };
+            let frame = std::rc::Rc::new(
+                crate::survey::frame::SiteFrame::new(&framed.survey, &origin)
+                    .map_err(|e| err("path", e.to_string()))?,
+            );
+            let dem = crate::survey::frame::dem_surface(frame, grid, &wkt)
+                .map_err(|e| err("path", e.to_string()))?;
+            Ok(Box::new(dem))
+        }
+    }
+}
+
+/// Runs a project into `out`.
+pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunReport, RunError> {
+    let p = &l.project;
+    std::fs::create_dir_all(out.join(".stages"))
+        .map_err(|e| RunError::Failed(format!("{}: {e}", out.display())))?;
+    let cache = Cache {
+        dir: out.join(".stages"),
+    };
+    let mut warnings = Vec::new();
+    let mut stages = Vec::new();
+
+    // Inputs and their checksums.
+    let mut inputs = Vec::new();
+    if presets::preset(&p.camera.calibration).is_none() {
+        inputs.push(file_record("camera", &l.resolve(&p.camera.calibration))?);
+    }
+    inputs.push(file_record("gcps", &l.resolve(&p.survey.gcps))?);
+    for pk in &p.survey.picks {
+        inputs.push(file_record("picks", &l.resolve(pk))?);
+    }
+    inputs.push(file_record("video", &l.resolve(&p.video.path))?);
+    if let Some(h) = &p.projection.heights {
+        inputs.push(file_record("heights", &l.resolve(h))?);
+    }
+    let sums: Vec<&str> = inputs.iter().map(|i| i.sha256.as_str()).collect();
+
+    let video = l.resolve(&p.video.path);
+    let reader = crate::video::source::FrameReader::open(&video)
+        .map_err(|e| RunError::Input(l.error("video", "path", e).to_string()))?;
+    let (fps, width, height) = (reader.fps, reader.width, reader.height);
+    drop(reader);
+    if !(fps > 0.0) {
+        return Err(RunError::Input(
+            l.error("video", "path", "the video states no frame rate")
+                .to_string(),
+        ));
+    }
+    let camera = project_camera(l, width, height)?;
+    let framed = load_survey(l)?;
+    warnings.extend(framed.survey.warnings.iter().cloned());
+    let (pick_frame, control, check) = picked(l, &framed)?;
+    let surface = ground(l, &framed)?;
+    let max_frames = p.video.duration_s.map(|d| (d * fps).ceil() as usize);
+
+    // The scale of a head in the image, from a pose of the picked frame.
+    let first = solve_pose(&camera, &control, &PoseSettings::default())
+        .map_err(|e| RunError::Input(format!("the picks of frame {pick_frame}: {e}")))?;
+    let first_pose = RigidPose::from(&first.cam_from_world);
+    let centre = first_pose.centre();
+    let head_z = surface.height(&centre.xy()).ok_or_else(|| {
+        RunError::Input(
+            l.error("ground", "", "the ground is not defined below the camera")
+                .to_string(),
+        )
+    })? + p.projection.head_height_m;
+    let px_per_m = 0.5 * (camera.fx + camera.fy) / (centre.z - head_z).max(1.0);
+
+    // Stage 1: scan.
+    let scan_key = stage_key(
+        "scan",
+        &sums,
+        &(
+            &p.camera,
+            &p.survey,
+            &p.video,
+            &p.pose,
+            &p.detect,
+            &p.projection.head_height_m,
+            &p.ground,
+        ),
+    );
+    let t0 = Instant::now();
+    let (scan_data, status) = match cache.load::<ScanData>("scan", &scan_key) {
+        Some(d) => (d, "reused"),
+        None => {
+            let frames_total = max_frames.unwrap_or(usize::MAX);
+            let sample = sample_pixels(
+                &video,
+                frames_total.min(
+                    crate::video::source::FrameReader::open(&video)
+                        .map_err(RunError::Failed)?
+                        .frame_count
+                        .unwrap_or(frames_total),
+                ),
+                p.detect.sample_frames,
+                97,
+                p.detect.seed,
+            )
+            .map_err(RunError::Failed)?;
+            let cs = ColourSettings {
+                target_rgb: p.detect.colour,
+                clusters: p.detect.clusters,
+                max_hue_difference_deg: p.detect.max_hue_difference_deg,
+                seed: p.detect.seed,
+                hat_diameter_m: p.detect.hat_diameter_m,
+                px_per_m,
+                centroid_sigma_px: p.detect.centroid_sigma_px,
+                ..ColourSettings::default()
+            };
+            let palette = Palette::learn(&sample, &cs).map_err(|e| {
+                RunError::Input(l.error("detect", "colour", e.to_string()).to_string())
+            })?;
+            let detector = super::registry::colour_detector(&palette, cs);
+            let stabilise = StabiliseSettings {
+                min_features: p.pose.min_features,
+                min_fraction: p.pose.key_fraction,
+                max_interval: p
+                    .pose
+                    .key_every_s
+                    .map(|s| (s * fps).round().max(1.0) as usize),
+                ..StabiliseSettings::default()
+            };
+            let picks = control.iter().chain(&check).map(|o| o.uv).collect();
+            let bar = progress.stage("scan");
+            let s = scan(
+                ScanJob {
+                    video: &video,
+                    max_frames,
+                    stabilise: Some((stabilise, pick_frame, picks)),
+                    detector: Some(detector),
+                },
+                bar.as_ref(),
+            )
+            .map_err(RunError::Failed)?;
+            let d = ScanData {
+                fps: s.fps,
+                width: s.width,
+                height: s.height,
+                frames: s.frames,
+                px_per_m,
+                palette_centres: palette.centres.iter().map(|c| [c.x, c.y, c.z]).collect(),
+                palette_hat: palette.hat.clone(),
+                tracks: s.tracks,
+                detections: s.detections,
+                times: s.times,
+            };
+            cache.store("scan", &scan_key, &d)?;
+            (d, "computed")
+        }
+    };
+    let n_det: usize = scan_data.detections.iter().map(Vec::len).sum();
+    stages.push(StageRecord {
+        name: "scan".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts: BTreeMap::from([
+            ("frames".into(), scan_data.frames as f64),
+            ("detections".into(), n_det as f64),
+            (
+                "key_frames".into(),
+                scan_data.tracks.iter().filter(|t| t.key.is_some()).count() as f64,
+            ),
+            ("decode_s".into(), scan_data.times.decode_s),
+            ("stabilise_s".into(), scan_data.times.stabilise_s),
+            ("detect_s".into(), scan_data.times.detect_s),
+            (
+                "hat_colours".into(),
+                scan_data.palette_hat.iter().filter(|h| **h).count() as f64,
+            ),
+        ]),
+    });
+
+    // Stage 2: pose.
+    let pose_key = stage_key("pose", &[&scan_key], &(&p.survey, &p.pose));
+    let t0 = Instant::now();
+    let pose_dir = out.join("pose");
+    let (pose_data, status) = match cache
+        .load::<PoseData>("pose", &pose_key)
+        .filter(|_| pose_dir.join("poses.csv").is_file())
+    {
+        Some(d) => (d, "reused"),
+        None => {
+            let (result, check_mean) = solve_with_checks(
+                &camera,
+                &control,
+                &check,
+                &scan_data.tracks,
+                &PoseSettings::default(),
+                progress.stage("pose").as_ref(),
+            )
+            .map_err(|e| RunError::Input(format!("{}: {e}", video.display())))?;
+            std::fs::create_dir_all(&pose_dir)
+                .map_err(|e| RunError::Failed(format!("{}: {e}", pose_dir.display())))?;
+            write_pose_outputs(
+                &pose_dir,
+                &PoseRun {
+                    camera: &camera,
+                    result: &result,
+                    tracks: &scan_data.tracks,
+                    check_mean: &check_mean,
+                    fps,
+                    framed: &framed,
+                    control: &control,
+                },
+            )
+            .map_err(|e| RunError::Failed(format!("{e:#}")))?;
+            let means: Vec<f64> = result
+                .frames
+                .iter()
+                .filter_map(|f| f.mean_reprojection_px)
+                .collect();
+            let checks: Vec<f64> = check_mean.iter().flatten().copied().collect();
+            let d = PoseData {
+                frames: result
+                    .frames
+                    .iter()
+                    .map(|f| FramePoseData {
+                        frame: f.index,
+                        rotation: *f.cam_from_world.rotation.matrix(),
+                        translation: f.cam_from_world.translation,
+                        covariance: f.covariance,
+                        interpolated: f.interpolated,
+                        mean_reprojection_px: f.mean_reprojection_px,
+                    })
+                    .collect(),
+                key_frames: result.key_frames.iter().map(|k| k.index).collect(),
+                key_frames_failed: result
+                    .key_frames
+                    .iter()
+                    .filter(|k| k.solution.is_err())
+                    .map(|k| k.index)
+                    .collect(),
+                mean_reprojection_px: means.iter().sum::<f64>() / means.len().max(1) as f64,
+                max_reprojection_px: means.iter().copied().fold(0.0, f64::max),
+                check_mean_reprojection_px: (!checks.is_empty())
+                    .then(|| checks.iter().sum::<f64>() / checks.len() as f64),
+            };
+            cache.store("pose", &pose_key, &d)?;
+            (d, "computed")
+        }
+    };
+    if !pose_data.key_frames_failed.is_empty() {
+        warnings.push(format!(
+            "key frames not solved (too few carried picks): {:?}",
+            pose_data.key_frames_failed
+        ));
+    }
+    let interpolated = pose_data.frames.iter().filter(|f| f.interpolated).count();
+    if interpolated > 0 {
+        warnings.push(format!(
+            "{interpolated} frame(s) have interpolated poses (fewer than 4 usable picks)"
+        ));
+    }
+    let mut counts = BTreeMap::from([
+        ("key_frames".into(), pose_data.key_frames.len() as f64),
+        (
+            "mean_reprojection_px".into(),
+            pose_data.mean_reprojection_px,
+        ),
+        ("max_reprojection_px".into(), pose_data.max_reprojection_px),
+        ("interpolated_frames".into(), interpolated as f64),
+    ]);
+    if let Some(c) = pose_data.check_mean_reprojection_px {
+        counts.insert("check_mean_reprojection_px".into(), c);
+    }
+    stages.push(StageRecord {
+        name: "pose".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts,
+    });
+    let poses: Vec<RigidPose> = pose_data.frames.iter().map(FramePoseData::pose).collect();
+
+    // Stage 3: track.
+    let track_key = stage_key("track", &[&scan_key, &pose_key], &p.track);
+    let t0 = Instant::now();
+    let head = p.projection.head_height_m;
+    let (tracks, status) = match cache.load::<Vec<ImageTrack>>("track", &track_key) {
+        Some(d) => (d, "reused"),
+        None => {
+            let settings = AssociationSettings {
+                gate_px: p.track.gate_m * px_per_m,
+                confirm_hits: p.track.confirm_frames,
+                max_misses: (p.track.max_gap_s * fps).round() as usize,
+                duplicate_px: p.detect.hat_diameter_m * px_per_m,
+                ..AssociationSettings::default()
+            };
+            let mut tracker =
+                super::registry::tracker(&p.track.kind, settings).ok_or_else(|| {
+                    RunError::Input(l.error("track", "kind", "unknown tracker").to_string())
+                })?;
+            let bar = progress.stage("track");
+            bar.set_length(scan_data.detections.len() as u64);
+            for (f, dets) in scan_data.detections.iter().enumerate() {
+                // Camera motion: where a head-height point of the previous frame is now.
+                let motion = |uv: &Vector2<f64>| -> Vector2<f64> {
+                    if f == 0 {
+                        return *uv;
+                    }
+                    crate::projection::intersect(&camera, &poses[f - 1], surface.as_ref(), head, uv)
+                        .and_then(|x| camera.project(&poses[f].apply(&x)).ok())
+                        .unwrap_or(*uv)
+                };
+                tracker.update(f, dets, &motion);
+                bar.inc(1);
+            }
+            // Short tracks are mostly false alarms, unless the video's start or end cut them.
+            let min_frames = (p.track.min_length_s * fps).round() as usize;
+            let last = scan_data.detections.len().saturating_sub(1);
+            let tracks: Vec<ImageTrack> = tracker
+                .finish()
+                .into_iter()
+                .filter(|t| {
+                    let (a, b) = (
+                        t.points.first().map_or(0, |q| q.frame),
+                        t.points.last().map_or(0, |q| q.frame),
+                    );
+                    b - a + 1 >= min_frames || a == 0 || b == last
+                })
+                .collect();
+            cache.store("track", &track_key, &tracks)?;
+            (tracks, "computed")
+        }
+    };
+    let lengths: Vec<f64> = tracks.iter().map(|t| t.points.len() as f64 / fps).collect();
+    stages.push(StageRecord {
+        name: "track".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts: BTreeMap::from([
+            ("tracks".into(), tracks.len() as f64),
+            (
+                "points".into(),
+                tracks.iter().map(|t| t.points.len()).sum::<usize>() as f64,
+            ),
+            (
+                "mean_length_s".into(),
+                lengths.iter().sum::<f64>() / lengths.len().max(1) as f64,
+            ),
+        ]),
+    });
+
+    // Stage 4: project.
+    let heights = match &p.projection.heights {
+        Some(h) => read_heights(&l.resolve(h)).map_err(RunError::Input)?,
+        None => BTreeMap::new(),
+    };
+    let project_key = stage_key(
+        "project",
+        &[&track_key, &pose_key],
+        &(
+            &p.projection,
+            &p.ground,
+            &heights
+                .iter()
+                .map(|(k, v)| (*k, v.0, v.1))
+                .collect::<Vec<_>>(),
+        ),
+    );
+    let t0 = Instant::now();
+    let (world, status) = match cache.load::<Vec<WorldTrack>>("project", &project_key) {
+        Some(d) => (d, "reused"),
+        None => {
+            let mut world = Vec::new();
+            let mut dropped = 0;
+            for t in &tracks {
+                let (h, sd, source) = match heights.get(&t.id) {
+                    Some((h, sd)) => (*h, *sd, "given"),
+                    None => (head, p.projection.head_height_sd_m, "default"),
+                };
+                let mut points = Vec::new();
+                for q in &t.points {
+                    let fp = &pose_data.frames[q.frame];
+                    match project(
+                        &camera,
+                        &poses[q.frame],
+                        fp.covariance.as_ref(),
+                        surface.as_ref(),
+                        &q.uv,
+                        &q.cov,
+                        h,
+                        sd,
+                    ) {
+                        Some(w) => points.push((q.frame, w)),
+                        None => dropped += 1,
+                    }
+                }
+                world.push(WorldTrack {
+                    id: t.id,
+                    height_m: h,
+                    height_sd_m: sd,
+                    height_source: source.into(),
+                    points,
+                });
+            }
+            if dropped > 0 {
+                warnings.push(format!(
+                    "{dropped} detection(s) could not be projected (off the ground surface)"
+                ));
+            }
+            cache.store("project", &project_key, &world)?;
+            (world, "computed")
+        }
+    };
+    stages.push(StageRecord {
+        name: "project".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts: BTreeMap::from([
+            (
+                "points".into(),
+                world.iter().map(|t| t.points.len()).sum::<usize>() as f64,
+            ),
+            (
+                "heights_given".into(),
+                world.iter().filter(|t| t.height_source == "given").count() as f64,
+            ),
+        ]),
+    });
+
+    // Stage 5: smooth.
+    let smooth_key = stage_key("smooth", &[&project_key], &p.smooth);
+    let t0 = Instant::now();
+    let out_crs =
+        match &p.export.crs {
+            Some(c) => Some(Crs::new(c).map_err(|e| {
+                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
+            })?),
+            None => None,
+        };
+    let transform =
+        match (&out_crs, &framed.frame.crs) {
+            (Some(o), Some(s)) => Some(Transform::new(s, o).map_err(|e| {
+                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
+            })?),
+            (Some(_), None) => {
+                return Err(RunError::Input(
+                    l.error("export", "crs", "the GCP file has no CRS to convert from")
+                        .to_string(),
+                ));
+            }
+            _ => None,
+        };
+    let to_out = |local: &Vector3<f64>| -> Result<Vector3<f64>, RunError> {
+        let src = framed
+            .frame
+            .source_from_local(local)
+            .map_err(|e| RunError::Failed(e.to_string()))?;
+        match &transform {
+            Some(t) => {
+                let (x, y) = t
+                    .apply(src.x, src.y)
+                    .map_err(|e| RunError::Failed(e.to_string()))?;
+                Ok(Vector3::new(x, y, src.z))
+            }
+            None => Ok(src),
+        }
+    };
+    let (smoothed, status) = match cache.load::<SmoothData>("smooth", &smooth_key) {
+        Some(d) => (d, "reused"),
+        None => {
+            let obs: Vec<Vec<Observation>> = world
+                .iter()
+                .map(|t| {
+                    t.points
+                        .iter()
+                        .map(|(f, w)| Observation {
+                            frame: *f,
+                            position: w.position.xy(),
+                            cov: w.cov_pixel,
+                        })
+                        .collect()
+                })
+                .collect();
+            let s = SmoothSettings {
+                dt: 1.0 / fps,
+                q_position_m: p.smooth.q_position_m,
+                q_velocity_m_s: p.smooth.q_velocity_m_s,
+                em: p.smooth.em,
+                model: p.smooth.model.parse().map_err(RunError::Input)?,
+                ..SmoothSettings::default()
+            };
+            let smoother = super::registry::smoother(&p.smooth.kind, s).ok_or_else(|| {
+                RunError::Input(l.error("smooth", "kind", "unknown smoother").to_string())
+            })?;
+            let r = smoother.smooth(&obs);
+            let (states, iterations, converged) = (r.tracks, r.em_iterations, r.converged);
+            let q: Vec<f64> = if p.smooth.kind == "none" {
+                Vec::new()
+            } else {
+                r.q.iter().copied().collect()
+            };
+            let mut trajectories = Vec::new();
+            for (k, t) in world.iter().enumerate() {
+                let by_frame: BTreeMap<usize, &WorldPoint> =
+                    t.points.iter().map(|(f, w)| (*f, w)).collect();
+                let mut points = Vec::new();
+                for st in &states[k] {
+                    let (frame, en, vel, observed) =
+                        (st.frame, st.position, st.velocity, st.observed);
+                    let cov_random: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();
+                    // Systematic parts: the height's and the pose's, from the nearest observation.
+                    let near = by_frame
+                        .range(..=frame)
+                        .next_back()
+                        .or_else(|| by_frame.range(frame..).next())
+                        .map(|(_, w)| *w);
+                    let sys = near.map_or(Matrix2::zeros(), |w| w.cov_height + w.cov_pose);
+                    let total = cov_random + sys;
+                    let u = surface.height(&en).map_or(f64::NAN, |z| z + t.height_m);
+                    let local = Vector3::new(en.x, en.y, u);
+                    points.push(TrajectoryPoint {
+                        frame,
+                        time_s: frame as f64 / fps,
+                        local,
+                        crs: to_out(&local)?,
+                        velocity: vel,
+                        sigma_m: Vector2::new(total[(0, 0)].sqrt(), total[(1, 1)].sqrt()),
+                        observed,
+                    });
+                }
+                trajectories.push(Trajectory {
+                    id: t.id,
+                    height_m: t.height_m,
+                    height_source: t.height_source.clone(),
+                    points,
+                });
+            }
+            let d = SmoothData {
+                trajectories,
+                em_iterations: iterations,
+                em_converged: converged,
+                q,
+            };
+            cache.store("smooth", &smooth_key, &d)?;
+            (d, "computed")
+        }
+    };
+    if !smoothed.em_converged {
+        warnings.push(format!(
+            "EM did not converge in {} iterations",
+            smoothed.em_iterations
+        ));
+    }
+    let mut counts = BTreeMap::from([
+        ("trajectories".into(), smoothed.trajectories.len() as f64),
+        ("em_iterations".into(), smoothed.em_iterations as f64),
+    ]);
+    if smoothed.q.len() == 16 {
+        counts.insert("q_velocity_e_m2_s2".into(), smoothed.q[10]);
+        counts.insert("q_velocity_n_m2_s2".into(), smoothed.q[15]);
+    }
+    let sig: Vec<f64> = smoothed
+        .trajectories
+        .iter()
+        .flat_map(|t| t.points.iter().map(|q| q.sigma_m.norm()))
+        .collect();
+    if !sig.is_empty() {
+        let mut s = sig.clone();
+        s.sort_by(f64::total_cmp);
+        counts.insert("median_sigma_m".into(), s[s.len() / 2]);
+    }
+    stages.push(StageRecord {
+        name: "smooth".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts,
+    });
+
+    // Stage 6: export (always written: cheap, and the files must be there).
+    let t0 = Instant::now();
+    let mut outputs = Vec::new();
+    let out_crs_label = out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map_or("the GCP file's local frame".to_string(), |c| c.label());
+    let crs_wkt = out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map(|c| c.wkt.clone())
+        .unwrap_or_default();
+    let put = |name: &str, text: &str, outputs: &mut Vec<String>| -> Result<(), RunError> {
+        let path = out.join(name);
+        write_atomic(&path, text.as_bytes())
+            .map_err(|e| RunError::Failed(format!("{}: {e}", path.display())))?;
+        outputs.push(name.to_string());
+        Ok(())
+    };
+    let trajs = &smoothed.trajectories;
+    for f in &p.export.formats {
+        match f.as_str() {
+            "csv" => put("trajectories.csv", &trajectories_csv(trajs), &mut outputs)?,
+            "petrack" => put(
+                "trajectories.txt",
+                &petrack_txt(
+                    trajs,
+                    fps,
+                    &format!("site frame ({}), metres", framed.frame.origin_note),
+                ),
+                &mut outputs,
+            )?,
+            "mot" => put("tracks_mot.txt", &mot_txt(&tracks), &mut outputs)?,
+            "gpkg" => {
+                write_trajectories(
+                    &out.join("trajectories.gpkg"),
+                    GisFormat::GeoPackage,
+                    &crs_wkt,
+                    Layers::Both,
+                    trajs,
+                    &|q| q.crs,
+                )
+                .map_err(RunError::Failed)?;
+                outputs.push("trajectories.gpkg".into());
+            }
+            "geojson" => {
+                // RFC 7946: WGS 84 longitude/latitude.
+                let lonlat = |q: &TrajectoryPoint| -> Vector3<f64> {
+                    let src = framed.frame.source_from_local(&q.local).unwrap_or(q.local);
+                    match framed.frame.lon_lat(&src) {
+                        Some(Ok((lon, lat))) => Vector3::new(lon, lat, src.z),
+                        _ => Vector3::new(f64::NAN, f64::NAN, f64::NAN),
+                    }
+                };
+                if framed.frame.crs.is_none() {
+                    warnings.push(
+                        "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
+                            .into(),
+                    );
+                    continue;
+                }
+                write_trajectories(
+                    &out.join("trajectories.geojson"),
+                    GisFormat::GeoJson,
+                    "",
+                    Layers::Lines,
+                    trajs,
+                    &lonlat,
+                )
+                .map_err(RunError::Failed)?;
+                write_trajectories(
+                    &out.join("positions.geojson"),
+                    GisFormat::GeoJson,
+                    "",
+                    Layers::Points,
+                    trajs,
+                    &lonlat,
+                )
+                .map_err(RunError::Failed)?;
+                outputs.push("trajectories.geojson".into());
+                outputs.push("positions.geojson".into());
+            }
+            _ => unreachable!("checked when the project was read"),
+        }
+    }
+    stages.push(StageRecord {
+        name: "export".into(),
+        status: "computed".into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts: BTreeMap::from([("files".into(), outputs.len() as f64)]),
+    });
+
+    let report = RunReport {
+        project: if p.name.is_empty() {
+            l.path.display().to_string()
+        } else {
+            p.name.clone()
+        },
+        geostride_version: build_id().into(),
+        inputs,
+        parameters: p.clone(),
+        site_frame: framed.frame.origin_note.clone(),
+        output_crs: out_crs_label,
+        stages,
+        outputs,
+        warnings,
+    };
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| RunError::Failed(e.to_string()))?;
+    write_atomic(&out.join("report.json"), json.as_bytes())
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+    write_atomic(&out.join("report.md"), report_markdown(&report).as_bytes())
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+    Ok(report)
+}
+
+/// Known heights: `id,height_m[,sd_m]` (a header line is optional).
+fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, String> {
+    let ctx = crate::io::FileCtx { path };
+    let text = ctx
+        .read_text("a CSV of heights")
+        .map_err(|e| e.to_string())?;
+    let mut out = BTreeMap::new();
+    for (i, line) in text.lines().enumerate() {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if line.trim().is_empty() || (i == 0 && f[0].parse::<usize>().is_err()) {
+            continue;
+        }
+        let id = f[0].parse::<usize>().map_err(|_| {
+            ctx.at(i + 1, format!("expected a track id, found '{}'", f[0]))
+                .to_string()
+        })?;
+        let h = ctx
+            .number(f.get(1).copied().unwrap_or(""), i + 1, "height_m")
+            .map_err(|e| e.to_string())?;
+        let sd = match f.get(2).filter(|s| !s.is_empty()) {
+            Some(s) => ctx.number(s, i + 1, "sd_m").map_err(|e| e.to_string())?,
+            None => 0.0,
+        };
+        if !(h > 0.0 && h < 3.0) {
+            return Err(ctx
+                .at(i + 1, format!("a head height of {h} m is not plausible"))
+                .to_string());
+        }
+        out.insert(id, (h, sd));
+    }
+    Ok(out)
+}
+
+/// The report as Markdown.
+pub fn report_markdown(r: &RunReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(s, "# geostride run: {}\n", r.project);
+    let _ = writeln!(
+        s,
+        "geostride {}; site frame: {}; output CRS: {}\n",
+        r.geostride_version, r.site_frame, r.output_crs
+    );
+    let _ = writeln!(
+        s,
+        "## Inputs\n\n| role | file | bytes | SHA-256 |\n|---|---|---|---|"
+    );
+    for i in &r.inputs {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | `{}` |",
+            i.role, i.path, i.bytes, i.sha256
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n## Stages\n\n| stage | status | seconds | numbers |\n|---|---|---|---|"
+    );
+    for st in &r.stages {
+        let nums: Vec<String> = st
+            .counts
+            .iter()
+            .map(|(k, v)| {
+                if v.fract() == 0.0 && v.abs() < 1e12 {
+                    format!("{k} {v:.0}")
+                } else {
+                    format!("{k} {v:.4}")
+                }
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.2} | {} |",
+            st.name,
+            st.status,
+            st.seconds,
+            nums.join(", ")
+        );
+    }
+    let _ = writeln!(s, "\n## Outputs\n");
+    for o in &r.outputs {
+        let _ = writeln!(s, "- `{o}`");
+    }
+    if !r.warnings.is_empty() {
+        let _ = writeln!(s, "\n## Warnings\n");
+        for w in &r.warnings {
+            let _ = writeln!(s, "- {w}");
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\n## Parameters\n\n```toml\n{}```",
+        toml::to_string(&r.parameters).unwrap_or_default()
+    );
+    s
+}

@@ -403,7 +403,7 @@ pub fn load(path: &Path) -> Result<Loaded, FileError> {
     let project: Project = toml::from_str(&text).map_err(|e| {
         let line = e
             .span()
-            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
         ctx.err(line, None, format!("not a valid project: {}", e.message()))
     })?;
     let l = Loaded {

@@ -158,7 +158,12 @@ impl Cache {
         })
         .map_err(|e| RunError::Failed(e.to_string()))?;
         write_atomic(&self.path(stage), text.as_bytes())
-            .map_err(|e| RunError::Failed(format!("{}: {e}", self.path(stage).display())))
+            .map_err(|e| RunError::Failed(format!("{}: {e}", self.path(stage).display())))?;
+        // For the tests of interrupted runs: die like a killed process right after this stage.
+        if std::env::var("GEOSTRIDE_TEST_KILL_AFTER").is_ok_and(|s| s == stage) {
+            std::process::abort();
+        }
+        Ok(())
     }
 }
 

@@ -329,7 +329,7 @@ impl Scene {
         let scene: Scene = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
-                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
             ctx.err(line, None, format!("not a valid scene: {}", e.message()))
         })?;
         let bad = |field: &str, m: &str| Err(ctx.err(None, Some(field), m.to_string()));
@@ -435,7 +435,7 @@ mod tests {
             &format!("{MINIMAL}\n[people]\nheigth_m = [1.7, 0.1]\n"),
         )
         .unwrap_err();
-        assert_eq!(e.line, Some(12), "{e}");
+        assert_eq!(e.line, Some(13), "{e}");
         assert!(e.message.contains("heigth_m"), "{e}");
         let e = Scene::parse(&ctx, &format!("fps = -1\n{MINIMAL}")).unwrap_err();
         assert_eq!(e.field.as_deref(), Some("fps"));

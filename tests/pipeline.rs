@@ -247,7 +247,8 @@ fn bad_project(edit: impl Fn(&str) -> String) -> (tempfile::TempDir, PathBuf) {
 
 #[test]
 fn a_bad_project_file_names_the_key_and_its_line() {
-    let cases: [(&dyn Fn(&str) -> String, &str, &str); 6] = [
+    type Edit<'a> = &'a dyn Fn(&str) -> String;
+    let cases: [(Edit, &str, &str); 6] = [
         (
             &|t| t.replace("clusters = 15", "clusters = 1"),
             "detect.clusters",

@@ -1,7 +1,13 @@
 //! Corner features and pyramidal Lucas–Kanade tracking (OpenCV adapter), for the stabiliser.
+//!
+//! Features are found and tracked on a working copy of the frame no wider than `max_width`
+//! (a 4K frame is halved: the homography needs hundreds of points, not their last tenth of a
+//! pixel, and the cost falls fourfold); coordinates are always returned in the frame's own
+//! pixels. The local refinement of a few points (GCP picks) works on small windows of the
+//! full-resolution frames cut around each point, so its cost does not grow with the image.
 
 use nalgebra::Vector2;
-use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
+use opencv::core::{Mat, Point2f, Rect, Size, TermCriteria, TermCriteria_Type, Vector};
 use opencv::prelude::*;
 use opencv::{core, imgproc, video};
 
@@ -10,11 +16,14 @@ use crate::pose::stabilise::FeatureTracker;
 /// Tracker settings.
 #[derive(Clone, Debug)]
 pub struct KltSettings {
-    /// Side of the tracking window, pixels.
+    /// Side of the tracking window, pixels (of the working copy).
     pub window: i32,
-    /// Pyramid levels above the full image.
+    /// Pyramid levels above the working copy.
     pub levels: i32,
-    /// Window side and pyramid levels of the local search around a good prediction.
+    /// The working copy's largest width, pixels.
+    pub max_width: i32,
+    /// Window side and pyramid levels of the local search around a good prediction (full
+    /// resolution).
     pub refine_window: i32,
     pub refine_levels: i32,
     /// A track whose backward track misses its start by more than this is dropped, pixels.
@@ -25,7 +34,7 @@ pub struct KltSettings {
     pub grid_cols: i32,
     /// Corner quality relative to the best corner of its cell.
     pub quality: f64,
-    /// Least distance between corners, pixels.
+    /// Least distance between corners, pixels (of the working copy).
     pub min_distance: f64,
 }
 
@@ -34,6 +43,7 @@ impl Default for KltSettings {
         KltSettings {
             window: 21,
             levels: 3,
+            max_width: 1920,
             refine_window: 31,
             refine_levels: 1,
             max_fb_error_px: 0.5,
@@ -45,11 +55,15 @@ impl Default for KltSettings {
     }
 }
 
-/// A greyscale frame with its image pyramid, built once for every track into or out of it.
+/// A greyscale frame with the pyramid of its working copy, built once for every track into or
+/// out of it.
 pub struct GrayFrame {
     pub index: usize,
+    /// Full resolution.
     image: Mat,
+    /// The working copy's pyramid, and frame pixels per working pixel.
     pyramid: Vector<Mat>,
+    scale: f64,
 }
 
 fn e(e: opencv::Error) -> String {
@@ -61,100 +75,67 @@ pub struct Klt {
     pub settings: KltSettings,
 }
 
+/// Pixel coordinates between resolutions, pixel centres at integers: `x' = (x + 0.5)·s − 0.5`.
+fn rescale(p: &Vector2<f64>, s: f64) -> Vector2<f64> {
+    Vector2::new((p.x + 0.5) * s - 0.5, (p.y + 0.5) * s - 0.5)
+}
+
+fn to_cv(pts: &[Vector2<f64>]) -> Vector<Point2f> {
+    pts.iter().map(|p| Point2f::new(p.x as f32, p.y as f32)).collect()
+}
+
+fn criteria() -> Result<TermCriteria, String> {
+    TermCriteria::new(TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32, 30, 0.01).map_err(e)
+}
+
+/// Lucas–Kanade from `a` to `b` (images or pyramids), then back: a good track returns to its
+/// start. Returns the landing points and whether each passed.
+fn forward_backward(
+    a: &impl core::ToInputArray,
+    b: &impl core::ToInputArray,
+    start: &Vector<Point2f>,
+    guess: Option<&Vector<Point2f>>,
+    window: i32,
+    levels: i32,
+    max_fb: f32,
+) -> Result<(Vector<Point2f>, Vec<bool>), String> {
+    let size = Size::new(window, window);
+    let mut fwd = guess.cloned().unwrap_or_else(|| start.clone());
+    let (mut st_f, mut err) = (Vector::<u8>::new(), Vector::<f32>::new());
+    let flags = if guess.is_some() { video::OPTFLOW_USE_INITIAL_FLOW } else { 0 };
+    video::calc_optical_flow_pyr_lk(a, b, start, &mut fwd, &mut st_f, &mut err, size, levels, criteria()?, flags, 1e-4).map_err(e)?;
+    let mut back = start.clone();
+    let mut st_b = Vector::<u8>::new();
+    video::calc_optical_flow_pyr_lk(b, a, &fwd, &mut back, &mut st_b, &mut err, size, levels, criteria()?, video::OPTFLOW_USE_INITIAL_FLOW, 1e-4).map_err(e)?;
+    let ok = (0..start.len())
+        .map(|i| {
+            let (Ok(s), Ok(bk), Ok(sf), Ok(sb)) = (start.get(i), back.get(i), st_f.get(i), st_b.get(i)) else { return false };
+            sf == 1 && sb == 1 && (bk.x - s.x).hypot(bk.y - s.y) <= max_fb
+        })
+        .collect();
+    Ok((fwd, ok))
+}
+
 impl Klt {
     pub fn new(settings: KltSettings) -> Klt {
         Klt { settings }
     }
 
     pub fn frame(&self, index: usize, gray: Mat) -> Result<GrayFrame, String> {
+        let (w, h) = (gray.cols(), gray.rows());
+        let factor = ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
+        let work = if factor > 1 {
+            let mut small = Mat::default();
+            imgproc::resize(&gray, &mut small, Size::new(w / factor, h / factor), 0.0, 0.0, imgproc::INTER_AREA).map_err(e)?;
+            small
+        } else {
+            gray.clone()
+        };
         let mut pyramid = Vector::<Mat>::new();
         let win = Size::new(self.settings.window, self.settings.window);
-        video::build_optical_flow_pyramid(
-            &gray,
-            &mut pyramid,
-            win,
-            self.settings.levels,
-            true,
-            core::BORDER_REFLECT_101,
-            core::BORDER_CONSTANT,
-            true,
-        )
-        .map_err(e)?;
-        Ok(GrayFrame {
-            index,
-            image: gray,
-            pyramid,
-        })
+        video::build_optical_flow_pyramid(&work, &mut pyramid, win, self.settings.levels, true, core::BORDER_REFLECT_101, core::BORDER_CONSTANT, true).map_err(e)?;
+        Ok(GrayFrame { index, image: gray, pyramid, scale: f64::from(w) / f64::from(work.cols()) })
     }
-
-    fn lk(
-        &self,
-        from: &GrayFrame,
-        to: &GrayFrame,
-        pts: &Vector<Point2f>,
-        guess: Option<&Vector<Point2f>>,
-        local: bool,
-    ) -> Result<(Vector<Point2f>, Vector<u8>), String> {
-        let (window, levels) = if local {
-            (self.settings.refine_window, self.settings.refine_levels)
-        } else {
-            (self.settings.window, self.settings.levels)
-        };
-        let mut next = guess.cloned().unwrap_or_else(|| pts.clone());
-        let mut status = Vector::<u8>::new();
-        let mut err = Vector::<f32>::new();
-        let criteria = TermCriteria::new(
-            TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
-            30,
-            0.01,
-        )
-        .map_err(e)?;
-        let flags = if guess.is_some() {
-            video::OPTFLOW_USE_INITIAL_FLOW
-        } else {
-            0
-        };
-        let size = Size::new(window, window);
-        // The pyramids are built for the wide search; the local one works on the images.
-        if local {
-            video::calc_optical_flow_pyr_lk(
-                &from.image,
-                &to.image,
-                pts,
-                &mut next,
-                &mut status,
-                &mut err,
-                size,
-                levels,
-                criteria,
-                flags,
-                1e-4,
-            )
-            .map_err(e)?;
-        } else {
-            video::calc_optical_flow_pyr_lk(
-                &from.pyramid,
-                &to.pyramid,
-                pts,
-                &mut next,
-                &mut status,
-                &mut err,
-                size,
-                levels,
-                criteria,
-                flags,
-                1e-4,
-            )
-            .map_err(e)?;
-        }
-        Ok((next, status))
-    }
-}
-
-fn to_cv(pts: &[Vector2<f64>]) -> Vector<Point2f> {
-    pts.iter()
-        .map(|p| Point2f::new(p.x as f32, p.y as f32))
-        .collect()
 }
 
 impl FeatureTracker for Klt {
@@ -162,7 +143,8 @@ impl FeatureTracker for Klt {
 
     fn detect(&mut self, frame: &GrayFrame) -> Result<Vec<Vector2<f64>>, String> {
         let s = &self.settings;
-        let (w, h) = (frame.image.cols(), frame.image.rows());
+        let work = frame.pyramid.get(0).map_err(e)?;
+        let (w, h) = (work.cols(), work.rows());
         let cols = s.grid_cols.max(1);
         let rows = ((f64::from(cols) * f64::from(h) / f64::from(w)).round() as i32).max(1);
         let per_cell = (s.max_corners / (cols * rows)).max(1);
@@ -171,86 +153,66 @@ impl FeatureTracker for Klt {
             for c in 0..cols {
                 let (x0, y0) = (w * c / cols, h * r / rows);
                 let (x1, y1) = (w * (c + 1) / cols, h * (r + 1) / rows);
-                let cell =
-                    Mat::roi(&frame.image, core::Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
+                let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
                 let mut corners = Vector::<Point2f>::new();
-                imgproc::good_features_to_track(
-                    &cell,
-                    &mut corners,
-                    per_cell,
-                    s.quality,
-                    s.min_distance,
-                    &core::no_array(),
-                    3,
-                    false,
-                    0.04,
-                )
-                .map_err(e)?;
-                out.extend(corners.iter().map(|p| {
-                    Vector2::new(
-                        f64::from(p.x) + f64::from(x0),
-                        f64::from(p.y) + f64::from(y0),
-                    )
-                }));
+                imgproc::good_features_to_track(&cell, &mut corners, per_cell, s.quality, s.min_distance, &core::no_array(), 3, false, 0.04).map_err(e)?;
+                out.extend(corners.iter().map(|p| rescale(&Vector2::new(f64::from(p.x) + f64::from(x0), f64::from(p.y) + f64::from(y0)), frame.scale)));
             }
         }
         Ok(out)
     }
 
-    fn track(
-        &mut self,
-        from: &GrayFrame,
-        to: &GrayFrame,
-        pts: &[Vector2<f64>],
-        guess: Option<&[Vector2<f64>]>,
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
-        self.checked(from, to, pts, guess, false)
-    }
-
-    fn refine(
-        &mut self,
-        from: &GrayFrame,
-        to: &GrayFrame,
-        pts: &[Vector2<f64>],
-        guess: &[Vector2<f64>],
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
-        self.checked(from, to, pts, Some(guess), true)
-    }
-}
-
-impl Klt {
-    /// Lucas–Kanade forward, then back from where the points landed: a good track returns to
-    /// its start.
-    fn checked(
-        &self,
-        from: &GrayFrame,
-        to: &GrayFrame,
-        pts: &[Vector2<f64>],
-        guess: Option<&[Vector2<f64>]>,
-        local: bool,
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+    fn track(&mut self, from: &GrayFrame, to: &GrayFrame, pts: &[Vector2<f64>], guess: Option<&[Vector2<f64>]>) -> Result<Vec<Option<Vector2<f64>>>, String> {
         if pts.is_empty() {
             return Ok(Vec::new());
         }
-        let start = to_cv(pts);
-        let guess = guess.map(to_cv);
-        let (fwd, st_f) = self.lk(from, to, &start, guess.as_ref(), local)?;
-        let (back, st_b) = self.lk(to, from, &fwd, Some(&start), local)?;
-        let (w, h) = (to.image.cols() as f32, to.image.rows() as f32);
-        let max_fb = self.settings.max_fb_error_px as f32;
+        let inv = 1.0 / from.scale;
+        let start: Vec<Vector2<f64>> = pts.iter().map(|p| rescale(p, inv)).collect();
+        let guess: Option<Vec<Vector2<f64>>> = guess.map(|g| g.iter().map(|p| rescale(p, inv)).collect());
+        let max_fb = (self.settings.max_fb_error_px * inv) as f32;
+        let (fwd, ok) = forward_backward(&from.pyramid, &to.pyramid, &to_cv(&start), guess.as_ref().map(|g| to_cv(g)).as_ref(), self.settings.window, self.settings.levels, max_fb)?;
+        let work = to.pyramid.get(0).map_err(e)?;
+        let (w, h) = (work.cols() as f32, work.rows() as f32);
         Ok((0..pts.len())
             .map(|i| {
-                let (f, b, s) = (fwd.get(i).ok()?, back.get(i).ok()?, start.get(i).ok()?);
-                let ok = st_f.get(i).ok()? == 1
-                    && st_b.get(i).ok()? == 1
-                    && (b.x - s.x).hypot(b.y - s.y) <= max_fb
-                    && f.x >= 0.0
-                    && f.y >= 0.0
-                    && f.x <= w - 1.0
-                    && f.y <= h - 1.0;
-                ok.then(|| Vector2::new(f64::from(f.x), f64::from(f.y)))
+                let f = fwd.get(i).ok()?;
+                (ok[i] && f.x >= 0.0 && f.y >= 0.0 && f.x <= w - 1.0 && f.y <= h - 1.0).then(|| rescale(&Vector2::new(f64::from(f.x), f64::from(f.y)), to.scale))
             })
             .collect())
+    }
+
+    fn refine(&mut self, from: &GrayFrame, to: &GrayFrame, pts: &[Vector2<f64>], guess: &[Vector2<f64>]) -> Result<Vec<Option<Vector2<f64>>>, String> {
+        let s = &self.settings;
+        // Windows wide enough for the search: the LK window, its pyramid, and slack.
+        let half = (s.refine_window * (1 << s.refine_levels)) + 8;
+        let (wa, ha) = (from.image.cols(), from.image.rows());
+        let (wb, hb) = (to.image.cols(), to.image.rows());
+        // Both windows have the same size (Lucas–Kanade compares equal images): near an edge a
+        // window slides inwards rather than shrinking.
+        let side = 2 * half + 1;
+        let window = |p: &Vector2<f64>, w: i32, h: i32| -> Option<Rect> {
+            if w < side || h < side || !(p.x >= 0.0 && p.y >= 0.0 && p.x <= f64::from(w - 1) && p.y <= f64::from(h - 1)) {
+                return None;
+            }
+            let (cx, cy) = (p.x.round() as i32, p.y.round() as i32);
+            Some(Rect::new((cx - half).clamp(0, w - side), (cy - half).clamp(0, h - side), side, side))
+        };
+        let mut out = Vec::with_capacity(pts.len());
+        for (p, g) in pts.iter().zip(guess) {
+            let (Some(ra), Some(rb)) = (window(p, wa, ha), window(g, wb, hb)) else {
+                out.push(None);
+                continue;
+            };
+            let a = Mat::roi(&from.image, ra).map_err(e)?;
+            let b = Mat::roi(&to.image, rb).map_err(e)?;
+            let start = to_cv(&[Vector2::new(p.x - f64::from(ra.x), p.y - f64::from(ra.y))]);
+            let guess = to_cv(&[Vector2::new(g.x - f64::from(rb.x), g.y - f64::from(rb.y))]);
+            let (fwd, ok) = forward_backward(&a, &b, &start, Some(&guess), s.refine_window, s.refine_levels, s.max_fb_error_px as f32)?;
+            let f = fwd.get(0).map_err(e)?;
+            let q = Vector2::new(f64::from(f.x) + f64::from(rb.x), f64::from(f.y) + f64::from(rb.y));
+            out.push((ok[0] && q.x >= 0.0 && q.y >= 0.0 && q.x <= f64::from(wb - 1) && q.y <= f64::from(hb - 1)).then_some(q));
+        }
+        Ok(out)
     }
 }
 
@@ -260,57 +222,44 @@ mod tests {
     use opencv::core::CV_8UC1;
 
     /// A smooth random-ish texture shifted by (dx, dy).
-    fn texture(dx: f64, dy: f64) -> Mat {
-        let (w, h) = (640, 480);
+    fn texture(w: usize, h: usize, dx: f64, dy: f64) -> Mat {
         let mut px = vec![0u8; w * h];
         for y in 0..h {
             for x in 0..w {
                 let (u, v) = (x as f64 - dx, y as f64 - dy);
                 // Band-limited: a few plane waves, the finest of 20 px wavelength.
-                let s = (u * 0.3 + v * 0.1).sin()
-                    + (u * -0.12 + v * 0.27 + 1.0).sin()
-                    + (u * 0.05 + v * 0.08 + 2.0).sin()
-                    + (u * 0.21 - v * 0.19 + 0.5).sin();
+                let s = (u * 0.3 + v * 0.1).sin() + (u * -0.12 + v * 0.27 + 1.0).sin() + (u * 0.05 + v * 0.08 + 2.0).sin() + (u * 0.21 - v * 0.19 + 0.5).sin();
                 px[y * w + x] = (128.0 + 40.0 * s).clamp(0.0, 255.0) as u8;
             }
         }
-        let m = Mat::new_rows_cols_with_data(h as i32, w as i32, &px)
-            .unwrap()
-            .try_clone()
-            .unwrap();
+        let m = Mat::new_rows_cols_with_data(h as i32, w as i32, &px).unwrap().try_clone().unwrap();
         assert_eq!(m.typ(), CV_8UC1);
         m
     }
 
-    #[test]
-    fn tracks_a_shift_and_finds_features() {
-        let mut klt = Klt::new(KltSettings::default());
-        let a = klt.frame(0, texture(0.0, 0.0)).unwrap();
-        let b = klt.frame(1, texture(2.3, -1.7)).unwrap();
+    fn check(max_width: i32, size: (usize, usize)) {
+        let mut klt = Klt::new(KltSettings { max_width, ..KltSettings::default() });
+        let a = klt.frame(0, texture(size.0, size.1, 0.0, 0.0)).unwrap();
+        let b = klt.frame(1, texture(size.0, size.1, 2.3, -1.7)).unwrap();
         let pts = klt.detect(&a).unwrap();
         assert!(pts.len() > 50, "{} features", pts.len());
         let moved = klt.track(&a, &b, &pts, None).unwrap();
-        let ok: Vec<_> = pts
-            .iter()
-            .zip(&moved)
-            .filter_map(|(p, m)| m.map(|m| m - p))
-            .collect();
-        assert!(
-            ok.len() > pts.len() * 8 / 10,
-            "{} of {} tracked",
-            ok.len(),
-            pts.len()
-        );
-        let mut err: Vec<f64> = ok
-            .iter()
-            .map(|d| (d - Vector2::new(2.3, -1.7)).norm())
-            .collect();
+        let ok: Vec<_> = pts.iter().zip(&moved).filter_map(|(p, m)| m.map(|m| m - p)).collect();
+        assert!(ok.len() > pts.len() * 7 / 10, "{} of {} tracked", ok.len(), pts.len());
+        let mut err: Vec<f64> = ok.iter().map(|d| (d - Vector2::new(2.3, -1.7)).norm()).collect();
         err.sort_by(f64::total_cmp);
-        assert!(
-            err[err.len() / 2] < 0.05 && err[err.len() * 9 / 10] < 0.2,
-            "median {} p90 {}",
-            err[err.len() / 2],
-            err[err.len() * 9 / 10]
-        );
+        assert!(err[err.len() / 2] < 0.1 && err[err.len() * 9 / 10] < 0.3, "median {} p90 {}", err[err.len() / 2], err[err.len() * 9 / 10]);
+        // Local refinement at full resolution from a rough guess.
+        let picks = vec![Vector2::new(100.0, 120.0), Vector2::new(500.0, 300.0)];
+        let guess: Vec<_> = picks.iter().map(|p| p + Vector2::new(3.0, -1.0)).collect();
+        for (p, r) in picks.iter().zip(klt.refine(&a, &b, &picks, &guess).unwrap()) {
+            assert!((r.unwrap() - p - Vector2::new(2.3, -1.7)).norm() < 0.1);
+        }
+    }
+
+    #[test]
+    fn tracks_a_shift_at_full_and_at_half_resolution() {
+        check(1920, (640, 480));
+        check(400, (800, 480));
     }
 }

@@ -30,6 +30,7 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench calibrate_vs_opencv
 	$(CARGO) bench --locked --bench pnp_vs_opencv
 	$(CARGO) bench --locked --bench simulate
+	$(CARGO) bench --locked --bench pipeline_throughput
 
 fmt:
 	$(CARGO) fmt

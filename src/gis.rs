@@ -73,7 +73,17 @@ pub fn write_dataset(
         let mut ds = driver
             .create_vector_only(&tmp)
             .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
-        fill(&mut ds)?;
+        if format == GisFormat::GeoPackage {
+            // One transaction: SQLite otherwise commits (and syncs) every feature.
+            let mut txn = ds
+                .start_transaction()
+                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+            fill(&mut txn)?;
+            txn.commit()
+                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        } else {
+            fill(&mut ds)?;
+        }
         ds.close()
             .map_err(|e| format!("cannot finish {}: {e}", path.display()))?;
         std::fs::rename(&tmp, path).map_err(|e| format!("cannot write {}: {e}", path.display()))

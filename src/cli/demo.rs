@@ -189,17 +189,36 @@ fn identify(truth: &[Sample], est: &[Sample]) -> HashMap<usize, usize> {
     best.into_iter().map(|(t, (p, _))| (t, p)).collect()
 }
 
-/// The project file the demo runs: the simulated inputs beside it.
-fn project_text(scene: &Scene, origin: &str, heights: Option<&str>) -> String {
+/// The project file for a simulated hovering scene, with the simulated inputs beside it: the
+/// colour detector, association tracker and Kalman/RTS smoother; the site frame at the scene's
+/// origin, so that the results compare with the simulator's truth. `calibration` is a file or a
+/// preset name; `heights` an optional heights CSV.
+pub fn project_for_scene(
+    scene: &Scene,
+    calibration: &str,
+    heights: Option<&str>,
+) -> anyhow::Result<String> {
+    let crs =
+        crate::survey::crs::Crs::new(&scene.site.crs).map_err(|e| anyhow!("site.crs: {e}"))?;
+    let o = scene.site.origin;
+    let (lon, lat) = crs
+        .to_lon_lat(o[0], o[1])
+        .map_err(|e| anyhow!("site.origin: {e}"))?;
+    let origin = format!("{lat:.10},{lon:.10},{}", o[2]);
+    Ok(project_text(scene, calibration, &origin, heights))
+}
+
+fn project_text(scene: &Scene, calibration: &str, origin: &str, heights: Option<&str>) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# The footbridge stream of surveys/bridge-stream, as `geostride demo` runs it."
+        "# {}: the simulated inputs beside this file (written by geostride).",
+        scene.name
     );
     let _ = writeln!(s, "name = \"{}\"\n", scene.name);
     let _ = writeln!(
         s,
-        "[camera]\ncalibration = \"camera.yaml\"        # calibrated from checkerboards/ by the demo\n"
+        "[camera]\ncalibration = \"{calibration}\"        # a calibration file (the demo calibrates one) or a preset\n"
     );
     let _ = writeln!(
         s,
@@ -364,15 +383,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
 
     // 3. Run the project: default head height.
-    let crs = crate::survey::crs::Crs::new(&scene.site.crs)
-        .map_err(|e| anyhow!("{}: site.crs: {e}", scene_path.display()))?;
-    let o = scene.site.origin;
-    let (lon, lat) = crs
-        .to_lon_lat(o[0], o[1])
-        .map_err(|e| anyhow!("{}: site.origin: {e}", scene_path.display()))?;
-    let origin = format!("{lat:.10},{lon:.10},{}", o[2]);
     let project = dir.join("project.toml");
-    crate::io::write_atomic(&project, project_text(&scene, &origin, None).as_bytes())?;
+    let text = project_for_scene(&scene, "camera.yaml", None)
+        .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
+    crate::io::write_atomic(&project, text.as_bytes())?;
     say!(
         json,
         "\n3. $ geostride run {} --out {}",
@@ -443,7 +457,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let project_h = dir.join("project-heights.toml");
     crate::io::write_atomic(
         &project_h,
-        project_text(&scene, &origin, Some("heights.csv")).as_bytes(),
+        project_for_scene(&scene, "camera.yaml", Some("heights.csv"))?.as_bytes(),
     )?;
     say!(
         json,

@@ -2,7 +2,7 @@
 
 mod calibrate;
 mod camera;
-mod demo;
+pub mod demo;
 mod evaluate;
 mod plan;
 mod pose;

@@ -4,8 +4,8 @@
 //! per channel, each distinct colour counted once (as a colour map is, so that a rare hat colour
 //! is not outvoted by the ground), are clustered in CIELAB by k-means (15 clusters by default).
 //! The clusters whose hue is that of the target colour and whose chroma is strong enough are the
-//! hat colours. Every 6-bit colour is then labelled by its nearest cluster once, into a 256 KiB
-//! lookup table: classifying a frame is one table look-up per pixel, no floating point.
+//! hat colours. Every 6-bit colour is then labelled by its nearest cluster once, into a 32 KiB
+//! lookup table (one bit per colour): classifying a frame is one table look-up per pixel, no floating point.
 //!
 //! Foreground pixels are gathered into runs per row and grouped into blobs (runs a few pixels
 //! apart join); each blob is cleaned in its own small window — holes filled, closed, opened to
@@ -15,9 +15,10 @@
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 use rand::{RngExt, SeedableRng};
+use rayon::prelude::*;
 
 use super::morph::Mask;
-use super::{Detection, Detector, FrameView};
+use super::{Detection, Detector, FrameDetections, FrameView};
 
 /// sRGB (8 bits) to CIELAB (D65).
 pub fn lab(rgb: [u8; 3]) -> Vector3<f64> {
@@ -181,6 +182,7 @@ impl Palette {
     /// The lookup table: for every 6-bit BGR colour, whether its nearest cluster is a hat colour.
     pub fn table(&self) -> Vec<bool> {
         (0..1 << 18)
+            .into_par_iter()
             .map(|i| {
                 let l = lab(bin_rgb(i));
                 let nearest = self
@@ -230,20 +232,22 @@ fn kmeans(points: &[Vector3<f64>], k: usize, seed: u64) -> Vec<Vector3<f64>> {
     }
     let mut assign = vec![usize::MAX; points.len()];
     for _ in 0..300 {
-        let mut changed = false;
-        for (a, p) in assign.iter_mut().zip(points) {
-            let best = (0..centres.len())
-                .min_by(|&i, &j| {
-                    (p - centres[i])
-                        .norm_squared()
-                        .total_cmp(&(p - centres[j]).norm_squared())
-                })
-                .expect("k ≥ 1");
-            if *a != best {
+        let changed = assign
+            .par_iter_mut()
+            .zip(points)
+            .map(|(a, p)| {
+                let best = (0..centres.len())
+                    .min_by(|&i, &j| {
+                        (p - centres[i])
+                            .norm_squared()
+                            .total_cmp(&(p - centres[j]).norm_squared())
+                    })
+                    .expect("k ≥ 1");
+                let moved = *a != best;
                 *a = best;
-                changed = true;
-            }
-        }
+                moved
+            })
+            .reduce(|| false, |a, b| a || b);
         let mut sums = vec![(Vector3::zeros(), 0usize); centres.len()];
         for (a, p) in assign.iter().zip(points) {
             sums[*a].0 += p;
@@ -263,8 +267,15 @@ fn kmeans(points: &[Vector3<f64>], k: usize, seed: u64) -> Vec<Vector3<f64>> {
 
 /// The colour detector: a lookup table and the blob limits.
 pub struct ColourDetector {
-    table: Vec<bool>,
+    /// One bit per 6-bit colour (32 KiB, so that it stays in the first-level cache).
+    table: Vec<u64>,
     settings: ColourSettings,
+}
+
+/// A frame's size, pixels.
+struct Size {
+    width: usize,
+    height: usize,
 }
 
 /// A horizontal run of foreground pixels `[x0, x1)` in row `y`.
@@ -283,28 +294,50 @@ fn find(parent: &mut [usize], mut i: usize) -> usize {
     i
 }
 
-impl ColourDetector {
-    pub fn new(palette: &Palette, settings: ColourSettings) -> ColourDetector {
-        ColourDetector {
-            table: palette.table(),
-            settings,
+/// The colours that could be a hat whatever the palette: a hue within the tolerance plus 30°
+/// of the target's and at least 15 % of its chroma (shaded and blurred hat edges included). A
+/// hat colour must also be in this set, so that frames can be screened before the palette is
+/// learnt.
+fn permissive_table(s: &ColourSettings) -> Vec<u64> {
+    let (th, tc) = hue_chroma(&lab(s.target_rgb));
+    let mut table = vec![0u64; (1 << 18) / 64];
+    table.par_iter_mut().enumerate().for_each(|(i, word)| {
+        for bit in 0..64 {
+            let (h, c) = hue_chroma(&lab(bin_rgb(i * 64 + bit)));
+            if hue_difference(h, th) <= s.max_hue_difference_deg + 30.0 && c >= 0.15 * tc {
+                *word |= 1 << bit;
+            }
         }
-    }
+    });
+    table
+}
 
-    /// Hat radius in pixels.
-    fn hat_radius_px(&self) -> f64 {
-        0.5 * self.settings.hat_diameter_m * self.settings.px_per_m
-    }
+#[inline]
+fn in_table(table: &[u64], px: &[u8]) -> bool {
+    let i = index_bgr(px[0], px[1], px[2]);
+    table[i >> 6] >> (i & 63) & 1 == 1
+}
 
-    /// Foreground runs of a frame, row by row.
-    fn runs(&self, f: &FrameView) -> Vec<Run> {
-        let mut runs = Vec::new();
-        for y in 0..f.height {
-            let row = &f.bgr[3 * y * f.width..3 * (y + 1) * f.width];
+/// Hat radius in pixels.
+fn hat_radius_px(s: &ColourSettings) -> f64 {
+    0.5 * s.hat_diameter_m * s.px_per_m
+}
+
+/// Runs of the rows `ys` whose colours are in `table`, each row scanned over the column ranges
+/// `[x0, x1)` that `ranges` gives for it (ascending, apart).
+fn runs_in<I: Iterator<Item = (usize, usize)>>(
+    f: &FrameView,
+    table: &[u64],
+    ys: std::ops::Range<usize>,
+    ranges: impl Fn(usize) -> I,
+) -> Vec<Run> {
+    let mut runs = Vec::new();
+    for y in ys {
+        let row = &f.bgr[3 * y * f.width..3 * (y + 1) * f.width];
+        for (x0, x1) in ranges(y) {
             let mut start: Option<usize> = None;
-            for (x, px) in row.chunks_exact(3).enumerate() {
-                let fg = self.table[index_bgr(px[0], px[1], px[2])];
-                match (fg, start) {
+            for x in x0..x1 {
+                match (in_table(table, &row[3 * x..3 * x + 3]), start) {
                     (true, None) => start = Some(x),
                     (false, Some(s)) => {
                         runs.push(Run { y, x0: s, x1: x });
@@ -314,14 +347,78 @@ impl ColourDetector {
                 }
             }
             if let Some(s) = start {
-                runs.push(Run {
-                    y,
-                    x0: s,
-                    x1: f.width,
-                });
+                runs.push(Run { y, x0: s, x1 });
             }
         }
-        runs
+    }
+    runs
+}
+
+/// Runs of a frame's colours in `table`, row by row. When hats span many pixels, a grid of every
+/// `step`-th pixel of every `step`-th row is classified first, and only tiles near a hit (and
+/// their neighbours, which hold any fringe of the same blob) are scanned in full: a 4K frame of
+/// a few dozen hats costs a fraction of a full pass, with the same runs.
+fn table_runs(f: &FrameView, table: &[u64], r_hat_px: f64) -> Vec<Run> {
+    let step = (r_hat_px / 3.0).floor().max(1.0) as usize;
+    if step == 1 {
+        return runs_in(f, table, 0..f.height, |_| std::iter::once((0, f.width)));
+    }
+    let tile = (2 * step).max(16);
+    let (tw, th) = (f.width.div_ceil(tile), f.height.div_ceil(tile));
+    let mut hit = vec![false; tw * th];
+    for y in (step / 2..f.height).step_by(step) {
+        let row = &f.bgr[3 * y * f.width..3 * (y + 1) * f.width];
+        for x in (step / 2..f.width).step_by(step) {
+            if in_table(table, &row[3 * x..3 * x + 3]) {
+                hit[(y / tile) * tw + x / tile] = true;
+            }
+        }
+    }
+    // Flagged: a hit in the tile or in one of its eight neighbours.
+    let mut spans: Vec<Vec<(usize, usize)>> = vec![Vec::new(); th];
+    for (ty, row_spans) in spans.iter_mut().enumerate() {
+        let mut open: Option<usize> = None;
+        for tx in 0..=tw {
+            let flagged = tx < tw
+                && (ty.saturating_sub(1)..(ty + 2).min(th))
+                    .any(|yy| (tx.saturating_sub(1)..(tx + 2).min(tw)).any(|xx| hit[yy * tw + xx]));
+            match (flagged, open) {
+                (true, None) => open = Some(tx),
+                (false, Some(t0)) => {
+                    row_spans.push((t0 * tile, (tx * tile).min(f.width)));
+                    open = None;
+                }
+                _ => {}
+            }
+        }
+    }
+    runs_in(f, table, 0..f.height, |y| spans[y / tile].iter().copied())
+}
+
+impl ColourDetector {
+    pub fn new(palette: &Palette, settings: ColourSettings) -> ColourDetector {
+        let mut table = permissive_table(&settings);
+        Self::restrict(&mut table, palette);
+        ColourDetector { table, settings }
+    }
+
+    /// Keeps in `table` the colours whose nearest cluster is a hat colour.
+    fn restrict(table: &mut [u64], palette: &Palette) {
+        for (i, hat) in palette.table().into_iter().enumerate() {
+            if !hat {
+                table[i >> 6] &= !(1 << (i & 63));
+            }
+        }
+    }
+
+    /// Hat radius in pixels.
+    fn hat_radius_px(&self) -> f64 {
+        hat_radius_px(&self.settings)
+    }
+
+    /// Foreground runs of a frame.
+    fn runs(&self, f: &FrameView) -> Vec<Run> {
+        table_runs(f, &self.table, self.hat_radius_px())
     }
 
     /// Groups runs that lie within `gap` pixels of each other into blobs.
@@ -356,16 +453,207 @@ impl ColourDetector {
 }
 
 impl Detector for ColourDetector {
-    fn detect(&mut self, f: &FrameView) -> Vec<Detection> {
+    fn push(&mut self, f: &FrameView) -> Result<Vec<FrameDetections>, String> {
+        Ok(vec![(f.index, self.detect(f))])
+    }
+}
+
+/// The colour detector as one pass over a video runs it: it learns its palette from pixels of
+/// randomly chosen frames as they go by, and meanwhile keeps, for every frame, only the runs of
+/// colours that could be a hat whatever the palette (with their colours); once the last chosen
+/// frame has been seen it learns the palette and finishes the kept frames. The video is
+/// decoded once. Should the kept runs outgrow `budget_bytes` first (a long video with many hat
+/// colours about), the palette is learnt from the chosen frames seen so far.
+pub struct LearningColourDetector {
+    settings: ColourSettings,
+    screen: Vec<u64>,
+    /// Frames to sample (ascending) and every how many pixels.
+    sample_frames: Vec<usize>,
+    step: usize,
+    samples: Vec<[u8; 3]>,
+    kept: Vec<Kept>,
+    kept_bytes: usize,
+    budget_bytes: usize,
+    ready: Option<(ColourDetector, Palette)>,
+}
+
+/// A frame held back: its candidate runs and the 6-bit colour of each of their pixels.
+struct Kept {
+    index: usize,
+    width: usize,
+    height: usize,
+    runs: Vec<Run>,
+    colours: Vec<u32>,
+}
+
+impl LearningColourDetector {
+    /// `frames`: how many frames the video has (to spread `sample_count` frames over, by a draw
+    /// seeded with `settings.seed`); `None`: the first `sample_count` frames. Every `step`-th
+    /// pixel of a chosen frame is sampled.
+    pub fn new(
+        settings: ColourSettings,
+        frames: Option<usize>,
+        sample_count: usize,
+        step: usize,
+        budget_bytes: usize,
+    ) -> LearningColourDetector {
+        let mut sample_frames: Vec<usize> = match frames {
+            Some(n) if sample_count < n => {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(settings.seed);
+                (0..sample_count).map(|_| rng.random_range(0..n)).collect()
+            }
+            Some(n) => (0..n).collect(),
+            None => (0..sample_count.max(1)).collect(),
+        };
+        sample_frames.sort_unstable();
+        sample_frames.dedup();
+        LearningColourDetector {
+            screen: permissive_table(&settings),
+            settings,
+            sample_frames,
+            step: step.max(1),
+            samples: Vec::new(),
+            kept: Vec::new(),
+            kept_bytes: 0,
+            budget_bytes,
+            ready: None,
+        }
+    }
+
+    /// The palette, once learnt.
+    pub fn palette(&self) -> Option<&Palette> {
+        self.ready.as_ref().map(|r| &r.1)
+    }
+
+    /// Learns the palette and finishes the frames held back.
+    fn learn(&mut self) -> Result<Vec<FrameDetections>, String> {
+        let palette = Palette::learn(&self.samples, &self.settings).map_err(|e| e.to_string())?;
+        let mut table = self.screen.clone();
+        ColourDetector::restrict(&mut table, &palette);
+        let det = ColourDetector {
+            table,
+            settings: self.settings.clone(),
+        };
+        // The frames held back are independent: finish them in parallel (this happens once,
+        // often when the rest of the pass is done and the cores are free).
+        let out: Vec<FrameDetections> = std::mem::take(&mut self.kept)
+            .into_par_iter()
+            .map(|k| {
+                // Split each candidate run where its colours are not hat colours.
+                let mut runs = Vec::new();
+                let mut c = 0;
+                for r in &k.runs {
+                    let mut start: Option<usize> = None;
+                    for x in r.x0..r.x1 {
+                        let i = k.colours[c] as usize;
+                        c += 1;
+                        let hat = det.table[i >> 6] >> (i & 63) & 1 == 1;
+                        match (hat, start) {
+                            (true, None) => start = Some(x),
+                            (false, Some(s)) => {
+                                runs.push(Run {
+                                    y: r.y,
+                                    x0: s,
+                                    x1: x,
+                                });
+                                start = None;
+                            }
+                            _ => {}
+                        }
+                    }
+                    if let Some(s) = start {
+                        runs.push(Run {
+                            y: r.y,
+                            x0: s,
+                            x1: r.x1,
+                        });
+                    }
+                }
+                (k.index, det.detections_from_runs(&runs, k.width, k.height))
+            })
+            .collect();
+        self.samples = Vec::new();
+        self.kept_bytes = 0;
+        self.ready = Some((det, palette));
+        Ok(out)
+    }
+}
+
+impl Detector for LearningColourDetector {
+    fn push(&mut self, f: &FrameView) -> Result<Vec<FrameDetections>, String> {
+        if let Some((det, _)) = &self.ready {
+            return Ok(vec![(f.index, det.detect(f))]);
+        }
+        if self.sample_frames.binary_search(&f.index).is_ok() {
+            // The same pixels whichever way the frames are read: an offset from the index.
+            let mut k = (f.index * 7919) % self.step;
+            while k < f.width * f.height {
+                self.samples.push(f.pixel(k % f.width, k / f.width));
+                k += self.step;
+            }
+        }
+        let runs = table_runs(f, &self.screen, hat_radius_px(&self.settings));
+        let mut colours = Vec::new();
+        for r in &runs {
+            let row = &f.bgr[3 * r.y * f.width..];
+            for x in r.x0..r.x1 {
+                colours.push(index_bgr(row[3 * x], row[3 * x + 1], row[3 * x + 2]) as u32);
+            }
+        }
+        self.kept_bytes += runs.len() * std::mem::size_of::<Run>() + 4 * colours.len() + 64;
+        self.kept.push(Kept {
+            index: f.index,
+            width: f.width,
+            height: f.height,
+            runs,
+            colours,
+        });
+        let last = self.sample_frames.last().copied().unwrap_or(0);
+        if f.index >= last || (self.kept_bytes > self.budget_bytes && !self.samples.is_empty()) {
+            self.learn()
+        } else {
+            Ok(Vec::new())
+        }
+    }
+
+    fn finish(&mut self) -> Result<Vec<FrameDetections>, String> {
+        if self.ready.is_some() || self.kept.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.learn()
+    }
+
+    fn summary(&self) -> Vec<(String, f64)> {
+        match self.palette() {
+            Some(p) => vec![
+                (
+                    "hat_colours".into(),
+                    p.hat.iter().filter(|h| **h).count() as f64,
+                ),
+                ("palette_colours".into(), p.colours as f64),
+            ],
+            None => Vec::new(),
+        }
+    }
+}
+
+impl ColourDetector {
+    /// The heads in a frame.
+    pub fn detect(&self, f: &FrameView) -> Vec<Detection> {
+        self.detections_from_runs(&self.runs(f), f.width, f.height)
+    }
+
+    /// The heads from a frame's hat-coloured runs (in row order).
+    fn detections_from_runs(&self, runs: &[Run], width: usize, height: usize) -> Vec<Detection> {
+        let f = Size { width, height };
         let r_hat = self.hat_radius_px().max(1.0);
         let gap = (0.25 * r_hat).round().max(1.0) as usize;
         let r_close = (0.25 * r_hat).round().max(1.0) as usize;
         let r_open = (0.15 * r_hat).round() as usize;
         let area_hat = std::f64::consts::PI * r_hat * r_hat;
         let s = &self.settings;
-        let runs = self.runs(f);
         let mut out = Vec::new();
-        for group in Self::group(&runs, gap) {
+        for group in Self::group(runs, gap) {
             let count: usize = group.iter().map(|&i| runs[i].x1 - runs[i].x0).sum();
             if (count as f64) < 0.25 * s.min_area_fraction * area_hat {
                 continue;
@@ -580,7 +868,7 @@ mod tests {
             ..ColourSettings::default()
         };
         let palette = Palette::learn(&pixels, &s).unwrap();
-        let mut det = ColourDetector::new(&palette, s);
+        let det = ColourDetector::new(&palette, s);
         let found = det.detect(&frame);
         assert_eq!(found.len(), 3, "{found:?}");
         for (cx, cy) in hats {
@@ -590,6 +878,101 @@ mod tests {
                 .fold(f64::INFINITY, f64::min);
             assert!(d < 0.5, "hat at ({cx}, {cy}) found {d} px off");
         }
+    }
+
+    #[test]
+    fn the_coarse_scan_finds_the_same_hat_runs_as_a_full_scan() {
+        let (w, h) = (400, 240);
+        let hats = [(60.3, 80.6), (200.0, 120.0), (251.5, 40.2), (390.0, 230.0)];
+        let bgr = scene(w, h, &hats, 13.0);
+        let frame = FrameView {
+            index: 0,
+            width: w,
+            height: h,
+            bgr: &bgr,
+        };
+        let pixels: Vec<[u8; 3]> = (0..w * h)
+            .step_by(3)
+            .map(|i| frame.pixel(i % w, i / w))
+            .collect();
+        let s = ColourSettings {
+            px_per_m: 100.0,
+            ..ColourSettings::default()
+        };
+        let palette = Palette::learn(&pixels, &s).unwrap();
+        let det = ColourDetector::new(&palette, s);
+        assert!(det.hat_radius_px() >= 6.0, "the coarse path is exercised");
+        let key = |r: &Run| (r.y, r.x0, r.x1);
+        let coarse: Vec<_> = det.runs(&frame).iter().map(key).collect();
+        let full: Vec<_> = runs_in(&frame, &det.table, 0..h, |_| std::iter::once((0, w)))
+            .iter()
+            .map(key)
+            .collect();
+        // The one-pixel line is between the grid's rows: only it may be missed.
+        let hat_runs: Vec<_> = full.iter().copied().filter(|r| r.0 != 5).collect();
+        assert!(hat_runs.len() > 80, "{}", hat_runs.len());
+        assert_eq!(
+            coarse
+                .iter()
+                .copied()
+                .filter(|r| r.0 != 5)
+                .collect::<Vec<_>>(),
+            hat_runs
+        );
+    }
+
+    #[test]
+    fn learning_on_the_way_gives_what_a_palette_learnt_first_gives() {
+        let (w, h) = (320, 200);
+        let frames: Vec<Vec<u8>> = (0..6)
+            .map(|i| {
+                let x = 40.0 + 30.0 * i as f64;
+                scene(w, h, &[(x, 80.6), (200.0, 120.0 - 5.0 * i as f64)], 6.0)
+            })
+            .collect();
+        let view = |i: usize| FrameView {
+            index: i,
+            width: w,
+            height: h,
+            bgr: &frames[i],
+        };
+        let s = ColourSettings {
+            px_per_m: 50.0,
+            ..ColourSettings::default()
+        };
+        let mut learning = LearningColourDetector::new(s.clone(), Some(6), 3, 7, usize::MAX);
+        let mut got = Vec::new();
+        for i in 0..6 {
+            got.extend(learning.push(&view(i)).unwrap());
+        }
+        got.extend(learning.finish().unwrap());
+        assert_eq!(
+            got.iter().map(|g| g.0).collect::<Vec<_>>(),
+            (0..6).collect::<Vec<_>>()
+        );
+        // The same frames and pixels, sampled beforehand.
+        let mut pixels = Vec::new();
+        for &i in &learning.sample_frames {
+            let mut k = (i * 7919) % 7;
+            while k < w * h {
+                pixels.push(view(i).pixel(k % w, k / w));
+                k += 7;
+            }
+        }
+        let first = ColourDetector::new(&Palette::learn(&pixels, &s).unwrap(), s.clone());
+        for (i, d) in &got {
+            assert_eq!(d.len(), 2, "frame {i}: {d:?}");
+            assert_eq!(*d, first.detect(&view(*i)), "frame {i}");
+        }
+        // A budget too small to hold a frame: learnt from the first sampled frame on.
+        let mut early = LearningColourDetector::new(s.clone(), Some(6), 3, 7, 1);
+        let mut n = 0;
+        for i in 0..6 {
+            n += early.push(&view(i)).unwrap().len();
+        }
+        n += early.finish().unwrap().len();
+        assert_eq!(n, 6);
+        assert!(early.palette().is_some());
     }
 
     #[test]

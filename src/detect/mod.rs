@@ -36,8 +36,21 @@ pub struct Detection {
     pub score: f64,
 }
 
-/// Finds people in frames. Implementations keep whatever they learnt (a colour model, a
-/// background) between calls.
+/// Detections of one frame, by frame index.
+pub type FrameDetections = (usize, Vec<Detection>);
+
+/// Finds people in frames, which come in order. Implementations keep whatever they learn (a
+/// colour model, a background) between calls; one still learning may hold frames back and
+/// return them later, so each call returns the frames it completed, in order.
 pub trait Detector: Send {
-    fn detect(&mut self, frame: &FrameView) -> Vec<Detection>;
+    /// Takes the next frame. Errors mean the video cannot be processed with these settings.
+    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String>;
+    /// After the last frame: the frames still held back.
+    fn finish(&mut self) -> Result<Vec<FrameDetections>, String> {
+        Ok(Vec::new())
+    }
+    /// Numbers for the run report (what was learnt, say).
+    fn summary(&self) -> Vec<(String, f64)> {
+        Vec::new()
+    }
 }

@@ -38,7 +38,21 @@ impl Component {
     }
 }
 
-/// Offsets of a disc of radius `r` pixels.
+/// Half-widths of a disc of radius `r` pixels, row by row from `-r` to `r`.
+fn disc_half_widths(r: usize) -> Vec<usize> {
+    let r = r as isize;
+    (-r..=r)
+        .map(|dy| {
+            (0..=r)
+                .rev()
+                .find(|dx| dx * dx + dy * dy <= r * r + r / 2)
+                .unwrap_or(0) as usize
+        })
+        .collect()
+}
+
+/// Offsets of a disc of radius `r` pixels (the definition the span form must match).
+#[cfg(test)]
 fn disc(r: usize) -> Vec<(isize, isize)> {
     let r = r as isize;
     let mut v = Vec::new();
@@ -79,43 +93,107 @@ impl Mask {
 
     /// Dilation by a disc (outside the mask counts as background).
     pub fn dilate(&self, r: usize) -> Mask {
+        self.by_disc(r, |count, _| count > 0)
+    }
+
+    /// Erosion by a disc (outside the mask counts as background).
+    pub fn erode(&self, r: usize) -> Mask {
+        self.by_disc(r, |count, len| count == len)
+    }
+
+    /// A pixel is set when `keep(ones, span)` holds for every row of the disc centred on it
+    /// (dilation: any row has a one; erosion: every row is full), the disc taken as one span of
+    /// columns per row offset; ones in a span are counted from per-row prefix sums, so the cost
+    /// is the disc's height per pixel, not its area.
+    fn by_disc(&self, r: usize, keep: impl Fn(usize, usize) -> bool) -> Mask {
         if r == 0 {
             return self.clone();
         }
-        let se = disc(r);
-        let mut out = Mask::new(self.width, self.height);
-        for y in 0..self.height {
-            for x in 0..self.width {
-                if self.data[y * self.width + x] {
-                    for &(dx, dy) in &se {
-                        let (u, v) = (x as isize + dx, y as isize + dy);
-                        if u >= 0
-                            && v >= 0
-                            && (u as usize) < self.width
-                            && (v as usize) < self.height
-                        {
-                            out.data[v as usize * self.width + u as usize] = true;
+        let (w, h) = (self.width, self.height);
+        let half = disc_half_widths(r);
+        let dilating = keep(1, usize::MAX);
+        if w <= 64 && r < 64 {
+            return self.by_disc_bits(&half, dilating);
+        }
+        let mut prefix = vec![0u32; (w + 1) * h];
+        for y in 0..h {
+            let p = &mut prefix[y * (w + 1)..(y + 1) * (w + 1)];
+            for x in 0..w {
+                p[x + 1] = p[x] + u32::from(self.data[y * w + x]);
+            }
+        }
+        let mut out = Mask::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let mut any = false;
+                let mut all = true;
+                for (k, &hw) in half.iter().enumerate() {
+                    let yy = y as isize + k as isize - r as isize;
+                    let (x0, x1) = (x as isize - hw as isize, x as isize + hw as isize + 1);
+                    let len = 2 * hw + 1;
+                    let ones = if yy < 0 || yy >= h as isize {
+                        0
+                    } else {
+                        let p = &prefix[yy as usize * (w + 1)..(yy as usize + 1) * (w + 1)];
+                        let (c0, c1) = (x0.max(0) as usize, (x1.min(w as isize)) as usize);
+                        (p[c1] - p[c0]) as usize
+                    };
+                    if keep(ones, len) {
+                        any = true;
+                        if dilating {
+                            break;
+                        }
+                    } else {
+                        all = false;
+                        if !dilating {
+                            break;
                         }
                     }
                 }
+                out.data[y * w + x] = if dilating { any } else { all };
             }
         }
         out
     }
 
-    /// Erosion by a disc (outside the mask counts as background).
-    pub fn erode(&self, r: usize) -> Mask {
-        if r == 0 {
-            return self.clone();
-        }
-        let se = disc(r);
-        let mut out = Mask::new(self.width, self.height);
-        for y in 0..self.height {
-            for x in 0..self.width {
-                out.data[y * self.width + x] = self.data[y * self.width + x]
-                    && se
-                        .iter()
-                        .all(|&(dx, dy)| self.get(x as isize + dx, y as isize + dy));
+    /// `by_disc` on a mask at most 64 pixels wide: each row a bit set, a span of ones found by
+    /// shifting (a hat's window at 4K fits, and costs a few operations per row).
+    fn by_disc_bits(&self, half: &[usize], dilating: bool) -> Mask {
+        let (w, h) = (self.width, self.height);
+        let r = half.len() / 2;
+        let full = if w == 64 { u64::MAX } else { (1u64 << w) - 1 };
+        let rows: Vec<u64> = (0..h)
+            .map(|y| (0..w).fold(0u64, |b, x| b | (u64::from(self.data[y * w + x]) << x)))
+            .collect();
+        // Per row and half-width: where a span centred there has any one, or only ones.
+        let span = |b: u64, k: usize| -> u64 {
+            (1..=k).fold(b, |acc, s| {
+                if dilating {
+                    acc | (b << s) | (b >> s)
+                } else {
+                    acc & (b << s) & (b >> s)
+                }
+            })
+        };
+        let mut out = Mask::new(w, h);
+        for y in 0..h {
+            let mut acc = if dilating { 0 } else { full };
+            for (k, &hw) in half.iter().enumerate() {
+                let yy = y as isize + k as isize - r as isize;
+                let row = if yy < 0 || yy >= h as isize {
+                    0
+                } else {
+                    span(rows[yy as usize], hw)
+                };
+                if dilating {
+                    acc |= row;
+                } else {
+                    acc &= row;
+                }
+            }
+            acc &= full;
+            for x in 0..w {
+                out.data[y * w + x] = acc >> x & 1 == 1;
             }
         }
         out
@@ -355,6 +433,37 @@ pub fn split(pixels: &[(usize, usize)], k: usize) -> Vec<Component> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn span_morphology_equals_the_disc_definition() {
+        for (w, h) in [(37, 29), (64, 20), (90, 17)] {
+            check_span_morphology(w, h);
+        }
+    }
+
+    fn check_span_morphology(w: usize, h: usize) {
+        let mut m = Mask::new(w, h);
+        let mut state = 12345u64;
+        for v in m.data.iter_mut() {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            *v = !(state >> 33).is_multiple_of(3);
+        }
+        for r in 1..5 {
+            let se = disc(r);
+            let (mut dil, mut ero) = (Mask::new(w, h), Mask::new(w, h));
+            for y in 0..h {
+                for x in 0..w {
+                    let at = |&(dx, dy): &(isize, isize)| m.get(x as isize + dx, y as isize + dy);
+                    dil.data[y * w + x] = se.iter().any(at);
+                    ero.data[y * w + x] = se.iter().all(at);
+                }
+            }
+            assert_eq!(m.dilate(r), dil, "dilation, r = {r}");
+            assert_eq!(m.erode(r), ero, "erosion, r = {r}");
+        }
+    }
 
     fn disc_mask(w: usize, h: usize, cx: f64, cy: f64, r: f64) -> Mask {
         let mut m = Mask::new(w, h);

@@ -2,7 +2,7 @@
 //! a smoother is adding a line here (and its settings to the project file).
 
 use crate::detect::Detector;
-use crate::detect::colour::{ColourDetector, ColourSettings, Palette};
+use crate::detect::colour::{ColourSettings, LearningColourDetector};
 use crate::smooth::{KalmanRts, SmoothSettings, Smoother, Unsmoothed};
 use crate::track::Tracker;
 use crate::track::association::{AssociationSettings, AssociationTracker};
@@ -14,9 +14,23 @@ pub const TRACKERS: [&str; 1] = ["association"];
 /// The smoothers, by name.
 pub const SMOOTHERS: [&str; 2] = ["kalman_rts", "none"];
 
-/// A colour detector from its learnt palette.
-pub fn colour_detector(palette: &Palette, settings: ColourSettings) -> Box<dyn Detector> {
-    Box::new(ColourDetector::new(palette, settings))
+/// Memory the colour detector may fill with frames held back while it learns its palette.
+pub const COLOUR_BUDGET_BYTES: usize = 1 << 30;
+
+/// A colour detector that learns its palette from `sample_frames` frames drawn from the
+/// `frames` of the video as it goes by (every 97th pixel of each).
+pub fn colour_detector(
+    settings: ColourSettings,
+    frames: Option<usize>,
+    sample_frames: usize,
+) -> Box<dyn Detector> {
+    Box::new(LearningColourDetector::new(
+        settings,
+        frames,
+        sample_frames,
+        97,
+        COLOUR_BUDGET_BYTES,
+    ))
 }
 
 /// A tracker by name.

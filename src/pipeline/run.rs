@@ -18,10 +18,10 @@ use sha2::{Digest, Sha256};
 
 use super::pose_outputs::{PoseRun, write_pose_outputs};
 use super::project::{GroundSection, Loaded};
-use super::scan::{ScanJob, ScanTimes, sample_pixels, scan};
+use super::scan::{ScanError, ScanJob, ScanTimes, scan};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
-use crate::detect::colour::{ColourSettings, Palette};
+use crate::detect::colour::ColourSettings;
 use crate::estimate::p3p::RigidPose;
 use crate::export::gis::{Layers, write_trajectories};
 use crate::export::{Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv};
@@ -196,6 +196,9 @@ fn stage_key(stage: &str, parents: &[&str], params: &impl Serialize) -> String {
     sha256_hex(text.as_bytes())
 }
 
+/// The files an export format wrote, and its warnings.
+type Written = Result<(Vec<String>, Vec<String>), RunError>;
+
 /// What the scan stage keeps.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct ScanData {
@@ -204,8 +207,7 @@ struct ScanData {
     height: u32,
     frames: usize,
     px_per_m: f64,
-    palette_centres: Vec<[f64; 3]>,
-    palette_hat: Vec<bool>,
+    detector_summary: Vec<(String, f64)>,
     tracks: Vec<FrameTrack>,
     detections: Vec<Vec<Detection>>,
     times: ScanTimes,
@@ -537,20 +539,15 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     let (scan_data, status) = match cache.load::<ScanData>("scan", &scan_key) {
         Some(d) => (d, "reused"),
         None => {
-            let frames_total = max_frames.unwrap_or(usize::MAX);
-            let sample = sample_pixels(
-                &video,
-                frames_total.min(
-                    crate::video::source::FrameReader::open(&video)
-                        .map_err(RunError::Failed)?
-                        .frame_count
-                        .unwrap_or(frames_total),
-                ),
-                p.detect.sample_frames,
-                97,
-                p.detect.seed,
-            )
-            .map_err(RunError::Failed)?;
+            let frames_total = match (
+                crate::video::source::FrameReader::open(&video)
+                    .map_err(RunError::Failed)?
+                    .frame_count,
+                max_frames,
+            ) {
+                (Some(c), Some(m)) => Some(c.min(m)),
+                (c, m) => c.or(m),
+            };
             let cs = ColourSettings {
                 target_rgb: p.detect.colour,
                 clusters: p.detect.clusters,
@@ -561,10 +558,8 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 centroid_sigma_px: p.detect.centroid_sigma_px,
                 ..ColourSettings::default()
             };
-            let palette = Palette::learn(&sample, &cs).map_err(|e| {
-                RunError::Input(l.error("detect", "colour", e.to_string()).to_string())
-            })?;
-            let detector = super::registry::colour_detector(&palette, cs);
+            let detector =
+                super::registry::colour_detector(cs, frames_total, p.detect.sample_frames);
             let stabilise = StabiliseSettings {
                 min_features: p.pose.min_features,
                 min_fraction: p.pose.key_fraction,
@@ -585,15 +580,19 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 },
                 bar.as_ref(),
             )
-            .map_err(RunError::Failed)?;
+            .map_err(|e| match e {
+                ScanError::Detector(e) => {
+                    RunError::Input(l.error("detect", "colour", e).to_string())
+                }
+                ScanError::Other(e) => RunError::Failed(e),
+            })?;
             let d = ScanData {
                 fps: s.fps,
                 width: s.width,
                 height: s.height,
                 frames: s.frames,
                 px_per_m,
-                palette_centres: palette.centres.iter().map(|c| [c.x, c.y, c.z]).collect(),
-                palette_hat: palette.hat.clone(),
+                detector_summary: s.detector_summary,
                 tracks: s.tracks,
                 detections: s.detections,
                 times: s.times,
@@ -617,11 +616,10 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
             ("decode_s".into(), scan_data.times.decode_s),
             ("stabilise_s".into(), scan_data.times.stabilise_s),
             ("detect_s".into(), scan_data.times.detect_s),
-            (
-                "hat_colours".into(),
-                scan_data.palette_hat.iter().filter(|h| **h).count() as f64,
-            ),
-        ]),
+        ])
+        .into_iter()
+        .chain(scan_data.detector_summary.iter().cloned())
+        .collect(),
     });
 
     // Stage 2: pose.
@@ -1041,70 +1039,93 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         Ok(())
     };
     let trajs = &smoothed.trajectories;
-    for f in &p.export.formats {
-        match f.as_str() {
-            "csv" => put("trajectories.csv", &trajectories_csv(trajs), &mut outputs)?,
-            "petrack" => put(
-                "trajectories.txt",
-                &petrack_txt(
-                    trajs,
-                    fps,
-                    &format!("site frame ({}), metres", framed.frame.origin_note),
-                ),
-                &mut outputs,
-            )?,
-            "mot" => put("tracks_mot.txt", &mot_txt(&tracks), &mut outputs)?,
-            "gpkg" => {
-                write_trajectories(
-                    &out.join("trajectories.gpkg"),
-                    GisFormat::GeoPackage,
-                    &crs_wkt,
-                    Layers::Both,
-                    trajs,
-                    &|q| q.crs,
-                )
-                .map_err(RunError::Failed)?;
-                outputs.push("trajectories.gpkg".into());
-            }
-            "geojson" => {
-                // RFC 7946: WGS 84 longitude/latitude.
-                let lonlat = |q: &TrajectoryPoint| -> Vector3<f64> {
-                    let src = framed.frame.source_from_local(&q.local).unwrap_or(q.local);
-                    match framed.frame.lon_lat(&src) {
-                        Some(Ok((lon, lat))) => Vector3::new(lon, lat, src.z),
-                        _ => Vector3::new(f64::NAN, f64::NAN, f64::NAN),
-                    }
-                };
-                if framed.frame.crs.is_none() {
-                    warnings.push(
-                        "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
-                            .into(),
-                    );
-                    continue;
+    // The formats are independent files: written side by side.
+    use rayon::prelude::*;
+    let origin_note = &framed.frame.origin_note;
+    let tangent = framed.frame.crs.as_ref().and(framed.frame.tangent.clone());
+    let written: Vec<Written> = p
+        .export
+        .formats
+        .par_iter()
+        .map(|f| -> Result<(Vec<String>, Vec<String>), RunError> {
+            let mut outputs = Vec::new();
+            let mut warnings = Vec::new();
+            match f.as_str() {
+                "csv" => put("trajectories.csv", &trajectories_csv(trajs), &mut outputs)?,
+                "petrack" => put(
+                    "trajectories.txt",
+                    &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
+                    &mut outputs,
+                )?,
+                "mot" => put("tracks_mot.txt", &mot_txt(&tracks), &mut outputs)?,
+                "gpkg" => {
+                    write_trajectories(
+                        &out.join("trajectories.gpkg"),
+                        GisFormat::GeoPackage,
+                        &crs_wkt,
+                        Layers::Both,
+                        trajs,
+                        &|q| q.crs,
+                    )
+                    .map_err(RunError::Failed)?;
+                    outputs.push("trajectories.gpkg".into());
                 }
-                write_trajectories(
-                    &out.join("trajectories.geojson"),
-                    GisFormat::GeoJson,
-                    "",
-                    Layers::Lines,
-                    trajs,
-                    &lonlat,
-                )
-                .map_err(RunError::Failed)?;
-                write_trajectories(
-                    &out.join("positions.geojson"),
-                    GisFormat::GeoJson,
-                    "",
-                    Layers::Points,
-                    trajs,
-                    &lonlat,
-                )
-                .map_err(RunError::Failed)?;
-                outputs.push("trajectories.geojson".into());
-                outputs.push("positions.geojson".into());
+                "geojson" => {
+                    // RFC 7946: WGS 84 longitude/latitude.
+                    // RFC 7946 wants WGS 84; the survey's datum's latitude and longitude, from the
+                    // site's tangent frame (pure, so the formats can be written in parallel).
+                    let lonlat = |q: &TrajectoryPoint| -> Vector3<f64> {
+                        match &tangent {
+                            Some(t) => {
+                                let nan_h = q.local.z.is_nan();
+                                let z = if nan_h { 0.0 } else { q.local.z };
+                                let g = t.geodetic_from_enu(&Vector3::new(q.local.x, q.local.y, z));
+                                Vector3::new(
+                                    g.lon.to_degrees(),
+                                    g.lat.to_degrees(),
+                                    if nan_h { f64::NAN } else { g.h },
+                                )
+                            }
+                            None => Vector3::new(f64::NAN, f64::NAN, f64::NAN),
+                        }
+                    };
+                    if tangent.is_none() {
+                        warnings.push(
+                            "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
+                                .into(),
+                        );
+                        return Ok((outputs, warnings));
+                    }
+                    write_trajectories(
+                        &out.join("trajectories.geojson"),
+                        GisFormat::GeoJson,
+                        "",
+                        Layers::Lines,
+                        trajs,
+                        &lonlat,
+                    )
+                    .map_err(RunError::Failed)?;
+                    write_trajectories(
+                        &out.join("positions.geojson"),
+                        GisFormat::GeoJson,
+                        "",
+                        Layers::Points,
+                        trajs,
+                        &lonlat,
+                    )
+                    .map_err(RunError::Failed)?;
+                    outputs.push("trajectories.geojson".into());
+                    outputs.push("positions.geojson".into());
+                }
+                _ => unreachable!("checked when the project was read"),
             }
-            _ => unreachable!("checked when the project was read"),
-        }
+            Ok((outputs, warnings))
+        })
+        .collect();
+    for w in written {
+        let (o, warn) = w?;
+        outputs.extend(o);
+        warnings.extend(warn);
     }
     stages.push(StageRecord {
         name: "export".into(),

@@ -11,7 +11,7 @@ use opencv::core::Mat;
 use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::detect::{Detection, Detector, FrameView};
+use crate::detect::{Detection, Detector, FrameDetections, FrameView};
 use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
 use crate::progress::Progress;
 use crate::video::klt::{Klt, KltSettings};
@@ -44,8 +44,35 @@ pub struct Scanned {
     pub frames: usize,
     pub tracks: Vec<FrameTrack>,
     pub detections: Vec<Vec<Detection>>,
+    /// What the detector reports about itself.
+    pub detector_summary: Vec<(String, f64)>,
     pub times: ScanTimes,
 }
+
+/// Why a pass failed: the detector could not work with this video and these settings (a
+/// problem of the inputs), or anything else.
+#[derive(Debug)]
+pub enum ScanError {
+    Detector(String),
+    Other(String),
+}
+
+impl From<String> for ScanError {
+    fn from(e: String) -> ScanError {
+        ScanError::Other(e)
+    }
+}
+
+impl std::fmt::Display for ScanError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ScanError::Detector(e) | ScanError::Other(e) => f.write_str(e),
+        }
+    }
+}
+
+/// Detections by frame, busy seconds and the detector's summary.
+type Detected = (Vec<Vec<Detection>>, f64, Vec<(String, f64)>);
 
 fn to_gray(bgr: &Mat) -> Result<Mat, String> {
     let mut g = Mat::default();
@@ -55,7 +82,7 @@ fn to_gray(bgr: &Mat) -> Result<Mat, String> {
 }
 
 /// Runs the pass. Errors name the video.
-pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
+pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError> {
     let video = job.video;
     let named = |e: String| format!("{}: {e}", video.display());
     let mut reader = FrameReader::open(video)?;
@@ -66,45 +93,50 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
     };
     progress.set_length(total.unwrap_or(0) as u64);
     let started = Instant::now();
-    let stabiliser = match &job.stabilise {
-        Some((settings, pick_frame, picks)) => {
-            if total.is_some_and(|t| *pick_frame >= t) {
-                return Err(named(format!(
-                    "the picks are on frame {pick_frame}, beyond the {} frame(s) processed",
-                    total.unwrap_or(0)
-                )));
-            }
-            let klt = Klt::new(KltSettings::default());
-            let template = klt.frame(
-                *pick_frame,
-                to_gray(&FrameReader::frame_bgr(video, *pick_frame)?)?,
-            )?;
-            Some(Stabiliser::new(
-                Klt::new(KltSettings::default()),
-                settings.clone(),
-                (width, height),
-                template,
-                *pick_frame,
-                picks.clone(),
-            ))
-        }
-        None => None,
-    };
+    if let Some((_, pick_frame, _)) = &job.stabilise
+        && total.is_some_and(|t| *pick_frame >= t)
+    {
+        return Err(named(format!(
+            "the picks are on frame {pick_frame}, beyond the {} frame(s) processed",
+            total.unwrap_or(0)
+        ))
+        .into());
+    }
+    let stabiliser = job.stabilise;
     let mut detector = job.detector;
     let max_frames = job.max_frames;
     let (to_stab, from_decoder) = sync_channel::<Arc<Mat>>(4);
     let (to_detect, for_detector) = sync_channel::<Arc<Mat>>(4);
     let want_stab = stabiliser.is_some();
     let want_detect = detector.is_some();
-    std::thread::scope(|scope| -> Result<Scanned, String> {
+    std::thread::scope(|scope| -> Result<Scanned, ScanError> {
         // The stabiliser runs beside the decoder and the detector, in frame order.
-        let stab_thread = stabiliser.map(|mut stab| {
+        let stab_thread = stabiliser.map(|(settings, pick_frame, picks)| {
             scope.spawn(move || -> Result<(Vec<FrameTrack>, f64), String> {
                 let klt = Klt::new(KltSettings::default());
                 let mut tracks = Vec::new();
                 let mut spent = 0.0;
+                let mut stab = None;
                 for (i, bgr) in from_decoder.iter().enumerate() {
                     let t = Instant::now();
+                    if stab.is_none() {
+                        // The picked frame is the template: the first frame, or read on its own
+                        // (here, beside the decoder).
+                        let template = if pick_frame == i {
+                            to_gray(&bgr)?
+                        } else {
+                            to_gray(&FrameReader::frame_bgr(video, pick_frame)?)?
+                        };
+                        stab = Some(Stabiliser::new(
+                            Klt::new(KltSettings::default()),
+                            settings.clone(),
+                            (width, height),
+                            klt.frame(pick_frame, template)?,
+                            pick_frame,
+                            picks.clone(),
+                        ));
+                    }
+                    let stab = stab.as_mut().expect("made above");
                     let frame = klt.frame(i, to_gray(&bgr)?)?;
                     tracks.push(stab.push(i, frame).map_err(|e| format!("frame {i}: {e}"))?);
                     spent += t.elapsed().as_secs_f64();
@@ -113,9 +145,17 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
             })
         });
         let detect_thread = detector.take().map(|mut det| {
-            scope.spawn(move || -> Result<(Vec<Vec<Detection>>, f64), String> {
-                let mut out = Vec::new();
+            scope.spawn(move || -> Result<Detected, String> {
+                let mut out: Vec<Vec<Detection>> = Vec::new();
                 let mut spent = 0.0;
+                let mut put = |done: Vec<FrameDetections>| {
+                    for (i, d) in done {
+                        if out.len() <= i {
+                            out.resize(i + 1, Vec::new());
+                        }
+                        out[i] = d;
+                    }
+                };
                 for (i, bgr) in for_detector.iter().enumerate() {
                     let t = Instant::now();
                     let bytes = bgr.data_bytes().map_err(|e| e.to_string())?;
@@ -125,21 +165,32 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
                         height: bgr.rows() as usize,
                         bgr: bytes,
                     };
-                    out.push(det.detect(&view));
+                    put(det.push(&view).map_err(|e| format!("frame {i}: {e}"))?);
                     spent += t.elapsed().as_secs_f64();
                 }
-                Ok((out, spent))
+                let t = Instant::now();
+                put(det.finish()?);
+                spent += t.elapsed().as_secs_f64();
+                Ok((out, spent, det.summary()))
             })
         });
         let mut decode_s = 0.0;
         let mut frames = 0;
         let mut failure = None;
+        let mut pool: Vec<Arc<Mat>> = Vec::new();
         while max_frames.is_none_or(|m| frames < m) {
+            // Reuse a frame both workers are done with (a 4K frame is 25 MB of fresh pages).
+            let mut bgr = match pool.iter().position(|f| Arc::strong_count(f) == 1) {
+                Some(k) => pool.swap_remove(k),
+                None => Arc::new(Mat::default()),
+            };
             let t = Instant::now();
-            let next = reader.next_bgr();
+            let next =
+                reader.read_bgr_into(Arc::get_mut(&mut bgr).expect("only the pool holds it"));
             decode_s += t.elapsed().as_secs_f64();
-            let bgr = match next {
-                Ok(Some((_, bgr))) => Arc::new(bgr),
+            pool.push(bgr.clone());
+            match next {
+                Ok(Some(_)) => {}
                 Ok(None) => break,
                 Err(e) => {
                     failure = Some(named(e));
@@ -165,18 +216,21 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
                 .map_err(named)?,
             None => (Vec::new(), 0.0),
         };
-        let (detections, detect_s) = match detect_thread {
+        let (mut detections, detect_s, detector_summary) = match detect_thread {
             Some(h) => h
                 .join()
                 .map_err(|_| "the detector stopped unexpectedly".to_string())?
-                .map_err(named)?,
-            None => (Vec::new(), 0.0),
+                .map_err(|e| ScanError::Detector(named(e)))?,
+            None => (Vec::new(), 0.0, Vec::new()),
         };
         if let Some(f) = failure {
-            return Err(f);
+            return Err(f.into());
         }
         if frames == 0 {
-            return Err(named("no frames could be decoded".into()));
+            return Err(named("no frames could be decoded".into()).into());
+        }
+        if want_detect {
+            detections.resize(frames, Vec::new());
         }
         Ok(Scanned {
             fps,
@@ -185,6 +239,7 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
             frames,
             tracks,
             detections,
+            detector_summary,
             times: ScanTimes {
                 decode_s,
                 stabilise_s,
@@ -193,56 +248,4 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, String> {
             },
         })
     })
-}
-
-/// Sample pixels (sRGB) from `count` frames spread over the first `frames` of the video, chosen
-/// by a seeded draw, for learning a colour palette: every `step`-th pixel of each.
-pub fn sample_pixels(
-    video: &Path,
-    frames: usize,
-    count: usize,
-    step: usize,
-    seed: u64,
-) -> Result<Vec<[u8; 3]>, String> {
-    use rand::{RngExt, SeedableRng};
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut wanted: Vec<usize> = if count >= frames {
-        (0..frames).collect()
-    } else {
-        (0..count).map(|_| rng.random_range(0..frames)).collect()
-    };
-    wanted.sort_unstable();
-    wanted.dedup();
-    let mut reader = FrameReader::open(video)?;
-    let mut pixels = Vec::new();
-    let mut next = 0;
-    let mut at = 0;
-    while let Some(&target) = wanted.get(next) {
-        // Far ahead: seek (the backend decodes from the last key frame); near: read on.
-        if target > at + 30 {
-            reader.seek(target);
-        }
-        let Some((i, bgr)) = reader.next_bgr()? else {
-            break;
-        };
-        at = i + 1;
-        if i < target {
-            continue;
-        }
-        next += 1;
-        let bytes = bgr.data_bytes().map_err(|e| e.to_string())?;
-        let (w, h) = (bgr.cols() as usize, bgr.rows() as usize);
-        let view = FrameView {
-            index: i,
-            width: w,
-            height: h,
-            bgr: bytes,
-        };
-        let mut k = (i * 7919) % step.max(1);
-        while k < w * h {
-            pixels.push(view.pixel(k % w, k / w));
-            k += step.max(1);
-        }
-    }
-    Ok(pixels)
 }

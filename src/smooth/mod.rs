@@ -281,7 +281,9 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
     let mut iterations = 0;
     let mut converged = !s.em;
     let run = |q: &Matrix4<f64>| -> Vec<Option<Pass>> {
-        tracks.iter().map(|t| smooth_track(t, q, s)).collect()
+        // Tracks are independent given Q: in parallel, in their order.
+        use rayon::prelude::*;
+        tracks.par_iter().map(|t| smooth_track(t, q, s)).collect()
     };
     let mut passes = run(&q);
     // One EM step: the M-step on the moments of the passes at the current Q.

@@ -20,6 +20,10 @@ pub struct KltSettings {
     pub window: i32,
     /// Pyramid levels above the working copy.
     pub levels: i32,
+    /// Levels tried first: enough for a hovering camera's motion between frames; when fewer
+    /// than `fast_fraction` of the features pass, all `levels` are used.
+    pub fast_levels: i32,
+    pub fast_fraction: f64,
     /// The working copy's largest width, pixels.
     pub max_width: i32,
     /// Window side and pyramid levels of the local search around a good prediction (full
@@ -41,8 +45,10 @@ pub struct KltSettings {
 impl Default for KltSettings {
     fn default() -> Self {
         KltSettings {
-            window: 21,
+            window: 15,
             levels: 3,
+            fast_levels: 1,
+            fast_fraction: 0.6,
             max_width: 1920,
             refine_window: 31,
             refine_levels: 1,
@@ -81,12 +87,26 @@ fn rescale(p: &Vector2<f64>, s: f64) -> Vector2<f64> {
 }
 
 fn to_cv(pts: &[Vector2<f64>]) -> Vector<Point2f> {
-    pts.iter().map(|p| Point2f::new(p.x as f32, p.y as f32)).collect()
+    pts.iter()
+        .map(|p| Point2f::new(p.x as f32, p.y as f32))
+        .collect()
 }
 
-fn criteria() -> Result<TermCriteria, String> {
-    TermCriteria::new(TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32, 30, 0.01).map_err(e)
+/// Iterations and the step (pixels) at which Lucas–Kanade stops.
+fn criteria(iterations: i32, eps_px: f64) -> Result<TermCriteria, String> {
+    TermCriteria::new(
+        TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
+        iterations,
+        eps_px,
+    )
+    .map_err(e)
 }
+
+/// The stabiliser's hundreds of features: a homography does not need each to a hundredth of a
+/// pixel, and these criteria halve their cost.
+const FEATURE_CRITERIA: (i32, f64) = (10, 0.03);
+/// The few picks: as precise as can be.
+const PICK_CRITERIA: (i32, f64) = (30, 0.01);
 
 /// Lucas–Kanade from `a` to `b` (images or pyramids), then back: a good track returns to its
 /// start. Returns the landing points and whether each passed.
@@ -95,21 +115,55 @@ fn forward_backward(
     b: &impl core::ToInputArray,
     start: &Vector<Point2f>,
     guess: Option<&Vector<Point2f>>,
-    window: i32,
-    levels: i32,
+    (window, levels): (i32, i32),
     max_fb: f32,
+    (iterations, eps_px): (i32, f64),
 ) -> Result<(Vector<Point2f>, Vec<bool>), String> {
     let size = Size::new(window, window);
     let mut fwd = guess.cloned().unwrap_or_else(|| start.clone());
     let (mut st_f, mut err) = (Vector::<u8>::new(), Vector::<f32>::new());
-    let flags = if guess.is_some() { video::OPTFLOW_USE_INITIAL_FLOW } else { 0 };
-    video::calc_optical_flow_pyr_lk(a, b, start, &mut fwd, &mut st_f, &mut err, size, levels, criteria()?, flags, 1e-4).map_err(e)?;
+    let flags = if guess.is_some() {
+        video::OPTFLOW_USE_INITIAL_FLOW
+    } else {
+        0
+    };
+    video::calc_optical_flow_pyr_lk(
+        a,
+        b,
+        start,
+        &mut fwd,
+        &mut st_f,
+        &mut err,
+        size,
+        levels,
+        criteria(iterations, eps_px)?,
+        flags,
+        1e-4,
+    )
+    .map_err(e)?;
     let mut back = start.clone();
     let mut st_b = Vector::<u8>::new();
-    video::calc_optical_flow_pyr_lk(b, a, &fwd, &mut back, &mut st_b, &mut err, size, levels, criteria()?, video::OPTFLOW_USE_INITIAL_FLOW, 1e-4).map_err(e)?;
+    video::calc_optical_flow_pyr_lk(
+        b,
+        a,
+        &fwd,
+        &mut back,
+        &mut st_b,
+        &mut err,
+        size,
+        levels,
+        criteria(iterations, eps_px)?,
+        video::OPTFLOW_USE_INITIAL_FLOW,
+        1e-4,
+    )
+    .map_err(e)?;
     let ok = (0..start.len())
         .map(|i| {
-            let (Ok(s), Ok(bk), Ok(sf), Ok(sb)) = (start.get(i), back.get(i), st_f.get(i), st_b.get(i)) else { return false };
+            let (Ok(s), Ok(bk), Ok(sf), Ok(sb)) =
+                (start.get(i), back.get(i), st_f.get(i), st_b.get(i))
+            else {
+                return false;
+            };
             sf == 1 && sb == 1 && (bk.x - s.x).hypot(bk.y - s.y) <= max_fb
         })
         .collect();
@@ -123,18 +177,42 @@ impl Klt {
 
     pub fn frame(&self, index: usize, gray: Mat) -> Result<GrayFrame, String> {
         let (w, h) = (gray.cols(), gray.rows());
-        let factor = ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
+        let factor =
+            ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
         let work = if factor > 1 {
             let mut small = Mat::default();
-            imgproc::resize(&gray, &mut small, Size::new(w / factor, h / factor), 0.0, 0.0, imgproc::INTER_AREA).map_err(e)?;
+            imgproc::resize(
+                &gray,
+                &mut small,
+                Size::new(w / factor, h / factor),
+                0.0,
+                0.0,
+                imgproc::INTER_AREA,
+            )
+            .map_err(e)?;
             small
         } else {
             gray.clone()
         };
         let mut pyramid = Vector::<Mat>::new();
         let win = Size::new(self.settings.window, self.settings.window);
-        video::build_optical_flow_pyramid(&work, &mut pyramid, win, self.settings.levels, true, core::BORDER_REFLECT_101, core::BORDER_CONSTANT, true).map_err(e)?;
-        Ok(GrayFrame { index, image: gray, pyramid, scale: f64::from(w) / f64::from(work.cols()) })
+        video::build_optical_flow_pyramid(
+            &work,
+            &mut pyramid,
+            win,
+            self.settings.levels,
+            true,
+            core::BORDER_REFLECT_101,
+            core::BORDER_CONSTANT,
+            true,
+        )
+        .map_err(e)?;
+        Ok(GrayFrame {
+            index,
+            image: gray,
+            pyramid,
+            scale: f64::from(w) / f64::from(work.cols()),
+        })
     }
 }
 
@@ -155,33 +233,83 @@ impl FeatureTracker for Klt {
                 let (x1, y1) = (w * (c + 1) / cols, h * (r + 1) / rows);
                 let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
                 let mut corners = Vector::<Point2f>::new();
-                imgproc::good_features_to_track(&cell, &mut corners, per_cell, s.quality, s.min_distance, &core::no_array(), 3, false, 0.04).map_err(e)?;
-                out.extend(corners.iter().map(|p| rescale(&Vector2::new(f64::from(p.x) + f64::from(x0), f64::from(p.y) + f64::from(y0)), frame.scale)));
+                imgproc::good_features_to_track(
+                    &cell,
+                    &mut corners,
+                    per_cell,
+                    s.quality,
+                    s.min_distance,
+                    &core::no_array(),
+                    3,
+                    false,
+                    0.04,
+                )
+                .map_err(e)?;
+                out.extend(corners.iter().map(|p| {
+                    rescale(
+                        &Vector2::new(
+                            f64::from(p.x) + f64::from(x0),
+                            f64::from(p.y) + f64::from(y0),
+                        ),
+                        frame.scale,
+                    )
+                }));
             }
         }
         Ok(out)
     }
 
-    fn track(&mut self, from: &GrayFrame, to: &GrayFrame, pts: &[Vector2<f64>], guess: Option<&[Vector2<f64>]>) -> Result<Vec<Option<Vector2<f64>>>, String> {
+    fn track(
+        &mut self,
+        from: &GrayFrame,
+        to: &GrayFrame,
+        pts: &[Vector2<f64>],
+        guess: Option<&[Vector2<f64>]>,
+    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
         if pts.is_empty() {
             return Ok(Vec::new());
         }
         let inv = 1.0 / from.scale;
         let start: Vec<Vector2<f64>> = pts.iter().map(|p| rescale(p, inv)).collect();
-        let guess: Option<Vec<Vector2<f64>>> = guess.map(|g| g.iter().map(|p| rescale(p, inv)).collect());
+        let guess: Option<Vec<Vector2<f64>>> =
+            guess.map(|g| g.iter().map(|p| rescale(p, inv)).collect());
         let max_fb = (self.settings.max_fb_error_px * inv) as f32;
-        let (fwd, ok) = forward_backward(&from.pyramid, &to.pyramid, &to_cv(&start), guess.as_ref().map(|g| to_cv(g)).as_ref(), self.settings.window, self.settings.levels, max_fb)?;
+        let s = &self.settings;
+        let run = |levels: i32| {
+            forward_backward(
+                &from.pyramid,
+                &to.pyramid,
+                &to_cv(&start),
+                guess.as_ref().map(|g| to_cv(g)).as_ref(),
+                (s.window, levels),
+                max_fb,
+                FEATURE_CRITERIA,
+            )
+        };
+        let (mut fwd, mut ok) = run(s.fast_levels.min(s.levels))?;
+        if s.fast_levels < s.levels
+            && (ok.iter().filter(|&&b| b).count() as f64) < s.fast_fraction * pts.len() as f64
+        {
+            (fwd, ok) = run(s.levels)?;
+        }
         let work = to.pyramid.get(0).map_err(e)?;
         let (w, h) = (work.cols() as f32, work.rows() as f32);
         Ok((0..pts.len())
             .map(|i| {
                 let f = fwd.get(i).ok()?;
-                (ok[i] && f.x >= 0.0 && f.y >= 0.0 && f.x <= w - 1.0 && f.y <= h - 1.0).then(|| rescale(&Vector2::new(f64::from(f.x), f64::from(f.y)), to.scale))
+                (ok[i] && f.x >= 0.0 && f.y >= 0.0 && f.x <= w - 1.0 && f.y <= h - 1.0)
+                    .then(|| rescale(&Vector2::new(f64::from(f.x), f64::from(f.y)), to.scale))
             })
             .collect())
     }
 
-    fn refine(&mut self, from: &GrayFrame, to: &GrayFrame, pts: &[Vector2<f64>], guess: &[Vector2<f64>]) -> Result<Vec<Option<Vector2<f64>>>, String> {
+    fn refine(
+        &mut self,
+        from: &GrayFrame,
+        to: &GrayFrame,
+        pts: &[Vector2<f64>],
+        guess: &[Vector2<f64>],
+    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
         let s = &self.settings;
         // Windows wide enough for the search: the LK window, its pyramid, and slack.
         let half = (s.refine_window * (1 << s.refine_levels)) + 8;
@@ -191,11 +319,19 @@ impl FeatureTracker for Klt {
         // window slides inwards rather than shrinking.
         let side = 2 * half + 1;
         let window = |p: &Vector2<f64>, w: i32, h: i32| -> Option<Rect> {
-            if w < side || h < side || !(p.x >= 0.0 && p.y >= 0.0 && p.x <= f64::from(w - 1) && p.y <= f64::from(h - 1)) {
+            if w < side
+                || h < side
+                || !(p.x >= 0.0 && p.y >= 0.0 && p.x <= f64::from(w - 1) && p.y <= f64::from(h - 1))
+            {
                 return None;
             }
             let (cx, cy) = (p.x.round() as i32, p.y.round() as i32);
-            Some(Rect::new((cx - half).clamp(0, w - side), (cy - half).clamp(0, h - side), side, side))
+            Some(Rect::new(
+                (cx - half).clamp(0, w - side),
+                (cy - half).clamp(0, h - side),
+                side,
+                side,
+            ))
         };
         let mut out = Vec::with_capacity(pts.len());
         for (p, g) in pts.iter().zip(guess) {
@@ -207,10 +343,28 @@ impl FeatureTracker for Klt {
             let b = Mat::roi(&to.image, rb).map_err(e)?;
             let start = to_cv(&[Vector2::new(p.x - f64::from(ra.x), p.y - f64::from(ra.y))]);
             let guess = to_cv(&[Vector2::new(g.x - f64::from(rb.x), g.y - f64::from(rb.y))]);
-            let (fwd, ok) = forward_backward(&a, &b, &start, Some(&guess), s.refine_window, s.refine_levels, s.max_fb_error_px as f32)?;
+            let (fwd, ok) = forward_backward(
+                &a,
+                &b,
+                &start,
+                Some(&guess),
+                (s.refine_window, s.refine_levels),
+                s.max_fb_error_px as f32,
+                PICK_CRITERIA,
+            )?;
             let f = fwd.get(0).map_err(e)?;
-            let q = Vector2::new(f64::from(f.x) + f64::from(rb.x), f64::from(f.y) + f64::from(rb.y));
-            out.push((ok[0] && q.x >= 0.0 && q.y >= 0.0 && q.x <= f64::from(wb - 1) && q.y <= f64::from(hb - 1)).then_some(q));
+            let q = Vector2::new(
+                f64::from(f.x) + f64::from(rb.x),
+                f64::from(f.y) + f64::from(rb.y),
+            );
+            out.push(
+                (ok[0]
+                    && q.x >= 0.0
+                    && q.y >= 0.0
+                    && q.x <= f64::from(wb - 1)
+                    && q.y <= f64::from(hb - 1))
+                .then_some(q),
+            );
         }
         Ok(out)
     }
@@ -228,31 +382,60 @@ mod tests {
             for x in 0..w {
                 let (u, v) = (x as f64 - dx, y as f64 - dy);
                 // Band-limited: a few plane waves, the finest of 20 px wavelength.
-                let s = (u * 0.3 + v * 0.1).sin() + (u * -0.12 + v * 0.27 + 1.0).sin() + (u * 0.05 + v * 0.08 + 2.0).sin() + (u * 0.21 - v * 0.19 + 0.5).sin();
+                let s = (u * 0.3 + v * 0.1).sin()
+                    + (u * -0.12 + v * 0.27 + 1.0).sin()
+                    + (u * 0.05 + v * 0.08 + 2.0).sin()
+                    + (u * 0.21 - v * 0.19 + 0.5).sin();
                 px[y * w + x] = (128.0 + 40.0 * s).clamp(0.0, 255.0) as u8;
             }
         }
-        let m = Mat::new_rows_cols_with_data(h as i32, w as i32, &px).unwrap().try_clone().unwrap();
+        let m = Mat::new_rows_cols_with_data(h as i32, w as i32, &px)
+            .unwrap()
+            .try_clone()
+            .unwrap();
         assert_eq!(m.typ(), CV_8UC1);
         m
     }
 
     fn check(max_width: i32, size: (usize, usize)) {
-        let mut klt = Klt::new(KltSettings { max_width, ..KltSettings::default() });
+        let mut klt = Klt::new(KltSettings {
+            max_width,
+            ..KltSettings::default()
+        });
         let a = klt.frame(0, texture(size.0, size.1, 0.0, 0.0)).unwrap();
         let b = klt.frame(1, texture(size.0, size.1, 2.3, -1.7)).unwrap();
         let pts = klt.detect(&a).unwrap();
         assert!(pts.len() > 50, "{} features", pts.len());
         let moved = klt.track(&a, &b, &pts, None).unwrap();
-        let ok: Vec<_> = pts.iter().zip(&moved).filter_map(|(p, m)| m.map(|m| m - p)).collect();
-        assert!(ok.len() > pts.len() * 7 / 10, "{} of {} tracked", ok.len(), pts.len());
-        let mut err: Vec<f64> = ok.iter().map(|d| (d - Vector2::new(2.3, -1.7)).norm()).collect();
+        let ok: Vec<_> = pts
+            .iter()
+            .zip(&moved)
+            .filter_map(|(p, m)| m.map(|m| m - p))
+            .collect();
+        assert!(
+            ok.len() > pts.len() * 7 / 10,
+            "{} of {} tracked",
+            ok.len(),
+            pts.len()
+        );
+        let mut err: Vec<f64> = ok
+            .iter()
+            .map(|d| (d - Vector2::new(2.3, -1.7)).norm())
+            .collect();
         err.sort_by(f64::total_cmp);
-        assert!(err[err.len() / 2] < 0.1 && err[err.len() * 9 / 10] < 0.3, "median {} p90 {}", err[err.len() / 2], err[err.len() * 9 / 10]);
+        assert!(
+            err[err.len() / 2] < 0.1 && err[err.len() * 9 / 10] < 0.3,
+            "median {} p90 {}",
+            err[err.len() / 2],
+            err[err.len() * 9 / 10]
+        );
         // Local refinement at full resolution from a rough guess.
         let picks = vec![Vector2::new(100.0, 120.0), Vector2::new(500.0, 300.0)];
         let guess: Vec<_> = picks.iter().map(|p| p + Vector2::new(3.0, -1.0)).collect();
-        for (p, r) in picks.iter().zip(klt.refine(&a, &b, &picks, &guess).unwrap()) {
+        for (p, r) in picks
+            .iter()
+            .zip(klt.refine(&a, &b, &picks, &guess).unwrap())
+        {
             assert!((r.unwrap() - p - Vector2::new(2.3, -1.7)).norm() < 0.1);
         }
     }

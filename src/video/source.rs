@@ -80,12 +80,36 @@ impl FrameReader {
         Ok(Some((i, gray)))
     }
 
+    /// Reads the next frame into `frame` (BGR, continuous), reusing its memory when it already
+    /// has the frame's size (no fresh pages to fault in for every 4K frame); its index, or
+    /// `None` at the end.
+    pub fn read_bgr_into(&mut self, frame: &mut Mat) -> Result<Option<usize>, String> {
+        if !self.cap.read(frame).map_err(|e| e.to_string())? || frame.empty() {
+            return Ok(None);
+        }
+        if frame.channels() != 3 || !frame.is_continuous() {
+            let Some((i, bgr)) = self.as_bgr(std::mem::take(frame))? else {
+                return Ok(None);
+            };
+            *frame = bgr;
+            return Ok(Some(i));
+        }
+        let i = self.next;
+        self.next += 1;
+        Ok(Some(i))
+    }
+
     /// The next frame's index and its colour (BGR, continuous) image; `None` at the end.
     pub fn next_bgr(&mut self) -> Result<Option<(usize, Mat)>, String> {
         let mut frame = Mat::default();
         if !self.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
             return Ok(None);
         }
+        self.as_bgr(frame)
+    }
+
+    /// A frame just read, as BGR and continuous, with the next index.
+    fn as_bgr(&mut self, frame: Mat) -> Result<Option<(usize, Mat)>, String> {
         let frame = if frame.channels() == 3 {
             frame
         } else {

@@ -4,9 +4,11 @@
 //! is the centre of the top-left pixel; transforms are named `dst_from_src`; metres, radians,
 //! pixels, seconds; distortion in OpenCV order `k1 k2 p1 p2 k3 k4 k5 k6`.
 //!
-//! Pure modules (`geom`, `camera`, `estimate`, `optim`, and the algorithmic parts of
-//! `calibration` and `simulate`) use nalgebra and std only; OpenCV stays in the adapters
-//! (`imageio`, `calibration::detect`, `calibration::inputs`).
+//! Pure modules (`geom`, `camera`, `estimate`, `optim`, `detect`, `track`, `projection`,
+//! `smooth`, `evaluate`, and the algorithmic parts of `calibration`, `pose` and `simulate`) use
+//! nalgebra and std only; OpenCV, GDAL and PROJ stay in the adapters (`imageio`, `video`,
+//! `draw`, `calibration::detect`, `calibration::inputs`, `pipeline::scan`, `gis`, `export::gis`,
+//! `survey::crs`).
 
 // `!(x > 0.0)` is used on purpose: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

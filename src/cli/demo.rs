@@ -639,24 +639,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 fn print_stages(json: bool, r: &RunReport) {
     for s in &r.stages {
-        let nums: Vec<String> = s
-            .counts
-            .iter()
-            .map(|(k, v)| {
-                if v.fract() == 0.0 && v.abs() < 1e12 {
-                    format!("{k} {v:.0}")
-                } else {
-                    format!("{k} {v:.3}")
-                }
-            })
-            .collect();
         say!(
             json,
             "   {:<8} {:<9} {:>7.2} s  {}",
             s.name,
             s.status,
             s.seconds,
-            nums.join(", ")
+            s.numbers(3)
         );
     }
     for w in &r.warnings {

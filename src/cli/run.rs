@@ -49,23 +49,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     println!("{:<8} {:<9} {:>8}  numbers", "stage", "status", "seconds");
     for s in &report.stages {
-        let nums: Vec<String> = s
-            .counts
-            .iter()
-            .map(|(k, v)| {
-                if v.fract() == 0.0 && v.abs() < 1e12 {
-                    format!("{k} {v:.0}")
-                } else {
-                    format!("{k} {v:.3}")
-                }
-            })
-            .collect();
         println!(
             "{:<8} {:<9} {:>8.2}  {}",
             s.name,
             s.status,
             s.seconds,
-            nums.join(", ")
+            s.numbers(3)
         );
     }
     for w in &report.warnings {

@@ -312,10 +312,15 @@ fn permissive_table(s: &ColourSettings) -> Vec<u64> {
     table
 }
 
+/// Whether the 6-bit colour `i` is in a bit table.
+#[inline]
+fn has_colour(table: &[u64], i: usize) -> bool {
+    table[i >> 6] >> (i & 63) & 1 == 1
+}
+
 #[inline]
 fn in_table(table: &[u64], px: &[u8]) -> bool {
-    let i = index_bgr(px[0], px[1], px[2]);
-    table[i >> 6] >> (i & 63) & 1 == 1
+    has_colour(table, index_bgr(px[0], px[1], px[2]))
 }
 
 /// Hat radius in pixels.
@@ -545,9 +550,8 @@ impl LearningColourDetector {
                 for r in &k.runs {
                     let mut start: Option<usize> = None;
                     for x in r.x0..r.x1 {
-                        let i = k.colours[c] as usize;
+                        let hat = has_colour(&det.table, k.colours[c] as usize);
                         c += 1;
-                        let hat = det.table[i >> 6] >> (i & 63) & 1 == 1;
                         match (hat, start) {
                             (true, None) => start = Some(x),
                             (false, Some(s)) => {

@@ -65,6 +65,24 @@ impl StageProgress for Silent {
     }
 }
 
+impl StageRecord {
+    /// The stage's numbers as `key value, ...`: whole numbers without decimals, others with
+    /// `decimals`.
+    pub fn numbers(&self, decimals: usize) -> String {
+        self.counts
+            .iter()
+            .map(|(k, v)| {
+                if v.fract() == 0.0 && v.abs() < 1e12 {
+                    format!("{k} {v:.0}")
+                } else {
+                    format!("{k} {v:.decimals$}")
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
 /// One input file of a run, with its checksum.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct InputRecord {
@@ -1217,24 +1235,13 @@ pub fn report_markdown(r: &RunReport) -> String {
         "\n## Stages\n\n| stage | status | seconds | numbers |\n|---|---|---|---|"
     );
     for st in &r.stages {
-        let nums: Vec<String> = st
-            .counts
-            .iter()
-            .map(|(k, v)| {
-                if v.fract() == 0.0 && v.abs() < 1e12 {
-                    format!("{k} {v:.0}")
-                } else {
-                    format!("{k} {v:.4}")
-                }
-            })
-            .collect();
         let _ = writeln!(
             s,
             "| {} | {} | {:.2} | {} |",
             st.name,
             st.status,
             st.seconds,
-            nums.join(", ")
+            st.numbers(4)
         );
     }
     let _ = writeln!(s, "\n## Outputs\n");

@@ -102,6 +102,10 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
         ))
         .into());
     }
+    // The decoder, stabiliser and detector already fill the cores: OpenCV's own worker threads
+    // would only compete with them.
+    let cv_threads = opencv::core::get_num_threads().unwrap_or(-1);
+    let _ = opencv::core::set_num_threads(1);
     let stabiliser = job.stabilise;
     let mut detector = job.detector;
     let max_frames = job.max_frames;
@@ -109,7 +113,7 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
     let (to_detect, for_detector) = sync_channel::<Arc<Mat>>(4);
     let want_stab = stabiliser.is_some();
     let want_detect = detector.is_some();
-    std::thread::scope(|scope| -> Result<Scanned, ScanError> {
+    let scanned = std::thread::scope(|scope| -> Result<Scanned, ScanError> {
         // The stabiliser runs beside the decoder and the detector, in frame order.
         let stab_thread = stabiliser.map(|(settings, pick_frame, picks)| {
             scope.spawn(move || -> Result<(Vec<FrameTrack>, f64), String> {
@@ -247,5 +251,9 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
                 wall_s: started.elapsed().as_secs_f64(),
             },
         })
-    })
+    });
+    if cv_threads > 0 {
+        let _ = opencv::core::set_num_threads(cv_threads);
+    }
+    scanned
 }

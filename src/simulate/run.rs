@@ -196,6 +196,9 @@ pub fn simulate(
         "frame,time_s,centre_e_m,centre_n_m,centre_u_m,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
     );
     let mut heads_csv = String::from("frame,time_s,person,e_m,n_m,u_m,px,py,in_view\n");
+    // What a perfect person detector would box, and each person's shadow (a detector's typical
+    // false alarm): image boxes clipped to the frame.
+    let mut boxes_csv = String::from("frame,person,kind,x,y,w,h\n");
     let mut seen = vec![false; people.len()];
     progress.set_length(frames as u64);
     let (w, h) = (f64::from(size.width), f64::from(size.height));
@@ -250,6 +253,60 @@ pub fn simulate(
             tvec.y,
             tvec.z
         );
+        let image_box = |corners: &mut dyn Iterator<Item = Vector3<f64>>| -> Option<[f64; 4]> {
+            let mut b = [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ];
+            for c in corners {
+                let uv = pose.project(camera, &c)?;
+                b = [
+                    b[0].min(uv.x),
+                    b[1].min(uv.y),
+                    b[2].max(uv.x),
+                    b[3].max(uv.y),
+                ];
+            }
+            let (x0, y0) = (b[0].max(-0.5), b[1].max(-0.5));
+            let (x1, y1) = (b[2].min(w - 0.5), b[3].min(h - 0.5));
+            (x1 - x0 >= 2.0 && y1 - y0 >= 2.0).then_some([x0, y0, x1 - x0, y1 - y0])
+        };
+        for (k, ((p, _), body)) in present.iter().zip(&bodies).enumerate() {
+            let (lo, hi) = body.bounds;
+            let body_box = image_box(&mut (0..8).map(|k| {
+                Vector3::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                )
+            }));
+            let shadow_box = shadows.get(k).and_then(|sh| {
+                let z = present[k].1.foot.z;
+                let (a, b) = (
+                    sh.axis * sh.semi_major,
+                    Vector2::new(-sh.axis.y, sh.axis.x) * sh.semi_minor,
+                );
+                image_box(
+                    &mut [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
+                        .into_iter()
+                        .map(|(i, j)| {
+                            let q = sh.centre + a * i + b * j;
+                            Vector3::new(q.x, q.y, z)
+                        }),
+                )
+            });
+            for (kind, bx) in [("body", body_box), ("shadow", shadow_box)] {
+                if let Some(bx) = bx {
+                    let _ = writeln!(
+                        boxes_csv,
+                        "{i},{},{kind},{:.2},{:.2},{:.2},{:.2}",
+                        p.id, bx[0], bx[1], bx[2], bx[3]
+                    );
+                }
+            }
+        }
         for (p, ps) in &present {
             let Some(uv) = pose.project(camera, &ps.head_top) else {
                 continue;
@@ -290,6 +347,7 @@ pub fn simulate(
     let truth = out.join("truth");
     write_file(&truth.join("camera.csv"), &cam_csv)?;
     write_file(&truth.join("heads.csv"), &heads_csv)?;
+    write_file(&truth.join("boxes.csv"), &boxes_csv)?;
     let mut people_csv = String::from("person,height_m,speed_m_s,gait,start_s,hat\n");
     for p in &people {
         let gait = match p.gait {
@@ -310,6 +368,7 @@ pub fn simulate(
     files.extend([
         truth.join("camera.csv"),
         truth.join("heads.csv"),
+        truth.join("boxes.csv"),
         truth.join("people.csv"),
     ]);
 

@@ -173,9 +173,96 @@ pub struct DetectSection {
     pub centroid_sigma_px: f64,
     #[serde(default)]
     pub seed: u64,
+    // `boxes`: an external detector's boxes.
+    /// The box file (MOTChallenge txt, JSON Lines or COCO JSON).
+    pub boxes: Option<String>,
+    /// `mot`, `jsonl` or `coco`; guessed from the file when absent.
+    pub boxes_format: Option<String>,
+    #[serde(default = "DetectSection::default_min_score")]
+    pub min_score: f64,
+    /// Boxes are kept where their centre is inside `[x0, y0, x1, y1]`, pixels.
+    pub roi: Option<[f64; 4]>,
+    #[serde(default = "DetectSection::default_nms")]
+    pub nms_iou: f64,
+    #[serde(default = "DetectSection::default_merge")]
+    pub merge_iou: f64,
+    #[serde(default = "DetectSection::default_aspect")]
+    pub aspect: [f64; 2],
+    /// Limits on a box's longer side, metres at head height.
+    #[serde(default = "DetectSection::default_size")]
+    pub size_m: [f64; 2],
+    /// One person's length along a box, metres: boxes of two or more such lengths are split
+    /// (off unless given: seen obliquely, one person's box is long too).
+    pub person_m: Option<f64>,
+    /// Shadow samples `[frame, x, y, w, h]`, pixels: boxes mostly of that colour are dropped.
+    #[serde(default)]
+    pub shadow_samples: Vec<[f64; 5]>,
+    #[serde(default = "DetectSection::default_shadow_fraction")]
+    pub max_shadow_fraction: f64,
+    /// A body's radius seen from above, metres: the head is this far in from the box's end.
+    #[serde(default = "DetectSection::default_body_radius")]
+    pub body_radius_m: f64,
+    /// Detection error `[vertical, horizontal at the centre, horizontal at the left and right
+    /// edges]`, px² (the paper's section 4.1.3), for `boxes` and `background`.
+    #[serde(default = "DetectSection::default_error")]
+    pub error_px2: [f64; 3],
+    // `background`: background subtraction for a stationary camera.
+    /// `mog2` or `knn`.
+    #[serde(default = "DetectSection::default_method")]
+    pub method: String,
+    #[serde(default = "DetectSection::default_history")]
+    pub history: i32,
+    #[serde(default = "DetectSection::default_warmup")]
+    pub warmup_frames: usize,
+    #[serde(default = "DetectSection::default_min_area")]
+    pub min_area_m2: f64,
+    #[serde(default = "DetectSection::default_max_area")]
+    pub max_area_m2: f64,
 }
 
 impl DetectSection {
+    fn default_min_score() -> f64 {
+        0.3
+    }
+    fn default_nms() -> f64 {
+        0.5
+    }
+    fn default_merge() -> f64 {
+        0.85
+    }
+    fn default_aspect() -> [f64; 2] {
+        [0.25, 4.0]
+    }
+    fn default_size() -> [f64; 2] {
+        // Seen obliquely, a whole body's box is long: up to about 2.5 m at a 4K frame's edge.
+        [0.25, 3.0]
+    }
+    fn default_shadow_fraction() -> f64 {
+        0.6
+    }
+    fn default_body_radius() -> f64 {
+        // Half a runner's length along the box (swinging arms and legs), from the simulator's
+        // bodies: 0.3 m left the head 0.25 m too far out at the image's sides.
+        0.55
+    }
+    fn default_error() -> [f64; 3] {
+        [10.0, 10.0, 20.0]
+    }
+    fn default_method() -> String {
+        "mog2".into()
+    }
+    fn default_history() -> i32 {
+        300
+    }
+    fn default_warmup() -> usize {
+        25
+    }
+    fn default_min_area() -> f64 {
+        0.08
+    }
+    fn default_max_area() -> f64 {
+        4.0
+    }
     fn default_kind() -> String {
         "colour".into()
     }
@@ -222,6 +309,19 @@ pub struct TrackSection {
     /// Tracks shorter than this are dropped, seconds.
     #[serde(default = "TrackSection::default_min")]
     pub min_length_s: f64,
+    // `klt`: feature tracking.
+    /// Lucas–Kanade window side, full-resolution pixels.
+    #[serde(default = "TrackSection::default_window")]
+    pub window_px: f64,
+    #[serde(default = "TrackSection::default_levels")]
+    pub levels: i32,
+    #[serde(default = "TrackSection::default_min_features")]
+    pub min_features: usize,
+    #[serde(default = "TrackSection::default_max_features")]
+    pub max_features: usize,
+    /// Tracks with fewer detections than this are dropped.
+    #[serde(default = "TrackSection::default_min_hits")]
+    pub min_hits: usize,
 }
 
 impl TrackSection {
@@ -239,6 +339,21 @@ impl TrackSection {
     }
     fn default_min() -> f64 {
         0.5
+    }
+    fn default_window() -> f64 {
+        50.0
+    }
+    fn default_levels() -> i32 {
+        3
+    }
+    fn default_min_features() -> usize {
+        5
+    }
+    fn default_max_features() -> usize {
+        40
+    }
+    fn default_min_hits() -> usize {
+        5
     }
 }
 
@@ -501,7 +616,46 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         GroundSection::Plane { .. } => {}
     }
     if !super::registry::DETECTORS.contains(&p.detect.kind.as_str()) {
-        return Err(l.error("detect", "kind", format!("expected 'colour', got '{}' (external boxes and background subtraction come with the next detectors)", p.detect.kind)));
+        return Err(l.error(
+            "detect",
+            "kind",
+            format!(
+                "expected one of {:?}, got '{}'",
+                super::registry::DETECTORS,
+                p.detect.kind
+            ),
+        ));
+    }
+    if p.detect.kind == "boxes" {
+        match &p.detect.boxes {
+            Some(b) => exists("detect", "boxes", b)?,
+            None => {
+                return Err(l.error(
+                    "detect",
+                    "boxes",
+                    "the 'boxes' detector needs a box file: boxes = \"detections.txt\"",
+                ));
+            }
+        }
+    }
+    if let Some(f) = &p.detect.boxes_format
+        && crate::detect::boxes::BoxFormat::parse(f).is_none()
+    {
+        return Err(l.error(
+            "detect",
+            "boxes_format",
+            "expected 'mot', 'jsonl' or 'coco'",
+        ));
+    }
+    if !["mog2", "knn"].contains(&p.detect.method.as_str()) {
+        return Err(l.error("detect", "method", "expected 'mog2' or 'knn'"));
+    }
+    if p.detect.error_px2.iter().any(|v| !(*v > 0.0)) {
+        return Err(l.error(
+            "detect",
+            "error_px2",
+            "expected three positive variances, px²",
+        ));
     }
     if !(2..=64).contains(&p.detect.clusters) {
         return Err(l.error("detect", "clusters", "expected 2 to 64"));
@@ -516,7 +670,11 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         return Err(l.error(
             "track",
             "kind",
-            format!("expected 'association', got '{}'", p.track.kind),
+            format!(
+                "expected one of {:?}, got '{}'",
+                super::registry::TRACKERS,
+                p.track.kind
+            ),
         ));
     }
     if !(p.track.gate_m > 0.0) || p.track.confirm_frames == 0 || !(p.track.max_gap_s >= 0.0) {
@@ -524,6 +682,20 @@ fn check(l: &Loaded) -> Result<(), FileError> {
             "track",
             "gate_m",
             "gate_m must be positive, confirm_frames at least 1, max_gap_s not negative",
+        ));
+    }
+    if !(p.track.window_px >= 5.0) || !(0..=6).contains(&p.track.levels) {
+        return Err(l.error(
+            "track",
+            "window_px",
+            "window_px must be at least 5 and levels 0 to 6",
+        ));
+    }
+    if p.track.min_features == 0 || p.track.max_features < p.track.min_features {
+        return Err(l.error(
+            "track",
+            "min_features",
+            "min_features must be at least 1 and no more than max_features",
         ));
     }
     let height_ok = p.projection.head_height_m > 0.0 && p.projection.head_height_m < 3.0;

@@ -8,9 +8,9 @@ use crate::track::Tracker;
 use crate::track::association::{AssociationSettings, AssociationTracker};
 
 /// The detectors, by name.
-pub const DETECTORS: [&str; 1] = ["colour"];
+pub const DETECTORS: [&str; 3] = ["colour", "boxes", "background"];
 /// The trackers, by name.
-pub const TRACKERS: [&str; 1] = ["association"];
+pub const TRACKERS: [&str; 2] = ["association", "klt"];
 /// The smoothers, by name.
 pub const SMOOTHERS: [&str; 2] = ["kalman_rts", "none"];
 

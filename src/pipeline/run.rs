@@ -576,8 +576,12 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 centroid_sigma_px: p.detect.centroid_sigma_px,
                 ..ColourSettings::default()
             };
-            let detector =
-                super::registry::colour_detector(cs, frames_total, p.detect.sample_frames);
+            let detector = match p.detect.kind.as_str() {
+                "colour" => {
+                    super::registry::colour_detector(cs, frames_total, p.detect.sample_frames)
+                }
+                _ => body_detector(l, &video, &camera, &first_pose, px_per_m)?,
+            };
             let stabilise = StabiliseSettings {
                 min_features: p.pose.min_features,
                 min_fraction: p.pose.key_fraction,
@@ -748,37 +752,41 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     let (tracks, status) = match cache.load::<Vec<ImageTrack>>("track", &track_key) {
         Some(d) => (d, "reused"),
         None => {
-            let settings = AssociationSettings {
-                gate_px: p.track.gate_m * px_per_m,
-                confirm_hits: p.track.confirm_frames,
-                max_misses: (p.track.max_gap_s * fps).round() as usize,
-                duplicate_px: p.detect.hat_diameter_m * px_per_m,
-                ..AssociationSettings::default()
+            // Camera motion: where a head-height point of the previous frame is now.
+            let motion_at = |f: usize, uv: &Vector2<f64>| -> Vector2<f64> {
+                if f == 0 {
+                    return *uv;
+                }
+                crate::projection::intersect(&camera, &poses[f - 1], surface.as_ref(), head, uv)
+                    .and_then(|x| camera.project(&poses[f].apply(&x)).ok())
+                    .unwrap_or(*uv)
             };
-            let mut tracker =
-                super::registry::tracker(&p.track.kind, settings).ok_or_else(|| {
-                    RunError::Input(l.error("track", "kind", "unknown tracker").to_string())
-                })?;
             let bar = progress.stage("track");
             bar.set_length(scan_data.detections.len() as u64);
-            for (f, dets) in scan_data.detections.iter().enumerate() {
-                // Camera motion: where a head-height point of the previous frame is now.
-                let motion = |uv: &Vector2<f64>| -> Vector2<f64> {
-                    if f == 0 {
-                        return *uv;
-                    }
-                    crate::projection::intersect(&camera, &poses[f - 1], surface.as_ref(), head, uv)
-                        .and_then(|x| camera.project(&poses[f].apply(&x)).ok())
-                        .unwrap_or(*uv)
+            let tracks = if p.track.kind == "klt" {
+                klt_tracks(l, &video, &scan_data, px_per_m, &motion_at, bar.as_ref())?
+            } else {
+                let settings = AssociationSettings {
+                    gate_px: p.track.gate_m * px_per_m,
+                    confirm_hits: p.track.confirm_frames,
+                    max_misses: (p.track.max_gap_s * fps).round() as usize,
+                    duplicate_px: p.detect.hat_diameter_m * px_per_m,
+                    ..AssociationSettings::default()
                 };
-                tracker.update(f, dets, &motion);
-                bar.inc(1);
-            }
+                let mut tracker =
+                    super::registry::tracker(&p.track.kind, settings).ok_or_else(|| {
+                        RunError::Input(l.error("track", "kind", "unknown tracker").to_string())
+                    })?;
+                for (f, dets) in scan_data.detections.iter().enumerate() {
+                    tracker.update(f, dets, &|uv: &Vector2<f64>| motion_at(f, uv));
+                    bar.inc(1);
+                }
+                tracker.finish()
+            };
             // Short tracks are mostly false alarms, unless the video's start or end cut them.
             let min_frames = (p.track.min_length_s * fps).round() as usize;
             let last = scan_data.detections.len().saturating_sub(1);
-            let tracks: Vec<ImageTrack> = tracker
-                .finish()
+            let tracks: Vec<ImageTrack> = tracks
                 .into_iter()
                 .filter(|t| {
                     let (a, b) = (
@@ -1177,6 +1185,178 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
 }
 
 /// Known heights: `id,height_m[,sd_m]` (a header line is optional).
+/// A whole-body detector (`boxes` or `background`), its boxes turned into heads.
+fn body_detector(
+    l: &Loaded,
+    video: &Path,
+    camera: &Camera,
+    first_pose: &RigidPose,
+    px_per_m: f64,
+) -> Result<Box<dyn crate::detect::Detector>, RunError> {
+    use crate::detect::ErrorModel;
+    use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
+    use crate::detect::person::{BoxesDetector, HeadsFromBodies};
+    use opencv::prelude::*;
+    let d = &l.project.detect;
+    let input = |key: &str, e: String| RunError::Input(l.error("detect", key, e).to_string());
+    let inner: Box<dyn crate::detect::Detector> = if d.kind == "boxes" {
+        let path = l.resolve(d.boxes.as_deref().unwrap_or_default());
+        let format = d.boxes_format.as_deref().and_then(BoxFormat::parse);
+        let boxes = read_boxes(&path, format).map_err(|e| RunError::Input(e.to_string()))?;
+        let shadow = if d.shadow_samples.is_empty() {
+            None
+        } else {
+            let mut frames = Vec::new();
+            for s in &d.shadow_samples {
+                let bgr = crate::video::source::FrameReader::frame_bgr(video, s[0] as usize)
+                    .map_err(|e| input("shadow_samples", e))?;
+                frames.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v.max(0.0) as usize)));
+            }
+            let bytes: Vec<&[u8]> = frames
+                .iter()
+                .map(|(m, _)| m.data_bytes())
+                .collect::<Result<_, _>>()
+                .map_err(|e| RunError::Failed(e.to_string()))?;
+            let views: Vec<(crate::detect::FrameView, [usize; 4])> = frames
+                .iter()
+                .zip(&bytes)
+                .map(|((m, r), b)| {
+                    (
+                        crate::detect::FrameView {
+                            index: 0,
+                            width: m.cols() as usize,
+                            height: m.rows() as usize,
+                            bgr: b,
+                        },
+                        *r,
+                    )
+                })
+                .collect();
+            Some(ShadowModel::from_patches(&views).map_err(|e| input("shadow_samples", e))?)
+        };
+        let filter = BoxFilter {
+            min_score: d.min_score,
+            roi: d.roi,
+            merge_iou: d.merge_iou,
+            nms_iou: d.nms_iou,
+            aspect: d.aspect,
+            size_m: d.size_m,
+            person_m: d.person_m.unwrap_or(1.0),
+            max_split: if d.person_m.is_some() { 4 } else { 1 },
+            shadow,
+            max_shadow_fraction: d.max_shadow_fraction,
+            ..BoxFilter::new(px_per_m)
+        };
+        Box::new(BoxesDetector::new(boxes, filter).map_err(|e| input("boxes", e))?)
+    } else {
+        use crate::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
+        let settings = BackgroundSettings {
+            method: if d.method == "knn" {
+                Subtractor::Knn
+            } else {
+                Subtractor::Mog2
+            },
+            history: d.history,
+            px_per_m,
+            min_area_m2: d.min_area_m2,
+            max_area_m2: d.max_area_m2,
+            warmup_frames: d.warmup_frames,
+            ..BackgroundSettings::default()
+        };
+        Box::new(BackgroundDetector::new(settings).map_err(|e| input("method", e))?)
+    };
+    // Where vertical lines meet: the image of a point straight below the camera.
+    let below = first_pose.centre() - nalgebra::Vector3::new(0.0, 0.0, 100.0);
+    let nadir = camera
+        .project(&first_pose.apply(&below))
+        .unwrap_or_else(|_| Vector2::new(camera.cx, camera.cy));
+    let [v, hc, he] = d.error_px2;
+    Ok(Box::new(HeadsFromBodies::new(
+        inner,
+        nadir,
+        d.body_radius_m * px_per_m,
+        ErrorModel {
+            vertical_px2: v,
+            horizontal_centre_px2: hc,
+            horizontal_edge_px2: he,
+        },
+    )))
+}
+
+/// The `klt` tracker: a second decoding pass, features followed through every frame with the
+/// scan's detections and the solved poses.
+fn klt_tracks(
+    l: &Loaded,
+    video: &Path,
+    scan: &ScanData,
+    px_per_m: f64,
+    motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
+    bar: &dyn crate::progress::Progress,
+) -> Result<Vec<ImageTrack>, RunError> {
+    use crate::track::klt::{KltTrackSettings, KltTracker};
+    use crate::video::klt::{Klt, KltSettings};
+    let p = &l.project;
+    let fps = scan.fps;
+    let base = KltSettings::default();
+    let factor = (f64::from(scan.width) / f64::from(base.max_width))
+        .ceil()
+        .max(1.0);
+    // An odd window in the working copy's pixels.
+    // No wider than a person (0.6 m): a window mostly of ground follows the ground.
+    let window_px = p.track.window_px.min(0.6 * px_per_m);
+    let window = (((window_px / factor).round() as i32).max(5)) | 1;
+    let klt = Klt::new(KltSettings {
+        window,
+        levels: p.track.levels,
+        fast_levels: p.track.levels,
+        quality: 0.01,
+        min_distance: 2.0,
+        ..base
+    });
+    let settings = KltTrackSettings {
+        gate_px: p.track.gate_m * px_per_m,
+        person_px: p.detect.person_m.unwrap_or(0.7) * px_per_m,
+        cluster_px: 0.25 * px_per_m,
+        min_features: p.track.min_features,
+        max_features: p.track.max_features,
+        max_gap: (p.track.max_gap_s * fps).round() as usize,
+        min_hits: p.track.min_hits,
+        ..KltTrackSettings::default()
+    };
+    let frames = Klt::new(klt.settings.clone());
+    let mut tracker = KltTracker::new(
+        settings,
+        klt,
+        (f64::from(scan.width), f64::from(scan.height)),
+    );
+    let mut reader = crate::video::source::FrameReader::open(video).map_err(RunError::Failed)?;
+    let mut bgr = opencv::core::Mat::default();
+    let mut gray = opencv::core::Mat::default();
+    for (f, dets) in scan.detections.iter().enumerate() {
+        if reader
+            .read_bgr_into(&mut bgr)
+            .map_err(|e| RunError::Failed(format!("{}: frame {f}: {e}", video.display())))?
+            .is_none()
+        {
+            return Err(RunError::Failed(format!(
+                "{}: ended at frame {f}, before the {} frames scanned",
+                video.display(),
+                scan.frames
+            )));
+        }
+        opencv::imgproc::cvt_color_def(&bgr, &mut gray, opencv::imgproc::COLOR_BGR2GRAY)
+            .map_err(|e| RunError::Failed(e.to_string()))?;
+        let frame = frames
+            .frame(f, std::mem::take(&mut gray))
+            .map_err(RunError::Failed)?;
+        tracker
+            .update(f, frame, dets, &|uv: &Vector2<f64>| motion_at(f, uv))
+            .map_err(|e| RunError::Failed(format!("frame {f}: {e}")))?;
+        bar.inc(1);
+    }
+    Ok(tracker.finish())
+}
+
 fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, String> {
     let ctx = crate::io::FileCtx { path };
     let text = ctx

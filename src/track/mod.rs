@@ -2,6 +2,7 @@
 //! identities. `association` is the paper's blob association (section 3.2.1), made global.
 
 pub mod association;
+pub mod klt;
 
 use nalgebra::{Matrix2, Vector2};
 

@@ -341,6 +341,23 @@ fn demo_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, Pat
     Ok((scene, scene_path, dir))
 }
 
+/// Simulates the demo's scene into `dir` (`--duration` shortens it); the demo needs its video.
+fn simulate_scene(
+    args: &Args,
+    scene_path: &Path,
+    dir: &Path,
+) -> anyhow::Result<crate::simulate::run::Summary> {
+    let overrides = Overrides {
+        duration_s: args.duration,
+        ..Overrides::default()
+    };
+    let sim = super::simulate::run_scene(scene_path, dir, &overrides, args.quiet)?;
+    if sim.video.is_none() {
+        bail!("the demo needs the scene's video; OpenCV could not write one here");
+    }
+    Ok(sim)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.crowd {
         return run_crowd(args);
@@ -357,11 +374,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         scene_path.display(),
         dir.display()
     );
-    let overrides = Overrides {
-        duration_s: args.duration,
-        ..Overrides::default()
-    };
-    let sim = super::simulate::run_scene(&scene_path, &dir, &overrides, args.quiet)?;
+    let sim = simulate_scene(&args, &scene_path, &dir)?;
     say!(
         json,
         "   {} frames of {}x{}, {} people ({} seen), video {}",
@@ -374,9 +387,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .as_ref()
             .map_or("none".into(), |v| v.display().to_string())
     );
-    if sim.video.is_none() {
-        bail!("the demo needs the scene's video; OpenCV could not write one here");
-    }
 
     // 2. Calibrate from the simulated checkerboards, and check against the true camera.
     say!(
@@ -716,14 +726,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         scene_path.display(),
         dir.display()
     );
-    let overrides = Overrides {
-        duration_s: args.duration,
-        ..Overrides::default()
-    };
-    let sim = super::simulate::run_scene(&scene_path, &dir, &overrides, args.quiet)?;
-    if sim.video.is_none() {
-        bail!("the demo needs the scene's video; OpenCV could not write one here");
-    }
+    let sim = simulate_scene(&args, &scene_path, &dir)?;
     let truth_boxes = read_truth_boxes(&dir.join("truth/boxes.csv")).map_err(|e| anyhow!(e))?;
     let detector = SimulatedDetector {
         seed: scene.seed,

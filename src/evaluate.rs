@@ -63,6 +63,30 @@ fn by_frame(samples: &[Sample]) -> BTreeMap<usize, Vec<Sample>> {
     m
 }
 
+/// Moves the people seen in fewer than `min_frames` frames of `truth` into `ignored`: someone
+/// crossing a corner of the image, or cut off by the video's start or end, for less time than
+/// the shortest track kept counts neither way. Returns how many people were moved.
+pub fn ignore_brief(
+    truth: &mut Vec<Sample>,
+    ignored: &mut Vec<Sample>,
+    min_frames: usize,
+) -> usize {
+    let mut frames: HashMap<usize, usize> = HashMap::new();
+    for s in truth.iter() {
+        *frames.entry(s.id).or_default() += 1;
+    }
+    let brief: std::collections::HashSet<usize> = frames
+        .into_iter()
+        .filter(|&(_, n)| n < min_frames)
+        .map(|(id, _)| id)
+        .collect();
+    let (moved, kept): (Vec<Sample>, Vec<Sample>) =
+        truth.drain(..).partition(|s| brief.contains(&s.id));
+    *truth = kept;
+    ignored.extend(moved);
+    brief.len()
+}
+
 /// Evaluates `estimated` against `truth` with a match threshold in metres. Estimates within the
 /// threshold of an `ignored` truth position (someone the truth does not count in that frame: a
 /// head just outside the image, say) count neither way.
@@ -333,5 +357,20 @@ mod tests {
         // The ghost sits where the truth says someone is but does not count: ignored.
         let e = evaluate(&truth, &est, &[s(40, 9, 9.05, 9.0)], 0.2);
         assert_eq!(e.false_positives, 0);
+    }
+
+    #[test]
+    fn people_seen_briefly_count_neither_way() {
+        let mut truth: Vec<Sample> = (0..30).map(|f| s(f, 0, f as f64 * 0.1, 0.0)).collect();
+        truth.extend((0..4).map(|f| s(f, 1, 5.0, f as f64 * 0.1)));
+        let mut ignored = vec![s(0, 7, 1.0, 1.0)];
+        assert_eq!(ignore_brief(&mut truth, &mut ignored, 5), 1);
+        assert_eq!(truth.len(), 30);
+        assert!(truth.iter().all(|t| t.id == 0));
+        assert_eq!(ignored.len(), 5);
+        // An estimate of the brief person is no false alarm, and they are no miss.
+        let est: Vec<Sample> = (0..4).map(|f| s(f, 9, 5.0, f as f64 * 0.1)).collect();
+        let e = evaluate(&truth, &est, &ignored, 0.2);
+        assert_eq!((e.false_positives, e.misses, e.truth_tracks), (0, 30, 1));
     }
 }

@@ -6,7 +6,7 @@ use anyhow::anyhow;
 use nalgebra::Vector2;
 
 use super::bad_input;
-use crate::evaluate::{Sample, evaluate};
+use crate::evaluate::{Sample, evaluate, ignore_brief};
 use crate::io::FileCtx;
 
 #[derive(clap::Args)]
@@ -27,6 +27,11 @@ pub struct Args {
     /// Estimate columns: frame, id, x, y
     #[arg(long, default_value = "frame,id,e_m,n_m", value_name = "F,ID,X,Y")]
     tracks_columns: String,
+    /// People in view in fewer frames than this count neither way (someone crossing a corner
+    /// of the image, or cut off by the video's start or end, for less than the shortest track
+    /// the pipeline keeps)
+    #[arg(long, default_value = "1", value_name = "N")]
+    min_frames: usize,
     /// Print JSON instead of the table
     #[arg(long)]
     json: bool,
@@ -91,12 +96,15 @@ fn read_samples(
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let (truth, ignored) =
+    let (mut truth, mut ignored) =
         read_samples(&args.truth, &args.truth_columns, "a CSV of truth positions")?;
+    let brief = ignore_brief(&mut truth, &mut ignored, args.min_frames);
     let (est, _) = read_samples(&args.tracks, &args.tracks_columns, "a CSV of trajectories")?;
     let e = evaluate(&truth, &est, &ignored, args.threshold);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&e)?);
+        let mut v = serde_json::to_value(&e)?;
+        v["brief_people_not_counted"] = brief.into();
+        println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
     println!(
@@ -106,6 +114,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         e.truth_tracks,
         e.threshold_m
     );
+    if brief > 0 {
+        println!(
+            "  ({brief} people in view in fewer than {} frames not counted)",
+            args.min_frames
+        );
+    }
     println!(
         "  position error   RMSE {:.4} m, mean {:.4} m, 95th percentile {:.4} m, largest {:.4} m ({} matches)",
         e.rmse_m, e.mean_error_m, e.p95_error_m, e.max_error_m, e.matches

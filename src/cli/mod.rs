@@ -10,6 +10,7 @@ mod pose_video;
 mod run;
 mod simulate;
 pub(crate) mod survey;
+mod track;
 
 use std::path::{Path, PathBuf};
 
@@ -67,6 +68,9 @@ enum Command {
     Pose(pose::Args),
     /// Run a project: from a video to geolocated trajectories with their accuracy
     Run(run::Args),
+    /// Track people in the image only (a fixed camera, no survey): background subtraction or
+    /// an external detector's boxes, then KLT
+    Track(track::Args),
     /// Plan a flight: footprint, ground sample distance and error maps for a camera and altitude
     Plan(plan::Args),
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
@@ -82,6 +86,7 @@ impl Cli {
             Command::Demo(args) => demo::run(args),
             Command::Evaluate(args) => evaluate::run(args),
             Command::Run(args) => run::run(args),
+            Command::Track(args) => track::run(args),
             Command::Survey(cmd) => survey::run(cmd),
             Command::Plan(args) => plan::run(args),
             Command::Pose(args) => pose::run(args),

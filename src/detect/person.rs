@@ -84,8 +84,11 @@ pub struct HeadsFromBodies {
     pub nadir: Vector2<f64>,
     pub body_radius_px: f64,
     pub error: ErrorModel,
-    /// The frames' width, pixels (from the first frame).
+    /// The frames' size, pixels (from the first frame).
     pub width: f64,
+    pub height: f64,
+    /// Boxes dropped because the image border cuts them on the head's side.
+    pub head_cut: usize,
 }
 
 impl HeadsFromBodies {
@@ -101,37 +104,137 @@ impl HeadsFromBodies {
             body_radius_px,
             error,
             width: 0.0,
+            height: 0.0,
+            head_cut: 0,
         }
     }
 
-    fn heads(&self, width: f64, done: Vec<FrameDetections>) -> Vec<FrameDetections> {
-        done.into_iter()
-            .map(|(i, dets)| {
-                let dets = dets
-                    .into_iter()
-                    .map(|mut d| {
-                        d.uv = head_from_box(&d.bbox, &self.nadir, self.body_radius_px);
-                        d.cov = self.error.cov(&d.uv, width);
-                        d
-                    })
-                    .collect();
-                (i, dets)
-            })
-            .collect()
+    /// Whether the image border cuts the box on the side away from the nadir, where the head
+    /// is: then the head is (partly) outside and the box says nothing of where it is.
+    fn head_cut_off(&self, bbox: &[f64; 4]) -> bool {
+        let c = Vector2::new(bbox[0] + bbox[2] / 2.0, bbox[1] + bbox[3] / 2.0);
+        let Some(d) = (c - self.nadir).try_normalize(1e-9) else {
+            return false;
+        };
+        // A detector's edges are a few pixels off: within a quarter body radius is touching.
+        let touches = (0.25 * self.body_radius_px).max(1.0);
+        (d.x < -0.2 && bbox[0] <= touches)
+            || (d.y < -0.2 && bbox[1] <= touches)
+            || (d.x > 0.2 && bbox[0] + bbox[2] >= self.width - touches)
+            || (d.y > 0.2 && bbox[1] + bbox[3] >= self.height - touches)
+    }
+
+    fn heads(&mut self, done: Vec<FrameDetections>) -> Vec<FrameDetections> {
+        let mut out = Vec::with_capacity(done.len());
+        for (i, dets) in done {
+            let mut heads = Vec::with_capacity(dets.len());
+            for mut d in dets {
+                if self.head_cut_off(&d.bbox) {
+                    self.head_cut += 1;
+                    continue;
+                }
+                d.uv = head_from_box(&d.bbox, &self.nadir, self.body_radius_px);
+                d.cov = self.error.cov(&d.uv, self.width);
+                heads.push(d);
+            }
+            out.push((i, heads));
+        }
+        out
     }
 }
 
 impl Detector for HeadsFromBodies {
     fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String> {
         self.width = frame.width as f64;
+        self.height = frame.height as f64;
         let done = self.inner.push(frame)?;
-        Ok(self.heads(self.width, done))
+        Ok(self.heads(done))
     }
     fn finish(&mut self) -> Result<Vec<FrameDetections>, String> {
         let done = self.inner.finish()?;
-        Ok(self.heads(self.width, done))
+        Ok(self.heads(done))
     }
     fn summary(&self) -> Vec<(String, f64)> {
-        self.inner.summary()
+        let mut s = self.inner.summary();
+        s.push(("boxes_head_cut".into(), self.head_cut as f64));
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Fixed(Vec<[f64; 4]>);
+
+    impl Detector for Fixed {
+        fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String> {
+            let dets = self
+                .0
+                .iter()
+                .map(|b| Detection {
+                    uv: Vector2::zeros(),
+                    cov: nalgebra::Matrix2::identity(),
+                    bbox: *b,
+                    area_px: b[2] * b[3],
+                    score: 1.0,
+                })
+                .collect();
+            Ok(vec![(frame.index, dets)])
+        }
+    }
+
+    fn heads(nadir: Vector2<f64>, boxes: Vec<[f64; 4]>) -> (Vec<Detection>, usize) {
+        let mut d =
+            HeadsFromBodies::new(Box::new(Fixed(boxes)), nadir, 20.0, ErrorModel::default());
+        let bgr = vec![0u8; 640 * 360 * 3];
+        let view = FrameView {
+            index: 0,
+            width: 640,
+            height: 360,
+            bgr: &bgr,
+        };
+        let mut out = d.push(&view).unwrap();
+        let cut = d
+            .summary()
+            .iter()
+            .find(|(k, _)| k == "boxes_head_cut")
+            .map_or(usize::MAX, |(_, v)| *v as usize);
+        (out.remove(0).1, cut)
+    }
+
+    #[test]
+    fn boxes_cut_by_the_border_on_the_heads_side_are_dropped() {
+        // Nadir at the centre of a 640 × 360 image; body radius 20 px (5 px tolerance).
+        let (kept, cut) = heads(
+            Vector2::new(320.0, 180.0),
+            vec![
+                // Entering on the left: the head (away from the nadir) is still outside.
+                [0.0, 160.0, 60.0, 30.0],
+                // Leaving on the right, 2 px from the border: the head is going out.
+                [600.0, 160.0, 38.0, 30.0],
+                // Above the nadir, touching the top: the head's side.
+                [300.0, 0.0, 40.0, 100.0],
+                // Wholly inside, 10 px from the left border.
+                [10.0, 160.0, 60.0, 30.0],
+            ],
+        );
+        assert_eq!(cut, 3);
+        assert_eq!(kept.len(), 1);
+        // Its head lies at its left end, one radius in.
+        assert!(
+            (kept[0].uv - Vector2::new(30.0, 175.0)).norm() < 1.0,
+            "{}",
+            kept[0].uv
+        );
+        // With the nadir left of the image, the left border cuts the feet's side: kept, the
+        // head at the right end.
+        let (kept, cut) = heads(Vector2::new(-100.0, 175.0), vec![[0.0, 160.0, 60.0, 30.0]]);
+        assert_eq!((kept.len(), cut), (1, 0));
+        assert!(
+            (kept[0].uv - Vector2::new(40.0, 175.0)).norm() < 1e-9,
+            "{}",
+            kept[0].uv
+        );
     }
 }

@@ -1,5 +1,6 @@
 //! The whole job, from video to trajectories (orchestration over the stages; adapters for I/O).
 
+pub mod klt_pass;
 pub mod pose_outputs;
 pub mod project;
 pub mod registry;

@@ -16,6 +16,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use super::klt_pass::KltPass;
 use super::pose_outputs::{PoseRun, write_pose_outputs};
 use super::project::{GroundSection, Loaded};
 use super::scan::{ScanError, ScanJob, ScanTimes, scan};
@@ -764,7 +765,20 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
             let bar = progress.stage("track");
             bar.set_length(scan_data.detections.len() as u64);
             let tracks = if p.track.kind == "klt" {
-                klt_tracks(l, &video, &scan_data, px_per_m, &motion_at, bar.as_ref())?
+                super::klt_pass::klt_over_video(
+                    &KltPass {
+                        video: &video,
+                        detections: &scan_data.detections,
+                        size: (scan_data.width, scan_data.height),
+                        fps: scan_data.fps,
+                        track: &p.track,
+                        person_m: p.detect.person_m,
+                        px_per_m,
+                    },
+                    &motion_at,
+                    bar.as_ref(),
+                )
+                .map_err(RunError::Failed)?
             } else {
                 let settings = AssociationSettings {
                     gate_px: p.track.gate_m * px_per_m,
@@ -1285,78 +1299,6 @@ fn body_detector(
 
 /// The `klt` tracker: a second decoding pass, features followed through every frame with the
 /// scan's detections and the solved poses.
-fn klt_tracks(
-    l: &Loaded,
-    video: &Path,
-    scan: &ScanData,
-    px_per_m: f64,
-    motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
-    bar: &dyn crate::progress::Progress,
-) -> Result<Vec<ImageTrack>, RunError> {
-    use crate::track::klt::{KltTrackSettings, KltTracker};
-    use crate::video::klt::{Klt, KltSettings};
-    let p = &l.project;
-    let fps = scan.fps;
-    let base = KltSettings::default();
-    let factor = (f64::from(scan.width) / f64::from(base.max_width))
-        .ceil()
-        .max(1.0);
-    // An odd window in the working copy's pixels.
-    // No wider than a person (0.6 m): a window mostly of ground follows the ground.
-    let window_px = p.track.window_px.min(0.6 * px_per_m);
-    let window = (((window_px / factor).round() as i32).max(5)) | 1;
-    let klt = Klt::new(KltSettings {
-        window,
-        levels: p.track.levels,
-        fast_levels: p.track.levels,
-        quality: 0.01,
-        min_distance: 2.0,
-        ..base
-    });
-    let settings = KltTrackSettings {
-        gate_px: p.track.gate_m * px_per_m,
-        person_px: p.detect.person_m.unwrap_or(0.7) * px_per_m,
-        cluster_px: 0.25 * px_per_m,
-        min_features: p.track.min_features,
-        max_features: p.track.max_features,
-        max_gap: (p.track.max_gap_s * fps).round() as usize,
-        min_hits: p.track.min_hits,
-        ..KltTrackSettings::default()
-    };
-    let frames = Klt::new(klt.settings.clone());
-    let mut tracker = KltTracker::new(
-        settings,
-        klt,
-        (f64::from(scan.width), f64::from(scan.height)),
-    );
-    let mut reader = crate::video::source::FrameReader::open(video).map_err(RunError::Failed)?;
-    let mut bgr = opencv::core::Mat::default();
-    let mut gray = opencv::core::Mat::default();
-    for (f, dets) in scan.detections.iter().enumerate() {
-        if reader
-            .read_bgr_into(&mut bgr)
-            .map_err(|e| RunError::Failed(format!("{}: frame {f}: {e}", video.display())))?
-            .is_none()
-        {
-            return Err(RunError::Failed(format!(
-                "{}: ended at frame {f}, before the {} frames scanned",
-                video.display(),
-                scan.frames
-            )));
-        }
-        opencv::imgproc::cvt_color_def(&bgr, &mut gray, opencv::imgproc::COLOR_BGR2GRAY)
-            .map_err(|e| RunError::Failed(e.to_string()))?;
-        let frame = frames
-            .frame(f, std::mem::take(&mut gray))
-            .map_err(RunError::Failed)?;
-        tracker
-            .update(f, frame, dets, &|uv: &Vector2<f64>| motion_at(f, uv))
-            .map_err(|e| RunError::Failed(format!("frame {f}: {e}")))?;
-        bar.inc(1);
-    }
-    Ok(tracker.finish())
-}
-
 fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, String> {
     let ctx = crate::io::FileCtx { path };
     let text = ctx

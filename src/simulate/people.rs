@@ -116,19 +116,47 @@ pub fn spawn(spec: &PeopleSpec, world: &World, duration_s: f64, seed: u64) -> Ve
             Gait::Walk => (1.8 + 0.3 * (speed - 1.4), 0.025),
             Gait::Run => (2.8 + 0.08 * (speed - 3.5), 0.045),
         };
-        let lat = lateral(&mut rng);
-        let mut lane_changes = Vec::new();
-        let mut tc = start_s;
         let per_s = spec.lane_changes_per_min / 60.0;
-        if per_s > 0.0 {
-            loop {
-                tc += -(1.0 - rng.random::<f64>()).ln() / per_s;
-                if tc >= duration_s {
-                    break;
+        // (clearance, start, lateral position, lane changes) of the widest draw so far. Where
+        // ten draws find no gap, the runner waits 0.2 s for one, as in a real stream.
+        let mut best: Option<Draw> = None;
+        for draw in 0..300 {
+            let start_s = start_s + 0.2 * (draw / 10) as f64;
+            let lat = lateral(&mut rng);
+            let mut lane_changes = Vec::new();
+            let mut tc = start_s;
+            if per_s > 0.0 {
+                loop {
+                    tc += -(1.0 - rng.random::<f64>()).ln() / per_s;
+                    if tc >= duration_s {
+                        break;
+                    }
+                    lane_changes.push((tc, lateral(&mut rng)));
                 }
-                lane_changes.push((tc, lateral(&mut rng)));
+            }
+            if group || spec.min_spacing_m <= 0.0 {
+                best = Some((f64::INFINITY, start_s, lat, lane_changes));
+                break;
+            }
+            let path = Path {
+                start_s,
+                start_along_m,
+                speed_m_s: speed,
+                lateral_m: lat,
+                lane_changes: &lane_changes,
+            };
+            let gap = people
+                .iter()
+                .map(|q: &Person| path.closest(&q.path(), duration_s, path_len))
+                .fold(f64::INFINITY, f64::min);
+            if best.as_ref().is_none_or(|b| gap > b.0) {
+                best = Some((gap, start_s, lat, lane_changes));
+            }
+            if gap >= spec.min_spacing_m {
+                break;
             }
         }
+        let (_, start_s, lat, lane_changes) = best.expect("at least one draw");
         let mut shirt = SHIRTS[rng.random_range(0..SHIRTS.len())];
         for c in &mut shirt {
             *c = (*c * rng.random_range(0.85..1.1)).clamp(0.0, 1.0);
@@ -153,6 +181,53 @@ pub fn spawn(spec: &PeopleSpec, world: &World, duration_s: f64, seed: u64) -> Ve
     people
 }
 
+/// A draw of an arrival's path: (clearance, start, lateral, lane changes), metres and seconds.
+type Draw = (f64, f64, f64, Vec<(f64, f64)>);
+
+/// Where a person runs, in the path's own frame (along, lateral), metres.
+struct Path<'a> {
+    start_s: f64,
+    start_along_m: f64,
+    speed_m_s: f64,
+    lateral_m: f64,
+    lane_changes: &'a [(f64, f64)],
+}
+
+impl Path<'_> {
+    fn at(&self, t: f64) -> (f64, f64) {
+        let mut lat = self.lateral_m;
+        for &(tc, target) in self.lane_changes {
+            if t <= tc {
+                break;
+            }
+            lat += (target - lat) * ease((t - tc) / 2.0);
+        }
+        (
+            self.start_along_m + self.speed_m_s * (t - self.start_s),
+            lat,
+        )
+    }
+
+    /// The closest two paths come while both are on it (before `end_s`, and before the end of
+    /// a path `length_m` long when it is not 0), metres; sampled every 0.05 s.
+    fn closest(&self, other: &Path, end_s: f64, length_m: f64) -> f64 {
+        let mut t = self.start_s.max(other.start_s);
+        let mut least = f64::INFINITY;
+        while t <= end_s {
+            let (a, b) = (self.at(t), other.at(t));
+            if length_m > 0.0 && (a.0 > length_m / 2.0 || b.0 > length_m / 2.0) {
+                if a.0 > length_m / 2.0 && b.0 > length_m / 2.0 {
+                    break;
+                }
+            } else {
+                least = least.min((a.0 - b.0).hypot(a.1 - b.1));
+            }
+            t += 0.05;
+        }
+        least
+    }
+}
+
 /// Smooth step over 2 s.
 fn ease(x: f64) -> f64 {
     let x = x.clamp(0.0, 1.0);
@@ -160,16 +235,19 @@ fn ease(x: f64) -> f64 {
 }
 
 impl Person {
+    fn path(&self) -> Path<'_> {
+        Path {
+            start_s: self.start_s,
+            start_along_m: self.start_along_m,
+            speed_m_s: self.speed_m_s,
+            lateral_m: self.lateral_m,
+            lane_changes: &self.lane_changes,
+        }
+    }
+
     /// Lateral position at a time, easing between lanes over 2 s.
     fn lateral_at(&self, t: f64) -> f64 {
-        let mut lat = self.lateral_m;
-        for &(tc, target) in &self.lane_changes {
-            if t <= tc {
-                break;
-            }
-            lat += (target - lat) * ease((t - tc) / 2.0);
-        }
-        lat
+        self.path().at(t).1
     }
 
     /// Where the person is at time `t`, or `None` before entering or after leaving the path.
@@ -403,6 +481,39 @@ mod tests {
         let heights: Vec<f64> = people.iter().map(|p| p.height_m).collect();
         let m = heights.iter().sum::<f64>() / heights.len() as f64;
         assert!((m - 1.7).abs() < 0.03, "{m}");
+    }
+
+    #[test]
+    fn stream_arrivals_keep_their_distance() {
+        let world = deck_world();
+        let closest = |spacing: f64| {
+            let spec = PeopleSpec {
+                rate_per_s: 1.5,
+                lane_changes_per_min: 1.0,
+                min_spacing_m: spacing,
+                ..PeopleSpec::default()
+            };
+            let people = spawn(&spec, &world, 30.0, 5);
+            // Over the horizontal positions every 0.1 s, on the deck.
+            let mut least = f64::INFINITY;
+            for k in 0..300 {
+                let t = k as f64 * 0.1;
+                let at: Vec<Vector3<f64>> = people
+                    .iter()
+                    .filter_map(|p| p.pose(&world, t))
+                    .map(|q| q.foot)
+                    .collect();
+                for i in 0..at.len() {
+                    for j in 0..i {
+                        least = least.min((at[i] - at[j]).xy().norm());
+                    }
+                }
+            }
+            least
+        };
+        // Without the rule people pass through each other; with it they keep 0.6 m.
+        assert!(closest(0.0) < 0.3, "{}", closest(0.0));
+        assert!(closest(0.6) >= 0.6 - 1e-6, "{}", closest(0.6));
     }
 
     #[test]

@@ -4,20 +4,28 @@
 //! - a detection that no track explains starts a track, with corner features inside its box
 //!   (so a person missed at the entry is picked up later, which the paper did by hand);
 //! - features move by pyramidal Lucas–Kanade with a forward–backward check, predicted by the
-//!   camera's motion (the hovering camera's per-frame pose) and the track's own velocity; the
-//!   track moves with the densest cluster of its features (legs swing, the head and shoulders
-//!   do not); fewer than `min_features` left: new features in the person's box;
-//! - detections are assigned to tracks globally (Hungarian) and fused with the feature motion
-//!   by a Kalman filter over the track's frames; at the end a Rauch–Tung–Striebel pass runs
-//!   back over them, so every point uses the whole crossing, not only the frames before it
-//!   (the paper's backward pass from the image centre);
+//!   camera's motion (the hovering camera's per-frame pose) and the track's own velocity. A
+//!   person's box holds ground too, so the track moves with one mode of its features' motion
+//!   net of the camera's (mean shift): the one that agrees with the velocity of its recent
+//!   detections and with the detections; features of the other modes are dropped, and fewer
+//!   than `min_features` left means new features in the person's box;
+//! - detections are assigned to tracks globally (Hungarian), confirmed tracks first, then the
+//!   tentative ones (fewer than three detections; they end after three frames without one);
+//!   the gate widens for a track whose features were lost; each detection is fused with the
+//!   feature motion by a Kalman filter over the track's frames, and at the end a
+//!   Rauch–Tung–Striebel pass runs back over them, so every point uses the whole crossing;
+//! - the backward pass: when a track is confirmed, the features of its first frame are followed
+//!   back through the last `backward_frames` frames to where the person entered the image (a
+//!   detector cannot place a head whose body the border cuts); likewise a track that leaves
+//!   the image keeps the feature-measured frames after its last detection, up to the border;
 //! - a track ends at the image border or after `max_gap` frames without a detection; tracks
-//!   with too few detections (false alarms, shadows) are dropped, and each track is cut to its
-//!   first and last detection.
+//!   with too few detections (false alarms, shadows) are dropped.
 
 use nalgebra::{Matrix2, Vector2};
 
-use super::{ImageTrack, Motion, TrackPoint};
+use std::collections::VecDeque;
+
+use super::{ImageTrack, TrackPoint};
 use crate::detect::Detection;
 use crate::optim::assignment::assign;
 
@@ -48,8 +56,9 @@ pub struct KltTrackSettings {
     pub gate_px: f64,
     /// A person's size in the image (the box of a track without a detection), pixels.
     pub person_px: f64,
-    /// Radius of the cluster of features that moves a track, pixels.
-    pub cluster_px: f64,
+    /// Radius of a mode of the features' motion (one body's features move together), pixels
+    /// per frame.
+    pub flow_px: f64,
     pub min_features: usize,
     pub max_features: usize,
     /// A track whose position comes this close to the image border ends, pixels.
@@ -60,6 +69,9 @@ pub struct KltTrackSettings {
     /// frames, are dropped.
     pub min_hits: usize,
     pub min_hit_fraction: f64,
+    /// The backward pass follows a new track's first features back at most this many frames;
+    /// a track that leaves the image keeps at most this many frames after its last detection.
+    pub backward_frames: usize,
     /// Variance of a frame's feature motion, px² (the random walk between detections).
     pub motion_var_px2: f64,
     /// A frame's motion with no feature left: the prediction, with this variance, px².
@@ -71,13 +83,14 @@ impl Default for KltTrackSettings {
         KltTrackSettings {
             gate_px: 40.0,
             person_px: 40.0,
-            cluster_px: 10.0,
+            flow_px: 2.0,
             min_features: 5,
             max_features: 40,
             border_px: 2.0,
             max_gap: 25,
             min_hits: 5,
             min_hit_fraction: 0.3,
+            backward_frames: 25,
             motion_var_px2: 0.5,
             lost_var_px2: 25.0,
         }
@@ -93,6 +106,8 @@ struct Step {
     est_cov: Matrix2<f64>,
     bbox: [f64; 4],
     detected: bool,
+    /// Whether the features measured this frame's motion.
+    measured: bool,
 }
 
 struct Live {
@@ -102,10 +117,46 @@ struct Live {
     steps: Vec<Step>,
     since_detection: usize,
     hits: usize,
+    /// The last detections (frame, position), carried into the current frame by the
+    /// camera's motion: their slope is the velocity that ground features cannot bias.
+    recent: Vec<(usize, Vector2<f64>)>,
+    /// The features found in the first frame, for the backward pass.
+    first_features: Vec<Vector2<f64>>,
+    /// Frames before the first detection, from the backward pass: (frame, position), the
+    /// nearest first.
+    lead: Vec<(usize, Vector2<f64>)>,
+    /// Whether the track left the image (or the video ended) rather than lost its person.
+    exited: bool,
     bbox: [f64; 4],
 }
 
+/// A track with fewer detections is tentative: it is matched after the others, and it ends
+/// after `TENTATIVE_GAP` frames without one.
+const CONFIRM_HITS: usize = 3;
+const TENTATIVE_GAP: usize = 3;
+
+/// Detections that give a track's velocity: the last this many frames.
+const VELOCITY_FRAMES: usize = 12;
+
 impl Live {
+    /// The least-squares slope of the recent detections, pixels per frame; `None` before three
+    /// detections.
+    fn detected_velocity(&self) -> Option<Vector2<f64>> {
+        if self.recent.len() < 3 {
+            return None;
+        }
+        let n = self.recent.len() as f64;
+        let mean_f = self.recent.iter().map(|r| r.0 as f64).sum::<f64>() / n;
+        let mean_p = self.recent.iter().map(|r| r.1).sum::<Vector2<f64>>() / n;
+        let (mut sff, mut sfp) = (0.0, Vector2::zeros());
+        for (f, p) in &self.recent {
+            let df = *f as f64 - mean_f;
+            sff += df * df;
+            sfp += df * (p - mean_p);
+        }
+        (sff > 0.0).then(|| sfp / sff)
+    }
+
     fn position(&self) -> Vector2<f64> {
         self.steps.last().expect("a live track has a step").est
     }
@@ -118,40 +169,52 @@ pub struct KltTracker<F: Features> {
     size: (f64, f64),
     live: Vec<Live>,
     done: Vec<Live>,
-    prev: Option<F::Frame>,
+    /// The last frames (index, frame), for the backward pass; the newest last.
+    frames: VecDeque<(usize, F::Frame)>,
     /// Counts for the run report.
     pub reinitialised: usize,
     pub started: usize,
 }
 
-/// The densest cluster of points: mean shift with a flat kernel from the median.
-fn densest(points: &[Vector2<f64>], radius: f64) -> Vec<usize> {
-    if points.is_empty() {
-        return Vec::new();
-    }
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let mut c = Vector2::new(
-        median(&mut points.iter().map(|p| p.x).collect()),
-        median(&mut points.iter().map(|p| p.y).collect()),
-    );
-    let mut members = Vec::new();
-    for _ in 0..20 {
-        members = (0..points.len())
+/// A mode of a set of points: its centre and the points near it.
+type Mode = (Vector2<f64>, Vec<usize>);
+
+/// The modes of a set of points: mean shift with a flat kernel from every point; each mode
+/// with the points within `radius` of it, the largest first.
+fn modes(points: &[Vector2<f64>], radius: f64) -> Vec<Mode> {
+    let within = |c: &Vector2<f64>| -> Vec<usize> {
+        (0..points.len())
             .filter(|&i| (points[i] - c).norm() <= radius)
-            .collect();
-        if members.is_empty() {
-            return (0..points.len()).collect();
+            .collect()
+    };
+    let mut centres: Vec<Vector2<f64>> = Vec::new();
+    for start in points {
+        let mut c = *start;
+        for _ in 0..30 {
+            let members = within(&c);
+            if members.is_empty() {
+                break;
+            }
+            let m = members.iter().map(|&i| points[i]).sum::<Vector2<f64>>() / members.len() as f64;
+            let moved = (m - c).norm();
+            c = m;
+            if moved < 1e-3 * radius {
+                break;
+            }
         }
-        let m = members.iter().map(|&i| points[i]).sum::<Vector2<f64>>() / members.len() as f64;
-        if (m - c).norm() < 0.05 {
-            break;
+        if !centres.iter().any(|q| (q - c).norm() < 0.5 * radius) {
+            centres.push(c);
         }
-        c = m;
     }
-    members
+    let mut out: Vec<Mode> = centres.into_iter().map(|c| (c, within(&c))).collect();
+    out.sort_by_key(|m| std::cmp::Reverse(m.1.len()));
+    out
+}
+
+/// The largest eigenvalue of a symmetric 2×2 matrix.
+fn largest_eigenvalue(m: &Matrix2<f64>) -> f64 {
+    let (a, b, c) = (m[(0, 0)], 0.5 * (m[(0, 1)] + m[(1, 0)]), m[(1, 1)]);
+    0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt()
 }
 
 impl<F: Features> KltTracker<F> {
@@ -162,10 +225,65 @@ impl<F: Features> KltTracker<F> {
             size,
             live: Vec::new(),
             done: Vec::new(),
-            prev: None,
+            frames: VecDeque::new(),
             reinitialised: 0,
             started: 0,
         }
+    }
+
+    /// The backward pass: once a track is confirmed (its velocity known), the features of its
+    /// first frame are followed back through the frames kept, to where the person entered the
+    /// image or the features stop agreeing with the track's velocity.
+    fn backward(
+        &mut self,
+        t: &mut Live,
+        motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
+    ) -> Result<(), String> {
+        let s = &self.settings;
+        let Some(v) = t.detected_velocity() else {
+            return Ok(());
+        };
+        let first = &t.steps[0];
+        let Some(mut i) = self.frames.iter().position(|(f, _)| *f == first.frame) else {
+            return Ok(());
+        };
+        let mut pts = t.first_features.clone();
+        let mut pos = first.est;
+        let mut lead = Vec::new();
+        while i > 0 && lead.len() < s.backward_frames && pts.len() >= 2 {
+            let ((fa, a), (fb, b)) = (&self.frames[i], &self.frames[i - 1]);
+            if fb + 1 != *fa {
+                break;
+            }
+            // The camera's motion from fb to fa, undone to first order (it is small).
+            let back = |x: &Vector2<f64>| 2.0 * x - motion_at(*fa, x);
+            let guess: Vec<Vector2<f64>> = pts.iter().map(|x| back(x) - v).collect();
+            let next = self.features.follow(a, b, &pts, &guess)?;
+            let (mut to, mut flow) = (Vec::new(), Vec::new());
+            for (x, y) in pts.iter().zip(&next) {
+                if let Some(y) = y {
+                    to.push(*y);
+                    flow.push(y - back(x));
+                }
+            }
+            // The person's features move by −v; the ground's by nothing.
+            let Some((c, members)) = modes(&flow, s.flow_px)
+                .into_iter()
+                .filter(|m| m.1.len() >= 2 && (m.0 + v).norm() <= s.flow_px.max(0.35 * v.norm()))
+                .min_by(|a, b| (a.0 + v).norm().total_cmp(&(b.0 + v).norm()))
+            else {
+                break;
+            };
+            pos = back(&pos) + c;
+            if !self.inside(&pos) {
+                break;
+            }
+            pts = members.iter().map(|&k| to[k]).collect();
+            lead.push((*fb, pos));
+            i -= 1;
+        }
+        t.lead = lead;
+        Ok(())
     }
 
     fn inside(&self, p: &Vector2<f64>) -> bool {
@@ -178,72 +296,138 @@ impl<F: Features> KltTracker<F> {
         [p.x - s / 2.0, p.y - s / 2.0, s, s]
     }
 
-    /// The next frame, its detections and the camera's motion since the previous frame.
+    /// The next frame and its detections; `motion_at(f, x)` carries a point `x` of frame `f − 1`
+    /// into frame `f` (the camera's motion).
     pub fn update(
         &mut self,
         index: usize,
         frame: F::Frame,
         detections: &[Detection],
-        motion: Motion,
+        motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
     ) -> Result<(), String> {
         let s = self.settings.clone();
-        // Features into this frame; each track predicted by the motion of its densest cluster.
+        let motion = |x: &Vector2<f64>| motion_at(index, x);
+        // Features into this frame. Inside a person's box some features are on the ground, so
+        // each track moves with one mode of its features' motion net of the camera's: the one
+        // that agrees with its velocity and the detections (ground features have none).
         let mut predicted = Vec::with_capacity(self.live.len());
         for t in &mut self.live {
             let p = t.position();
-            let prediction = motion(&p) + t.velocity;
+            for r in &mut t.recent {
+                r.1 = motion(&r.1);
+            }
             let mut moved_by = None;
-            if let (Some(prev), false) = (&self.prev, t.features.is_empty()) {
+            if let (Some((_, prev)), false) = (self.frames.back(), t.features.is_empty()) {
                 let guess: Vec<Vector2<f64>> =
                     t.features.iter().map(|f| motion(f) + t.velocity).collect();
                 let next = self.features.follow(prev, &frame, &t.features, &guess)?;
-                let (mut from, mut to) = (Vec::new(), Vec::new());
+                let (mut to, mut flow) = (Vec::new(), Vec::new());
                 for (a, b) in t.features.iter().zip(&next) {
                     if let Some(b) = b {
-                        from.push(*a);
                         to.push(*b);
+                        flow.push(b - motion(a));
                     }
                 }
-                let members = densest(&to, s.cluster_px);
-                if !members.is_empty() {
-                    let mut dx: Vec<f64> = members.iter().map(|&i| to[i].x - from[i].x).collect();
-                    let mut dy: Vec<f64> = members.iter().map(|&i| to[i].y - from[i].y).collect();
-                    dx.sort_by(f64::total_cmp);
-                    dy.sort_by(f64::total_cmp);
-                    moved_by = Some(Vector2::new(dx[dx.len() / 2], dy[dy.len() / 2]));
+                let found = modes(&flow, s.flow_px);
+                let least = if found.iter().any(|m| m.1.len() >= 2) {
+                    2
+                } else {
+                    1
+                };
+                // With a velocity from the detections, a mode far from it is the ground (or a
+                // neighbour): no measurement, and the features are renewed.
+                let known = t.detected_velocity();
+                let admissible = |c: &Vector2<f64>| {
+                    known.is_none_or(|v| (c - v).norm() <= s.flow_px.max(0.35 * v.norm()))
+                };
+                let score = |c: &Vector2<f64>| {
+                    let at = motion(&p) + c;
+                    let to_detection = detections
+                        .iter()
+                        .map(|d| (d.uv - at).norm())
+                        .fold(s.gate_px, f64::min);
+                    let to_velocity = if t.hits >= 2 {
+                        (c - t.velocity).norm()
+                    } else {
+                        0.0
+                    };
+                    to_detection + to_velocity
+                };
+                let mut best: Option<(f64, &Mode)> = None;
+                for m in found
+                    .iter()
+                    .filter(|m| m.1.len() >= least && admissible(&m.0))
+                {
+                    let v = score(&m.0);
+                    if best.is_none_or(|(b, _)| v < b) {
+                        best = Some((v, m));
+                    }
                 }
-                t.features = to;
+                t.features = match best {
+                    Some((_, (_, members))) => {
+                        let mut dx: Vec<f64> = members.iter().map(|&i| flow[i].x).collect();
+                        let mut dy: Vec<f64> = members.iter().map(|&i| flow[i].y).collect();
+                        dx.sort_by(f64::total_cmp);
+                        dy.sort_by(f64::total_cmp);
+                        moved_by = Some(Vector2::new(dx[dx.len() / 2], dy[dy.len() / 2]));
+                        members.iter().map(|&i| to[i]).collect()
+                    }
+                    None => Vec::new(),
+                };
             }
             let (pred, var) = match moved_by {
-                Some(d) => (p + d, s.motion_var_px2),
-                None => (prediction, s.lost_var_px2),
+                Some(d) => (motion(&p) + d, s.motion_var_px2),
+                None => (motion(&p) + t.velocity, s.lost_var_px2),
             };
             let last = t.steps.last().expect("a live track has a step");
             let pred_cov = last.est_cov + Matrix2::identity() * var;
-            // Velocity net of the camera: what the features did beyond the camera's motion.
-            if moved_by.is_some() {
-                t.velocity = 0.7 * t.velocity + 0.3 * (pred - motion(&p));
-            }
-            predicted.push((pred, pred_cov));
+            predicted.push((pred, pred_cov, motion(&p), moved_by.is_some()));
         }
 
-        // Detections to tracks.
-        let cost: Vec<Vec<f64>> = predicted
-            .iter()
-            .map(|(p, _)| {
-                detections
-                    .iter()
-                    .map(|d| {
-                        let r = (d.uv - p).norm();
-                        if r <= s.gate_px { r } else { f64::INFINITY }
-                    })
-                    .collect()
-            })
-            .collect();
-        let matched = assign(&cost, s.gate_px);
+        // Detections to tracks: first the confirmed ones, then the tentative ones take what is
+        // left (a false alarm's young track must not take a person's detection from its track).
+        let gated = |(p, cov, _, _): &(Vector2<f64>, Matrix2<f64>, Vector2<f64>, bool),
+                     d: &Detection| {
+            // A track that lost its features is less sure where it is: a wider gate, up to
+            // twice the base.
+            let spread = largest_eigenvalue(&(cov + d.cov)).sqrt();
+            let gate = s.gate_px + (3.0 * spread).min(s.gate_px);
+            let r = (d.uv - p).norm();
+            if r <= gate { r } else { f64::INFINITY }
+        };
+        let confirmed: Vec<bool> = self.live.iter().map(|t| t.hits >= CONFIRM_HITS).collect();
+        let mut matched: Vec<Option<usize>> = vec![None; self.live.len()];
+        let mut used = vec![false; detections.len()];
+        for stage in [true, false] {
+            let rows: Vec<usize> = (0..self.live.len())
+                .filter(|&i| confirmed[i] == stage)
+                .collect();
+            let cost: Vec<Vec<f64>> = rows
+                .iter()
+                .map(|&i| {
+                    detections
+                        .iter()
+                        .zip(&used)
+                        .map(|(d, &u)| {
+                            if u {
+                                f64::INFINITY
+                            } else {
+                                gated(&predicted[i], d)
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            for (&i, m) in rows.iter().zip(assign(&cost, 2.0 * s.gate_px)) {
+                if let Some(j) = m {
+                    used[j] = true;
+                    matched[i] = Some(j);
+                }
+            }
+        }
         let mut taken = vec![false; detections.len()];
         let mut keep = Vec::with_capacity(self.live.len());
-        for ((mut t, (pred, pred_cov)), m) in std::mem::take(&mut self.live)
+        for ((mut t, (pred, pred_cov, still_at, measured)), m) in std::mem::take(&mut self.live)
             .into_iter()
             .zip(predicted)
             .zip(matched)
@@ -261,6 +445,21 @@ impl<F: Features> KltTracker<F> {
                 }
                 None => (pred, pred_cov, false),
             };
+            // Velocity net of the camera's motion: set by the first detection after the start,
+            // then smoothed.
+            if let Some(j) = m {
+                t.recent.push((index, detections[j].uv));
+                let first = t.recent.len().saturating_sub(VELOCITY_FRAMES);
+                t.recent.drain(..first);
+            }
+            let step = est - still_at;
+            if let Some(v) = t.detected_velocity() {
+                t.velocity = v;
+            } else if detected && t.hits == 1 {
+                t.velocity = step;
+            } else if detected || measured {
+                t.velocity = 0.6 * t.velocity + 0.4 * step;
+            }
             if detected {
                 t.hits += 1;
                 t.since_detection = 0;
@@ -279,8 +478,20 @@ impl<F: Features> KltTracker<F> {
                 est_cov,
                 bbox: t.bbox,
                 detected,
+                measured,
             });
-            if !self.inside(&est) || t.since_detection > s.max_gap {
+            let gap = if t.hits >= CONFIRM_HITS {
+                s.max_gap
+            } else {
+                TENTATIVE_GAP.min(s.max_gap)
+            };
+            if detected && t.hits == CONFIRM_HITS && s.backward_frames > 0 {
+                self.backward(&mut t, motion_at)?;
+            }
+            if !self.inside(&est) {
+                t.exited = true;
+            }
+            if !self.inside(&est) || t.since_detection > gap {
                 self.done.push(t);
                 continue;
             }
@@ -312,7 +523,7 @@ impl<F: Features> KltTracker<F> {
             let features = self.features.features_in(&frame, d.bbox, s.max_features)?;
             self.started += 1;
             keep.push(Live {
-                features,
+                features: features.clone(),
                 velocity: Vector2::zeros(),
                 steps: vec![Step {
                     frame: index,
@@ -322,14 +533,22 @@ impl<F: Features> KltTracker<F> {
                     est_cov: d.cov,
                     bbox: d.bbox,
                     detected: true,
+                    measured: false,
                 }],
                 since_detection: 0,
                 hits: 1,
+                recent: vec![(index, d.uv)],
+                first_features: features,
+                lead: Vec::new(),
+                exited: false,
                 bbox: d.bbox,
             });
         }
         self.live = keep;
-        self.prev = Some(frame);
+        self.frames.push_back((index, frame));
+        while self.frames.len() > s.backward_frames + 2 * CONFIRM_HITS + TENTATIVE_GAP {
+            self.frames.pop_front();
+        }
         Ok(())
     }
 
@@ -338,7 +557,10 @@ impl<F: Features> KltTracker<F> {
     pub fn finish(mut self) -> Vec<ImageTrack> {
         let s = self.settings.clone();
         let mut all: Vec<Live> = std::mem::take(&mut self.done);
-        all.append(&mut self.live);
+        for mut t in std::mem::take(&mut self.live) {
+            t.exited = true;
+            all.push(t);
+        }
         let mut tracks: Vec<Vec<TrackPoint>> = Vec::new();
         for t in all {
             let first = t.steps.iter().position(|x| x.detected);
@@ -350,8 +572,19 @@ impl<F: Features> KltTracker<F> {
             if t.hits < s.min_hits || (t.hits as f64) < s.min_hit_fraction * span as f64 {
                 continue;
             }
+            // A track that left the image keeps the frames after its last detection that its
+            // features measured, up to the border.
+            let mut e = b;
+            while t.exited
+                && e + 1 < t.steps.len()
+                && e - b < s.backward_frames
+                && t.steps[e + 1].measured
+                && self.inside(&t.steps[e + 1].est)
+            {
+                e += 1;
+            }
             // Rauch–Tung–Striebel over a random walk: x_s(k) = x(k) + C (x_s(k+1) − pred(k+1)).
-            let steps = &t.steps[..=b];
+            let steps = &t.steps[..=e];
             let mut smooth: Vec<(Vector2<f64>, Matrix2<f64>)> =
                 steps.iter().map(|x| (x.est, x.est_cov)).collect();
             for k in (0..steps.len() - 1).rev() {
@@ -362,18 +595,40 @@ impl<F: Features> KltTracker<F> {
                 let p = steps[k].est_cov + c * (ps - next.pred_cov) * c.transpose();
                 smooth[k] = (x, 0.5 * (p + p.transpose()));
             }
-            tracks.push(
-                steps[a..=b]
+            // The backward pass's frames, tied to the smoothed first point; the variance grows
+            // by a frame's feature motion per frame.
+            let (uv0, cov0) = smooth[a];
+            let shift = uv0 - steps[a].est;
+            let mut points: Vec<TrackPoint> = t
+                .lead
+                .iter()
+                .enumerate()
+                .rev()
+                .map(|(m, (frame, pos))| {
+                    let uv = pos + shift;
+                    let mut bbox = steps[a].bbox;
+                    bbox[0] += uv.x - uv0.x;
+                    bbox[1] += uv.y - uv0.y;
+                    TrackPoint {
+                        frame: *frame,
+                        uv,
+                        cov: cov0 + Matrix2::identity() * (s.motion_var_px2 * (m + 1) as f64),
+                        bbox,
+                    }
+                })
+                .collect();
+            points.extend(
+                steps[a..=e]
                     .iter()
-                    .zip(&smooth[a..=b])
+                    .zip(&smooth[a..=e])
                     .map(|(x, (uv, cov))| TrackPoint {
                         frame: x.frame,
                         uv: *uv,
                         cov: *cov,
                         bbox: x.bbox,
-                    })
-                    .collect(),
+                    }),
             );
+            tracks.push(points);
         }
         tracks.sort_by_key(|p| p[0].frame);
         tracks
@@ -457,7 +712,7 @@ mod tests {
             },
             (640.0, 360.0),
         );
-        let still = |p: &Vector2<f64>| *p;
+        let still = |_: usize, p: &Vector2<f64>| *p;
         for (f, people) in truth.iter().enumerate() {
             let mut dets: Vec<Detection> = people
                 .iter()
@@ -498,16 +753,76 @@ mod tests {
                 assert!(err < 1.5, "track {} frame {}: {err}", t.id, q.frame);
             }
         }
-        // The person missed at the entry is followed from the first detection on.
-        assert!(tracks.iter().any(|t| t.points[0].frame == 20));
+        // The person missed until frame 20 is followed back by the backward pass, as far as
+        // the frames kept reach (25).
+        let late = tracks.iter().find(|t| t.points[0].uv.y > 200.0).unwrap();
+        assert_eq!(late.points[0].frame, 0);
+        // Its uncertainty grows going back from the first detection.
+        let sd = |f: usize| late.points[f].cov[(0, 0)];
+        assert!(
+            sd(0) > sd(10) && sd(10) > sd(20),
+            "{} {} {}",
+            sd(0),
+            sd(10),
+            sd(20)
+        );
     }
 
     #[test]
-    fn densest_cluster_ignores_stragglers() {
-        let mut pts: Vec<Vector2<f64>> =
-            (0..10).map(|k| Vector2::new(k as f64 * 0.3, 0.0)).collect();
-        pts.extend([Vector2::new(30.0, 0.0), Vector2::new(31.0, 0.0)]);
-        let m = densest(&pts, 5.0);
-        assert_eq!(m.len(), 10);
+    fn backward_pass_stops_where_the_person_entered() {
+        // One person entering from the left at 4 px per frame, first detected at frame 20.
+        let truth: Vec<Vec<Vector2<f64>>> = (0..60)
+            .map(|f| vec![Vector2::new(-30.0 + 4.0 * f as f64, 150.0)])
+            .collect();
+        let mut tracker = KltTracker::new(
+            KltTrackSettings::default(),
+            Synthetic {
+                truth: truth.clone(),
+            },
+            (640.0, 360.0),
+        );
+        let still = |_: usize, p: &Vector2<f64>| *p;
+        for (f, people) in truth.iter().enumerate() {
+            let dets: Vec<Detection> = people
+                .iter()
+                .filter(|_| f >= 20)
+                .map(|p| Detection {
+                    uv: *p,
+                    cov: Matrix2::identity() * 4.0,
+                    bbox: [p.x - 15.0, p.y - 15.0, 30.0, 30.0],
+                    area_px: 900.0,
+                    score: 1.0,
+                })
+                .collect();
+            tracker.update(f, f, &dets, &still).unwrap();
+        }
+        let tracks = tracker.finish();
+        assert_eq!(tracks.len(), 1);
+        // x = −30 + 4 f is inside the 2 px border from frame 8 on.
+        assert_eq!(tracks[0].points[0].frame, 8);
+        for q in &tracks[0].points {
+            assert!(
+                (q.uv - truth[q.frame][0]).norm() < 1e-6,
+                "frame {}",
+                q.frame
+            );
+        }
+    }
+
+    #[test]
+    fn motion_modes_separate_a_person_from_the_ground() {
+        // Ground features stay (flow ≈ 0), the person's move 7 px; one limb straggles.
+        let mut flow: Vec<Vector2<f64>> = (0..6)
+            .map(|k| Vector2::new(0.1 * k as f64, -0.05 * k as f64))
+            .collect();
+        flow.extend((0..9).map(|k| Vector2::new(7.0 + 0.1 * k as f64, 0.2)));
+        flow.push(Vector2::new(12.0, 3.0));
+        let found = modes(&flow, 2.0);
+        assert_eq!(found.len(), 3);
+        assert_eq!(found[0].1, (6..15).collect::<Vec<_>>());
+        assert!((found[0].0 - Vector2::new(7.4, 0.2)).norm() < 1e-9);
+        assert_eq!(found[1].1.len(), 6);
+        assert!(found[1].0.norm() < 0.3);
+        assert!((largest_eigenvalue(&Matrix2::new(4.0, 1.0, 1.0, 4.0)) - 5.0).abs() < 1e-12);
     }
 }

@@ -1,0 +1,251 @@
+//! `geostride track VIDEO`: people tracked in the image only, for a fixed camera with no survey
+//! (or before the survey is done): background subtraction or an external detector's boxes,
+//! then KLT. Tracks in pixels; `geostride run` does the whole job with geolocation.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, anyhow};
+use nalgebra::Vector2;
+
+use super::bad_input;
+use crate::detect::Detector;
+use crate::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
+use crate::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
+use crate::detect::person::BoxesDetector;
+use crate::pipeline::klt_pass::{KltPass, klt_over_video};
+use crate::pipeline::project::TrackSection;
+use crate::pipeline::scan::{ScanError, ScanJob, scan};
+use crate::track::ImageTrack;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The video (a fixed camera)
+    video: PathBuf,
+    /// Output folder: tracks_mot.txt, tracks.csv, report.json
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Image scale where the people are, pixels per metre (a person 1.7 m tall and 60 px high
+    /// is about 35); sets the size filters, the gates and the KLT window
+    #[arg(long, value_name = "PX", value_parser = super::parse_positive)]
+    px_per_m: f64,
+    /// Detector: 'background' (OpenCV MOG2/KNN) or 'boxes' (an external detector's file)
+    #[arg(long, default_value = "background", value_parser = ["background", "boxes"])]
+    detect: String,
+    /// The boxes file for --detect boxes (MOTChallenge txt, JSON Lines or COCO JSON)
+    #[arg(long, value_name = "FILE")]
+    boxes: Option<PathBuf>,
+    /// Background subtraction method
+    #[arg(long, default_value = "mog2", value_parser = ["mog2", "knn"])]
+    method: String,
+    /// Foreground components smaller than this are noise, m²
+    #[arg(long, default_value = "0.08", value_parser = super::parse_positive, value_name = "M2")]
+    min_area_m2: f64,
+    /// Foreground components larger than this are not one person, m²
+    #[arg(long, default_value = "4.0", value_parser = super::parse_positive, value_name = "M2")]
+    max_area_m2: f64,
+    /// Only the first N frames
+    #[arg(long, value_name = "N")]
+    max_frames: Option<usize>,
+    /// Print the report as JSON on stdout
+    #[arg(long)]
+    json: bool,
+    /// No progress bars
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+#[derive(serde::Serialize)]
+struct Report {
+    video: String,
+    frames: usize,
+    fps: f64,
+    width: u32,
+    height: u32,
+    detector: String,
+    detections: usize,
+    detector_summary: BTreeMap<String, f64>,
+    tracks: usize,
+    track_points: usize,
+    mean_track_length_s: f64,
+    scan_s: f64,
+    track_s: f64,
+    outputs: Vec<String>,
+}
+
+fn tracks_csv(tracks: &[ImageTrack]) -> String {
+    let mut s = String::from("id,frame,u_px,v_px,sigma_u_px,sigma_v_px,x,y,w,h\n");
+    for t in tracks {
+        for q in &t.points {
+            let _ = writeln!(
+                s,
+                "{},{},{:.2},{:.2},{:.2},{:.2},{:.1},{:.1},{:.1},{:.1}",
+                t.id,
+                q.frame,
+                q.uv.x,
+                q.uv.y,
+                q.cov[(0, 0)].max(0.0).sqrt(),
+                q.cov[(1, 1)].max(0.0).sqrt(),
+                q.bbox[0],
+                q.bbox[1],
+                q.bbox[2],
+                q.bbox[3]
+            );
+        }
+    }
+    s
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let detector: Box<dyn Detector> = match args.detect.as_str() {
+        "boxes" => {
+            let path = args.boxes.as_ref().ok_or_else(|| {
+                bad_input(anyhow!(
+                    "--detect boxes needs --boxes FILE (MOTChallenge txt, JSON Lines or COCO JSON)"
+                ))
+            })?;
+            let boxes = read_boxes(path, None::<BoxFormat>).map_err(bad_input)?;
+            Box::new(
+                BoxesDetector::new(boxes, BoxFilter::new(args.px_per_m))
+                    .map_err(|e| bad_input(anyhow!(e)))?,
+            )
+        }
+        _ => {
+            let method = if args.method == "knn" {
+                Subtractor::Knn
+            } else {
+                Subtractor::Mog2
+            };
+            Box::new(
+                BackgroundDetector::new(BackgroundSettings {
+                    px_per_m: args.px_per_m,
+                    min_area_m2: args.min_area_m2,
+                    max_area_m2: args.max_area_m2,
+                    ..BackgroundSettings::for_method(method)
+                })
+                .map_err(|e| bad_input(anyhow!(e)))?,
+            )
+        }
+    };
+    // A video that cannot be opened is the user's to fix (exit 2).
+    crate::video::source::FrameReader::open(&args.video).map_err(|e| bad_input(anyhow!(e)))?;
+    let bar = super::progress_bar(
+        args.quiet || args.json,
+        0,
+        "   scan {bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}]",
+    );
+    let t0 = Instant::now();
+    let scanned = scan(
+        ScanJob {
+            video: &args.video,
+            max_frames: args.max_frames,
+            stabilise: None,
+            detector: Some(detector),
+        },
+        &bar,
+    )
+    .map_err(|e| match e {
+        ScanError::Detector(m) => bad_input(anyhow!(m)),
+        ScanError::Other(m) => anyhow!(m),
+    })?;
+    bar.finish_and_clear();
+    let scan_s = t0.elapsed().as_secs_f64();
+
+    let bar = super::progress_bar(
+        args.quiet || args.json,
+        scanned.detections.len() as u64,
+        "  track {bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}]",
+    );
+    let t0 = Instant::now();
+    let track = TrackSection {
+        kind: "klt".into(),
+        ..TrackSection::default()
+    };
+    let tracks = klt_over_video(
+        &KltPass {
+            video: &args.video,
+            detections: &scanned.detections,
+            size: (scanned.width, scanned.height),
+            fps: scanned.fps,
+            track: &track,
+            person_m: None,
+            px_per_m: args.px_per_m,
+        },
+        // A fixed camera.
+        &|_: usize, x: &Vector2<f64>| *x,
+        &bar,
+    )
+    .map_err(|e| anyhow!(e))?;
+    bar.finish_and_clear();
+    let track_s = t0.elapsed().as_secs_f64();
+    // Short tracks are mostly false alarms, unless the video's start or end cut them.
+    let min_frames = (track.min_length_s * scanned.fps).round() as usize;
+    let last = scanned.frames.saturating_sub(1);
+    let tracks: Vec<ImageTrack> = tracks
+        .into_iter()
+        .filter(|t| {
+            let (a, b) = (t.points[0].frame, t.points[t.points.len() - 1].frame);
+            b - a + 1 >= min_frames || a == 0 || b == last
+        })
+        .enumerate()
+        .map(|(i, t)| ImageTrack { id: i + 1, ..t })
+        .collect();
+
+    std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
+    let points: usize = tracks.iter().map(|t| t.points.len()).sum();
+    let report = Report {
+        video: args.video.display().to_string(),
+        frames: scanned.frames,
+        fps: scanned.fps,
+        width: scanned.width,
+        height: scanned.height,
+        detector: if args.detect == "boxes" {
+            "boxes".into()
+        } else {
+            format!("background ({})", args.method)
+        },
+        detections: scanned.detections.iter().map(Vec::len).sum(),
+        detector_summary: scanned.detector_summary.iter().cloned().collect(),
+        tracks: tracks.len(),
+        track_points: points,
+        mean_track_length_s: points as f64 / tracks.len().max(1) as f64 / scanned.fps,
+        scan_s,
+        track_s,
+        outputs: vec![
+            "tracks_mot.txt".into(),
+            "tracks.csv".into(),
+            "report.json".into(),
+        ],
+    };
+    let write = |name: &str, text: &str| {
+        let path = args.out.join(name);
+        crate::io::write_atomic(&path, text.as_bytes()).with_context(|| path.display().to_string())
+    };
+    write("tracks_mot.txt", &crate::export::mot_txt(&tracks))?;
+    write("tracks.csv", &tracks_csv(&tracks))?;
+    let json = serde_json::to_string_pretty(&report)?;
+    write("report.json", &json)?;
+    if args.json {
+        println!("{json}");
+        return Ok(());
+    }
+    println!(
+        "{}: {} frames of {}x{} at {:.2} fps",
+        report.video, report.frames, report.width, report.height, report.fps
+    );
+    println!(
+        "  detect  {:<22} {:>8} detections in {:.1} s",
+        report.detector, report.detections, scan_s
+    );
+    println!(
+        "  track   klt {:>19} tracks, {} points, mean {:.1} s long, in {:.1} s",
+        report.tracks, points, report.mean_track_length_s, track_s
+    );
+    println!(
+        "  wrote tracks_mot.txt, tracks.csv, report.json in {}",
+        args.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,94 @@
+//! The KLT tracker over a video's frames (an adapter: it decodes the video again and hands the
+//! gray frames to the pure tracker in `track::klt`).
+
+use std::path::Path;
+
+use nalgebra::Vector2;
+
+use super::project::TrackSection;
+use crate::detect::Detection;
+use crate::progress::Progress;
+use crate::track::ImageTrack;
+use crate::track::klt::{KltTrackSettings, KltTracker};
+use crate::video::klt::{Klt, KltSettings};
+
+/// What the pass needs: the video, the detections of each of its frames, and the scale.
+pub struct KltPass<'a> {
+    pub video: &'a Path,
+    pub detections: &'a [Vec<Detection>],
+    /// The frames' size, pixels.
+    pub size: (u32, u32),
+    pub fps: f64,
+    pub track: &'a TrackSection,
+    /// A person's length in the image, metres (the box of a track without a detection).
+    pub person_m: Option<f64>,
+    /// Image scale at head height, pixels per metre.
+    pub px_per_m: f64,
+}
+
+/// Tracks people through the video; `motion_at(f, x)` carries a point of frame `f − 1` into
+/// frame `f` (the identity for a fixed camera).
+pub fn klt_over_video(
+    job: &KltPass,
+    motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
+    bar: &dyn Progress,
+) -> Result<Vec<ImageTrack>, String> {
+    let (t, px_per_m) = (job.track, job.px_per_m);
+    let base = KltSettings::default();
+    let factor = (f64::from(job.size.0) / f64::from(base.max_width))
+        .ceil()
+        .max(1.0);
+    // An odd window in the working copy's pixels, no wider than a person (0.6 m): a window
+    // mostly of ground follows the ground.
+    let window_px = t.window_px.min(0.6 * px_per_m);
+    let window = (((window_px / factor).round() as i32).max(5)) | 1;
+    let klt = Klt::new(KltSettings {
+        window,
+        levels: t.levels,
+        fast_levels: t.levels,
+        quality: 0.01,
+        min_distance: 2.0,
+        ..base
+    });
+    let settings = KltTrackSettings {
+        gate_px: t.gate_m * px_per_m,
+        person_px: job.person_m.unwrap_or(0.7) * px_per_m,
+        // One body's features move within about 4 cm per frame of each other.
+        flow_px: (0.04 * px_per_m).max(1.5),
+        min_features: t.min_features,
+        max_features: t.max_features,
+        max_gap: (t.max_gap_s * job.fps).round() as usize,
+        min_hits: t.min_hits,
+        ..KltTrackSettings::default()
+    };
+    let frames = Klt::new(klt.settings.clone());
+    let mut tracker = KltTracker::new(
+        settings,
+        klt,
+        (f64::from(job.size.0), f64::from(job.size.1)),
+    );
+    let video = job.video.display();
+    let mut reader = crate::video::source::FrameReader::open(job.video)?;
+    let mut bgr = opencv::core::Mat::default();
+    let mut gray = opencv::core::Mat::default();
+    for (f, dets) in job.detections.iter().enumerate() {
+        if reader
+            .read_bgr_into(&mut bgr)
+            .map_err(|e| format!("{video}: frame {f}: {e}"))?
+            .is_none()
+        {
+            return Err(format!(
+                "{video}: ended at frame {f}, before the {} frames scanned",
+                job.detections.len()
+            ));
+        }
+        opencv::imgproc::cvt_color_def(&bgr, &mut gray, opencv::imgproc::COLOR_BGR2GRAY)
+            .map_err(|e| e.to_string())?;
+        let frame = frames.frame(f, std::mem::take(&mut gray))?;
+        tracker
+            .update(f, frame, dets, motion_at)
+            .map_err(|e| format!("{video}: frame {f}: {e}"))?;
+        bar.inc(1);
+    }
+    Ok(tracker.finish())
+}

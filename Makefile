@@ -28,10 +28,12 @@ test: bootstrap
 	$(CARGO) test --release --locked
 
 bench: bootstrap
+	@./scripts/bootstrap.sh --bench
 	$(CARGO) bench --locked --bench calibrate_vs_opencv
 	$(CARGO) bench --locked --bench pnp_vs_opencv
 	$(CARGO) bench --locked --bench simulate
 	$(CARGO) bench --locked --bench pipeline_throughput
+	$(CARGO) bench --locked --bench ba_vs_ceres
 
 fmt:
 	$(CARGO) fmt

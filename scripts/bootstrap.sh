@@ -5,6 +5,9 @@
 #   OpenCV (+ clang/libclang for the opencv and proj crates' generated bindings), GDAL and PROJ
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
+#
+# `bootstrap.sh --bench` adds what only `make bench` needs: Ceres Solver and a C++ compiler for
+# the bundle adjustment peer program (benches/ceres/).
 set -euo pipefail
 
 packages=(
@@ -12,6 +15,9 @@ packages=(
   libopencv-dev
   libgdal-dev gdal-bin libproj-dev proj-data libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
 )
+if [ "${1:-}" = "--bench" ]; then
+  packages+=(g++ libceres-dev)
+fi
 
 if ! command -v cargo >/dev/null 2>&1; then
   echo "bootstrap: cargo is not on PATH; install the Rust toolchain (rustup) first" >&2

@@ -1,5 +1,6 @@
 //! Command-line interface: argument parsing and output only; the work is in the library.
 
+mod ba;
 mod calibrate;
 mod camera;
 pub mod demo;
@@ -53,6 +54,8 @@ pub struct Cli {
 #[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 enum Command {
+    /// Bundle adjustment of a BAL problem (Bundle Adjustment in the Large)
+    Ba(ba::Args),
     /// Calibrate a camera from checkerboard images, folders of images or videos
     Calibrate(calibrate::Args),
     /// Inspect and convert camera calibration files (OpenCV YAML, Metashape XML, geostride JSON)
@@ -81,6 +84,7 @@ enum Command {
 impl Cli {
     pub fn run(self) -> anyhow::Result<()> {
         match self.command {
+            Command::Ba(args) => ba::run(args),
             Command::Calibrate(args) => calibrate::run(args),
             Command::Camera(cmd) => camera::run(cmd),
             Command::Demo(args) => demo::run(args),

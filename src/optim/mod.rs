@@ -8,6 +8,8 @@
 //! function, gradient and parameter tolerances.
 
 pub mod assignment;
+pub mod ba;
+pub mod bal;
 
 use serde::Serialize;
 

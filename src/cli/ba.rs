@@ -1,0 +1,88 @@
+//! `geostride ba --bal FILE`: bundle adjustment of a BAL problem, reported as Ceres reports it.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, anyhow};
+
+use super::bad_input;
+use crate::optim::RobustLoss;
+use crate::optim::ba::{BaSettings, bundle_adjust};
+use crate::optim::bal::{bal_text, read_bal};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The problem in BAL format (Bundle Adjustment in the Large)
+    #[arg(long, value_name = "FILE")]
+    bal: PathBuf,
+    /// Iteration limit
+    #[arg(long, default_value = "50", value_name = "N")]
+    max_iterations: usize,
+    /// Loss on each observation: none, huber[:K] or cauchy[:K] (K in pixels)
+    #[arg(long, default_value = "none", value_name = "LOSS")]
+    loss: String,
+    /// Write the adjusted problem here (BAL)
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+    /// Print the summary and every iteration as JSON
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let loss: RobustLoss = args
+        .loss
+        .parse()
+        .map_err(|e: String| bad_input(anyhow!("--loss: {e}")))?;
+    let mut problem = read_bal(&args.bal).map_err(bad_input)?;
+    let summary = bundle_adjust(
+        &mut problem,
+        &BaSettings {
+            max_iterations: args.max_iterations,
+            loss,
+            ..BaSettings::default()
+        },
+    );
+    if let Some(out) = &args.out {
+        crate::io::write_atomic(out, bal_text(&problem).as_bytes())
+            .with_context(|| out.display().to_string())?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+        return Ok(());
+    }
+    println!(
+        "{}: {} cameras, {} points, {} observations",
+        args.bal.display(),
+        summary.cameras,
+        summary.points,
+        summary.observations
+    );
+    println!(
+        "iter      cost      cost_change  |gradient|   |step|    tr_ratio  tr_radius  accepted  iter_time"
+    );
+    println!("   0  {:.6e}", summary.initial_cost);
+    for it in &summary.iterations {
+        println!(
+            "{:>4}  {:.6e}  {:>10.3e}  {:>10.3e}  {:>9.3e}  {:>8.3e}  {:>9.3e}  {:>8}  {:>8.3}s",
+            it.iteration,
+            it.cost,
+            it.cost_change,
+            it.gradient_max_norm,
+            it.step_norm,
+            it.rho,
+            it.radius,
+            if it.accepted { "yes" } else { "no" },
+            it.seconds
+        );
+    }
+    println!("initial cost    {:.6e}", summary.initial_cost);
+    println!("final cost      {:.6e}", summary.final_cost);
+    println!(
+        "iterations      {} ({} accepted)",
+        summary.iterations.len(),
+        summary.accepted_steps
+    );
+    println!("time            {:.3} s", summary.seconds);
+    println!("termination     {}", summary.termination);
+    Ok(())
+}

@@ -27,6 +27,8 @@ use super::bal::{BalProblem, project, project_with_jacobians};
 type Mat93 = SMatrix<f64, 9, 3>;
 type Mat99 = SMatrix<f64, 9, 9>;
 type Vec9 = SMatrix<f64, 9, 1>;
+/// The reduced camera system `S`, its right-hand side, and the points' inverted blocks.
+type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Matrix3<f64>>);
 type JacCam = SMatrix<f64, 2, 9>;
 type JacPoint = SMatrix<f64, 2, 3>;
 
@@ -45,6 +47,18 @@ pub struct BaSettings {
     pub max_diagonal: f64,
     /// Loss on each observation's squared residual, in pixels².
     pub loss: RobustLoss,
+    /// Camera parameters held fixed in every camera (e.g. `f`, `k1`, `k2` of a calibrated
+    /// camera), by index into the nine.
+    pub fixed_camera_params: [bool; 9],
+}
+
+/// A prior on a point's position (a surveyed ground control point): `(X − position) / sigma`
+/// per coordinate joins the residuals.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointPrior {
+    pub point: usize,
+    pub position: [f64; 3],
+    pub sigma: [f64; 3],
 }
 
 impl Default for BaSettings {
@@ -61,6 +75,7 @@ impl Default for BaSettings {
             min_diagonal: 1e-6,
             max_diagonal: 1e32,
             loss: RobustLoss::Squared,
+            fixed_camera_params: [false; 9],
         }
     }
 }
@@ -142,7 +157,12 @@ fn robust(loss: RobustLoss, r: Vector2<f64>) -> (f64, f64) {
 
 /// The cost at the problem's parameters; summed in observation order, as [`evaluate`] does, so
 /// that the two agree to the last bit.
-fn cost_of(p: &BalProblem, loss: RobustLoss) -> f64 {
+fn prior_residual(p: &BalProblem, q: &PointPrior) -> Vector3<f64> {
+    (Vector3::from(p.points[q.point]) - Vector3::from(q.position))
+        .component_div(&Vector3::from(q.sigma))
+}
+
+fn cost_of(p: &BalProblem, priors: &[PointPrior], loss: RobustLoss) -> f64 {
     let each: Vec<f64> = p
         .observations
         .par_iter()
@@ -151,10 +171,16 @@ fn cost_of(p: &BalProblem, loss: RobustLoss) -> f64 {
             robust(loss, r).0
         })
         .collect();
-    each.iter().sum()
+    each.iter().sum::<f64>()
+        + priors
+            .iter()
+            .map(|q| 0.5 * prior_residual(p, q).norm_squared())
+            .sum::<f64>()
 }
 
-fn evaluate(p: &BalProblem, loss: RobustLoss) -> Evaluation {
+fn evaluate(p: &BalProblem, priors: &[PointPrior], s: &BaSettings) -> Evaluation {
+    let loss = s.loss;
+    let fixed = s.fixed_camera_params;
     let per: Vec<(Vector2<f64>, JacCam, JacPoint, f64)> = p
         .observations
         .par_iter()
@@ -162,7 +188,11 @@ fn evaluate(p: &BalProblem, loss: RobustLoss) -> Evaluation {
             let (u, jc, jp) = project_with_jacobians(&p.cameras[o.camera], &p.points[o.point]);
             let r = u - Vector2::from(o.xy);
             let (c, w) = robust(loss, r);
-            (r * w, jc * w, jp * w, c)
+            let mut jc = jc * w;
+            for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
+                jc.set_column(k, &Vector2::zeros());
+            }
+            (r * w, jc, jp * w, c)
         })
         .collect();
     let mut e = Evaluation {
@@ -177,6 +207,10 @@ fn evaluate(p: &BalProblem, loss: RobustLoss) -> Evaluation {
         e.j_point.push(jp);
         e.cost += c;
     }
+    e.cost += priors
+        .iter()
+        .map(|q| 0.5 * prior_residual(p, q).norm_squared())
+        .sum::<f64>();
     e
 }
 
@@ -197,6 +231,7 @@ struct Structure {
 
 fn scaled_normal(
     p: &BalProblem,
+    priors: &[PointPrior],
     st: &Structure,
     e: &Evaluation,
     s_cam: &[Vec9],
@@ -219,7 +254,7 @@ fn scaled_normal(
             (u, g)
         })
         .unzip();
-    let (v, g_point): (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) = st
+    let (mut v, mut g_point): (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) = st
         .by_point
         .par_iter()
         .map(|ks| {
@@ -233,6 +268,13 @@ fn scaled_normal(
             (v, g)
         })
         .unzip();
+    // A prior's Jacobian is diag(1/σ), scaled like the point's columns.
+    for q in priors {
+        let sp = s_point[q.point];
+        let j = Vector3::from(q.sigma).map(|v| 1.0 / v).component_mul(&sp);
+        v[q.point] += Matrix3::from_diagonal(&j.component_mul(&j));
+        g_point[q.point] += j.component_mul(&prior_residual(p, q));
+    }
     let w = (0..obs.len())
         .into_par_iter()
         .map(|k| jc(k).transpose() * jp(k))
@@ -246,16 +288,16 @@ fn scaled_normal(
     }
 }
 
-/// Solves the damped system by eliminating the points; `None` when the reduced camera system is
-/// not positive definite. Returns the scaled step (cameras, points).
-fn schur_step(
+/// The reduced camera system `S y = b` of the damped normal equations (the points eliminated)
+/// and the points' inverted damped blocks; `None` when a point's block is singular.
+fn reduced_system(
     p: &BalProblem,
     st: &Structure,
     n: &Normal,
     d_cam: &[Vec9],
     d_point: &[Vector3<f64>],
     radius: f64,
-) -> Option<(Vec<Vec9>, Vec<Vector3<f64>>)> {
+) -> Option<Reduced> {
     let nc = p.cameras.len();
     let obs = &p.observations;
     // Each point's damped block, inverted.
@@ -302,6 +344,22 @@ fn schur_step(
         let mut rows = b.fixed_rows_mut::<9>(9 * i);
         rows -= g;
     }
+    Some((s, b, v_inv))
+}
+
+/// Solves the damped system by eliminating the points; `None` when the reduced camera system is
+/// not positive definite. Returns the scaled step (cameras, points).
+fn schur_step(
+    p: &BalProblem,
+    st: &Structure,
+    n: &Normal,
+    d_cam: &[Vec9],
+    d_point: &[Vector3<f64>],
+    radius: f64,
+) -> Option<(Vec<Vec9>, Vec<Vector3<f64>>)> {
+    let nc = p.cameras.len();
+    let obs = &p.observations;
+    let (s, b, v_inv) = reduced_system(p, st, n, d_cam, d_point, radius)?;
     let y = s.cholesky()?.solve(&b);
     if !y.iter().all(|v| v.is_finite()) {
         return None;
@@ -328,8 +386,78 @@ fn clamp_diagonal(m: &[f64], lo: f64, hi: f64) -> impl Iterator<Item = f64> + '_
     m.iter().map(move |v| v.clamp(lo, hi))
 }
 
+/// The covariance of the cameras' parameters at the problem's current values: `9·cameras`
+/// square, camera after camera: the inverse of the information matrix (observations weighted by
+/// `1/σ²`, priors by their own σ) with the points eliminated. `σ` is `sigma_px` or, when `None`,
+/// estimated from the observations' residuals as `Σ r²` over the degrees of freedom
+/// (`2·observations + 3·priors − free parameters`); it is returned beside. Fixed parameters get zero rows and columns. `None` when
+/// the reduced matrix is singular: without priors the gauge (a similarity) is free and the
+/// covariance is not defined.
+pub fn camera_covariance(
+    p: &BalProblem,
+    priors: &[PointPrior],
+    settings: &BaSettings,
+    sigma_px: Option<f64>,
+) -> Option<(DMatrix<f64>, f64)> {
+    let (nc, np) = (p.cameras.len(), p.points.len());
+    let mut st = Structure {
+        by_camera: vec![Vec::new(); nc],
+        by_point: vec![Vec::new(); np],
+    };
+    for (k, o) in p.observations.iter().enumerate() {
+        st.by_camera[o.camera].push(k);
+        st.by_point[o.point].push(k);
+    }
+    let mut e = evaluate(p, &[], settings);
+    let fixed = settings.fixed_camera_params;
+    let free = 9 * nc - fixed.iter().filter(|f| **f).count() * nc + 3 * np;
+    let dof = (2 * p.observations.len() + 3 * priors.len()).saturating_sub(free);
+    let sigma = match sigma_px {
+        Some(v) => v,
+        None => {
+            let sq: f64 = e.residuals.iter().map(|r| r.norm_squared()).sum();
+            (sq / dof.max(1) as f64).sqrt()
+        }
+    };
+    // Whiten the observations; the priors are whitened already.
+    for ((r, jc), jp) in e.residuals.iter_mut().zip(&mut e.j_cam).zip(&mut e.j_point) {
+        *r /= sigma;
+        *jc /= sigma;
+        *jp /= sigma;
+    }
+    let ones_c = vec![Vec9::repeat(1.0); nc];
+    let ones_p = vec![Vector3::repeat(1.0); np];
+    let n = scaled_normal(p, priors, &st, &e, &ones_c, &ones_p);
+    let zeros_c = vec![Vec9::zeros(); nc];
+    let zeros_p = vec![Vector3::zeros(); np];
+    let (mut s, _, _) = reduced_system(p, &st, &n, &zeros_c, &zeros_p, 1.0)?;
+    for i in 0..nc {
+        for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
+            s[(9 * i + k, 9 * i + k)] = 1.0;
+        }
+    }
+    let mut cov = s.cholesky()?.inverse();
+    for i in 0..nc {
+        for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
+            cov.row_mut(9 * i + k).fill(0.0);
+            cov.column_mut(9 * i + k).fill(0.0);
+        }
+    }
+    Some((cov, sigma))
+}
+
 /// Adjusts the problem's cameras and points in place.
 pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
+    bundle_adjust_with_priors(p, &[], settings)
+}
+
+/// Adjusts the problem's cameras and points in place, with priors on some points (which also
+/// fix the gauge: without them the solution is defined up to a similarity).
+pub fn bundle_adjust_with_priors(
+    p: &mut BalProblem,
+    priors: &[PointPrior],
+    settings: &BaSettings,
+) -> BaSummary {
     let start = Instant::now();
     let s = settings;
     let (nc, np) = (p.cameras.len(), p.points.len());
@@ -341,7 +469,7 @@ pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
         st.by_camera[o.camera].push(k);
         st.by_point[o.point].push(k);
     }
-    let mut e = evaluate(p, s.loss);
+    let mut e = evaluate(p, priors, s);
     let initial_cost = e.cost;
     // Jacobi scaling from the first Jacobian's column norms.
     let s_cam: Vec<Vec9> = st
@@ -356,19 +484,25 @@ pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
             sq.map(|v| 1.0 / (1.0 + v.sqrt()))
         })
         .collect();
-    let s_point: Vec<Vector3<f64>> = st
+    let mut point_sq: Vec<Vector3<f64>> = st
         .by_point
         .iter()
         .map(|ks| {
-            let sq = ks.iter().fold(Vector3::zeros(), |acc, &k| {
+            ks.iter().fold(Vector3::zeros(), |acc, &k| {
                 acc + e.j_point[k].row_iter().fold(Vector3::zeros(), |a, r| {
                     a + r.transpose().component_mul(&r.transpose())
                 })
-            });
-            sq.map(|v| 1.0 / (1.0 + v.sqrt()))
+            })
         })
         .collect();
-    let mut n = scaled_normal(p, &st, &e, &s_cam, &s_point);
+    for q in priors {
+        point_sq[q.point] += Vector3::from(q.sigma).map(|v| 1.0 / (v * v));
+    }
+    let s_point: Vec<Vector3<f64>> = point_sq
+        .iter()
+        .map(|sq| sq.map(|v| 1.0 / (1.0 + v.sqrt())))
+        .collect();
+    let mut n = scaled_normal(p, priors, &st, &e, &s_cam, &s_point);
     let diag_of = |n: &Normal| -> (Vec<Vec9>, Vec<Vector3<f64>>) {
         (
             n.u.iter()
@@ -457,7 +591,16 @@ pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
                     + e.j_point[k] * y_point[j].component_mul(&s_point[j]);
                 -jy.dot(&(e.residuals[k] + jy * 0.5))
             })
-            .sum();
+            .sum::<f64>()
+            + priors
+                .iter()
+                .map(|q| {
+                    let jy = y_point[q.point]
+                        .component_mul(&s_point[q.point])
+                        .component_div(&Vector3::from(q.sigma));
+                    -jy.dot(&(prior_residual(p, q) + jy * 0.5))
+                })
+                .sum::<f64>();
         let delta_cam: Vec<Vec9> = y_cam
             .iter()
             .zip(&s_cam)
@@ -503,7 +646,7 @@ pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
                 *v += dv;
             }
         }
-        let new_cost = cost_of(&candidate, s.loss);
+        let new_cost = cost_of(&candidate, priors, s.loss);
         let new_cost = if new_cost.is_finite() {
             new_cost
         } else {
@@ -531,8 +674,8 @@ pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
                 .min(s.max_radius);
             decrease = 2.0;
             accepted_steps += 1;
-            e = evaluate(p, s.loss);
-            n = scaled_normal(p, &st, &e, &s_cam, &s_point);
+            e = evaluate(p, priors, s);
+            n = scaled_normal(p, priors, &st, &e, &s_cam, &s_point);
             (d_cam, d_point) = diag_of(&n);
             record.accepted = true;
             record.gradient_max_norm = gradient_max(&n);
@@ -676,6 +819,85 @@ mod tests {
         // Noise-free projections are reached within the noise's share of the parameters:
         // 0.5 px · √(p / n) ≈ 0.22 px.
         assert!(before > 3.0 && after < 0.35, "{before} -> {after}");
+    }
+
+    #[test]
+    fn covariance_agrees_with_a_monte_carlo_spread() {
+        // 4 cameras, 60 points, 10 of them surveyed (σ 1 cm: they fix the gauge), 0.5 px noise,
+        // the distortion held fixed.
+        let (truth, _) = scene(11, 0.0, 0.0);
+        let mut truth = truth;
+        truth.cameras.truncate(4);
+        truth.points.truncate(60);
+        truth.observations.retain(|o| o.camera < 4 && o.point < 60);
+        let settings = BaSettings {
+            fixed_camera_params: [false, false, false, false, false, false, false, true, true],
+            function_tolerance: 1e-12,
+            ..BaSettings::default()
+        };
+        let sigma = [0.01; 3];
+        let exact: Vec<PointPrior> = (0..10)
+            .map(|j| PointPrior {
+                point: j * 6,
+                position: truth.points[j * 6],
+                sigma,
+            })
+            .collect();
+        let (predicted, s) = camera_covariance(&truth, &exact, &settings, Some(0.5)).unwrap();
+        assert_eq!(s, 0.5);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let trials = 300;
+        let mut samples: Vec<Vec<f64>> = Vec::new();
+        let mut sigma_hat = Vec::new();
+        for _ in 0..trials {
+            let mut p = truth.clone();
+            for o in &mut p.observations {
+                o.xy[0] += 0.5 * normal.sample(&mut rng);
+                o.xy[1] += 0.5 * normal.sample(&mut rng);
+            }
+            let priors: Vec<PointPrior> = exact
+                .iter()
+                .map(|q| PointPrior {
+                    position: [0, 1, 2].map(|c| q.position[c] + sigma[c] * normal.sample(&mut rng)),
+                    ..*q
+                })
+                .collect();
+            let summary = bundle_adjust_with_priors(&mut p, &priors, &settings);
+            assert!(summary.termination.converged(), "{:?}", summary.termination);
+            sigma_hat.push(camera_covariance(&p, &priors, &settings, None).unwrap().1);
+            samples.push(
+                p.cameras
+                    .iter()
+                    .zip(&truth.cameras)
+                    .flat_map(|(a, b)| (0..9).map(move |k| a[k] - b[k]))
+                    .collect(),
+            );
+        }
+        let mut checked = 0;
+        for k in 0..36 {
+            let want = predicted[(k, k)].sqrt();
+            let values: Vec<f64> = samples.iter().map(|v| v[k]).collect();
+            if settings.fixed_camera_params[k % 9] {
+                assert!(want == 0.0 && values.iter().all(|v| *v == 0.0));
+                continue;
+            }
+            let mean = values.iter().sum::<f64>() / trials as f64;
+            let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (trials - 1) as f64)
+                .sqrt();
+            // 300 trials: the sample sd is within ±12 % (3σ) of the true one.
+            assert!(
+                (sd / want - 1.0).abs() < 0.12,
+                "parameter {k}: Monte Carlo {sd:e}, predicted {want:e}"
+            );
+            checked += 1;
+        }
+        assert_eq!(checked, 28);
+        // The noise estimated from the cost: 0.5 px on average.
+        let mean_hat = sigma_hat.iter().sum::<f64>() / trials as f64;
+        assert!((mean_hat / 0.5 - 1.0).abs() < 0.03, "{mean_hat}");
+        // Without priors the gauge is free: no covariance.
+        assert!(camera_covariance(&truth, &[], &settings, Some(0.5)).is_none());
     }
 
     #[test]

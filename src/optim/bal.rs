@@ -44,7 +44,7 @@ pub fn rotation(w: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// The left Jacobian of SO(3): `∂(R(w)·X)/∂w = −[R(w)·X]ₓ · J(w)`.
-fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
+pub(crate) fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
     let theta2 = w.norm_squared();
     let k = w.cross_matrix();
     if theta2 > 1e-12 {

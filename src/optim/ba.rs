@@ -269,9 +269,24 @@ struct Normal {
     g_point: Vec<Vector3<f64>>,
 }
 
+/// Which observations each camera and each point has.
 struct Structure {
     by_camera: Vec<Vec<usize>>,
     by_point: Vec<Vec<usize>>,
+}
+
+impl Structure {
+    fn new(p: &BalProblem) -> Structure {
+        let mut st = Structure {
+            by_camera: vec![Vec::new(); p.cameras.len()],
+            by_point: vec![Vec::new(); p.points.len()],
+        };
+        for (k, o) in p.observations.iter().enumerate() {
+            st.by_camera[o.camera].push(k);
+            st.by_point[o.point].push(k);
+        }
+        st
+    }
 }
 
 fn scaled_normal(
@@ -452,14 +467,7 @@ pub fn camera_covariance(
     sigma_px: Option<f64>,
 ) -> Option<(DMatrix<f64>, f64)> {
     let (nc, np) = (p.cameras.len(), p.points.len());
-    let mut st = Structure {
-        by_camera: vec![Vec::new(); nc],
-        by_point: vec![Vec::new(); np],
-    };
-    for (k, o) in p.observations.iter().enumerate() {
-        st.by_camera[o.camera].push(k);
-        st.by_point[o.point].push(k);
-    }
+    let st = Structure::new(p);
     let mut e = evaluate(p, &Priors::default(), settings);
     let fixed = settings.fixed_camera_params;
     let free = 9 * nc - fixed.iter().filter(|f| **f).count() * nc + 3 * np;
@@ -514,14 +522,7 @@ pub fn bundle_adjust_with_priors(
     let start = Instant::now();
     let s = settings;
     let (nc, np) = (p.cameras.len(), p.points.len());
-    let mut st = Structure {
-        by_camera: vec![Vec::new(); nc],
-        by_point: vec![Vec::new(); np],
-    };
-    for (k, o) in p.observations.iter().enumerate() {
-        st.by_camera[o.camera].push(k);
-        st.by_point[o.point].push(k);
-    }
+    let st = Structure::new(p);
     let mut e = evaluate(p, priors, s);
     let initial_cost = e.cost;
     // Jacobi scaling from the first Jacobian's column norms.

@@ -6,7 +6,7 @@ use anyhow::{Context, anyhow};
 
 use super::bad_input;
 use crate::optim::RobustLoss;
-use crate::optim::ba::{BaSettings, bundle_adjust};
+use crate::optim::ba::{BaSettings, LinearSolver, bundle_adjust};
 use crate::optim::bal::{bal_text, read_bal};
 
 #[derive(clap::Args)]
@@ -20,6 +20,10 @@ pub struct Args {
     /// Loss on each observation: none, huber[:K] or cauchy[:K] (K in pixels)
     #[arg(long, default_value = "none", value_name = "LOSS")]
     loss: String,
+    /// Reduced camera system: dense (Cholesky), iterative (conjugate gradients, Schur–Jacobi
+    /// preconditioner) or auto (dense up to 200 cameras)
+    #[arg(long, default_value = "auto", value_parser = ["auto", "dense", "iterative"])]
+    linear_solver: String,
     /// Write the adjusted problem here (BAL)
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
@@ -39,6 +43,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &BaSettings {
             max_iterations: args.max_iterations,
             loss,
+            linear_solver: match args.linear_solver.as_str() {
+                "dense" => LinearSolver::DenseSchur,
+                "iterative" => LinearSolver::IterativeSchur,
+                _ => LinearSolver::Auto,
+            },
             ..BaSettings::default()
         },
     );

@@ -17,7 +17,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -288,6 +288,73 @@ struct Normal {
     g_point: Vec<Vector3<f64>>,
 }
 
+/// Per group of observations (a camera's, a point's): `Σ JᵀJ` and `Σ Jᵀr`, `jac(k)` the
+/// observation's Jacobian with respect to the group's parameters.
+fn normal_blocks<const N: usize>(
+    groups: &[Vec<usize>],
+    jac: impl Fn(usize) -> SMatrix<f64, 2, N> + Sync,
+    residuals: &[Vector2<f64>],
+) -> (Vec<SMatrix<f64, N, N>>, Vec<SVector<f64, N>>) {
+    groups
+        .par_iter()
+        .map(|ks| {
+            let mut a = SMatrix::<f64, N, N>::zeros();
+            let mut g = SVector::<f64, N>::zeros();
+            for &k in ks {
+                let j = jac(k);
+                a += j.transpose() * j;
+                g += j.transpose() * residuals[k];
+            }
+            (a, g)
+        })
+        .unzip()
+}
+
+/// Per group of observations, the squared norms of its parameters' Jacobian columns.
+fn column_norms_sq<const N: usize>(
+    groups: &[Vec<usize>],
+    jac: &[SMatrix<f64, 2, N>],
+) -> Vec<SVector<f64, N>> {
+    groups
+        .iter()
+        .map(|ks| {
+            ks.iter().fold(SVector::<f64, N>::zeros(), |acc, &k| {
+                acc + jac[k].row_iter().fold(SVector::<f64, N>::zeros(), |a, r| {
+                    a + r.transpose().component_mul(&r.transpose())
+                })
+            })
+        })
+        .collect()
+}
+
+/// Ceres's Jacobi scaling of a column of squared norm `sq`: `1 / (1 + ‖column‖)`.
+fn jacobi_scales<const N: usize>(sq: &[SVector<f64, N>]) -> Vec<SVector<f64, N>> {
+    sq.iter()
+        .map(|v| v.map(|x| 1.0 / (1.0 + x.sqrt())))
+        .collect()
+}
+
+/// The LM diagonal: each block's diagonal clamped to `[lo, hi]`.
+fn clamped_diagonals<const N: usize>(
+    blocks: &[SMatrix<f64, N, N>],
+    lo: f64,
+    hi: f64,
+) -> Vec<SVector<f64, N>> {
+    blocks
+        .iter()
+        .map(|b| b.diagonal().map(|v| v.clamp(lo, hi)))
+        .collect()
+}
+
+/// The largest entry of an unscaled gradient, from the scaled one and its scales.
+fn unscaled_max<const N: usize>(scaled: &[SVector<f64, N>], scales: &[SVector<f64, N>]) -> f64 {
+    scaled
+        .iter()
+        .zip(scales)
+        .map(|(g, sc)| g.component_div(sc).amax())
+        .fold(0.0, f64::max)
+}
+
 /// Which observations each camera and each point has.
 struct Structure {
     by_camera: Vec<Vec<usize>>,
@@ -320,34 +387,8 @@ fn scaled_normal(
     let obs = &p.observations;
     let jc = |k: usize| e.j_cam[k] * Mat99::from_diagonal(&s_cam[obs[k].camera]);
     let jp = |k: usize| e.j_point[k] * Matrix3::from_diagonal(&s_point[obs[k].point]);
-    let (mut u, mut g_cam): (Vec<Mat99>, Vec<Vec9>) = st
-        .by_camera
-        .par_iter()
-        .map(|ks| {
-            let mut u = Mat99::zeros();
-            let mut g = Vec9::zeros();
-            for &k in ks {
-                let j = jc(k);
-                u += j.transpose() * j;
-                g += j.transpose() * e.residuals[k];
-            }
-            (u, g)
-        })
-        .unzip();
-    let (mut v, mut g_point): (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) = st
-        .by_point
-        .par_iter()
-        .map(|ks| {
-            let mut v = Matrix3::zeros();
-            let mut g = Vector3::zeros();
-            for &k in ks {
-                let j = jp(k);
-                v += j.transpose() * j;
-                g += j.transpose() * e.residuals[k];
-            }
-            (v, g)
-        })
-        .unzip();
+    let (mut u, mut g_cam) = normal_blocks(&st.by_camera, jc, &e.residuals);
+    let (mut v, mut g_point) = normal_blocks(&st.by_point, jp, &e.residuals);
     // A prior's Jacobian is diag(1/σ), scaled like the point's columns.
     for q in &priors.points {
         let sp = s_point[q.point];
@@ -603,10 +644,6 @@ fn schur_step(
     Some((y_cam, y_point))
 }
 
-fn clamp_diagonal(m: &[f64], lo: f64, hi: f64) -> impl Iterator<Item = f64> + '_ {
-    m.iter().map(move |v| v.clamp(lo, hi))
-}
-
 /// The covariance of the cameras' parameters at the problem's current values: `9·cameras`
 /// square, camera after camera: the inverse of the information matrix (observations weighted by
 /// `1/σ²`, priors by their own σ) with the points eliminated. `σ` is `sigma_px` or, when `None`,
@@ -661,6 +698,45 @@ pub fn camera_covariance(
     Some((cov, sigma))
 }
 
+/// The decrease of the linearised cost along a step `δ` (the problem's own variables):
+/// `−(Jδ)ᵀ(r + Jδ/2)` over the observations and the priors.
+fn model_decrease(
+    p: &BalProblem,
+    priors: &Priors,
+    e: &Evaluation,
+    delta_cam: &[Vec9],
+    delta_point: &[Vector3<f64>],
+    fixed: [bool; 9],
+) -> f64 {
+    let obs = &p.observations;
+    let observed: f64 = (0..obs.len())
+        .into_par_iter()
+        .map(|k| {
+            let jd =
+                e.j_cam[k] * delta_cam[obs[k].camera] + e.j_point[k] * delta_point[obs[k].point];
+            -jd.dot(&(e.residuals[k] + jd * 0.5))
+        })
+        .sum();
+    let centres: f64 = priors
+        .centres
+        .iter()
+        .map(|q| {
+            let (r, j) = centre_residual(p, q);
+            let jd = fixed_columns(j, fixed) * delta_cam[q.camera];
+            -jd.dot(&(r + jd * 0.5))
+        })
+        .sum();
+    let points: f64 = priors
+        .points
+        .iter()
+        .map(|q| {
+            let jd = delta_point[q.point].component_div(&Vector3::from(q.sigma));
+            -jd.dot(&(prior_residual(p, q) + jd * 0.5))
+        })
+        .sum();
+    observed + centres + points
+}
+
 /// Adjusts the problem's cameras and points in place.
 pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
     bundle_adjust_with_priors(p, &Priors::default(), settings)
@@ -680,84 +756,30 @@ pub fn bundle_adjust_with_priors(
     let mut e = evaluate(p, priors, s);
     let initial_cost = e.cost;
     // Jacobi scaling from the first Jacobian's column norms.
-    let mut cam_sq: Vec<Vec9> = st
-        .by_camera
-        .iter()
-        .map(|ks| {
-            ks.iter().fold(Vec9::zeros(), |acc, &k| {
-                acc + e.j_cam[k].row_iter().fold(Vec9::zeros(), |a, r| {
-                    a + r.transpose().component_mul(&r.transpose())
-                })
-            })
-        })
-        .collect();
+    let mut cam_sq = column_norms_sq(&st.by_camera, &e.j_cam);
     for q in &priors.centres {
         let j = fixed_columns(centre_residual(p, q).1, s.fixed_camera_params);
         for r in j.row_iter() {
             cam_sq[q.camera] += r.transpose().component_mul(&r.transpose());
         }
     }
-    let s_cam: Vec<Vec9> = cam_sq
-        .iter()
-        .map(|sq| sq.map(|v| 1.0 / (1.0 + v.sqrt())))
-        .collect();
-    let mut point_sq: Vec<Vector3<f64>> = st
-        .by_point
-        .iter()
-        .map(|ks| {
-            ks.iter().fold(Vector3::zeros(), |acc, &k| {
-                acc + e.j_point[k].row_iter().fold(Vector3::zeros(), |a, r| {
-                    a + r.transpose().component_mul(&r.transpose())
-                })
-            })
-        })
-        .collect();
+    let s_cam = jacobi_scales(&cam_sq);
+    let mut point_sq = column_norms_sq(&st.by_point, &e.j_point);
     for q in &priors.points {
         point_sq[q.point] += Vector3::from(q.sigma).map(|v| 1.0 / (v * v));
     }
-    let s_point: Vec<Vector3<f64>> = point_sq
-        .iter()
-        .map(|sq| sq.map(|v| 1.0 / (1.0 + v.sqrt())))
-        .collect();
+    let s_point = jacobi_scales(&point_sq);
     let mut n = scaled_normal(p, priors, &st, &e, &s_cam, &s_point, s.fixed_camera_params);
-    let diag_of = |n: &Normal| -> (Vec<Vec9>, Vec<Vector3<f64>>) {
+    let diag_of = |n: &Normal| {
         (
-            n.u.iter()
-                .map(|u| {
-                    Vec9::from_iterator(clamp_diagonal(
-                        u.diagonal().as_slice(),
-                        s.min_diagonal,
-                        s.max_diagonal,
-                    ))
-                })
-                .collect(),
-            n.v.iter()
-                .map(|v| {
-                    Vector3::from_iterator(clamp_diagonal(
-                        v.diagonal().as_slice(),
-                        s.min_diagonal,
-                        s.max_diagonal,
-                    ))
-                })
-                .collect(),
+            clamped_diagonals(&n.u, s.min_diagonal, s.max_diagonal),
+            clamped_diagonals(&n.v, s.min_diagonal, s.max_diagonal),
         )
     };
     let (mut d_cam, mut d_point) = diag_of(&n);
     // The gradient of the unscaled problem, Jᵀr: the scaled one divided by the scales.
     let gradient_max = |n: &Normal| -> f64 {
-        let gc = n.g_cam.iter().zip(&s_cam).flat_map(|(g, sc)| {
-            g.component_div(sc)
-                .iter()
-                .map(|v| v.abs())
-                .collect::<Vec<_>>()
-        });
-        let gp = n.g_point.iter().zip(&s_point).flat_map(|(g, sp)| {
-            g.component_div(sp)
-                .iter()
-                .map(|v| v.abs())
-                .collect::<Vec<_>>()
-        });
-        gc.chain(gp).fold(0.0, f64::max)
+        unscaled_max(&n.g_cam, &s_cam).max(unscaled_max(&n.g_point, &s_point))
     };
     let x_norm = |p: &BalProblem| -> f64 {
         (p.cameras.iter().flatten().map(|v| v * v).sum::<f64>()
@@ -775,74 +797,38 @@ pub fn bundle_adjust_with_priors(
     }
     while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
         let t0 = Instant::now();
-        let step = schur_step(p, &st, &n, &d_cam, &d_point, radius, s.linear_solver);
-        let Some((y_cam, y_point)) = step else {
-            invalid += 1;
-            radius /= decrease;
-            decrease *= 2.0;
-            iterations.push(BaIteration {
-                iteration: iterations.len() + 1,
-                cost: e.cost,
-                cost_change: 0.0,
-                gradient_max_norm: gradient_max(&n),
-                step_norm: 0.0,
-                rho: f64::NAN,
-                radius,
-                accepted: false,
-                seconds: t0.elapsed().as_secs_f64(),
-            });
-            if invalid >= 5 {
-                termination = BaTermination::Failure;
-            } else if radius < s.min_radius {
-                termination = BaTermination::MinRadius;
-            }
-            continue;
-        };
-        // The model's decrease: −(Jy)ᵀ(r + Jy/2), J the scaled Jacobian.
-        let obs = &p.observations;
-        let model_change: f64 = (0..obs.len())
-            .into_par_iter()
-            .map(|k| {
-                let (c, j) = (obs[k].camera, obs[k].point);
-                let jy = e.j_cam[k] * y_cam[c].component_mul(&s_cam[c])
-                    + e.j_point[k] * y_point[j].component_mul(&s_point[j]);
-                -jy.dot(&(e.residuals[k] + jy * 0.5))
-            })
-            .sum::<f64>()
-            + priors
-                .centres
-                .iter()
-                .map(|q| {
-                    let (r, j) = centre_residual(p, q);
-                    let j = fixed_columns(j, s.fixed_camera_params);
-                    let jy = j * y_cam[q.camera].component_mul(&s_cam[q.camera]);
-                    -jy.dot(&(r + jy * 0.5))
-                })
-                .sum::<f64>()
-            + priors
-                .points
-                .iter()
-                .map(|q| {
-                    let jy = y_point[q.point]
-                        .component_mul(&s_point[q.point])
-                        .component_div(&Vector3::from(q.sigma));
-                    -jy.dot(&(prior_residual(p, q) + jy * 0.5))
-                })
-                .sum::<f64>();
-        let delta_cam: Vec<Vec9> = y_cam
-            .iter()
-            .zip(&s_cam)
-            .map(|(y, sc)| y.component_mul(sc))
-            .collect();
-        let delta_point: Vec<Vector3<f64>> = y_point
-            .iter()
-            .zip(&s_point)
-            .map(|(y, sp)| y.component_mul(sp))
-            .collect();
-        let step_norm = (delta_cam.iter().map(|d| d.norm_squared()).sum::<f64>()
-            + delta_point.iter().map(|d| d.norm_squared()).sum::<f64>())
-        .sqrt();
-        if !(model_change > 0.0) {
+        // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
+        let step = schur_step(p, &st, &n, &d_cam, &d_point, radius, s.linear_solver).map(
+            |(y_cam, y_point)| {
+                let delta_cam: Vec<Vec9> = y_cam
+                    .iter()
+                    .zip(&s_cam)
+                    .map(|(y, sc)| y.component_mul(sc))
+                    .collect();
+                let delta_point: Vec<Vector3<f64>> = y_point
+                    .iter()
+                    .zip(&s_point)
+                    .map(|(y, sp)| y.component_mul(sp))
+                    .collect();
+                let model_change = model_decrease(
+                    p,
+                    priors,
+                    &e,
+                    &delta_cam,
+                    &delta_point,
+                    s.fixed_camera_params,
+                );
+                (delta_cam, delta_point, model_change)
+            },
+        );
+        let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
+            (dc.iter().map(|d| d.norm_squared()).sum::<f64>()
+                + dp.iter().map(|d| d.norm_squared()).sum::<f64>())
+            .sqrt()
+        });
+        // A step that could not be computed, or whose model does not decrease, is rejected;
+        // five in a row is a failure.
+        let Some((delta_cam, delta_point, model_change)) = step.filter(|st| st.2 > 0.0) else {
             invalid += 1;
             radius /= decrease;
             decrease *= 2.0;
@@ -859,9 +845,11 @@ pub fn bundle_adjust_with_priors(
             });
             if invalid >= 5 {
                 termination = BaTermination::Failure;
+            } else if radius < s.min_radius {
+                termination = BaTermination::MinRadius;
             }
             continue;
-        }
+        };
         invalid = 0;
         let mut candidate = p.clone();
         for (c, d) in candidate.cameras.iter_mut().zip(&delta_cam) {

@@ -671,16 +671,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         seconds: started.elapsed().as_secs_f64(),
         passed: failed.is_empty(),
     };
-    crate::io::write_atomic(
-        &dir.join("demo.json"),
-        serde_json::to_string_pretty(&report)?.as_bytes(),
-    )?;
+    finish("demo", json, &dir, &report, &failed, report.seconds)
+}
+
+/// The end of a demo: `demo.json` written (and printed with `--json`), then an error naming
+/// the targets missed, or the all-clear.
+fn finish(
+    label: &str,
+    json: bool,
+    dir: &Path,
+    report: &impl Serialize,
+    failed: &[&String],
+    seconds: f64,
+) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(report)?;
+    crate::io::write_atomic(&dir.join("demo.json"), text.as_bytes())?;
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        println!("{text}");
     }
     if !failed.is_empty() {
         bail!(
-            "demo self-check failed: {}",
+            "{label} self-check failed: {}",
             failed
                 .iter()
                 .map(|s| s.as_str())
@@ -688,10 +699,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .join("; ")
         );
     }
+    let mut title = label.to_string();
+    title[..1].make_ascii_uppercase();
     say!(
         json,
-        "\nDemo OK in {:.0} s: every target met. Outputs in {}.",
-        report.seconds,
+        "\n{title} OK in {seconds:.0} s: every target met. Outputs in {}.",
         dir.display()
     );
     Ok(())
@@ -867,30 +879,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         seconds: started.elapsed().as_secs_f64(),
         passed: failed.is_empty(),
     };
-    crate::io::write_atomic(
-        &dir.join("demo.json"),
-        serde_json::to_string_pretty(&out)?.as_bytes(),
-    )?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
-    }
-    if !failed.is_empty() {
-        bail!(
-            "crowd demo self-check failed: {}",
-            failed
-                .iter()
-                .map(|s| s.as_str())
-                .collect::<Vec<_>>()
-                .join("; ")
-        );
-    }
-    say!(
-        json,
-        "\nCrowd demo OK in {:.0} s: every target met. Outputs in {}.",
-        out.seconds,
-        dir.display()
-    );
-    Ok(())
+    finish("crowd demo", json, &dir, &out, &failed, out.seconds)
 }
 
 fn print_stages(json: bool, r: &RunReport) {

@@ -695,6 +695,17 @@ mod tests {
         }
     }
 
+    /// A detection at `uv` whose 30 px box is centred on `centre`, σ 2 px.
+    fn detection(centre: &Vector2<f64>, uv: Vector2<f64>, score: f64) -> Detection {
+        Detection {
+            uv,
+            cov: Matrix2::identity() * 4.0,
+            bbox: [centre.x - 15.0, centre.y - 15.0, 30.0, 30.0],
+            area_px: 900.0,
+            score,
+        }
+    }
+
     #[test]
     fn follows_people_through_missed_detections_and_drops_false_alarms() {
         let frames = 120;
@@ -719,23 +730,12 @@ mod tests {
                 .enumerate()
                 // Every fourth frame misses one person; person 2 is missed at the entry.
                 .filter(|(k, _)| !((f % 4 == 1 && *k == 0) || (*k == 2 && f < 20)))
-                .map(|(_, p)| Detection {
-                    uv: p + Vector2::new(((f * 7) % 5) as f64 - 2.0, 0.0),
-                    cov: Matrix2::identity() * 4.0,
-                    bbox: [p.x - 15.0, p.y - 15.0, 30.0, 30.0],
-                    area_px: 900.0,
-                    score: 1.0,
-                })
+                .map(|(_, p)| detection(p, p + Vector2::new(((f * 7) % 5) as f64 - 2.0, 0.0), 1.0))
                 .collect();
             if f == 50 {
                 // A false alarm on empty ground.
-                dets.push(Detection {
-                    uv: Vector2::new(300.0, 330.0),
-                    cov: Matrix2::identity() * 4.0,
-                    bbox: [285.0, 315.0, 30.0, 30.0],
-                    area_px: 900.0,
-                    score: 0.4,
-                });
+                let at = Vector2::new(300.0, 330.0);
+                dets.push(detection(&at, at, 0.4));
             }
             tracker.update(f, f, &dets, &still).unwrap();
         }
@@ -786,13 +786,7 @@ mod tests {
             let dets: Vec<Detection> = people
                 .iter()
                 .filter(|_| f >= 20)
-                .map(|p| Detection {
-                    uv: *p,
-                    cov: Matrix2::identity() * 4.0,
-                    bbox: [p.x - 15.0, p.y - 15.0, 30.0, 30.0],
-                    area_px: 900.0,
-                    score: 1.0,
-                })
+                .map(|p| detection(p, *p, 1.0))
                 .collect();
             tracker.update(f, f, &dets, &still).unwrap();
         }

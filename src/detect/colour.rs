@@ -852,6 +852,15 @@ mod tests {
         bgr
     }
 
+    /// Every third pixel of a frame, RGB: the palette's sample.
+    fn every_third_pixel(frame: &FrameView) -> Vec<[u8; 3]> {
+        let w = frame.width;
+        (0..w * frame.height)
+            .step_by(3)
+            .map(|i| frame.pixel(i % w, i / w))
+            .collect()
+    }
+
     #[test]
     fn finds_shaded_hats_and_ignores_a_line() {
         let (w, h) = (320, 200);
@@ -863,10 +872,7 @@ mod tests {
             height: h,
             bgr: &bgr,
         };
-        let pixels: Vec<[u8; 3]> = (0..w * h)
-            .step_by(3)
-            .map(|i| frame.pixel(i % w, i / w))
-            .collect();
+        let pixels = every_third_pixel(&frame);
         let s = ColourSettings {
             px_per_m: 50.0,
             ..ColourSettings::default()
@@ -895,10 +901,7 @@ mod tests {
             height: h,
             bgr: &bgr,
         };
-        let pixels: Vec<[u8; 3]> = (0..w * h)
-            .step_by(3)
-            .map(|i| frame.pixel(i % w, i / w))
-            .collect();
+        let pixels = every_third_pixel(&frame);
         let s = ColourSettings {
             px_per_m: 100.0,
             ..ColourSettings::default()

@@ -14,11 +14,7 @@ fn ba_json(file: &std::path::Path, extra: &[&str]) -> serde_json::Value {
         .args(extra)
         .output()
         .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::assert_success(&run);
     serde_json::from_slice(&run.stdout).unwrap()
 }
 

@@ -22,11 +22,7 @@ fn setup(dir: &Path) -> PathBuf {
         ])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::assert_success(&out);
     let video = if dir.join("video.mp4").is_file() {
         "video.mp4"
     } else {
@@ -150,7 +146,7 @@ fn runs_reuses_resumes_and_writes_gis_files() {
     assert!(!killed.status.success(), "the run was meant to die");
     assert!(b.join(".stages/scan.json").is_file() && !b.join("trajectories.csv").exists());
     let o = run(&project, &b);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::assert_success(&o);
     assert_eq!(report(&b)["stages"][0]["status"], "reused");
     for f in SAME {
         assert_eq!(
@@ -186,7 +182,7 @@ fn runs_reuses_resumes_and_writes_gis_files() {
         );
     }
     let o = run(&project, &c);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::assert_success(&o);
     for f in SAME {
         assert_eq!(
             std::fs::read(a.join(f)).unwrap(),

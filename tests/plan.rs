@@ -9,7 +9,7 @@ fn plan_json(args: &[&str]) -> serde_json::Value {
         .arg("--json")
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::assert_success(&o);
     serde_json::from_slice(&o.stdout).unwrap()
 }
 
@@ -72,7 +72,7 @@ fn maps_are_written_and_bad_input_is_refused() {
         .arg(tmp.path())
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::assert_success(&o);
     for f in ["height-error.png", "noise95.png"] {
         let bytes = std::fs::read(tmp.path().join(f)).unwrap();
         assert_eq!(&bytes[1..4], b"PNG", "{f}");

@@ -75,11 +75,7 @@ fn solves_a_view_flags_its_outliers_and_draws_them() {
         ])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::assert_success(&out);
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let c = view.cam_from_world.centre();
     let p = &j["camera_position"];
@@ -208,11 +204,7 @@ fn a_gcp_list_with_picks_needs_no_picks_file() {
         ])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::assert_success(&out);
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(j["image"], "shot.jpg");
     assert!(

@@ -65,11 +65,7 @@ fn every_frame_of_a_drifting_hover_is_within_a_pixel_of_the_truth() {
         ])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::assert_success(&out);
 
     // The simulator's site frame is the tangent frame at its origin: use the same one.
     let scene_json: serde_json::Value =

@@ -268,7 +268,7 @@ fn cli_calibrates_the_folder_and_writes_every_format() {
             .arg(&dir)
             .output()
             .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        common::assert_success(&o);
         let stdout = String::from_utf8_lossy(&o.stdout);
         assert!(stdout.contains("RMS reprojection error"), "{stdout}");
         let cal = formats::read(&out, None).unwrap();

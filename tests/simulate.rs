@@ -22,7 +22,7 @@ fn simulate(out: &Path, extra: &[&str]) {
         .args(extra)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::assert_success(&o);
 }
 
 #[test]
@@ -63,7 +63,7 @@ fn the_same_seed_gives_byte_identical_truth() {
         .arg(a.path().join("gcps.csv"))
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    common::assert_success(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["counts"]["points"], 2);
     assert_eq!(v["height"], "ellipsoidal");

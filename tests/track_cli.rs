@@ -29,11 +29,7 @@ fn vtest_goes_through_background_detection_and_klt() {
         .arg("--json")
         .output()
         .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::assert_success(&run);
     let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     println!("{}", serde_json::to_string_pretty(&report).unwrap());
     let n = |k: &str| {

@@ -32,3 +32,12 @@ pub fn data_dir(sub: &str) -> Option<PathBuf> {
 pub fn geostride() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))
 }
+
+/// Fails the test with the command's stderr unless it succeeded.
+pub fn assert_success(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

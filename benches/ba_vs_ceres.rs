@@ -63,7 +63,7 @@ fn main() {
     let (mut our_summary, mut their_json) = (None, serde_json::Value::Null);
     for _ in 0..RUNS {
         let mut p = problem.clone();
-        let s = bundle_adjust(&mut p, &BaSettings::default());
+        let s = bundle_adjust(&mut p, &BaSettings::default()).unwrap_or_else(|e| panic!("{e}"));
         ours.push(s.seconds);
         our_summary = Some(s);
         let out = Command::new(&exe)

@@ -50,7 +50,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             },
             ..BaSettings::default()
         },
-    );
+    )
+    .map_err(|e| bad_input(anyhow!("{}: {e}", args.bal.display())))?;
     if let Some(out) = &args.out {
         crate::io::write_atomic(out, bal_text(&problem).as_bytes())
             .with_context(|| out.display().to_string())?;

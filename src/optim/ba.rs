@@ -6,11 +6,18 @@
 //! - the step solves `(JᵀJ + D/Δ) y = −Jᵀr` in the scaled variables, `D` the diagonal of `JᵀJ`
 //!   clamped to `[1e-6, 1e32]` (kept after a rejected step), `Δ` the trust-region radius;
 //! - the points are eliminated (each point's 3×3 block), the reduced camera system is solved by
-//!   dense Cholesky, and the points follow by back-substitution;
+//!   dense Cholesky or by preconditioned conjugate gradients, and the points follow by
+//!   back-substitution;
 //! - a step is accepted when the actual over the model's decrease exceeds 1e-3; then
 //!   `Δ ← Δ / max(1/3, 1 − (2ρ − 1)³)`, else `Δ ← Δ / ν`, `ν ← 2ν`;
 //! - it stops on the function (`|Δcost| ≤ tol·cost`), gradient (`‖g‖∞ ≤ tol`) and parameter
 //!   (`‖δ‖ ≤ tol·(‖x‖ + tol)`) tolerances, a radius below 1e-32, or the iteration limit.
+//!
+//! The camera side of a [`Problem`] is a pose per image (`cam_from_world`, angle-axis and
+//! translation) and intrinsics per group of images (one group for a single camera, one per image
+//! for self-calibrating every image), any parameter of either held fixed. The camera model is a
+//! [`Projection`] with `M` intrinsic parameters: the BAL camera (`M = 3`, in `bal`) or
+//! geostride's Brown–Conrady camera (`M = 13`, in `ba_camera`).
 //!
 //! Residuals and Jacobians are evaluated in parallel (rayon). Robust losses weight each
 //! observation by `√ρ'` (exact gradient, Gauss–Newton Hessian of the reweighted problem).
@@ -20,17 +27,149 @@ use std::time::Instant;
 use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
+use thiserror::Error;
 
 use super::RobustLoss;
-use super::bal::{BalProblem, project, project_with_jacobians};
+use super::bal::{BalIntrinsics, BalObservation, BalProblem, left_jacobian, rotation};
 
-type Mat93 = SMatrix<f64, 9, 3>;
-type Mat99 = SMatrix<f64, 9, 9>;
-type Vec9 = SMatrix<f64, 9, 1>;
-/// The reduced camera system `S`, its right-hand side, and the points' inverted blocks.
-type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Matrix3<f64>>);
-type JacCam = SMatrix<f64, 2, 9>;
-type JacPoint = SMatrix<f64, 2, 3>;
+/// One image measurement: image `camera` sees point `point` at `xy` (pixels).
+pub type Observation = BalObservation;
+
+type Mat6 = SMatrix<f64, 6, 6>;
+type Vec6 = SVector<f64, 6>;
+type Mat63 = SMatrix<f64, 6, 3>;
+type Mat26 = SMatrix<f64, 2, 6>;
+type Mat23 = SMatrix<f64, 2, 3>;
+type Mat36 = SMatrix<f64, 3, 6>;
+/// An observation's residual and its Jacobians (pose, intrinsics, point).
+type Linearised<const M: usize> = (Vector2<f64>, Mat26, SMatrix<f64, 2, M>, Mat23);
+
+/// A camera model's intrinsic part: a point in the camera frame to pixels, with the Jacobians
+/// with respect to the point and to the `M` intrinsic parameters.
+pub trait Projection<const M: usize>: Sync {
+    /// `None` where the model cannot project the point (behind the camera, beyond the fold of
+    /// the distortion).
+    fn project(&self, intrinsics: &[f64; M], p_cam: &Vector3<f64>) -> Option<Vector2<f64>>;
+    fn project_with_jacobians(
+        &self,
+        intrinsics: &[f64; M],
+        p_cam: &Vector3<f64>,
+    ) -> Option<(Vector2<f64>, Mat23, SMatrix<f64, 2, M>)>;
+}
+
+/// A bundle adjustment problem with `M` intrinsic parameters per camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Problem<const M: usize> {
+    /// Per image, `cam_from_world` as `[wx, wy, wz, tx, ty, tz]`: `X_cam = R(w)·X + t`, `w` an
+    /// angle-axis vector (radians), `t` in the points' unit.
+    pub poses: Vec<[f64; 6]>,
+    /// Per camera (group of images sharing intrinsics), its parameters.
+    pub intrinsics: Vec<[f64; M]>,
+    /// Per image, the index of its intrinsics.
+    pub intrinsics_of: Vec<usize>,
+    pub points: Vec<[f64; 3]>,
+    pub observations: Vec<Observation>,
+    /// Per image, which pose parameters are held fixed.
+    pub fixed_poses: Vec<[bool; 6]>,
+    /// Per camera, which intrinsic parameters are held fixed.
+    pub fixed_intrinsics: Vec<[bool; M]>,
+}
+
+impl<const M: usize> Problem<M> {
+    /// A problem with nothing held fixed.
+    pub fn new(
+        poses: Vec<[f64; 6]>,
+        intrinsics: Vec<[f64; M]>,
+        intrinsics_of: Vec<usize>,
+        points: Vec<[f64; 3]>,
+        observations: Vec<Observation>,
+    ) -> Self {
+        Problem {
+            fixed_poses: vec![[false; 6]; poses.len()],
+            fixed_intrinsics: vec![[false; M]; intrinsics.len()],
+            poses,
+            intrinsics,
+            intrinsics_of,
+            points,
+            observations,
+        }
+    }
+
+    /// The centre of image `i` in the points' frame: `C = −Rᵀt`.
+    pub fn centre(&self, i: usize) -> Vector3<f64> {
+        let q = &self.poses[i];
+        -rotation(&Vector3::new(q[0], q[1], q[2])).transpose() * Vector3::new(q[3], q[4], q[5])
+    }
+
+    /// Checks that every index is in range, every list has its length and every number is
+    /// finite.
+    pub fn check(&self) -> Result<(), BaError> {
+        let bad = |m: String| Err(BaError::Invalid(m));
+        let (ni, nk, np) = (self.poses.len(), self.intrinsics.len(), self.points.len());
+        if self.intrinsics_of.len() != ni {
+            return bad(format!(
+                "{ni} poses but {} intrinsics indices: give every image its camera",
+                self.intrinsics_of.len()
+            ));
+        }
+        if self.fixed_poses.len() != ni || self.fixed_intrinsics.len() != nk {
+            return bad(format!(
+                "fixed-parameter masks for {} poses and {} cameras, expected {ni} and {nk}",
+                self.fixed_poses.len(),
+                self.fixed_intrinsics.len()
+            ));
+        }
+        if let Some((i, g)) = self
+            .intrinsics_of
+            .iter()
+            .enumerate()
+            .find(|(_, g)| **g >= nk)
+        {
+            return bad(format!("image {i} uses camera {g}, but there are {nk}"));
+        }
+        for (k, o) in self.observations.iter().enumerate() {
+            if o.camera >= ni || o.point >= np {
+                return bad(format!(
+                    "observation {k} names image {} and point {} ({ni} images, {np} points)",
+                    o.camera, o.point
+                ));
+            }
+            if !o.xy.iter().all(|v| v.is_finite()) {
+                return bad(format!("observation {k} is not a finite pixel: {:?}", o.xy));
+            }
+        }
+        let finite = self.poses.iter().flatten().all(|v| v.is_finite())
+            && self.intrinsics.iter().flatten().all(|v| v.is_finite())
+            && self.points.iter().flatten().all(|v| v.is_finite());
+        if !finite {
+            return bad("a pose, camera or point parameter is not finite".into());
+        }
+        Ok(())
+    }
+}
+
+/// Why a problem cannot be adjusted.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum BaError {
+    #[error("invalid bundle adjustment problem: {0}")]
+    Invalid(String),
+    #[error(
+        "observation {observation} (image {image}, point {point}) cannot be projected at the \
+         starting values (the point is behind the camera or beyond the distortion's fold): \
+         start from better poses or drop the observation"
+    )]
+    Projection {
+        observation: usize,
+        image: usize,
+        point: usize,
+    },
+    #[error(
+        "the camera covariance is not defined: the information matrix is singular (without \
+         surveyed points or camera-centre priors the frame is free; or a parameter is not \
+         observed)"
+    )]
+    Singular,
+}
 
 /// Tolerances and limits (Ceres's defaults).
 #[derive(Clone, Debug)]
@@ -49,9 +188,6 @@ pub struct BaSettings {
     pub loss: RobustLoss,
     /// How the reduced camera system is solved.
     pub linear_solver: LinearSolver,
-    /// Camera parameters held fixed in every camera (e.g. `f`, `k1`, `k2` of a calibrated
-    /// camera), by index into the nine.
-    pub fixed_camera_params: [bool; 9],
 }
 
 /// The priors of a problem: on points (surveyed ground control points) and on camera centres
@@ -62,8 +198,8 @@ pub struct Priors {
     pub centres: Vec<CentrePrior>,
 }
 
-/// A prior on a camera's centre `C = −Rᵀt`: `(C − position) / sigma` per coordinate joins the
-/// residuals.
+/// A prior on an image's camera centre `C = −Rᵀt`: `(C − position) / sigma` per coordinate
+/// joins the residuals.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CentrePrior {
     pub camera: usize,
@@ -94,27 +230,26 @@ impl Default for BaSettings {
             min_diagonal: 1e-6,
             max_diagonal: 1e32,
             loss: RobustLoss::Squared,
-            fixed_camera_params: [false; 9],
             linear_solver: LinearSolver::Auto,
         }
     }
 }
 
-/// The solver of the reduced camera system `S y = b` (`9·cameras` unknowns).
+/// The solver of the reduced camera system `S y = b` (the camera-side unknowns).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LinearSolver {
-    /// Dense Cholesky up to 200 cameras, iterative beyond.
+    /// Dense Cholesky up to 200 images, iterative beyond.
     Auto,
     /// `S` formed and factored (Ceres's DENSE_SCHUR): exact, memory and time grow as the square
-    /// and the cube of the cameras.
+    /// and the cube of the images.
     DenseSchur,
-    /// Conjugate gradients on `S` without forming it, preconditioned by its 9×9 diagonal blocks
+    /// Conjugate gradients on `S` without forming it, preconditioned by its diagonal blocks
     /// (Ceres's ITERATIVE_SCHUR with SCHUR_JACOBI): memory grows with the observations.
     IterativeSchur,
 }
 
-/// Cameras beyond which `Auto` goes iterative.
-const DENSE_MAX_CAMERAS: usize = 200;
+/// Images beyond which `Auto` goes iterative.
+const DENSE_MAX_IMAGES: usize = 200;
 
 /// Why the solver stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -167,6 +302,7 @@ pub struct BaIteration {
 
 #[derive(Clone, Debug, Serialize)]
 pub struct BaSummary {
+    /// Images (poses).
     pub cameras: usize,
     pub points: usize,
     pub observations: usize,
@@ -178,11 +314,127 @@ pub struct BaSummary {
     pub seconds: f64,
 }
 
-/// Residuals and Jacobians at one point of the parameter space (weighted by the loss).
-struct Evaluation {
+/// Where the camera-side parameters sit in the flat vector of the reduced system: each image's
+/// pose, followed by its intrinsics when no other image shares them; shared intrinsics last.
+/// `units` are the diagonal blocks of the Schur–Jacobi preconditioner (offset, size): a pose
+/// with its own intrinsics, a pose alone, shared intrinsics.
+struct Layout {
+    pose: Vec<usize>,
+    intr: Vec<usize>,
+    dim: usize,
+    units: Vec<(usize, usize)>,
+    pose_unit: Vec<usize>,
+    intr_unit: Vec<usize>,
+}
+
+impl Layout {
+    fn new<const M: usize>(p: &Problem<M>) -> Layout {
+        let mut users = vec![0usize; p.intrinsics.len()];
+        for &g in &p.intrinsics_of {
+            users[g] += 1;
+        }
+        let mut lay = Layout {
+            pose: Vec::with_capacity(p.poses.len()),
+            intr: vec![usize::MAX; p.intrinsics.len()],
+            dim: 0,
+            units: Vec::new(),
+            pose_unit: Vec::with_capacity(p.poses.len()),
+            intr_unit: vec![usize::MAX; p.intrinsics.len()],
+        };
+        for &g in &p.intrinsics_of {
+            lay.pose.push(lay.dim);
+            lay.pose_unit.push(lay.units.len());
+            if users[g] == 1 {
+                lay.intr[g] = lay.dim + 6;
+                lay.intr_unit[g] = lay.units.len();
+                lay.units.push((lay.dim, 6 + M));
+                lay.dim += 6 + M;
+            } else {
+                lay.units.push((lay.dim, 6));
+                lay.dim += 6;
+            }
+        }
+        for g in 0..p.intrinsics.len() {
+            if lay.intr[g] == usize::MAX {
+                lay.intr[g] = lay.dim;
+                lay.intr_unit[g] = lay.units.len();
+                lay.units.push((lay.dim, M));
+                lay.dim += M;
+            }
+        }
+        lay
+    }
+
+    /// Image `i`'s pose offset and its intrinsics' offset.
+    fn of<const M: usize>(&self, p: &Problem<M>, i: usize) -> (usize, usize) {
+        (self.pose[i], self.intr[p.intrinsics_of[i]])
+    }
+
+    /// Per flat index: whether the parameter is estimated (not fixed, and observed).
+    fn free<const M: usize>(&self, p: &Problem<M>) -> Vec<bool> {
+        let mut free = vec![false; self.dim];
+        let mut used = vec![false; p.intrinsics.len()];
+        for (i, &g) in p.intrinsics_of.iter().enumerate() {
+            used[g] = true;
+            for (c, f) in p.fixed_poses[i].iter().enumerate() {
+                free[self.pose[i] + c] = !f;
+            }
+        }
+        for (g, fixed) in p.fixed_intrinsics.iter().enumerate() {
+            for (c, f) in fixed.iter().enumerate() {
+                free[self.intr[g] + c] = used[g] && !f;
+            }
+        }
+        free
+    }
+}
+
+/// The covariance of the camera-side parameters at the optimum.
+#[derive(Clone, Debug)]
+pub struct CameraCovariance {
+    /// Over every pose and camera parameter, in the solver's order (see [`Self::pose`] and
+    /// [`Self::intrinsics`]); fixed parameters have zero rows and columns.
+    pub matrix: DMatrix<f64>,
+    /// The observations' σ (pixels) the covariance is scaled by: given, or estimated.
+    pub sigma_px: f64,
+    pose_offsets: Vec<usize>,
+    intrinsics_offsets: Vec<usize>,
+    intrinsics_len: usize,
+}
+
+impl CameraCovariance {
+    /// The 6×6 covariance of image `i`'s pose (`w` radians, then `t`).
+    pub fn pose(&self, i: usize) -> DMatrix<f64> {
+        let o = self.pose_offsets[i];
+        self.matrix.view((o, o), (6, 6)).into_owned()
+    }
+
+    /// The covariance of camera `g`'s intrinsics.
+    pub fn intrinsics(&self, g: usize) -> DMatrix<f64> {
+        let (o, m) = (self.intrinsics_offsets[g], self.intrinsics_len);
+        self.matrix.view((o, o), (m, m)).into_owned()
+    }
+
+    /// The standard deviation of parameter `c` of image `i`'s pose.
+    pub fn pose_sigma(&self, i: usize, c: usize) -> f64 {
+        let o = self.pose_offsets[i] + c;
+        self.matrix[(o, o)].sqrt()
+    }
+
+    /// The standard deviation of intrinsic parameter `c` of camera `g`.
+    pub fn intrinsics_sigma(&self, g: usize, c: usize) -> f64 {
+        let o = self.intrinsics_offsets[g] + c;
+        self.matrix[(o, o)].sqrt()
+    }
+}
+
+/// Residuals and Jacobians at one point of the parameter space (weighted by the loss, fixed
+/// parameters' columns zeroed).
+struct Evaluation<const M: usize> {
     residuals: Vec<Vector2<f64>>,
-    j_cam: Vec<JacCam>,
-    j_point: Vec<JacPoint>,
+    j_pose: Vec<Mat26>,
+    j_intr: Vec<SMatrix<f64, 2, M>>,
+    j_point: Vec<Mat23>,
     cost: f64,
 }
 
@@ -191,40 +443,87 @@ fn robust(loss: RobustLoss, r: Vector2<f64>) -> (f64, f64) {
     (0.5 * loss.rho(s), loss.weight(s).max(0.0).sqrt())
 }
 
-/// The cost at the problem's parameters; summed in observation order, as [`evaluate`] does, so
-/// that the two agree to the last bit.
-fn prior_residual(p: &BalProblem, q: &PointPrior) -> Vector3<f64> {
-    (Vector3::from(p.points[q.point]) - Vector3::from(q.position))
-        .component_div(&Vector3::from(q.sigma))
+/// Where an image's camera sees a point, minus the measurement.
+fn residual<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    o: &Observation,
+) -> Option<Vector2<f64>> {
+    let q = &p.poses[o.camera];
+    let w = Vector3::new(q[0], q[1], q[2]);
+    let p_cam = rotation(&w) * Vector3::from(p.points[o.point]) + Vector3::new(q[3], q[4], q[5]);
+    let u = model.project(&p.intrinsics[p.intrinsics_of[o.camera]], &p_cam)?;
+    Some(u - Vector2::from(o.xy))
 }
 
-/// A camera-centre prior's residual and its Jacobian with respect to the camera's nine
-/// parameters: `C = −R(w)ᵀ t`, `∂C/∂t = −Rᵀ`, `∂C/∂w = [C]ₓ J(−w)` (J the left Jacobian).
-fn centre_residual(p: &BalProblem, q: &CentrePrior) -> (Vector3<f64>, SMatrix<f64, 3, 9>) {
-    let cam = &p.cameras[q.camera];
-    let w = Vector3::new(cam[0], cam[1], cam[2]);
-    let rt = super::bal::rotation(&w).transpose();
-    let c = -rt * Vector3::new(cam[3], cam[4], cam[5]);
-    let inv = Matrix3::from_diagonal(&Vector3::from(q.sigma).map(|v| 1.0 / v));
-    let mut j = SMatrix::<f64, 3, 9>::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(inv * c.cross_matrix() * super::bal::left_jacobian(&(-w))));
-    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(inv * -rt));
-    (inv * (c - Vector3::from(q.position)), j)
+/// [`residual`] with its Jacobians with respect to the pose (`∂P/∂w = −[R·X]ₓ J(w)`,
+/// `∂P/∂t = I`), the intrinsics and the point (`∂P/∂X = R`), `P` the point in the camera frame.
+pub(crate) fn linearise<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    o: &Observation,
+) -> Option<Linearised<M>> {
+    let q = &p.poses[o.camera];
+    let w = Vector3::new(q[0], q[1], q[2]);
+    let r = rotation(&w);
+    let rx = r * Vector3::from(p.points[o.point]);
+    let p_cam = rx + Vector3::new(q[3], q[4], q[5]);
+    let (u, j_pc, j_intr) =
+        model.project_with_jacobians(&p.intrinsics[p.intrinsics_of[o.camera]], &p_cam)?;
+    let mut j_pose = Mat26::zeros();
+    j_pose
+        .fixed_view_mut::<2, 3>(0, 0)
+        .copy_from(&(j_pc * (-rx.cross_matrix() * left_jacobian(&w))));
+    j_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&j_pc);
+    Some((u - Vector2::from(o.xy), j_pose, j_intr, j_pc * r))
 }
 
-/// A Jacobian with the fixed camera parameters' columns zeroed.
-fn fixed_columns<const R: usize>(
-    mut j: SMatrix<f64, R, 9>,
-    fixed: [bool; 9],
-) -> SMatrix<f64, R, 9> {
+/// A matrix with the fixed parameters' columns zeroed.
+fn mask_columns<const R: usize, const N: usize>(
+    mut j: SMatrix<f64, R, N>,
+    fixed: &[bool; N],
+) -> SMatrix<f64, R, N> {
     for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
         j.column_mut(k).fill(0.0);
     }
     j
 }
 
-fn prior_cost(p: &BalProblem, priors: &Priors) -> f64 {
+/// A matrix with its columns scaled.
+fn scale_columns<const R: usize, const N: usize>(
+    mut j: SMatrix<f64, R, N>,
+    s: &SVector<f64, N>,
+) -> SMatrix<f64, R, N> {
+    for (mut c, v) in j.column_iter_mut().zip(s.iter()) {
+        c *= *v;
+    }
+    j
+}
+
+fn prior_residual<const M: usize>(p: &Problem<M>, q: &PointPrior) -> Vector3<f64> {
+    (Vector3::from(p.points[q.point]) - Vector3::from(q.position))
+        .component_div(&Vector3::from(q.sigma))
+}
+
+/// A camera-centre prior's residual and its Jacobian with respect to the image's pose (fixed
+/// columns zeroed): `C = −R(w)ᵀ t`, `∂C/∂t = −Rᵀ`, `∂C/∂w = [C]ₓ J(−w)` (J the left Jacobian).
+fn centre_residual<const M: usize>(p: &Problem<M>, q: &CentrePrior) -> (Vector3<f64>, Mat36) {
+    let pose = &p.poses[q.camera];
+    let w = Vector3::new(pose[0], pose[1], pose[2]);
+    let rt = rotation(&w).transpose();
+    let c = -rt * Vector3::new(pose[3], pose[4], pose[5]);
+    let inv = Matrix3::from_diagonal(&Vector3::from(q.sigma).map(|v| 1.0 / v));
+    let mut j = Mat36::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(inv * c.cross_matrix() * left_jacobian(&(-w))));
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(inv * -rt));
+    (
+        inv * (c - Vector3::from(q.position)),
+        mask_columns(j, &p.fixed_poses[q.camera]),
+    )
+}
+
+fn prior_cost<const M: usize>(p: &Problem<M>, priors: &Priors) -> f64 {
     priors
         .points
         .iter()
@@ -237,58 +536,88 @@ fn prior_cost(p: &BalProblem, priors: &Priors) -> f64 {
             .sum::<f64>()
 }
 
-fn cost_of(p: &BalProblem, priors: &Priors, loss: RobustLoss) -> f64 {
+/// The cost at the problem's parameters (infinite where an observation cannot be projected);
+/// summed in observation order, as [`evaluate`] does, so that the two agree to the last bit.
+fn cost_of<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    loss: RobustLoss,
+) -> f64 {
     let each: Vec<f64> = p
         .observations
         .par_iter()
-        .map(|o| {
-            let r = project(&p.cameras[o.camera], &p.points[o.point]) - Vector2::from(o.xy);
-            robust(loss, r).0
-        })
+        .map(|o| residual(p, model, o).map_or(f64::INFINITY, |r| robust(loss, r).0))
         .collect();
-    each.iter().sum::<f64>() + prior_cost(p, priors)
+    let cost = each.iter().sum::<f64>() + prior_cost(p, priors);
+    if cost.is_finite() {
+        cost
+    } else {
+        f64::INFINITY
+    }
 }
 
-fn evaluate(p: &BalProblem, priors: &Priors, s: &BaSettings) -> Evaluation {
-    let loss = s.loss;
-    let fixed = s.fixed_camera_params;
-    let per: Vec<(Vector2<f64>, JacCam, JacPoint, f64)> = p
+/// Residuals and Jacobians; `Err(k)` names the first observation that cannot be projected.
+fn evaluate<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    loss: RobustLoss,
+) -> Result<Evaluation<M>, usize> {
+    let per: Vec<Option<(Linearised<M>, f64)>> = p
         .observations
         .par_iter()
         .map(|o| {
-            let (u, jc, jp) = project_with_jacobians(&p.cameras[o.camera], &p.points[o.point]);
-            let r = u - Vector2::from(o.xy);
+            let (r, jc, ji, jp) = linearise(p, model, o)?;
             let (c, w) = robust(loss, r);
-            (r * w, fixed_columns(jc * w, fixed), jp * w, c)
+            let ji = mask_columns(ji * w, &p.fixed_intrinsics[p.intrinsics_of[o.camera]]);
+            Some((
+                (
+                    r * w,
+                    mask_columns(jc * w, &p.fixed_poses[o.camera]),
+                    ji,
+                    jp * w,
+                ),
+                c,
+            ))
         })
         .collect();
+    let n = per.len();
     let mut e = Evaluation {
-        residuals: Vec::with_capacity(per.len()),
-        j_cam: Vec::with_capacity(per.len()),
-        j_point: Vec::with_capacity(per.len()),
+        residuals: Vec::with_capacity(n),
+        j_pose: Vec::with_capacity(n),
+        j_intr: Vec::with_capacity(n),
+        j_point: Vec::with_capacity(n),
         cost: 0.0,
     };
-    for (r, jc, jp, c) in per {
+    for (k, item) in per.into_iter().enumerate() {
+        let ((r, jc, ji, jp), c) = item.ok_or(k)?;
         e.residuals.push(r);
-        e.j_cam.push(jc);
+        e.j_pose.push(jc);
+        e.j_intr.push(ji);
         e.j_point.push(jp);
         e.cost += c;
     }
     e.cost += prior_cost(p, priors);
-    e
+    Ok(e)
 }
 
-/// The normal equations' blocks in the scaled variables.
-struct Normal {
-    u: Vec<Mat99>,
+/// The normal equations' blocks in the scaled variables. `JᵀJ` on the camera side has a block
+/// per pose, per pose and its intrinsics, and per intrinsics.
+struct Normal<const M: usize> {
+    u_pose: Vec<Mat6>,
+    u_pose_intr: Vec<SMatrix<f64, 6, M>>,
+    u_intr: Vec<SMatrix<f64, M, M>>,
     v: Vec<Matrix3<f64>>,
-    /// Per observation: `Jcᵀ Jp`.
-    w: Vec<Mat93>,
-    g_cam: Vec<Vec9>,
+    /// Per observation: `Jposeᵀ Jpoint` and `Jintrᵀ Jpoint`.
+    w_pose: Vec<Mat63>,
+    w_intr: Vec<SMatrix<f64, M, 3>>,
+    /// The camera side's gradient, in [`Layout`] order.
+    g_cam: DVector<f64>,
     g_point: Vec<Vector3<f64>>,
 }
 
-/// Per group of observations (a camera's, a point's): `Σ JᵀJ` and `Σ Jᵀr`, `jac(k)` the
+/// Per group of observations (an image's, a point's): `Σ JᵀJ` and `Σ Jᵀr`, `jac(k)` the
 /// observation's Jacobian with respect to the group's parameters.
 fn normal_blocks<const N: usize>(
     groups: &[Vec<usize>],
@@ -334,62 +663,109 @@ fn jacobi_scales<const N: usize>(sq: &[SVector<f64, N>]) -> Vec<SVector<f64, N>>
         .collect()
 }
 
-/// The LM diagonal: each block's diagonal clamped to `[lo, hi]`.
-fn clamped_diagonals<const N: usize>(
-    blocks: &[SMatrix<f64, N, N>],
-    lo: f64,
-    hi: f64,
-) -> Vec<SVector<f64, N>> {
-    blocks
-        .iter()
-        .map(|b| b.diagonal().map(|v| v.clamp(lo, hi)))
-        .collect()
-}
-
-/// The largest entry of an unscaled gradient, from the scaled one and its scales.
-fn unscaled_max<const N: usize>(scaled: &[SVector<f64, N>], scales: &[SVector<f64, N>]) -> f64 {
-    scaled
-        .iter()
-        .zip(scales)
-        .map(|(g, sc)| g.component_div(sc).amax())
-        .fold(0.0, f64::max)
-}
-
-/// Which observations each camera and each point has.
+/// Which observations each image, each camera and each point has.
 struct Structure {
+    by_image: Vec<Vec<usize>>,
     by_camera: Vec<Vec<usize>>,
     by_point: Vec<Vec<usize>>,
 }
 
 impl Structure {
-    fn new(p: &BalProblem) -> Structure {
+    fn new<const M: usize>(p: &Problem<M>) -> Structure {
         let mut st = Structure {
-            by_camera: vec![Vec::new(); p.cameras.len()],
+            by_image: vec![Vec::new(); p.poses.len()],
+            by_camera: vec![Vec::new(); p.intrinsics.len()],
             by_point: vec![Vec::new(); p.points.len()],
         };
         for (k, o) in p.observations.iter().enumerate() {
-            st.by_camera[o.camera].push(k);
+            st.by_image[o.camera].push(k);
+            st.by_camera[p.intrinsics_of[o.camera]].push(k);
             st.by_point[o.point].push(k);
         }
         st
     }
 }
 
-fn scaled_normal(
-    p: &BalProblem,
+/// A flat camera-side vector from per-pose and per-camera pieces.
+fn flat<const M: usize>(lay: &Layout, poses: &[Vec6], intr: &[SVector<f64, M>]) -> DVector<f64> {
+    let mut v = DVector::zeros(lay.dim);
+    for (o, x) in lay.pose.iter().zip(poses) {
+        v.fixed_rows_mut::<6>(*o).copy_from(x);
+    }
+    for (o, x) in lay.intr.iter().zip(intr) {
+        v.fixed_rows_mut::<M>(*o).copy_from(x);
+    }
+    v
+}
+
+/// The Jacobi scales of every camera-side and point parameter, from the first Jacobian.
+fn scales<const M: usize>(
+    p: &Problem<M>,
     priors: &Priors,
     st: &Structure,
-    e: &Evaluation,
-    s_cam: &[Vec9],
+    lay: &Layout,
+    e: &Evaluation<M>,
+) -> (DVector<f64>, Vec<Vector3<f64>>) {
+    let mut pose_sq = column_norms_sq(&st.by_image, &e.j_pose);
+    for q in &priors.centres {
+        for r in centre_residual(p, q).1.row_iter() {
+            pose_sq[q.camera] += r.transpose().component_mul(&r.transpose());
+        }
+    }
+    let intr_sq = column_norms_sq(&st.by_camera, &e.j_intr);
+    let mut point_sq = column_norms_sq(&st.by_point, &e.j_point);
+    for q in &priors.points {
+        point_sq[q.point] += Vector3::from(q.sigma).map(|v| 1.0 / (v * v));
+    }
+    (
+        flat(lay, &jacobi_scales(&pose_sq), &jacobi_scales(&intr_sq)),
+        jacobi_scales(&point_sq),
+    )
+}
+
+fn scaled_normal<const M: usize>(
+    p: &Problem<M>,
+    priors: &Priors,
+    st: &Structure,
+    lay: &Layout,
+    e: &Evaluation<M>,
+    s_cam: &DVector<f64>,
     s_point: &[Vector3<f64>],
-    fixed: [bool; 9],
-) -> Normal {
+) -> Normal<M> {
     let obs = &p.observations;
-    let jc = |k: usize| e.j_cam[k] * Mat99::from_diagonal(&s_cam[obs[k].camera]);
-    let jp = |k: usize| e.j_point[k] * Matrix3::from_diagonal(&s_point[obs[k].point]);
-    let (mut u, mut g_cam) = normal_blocks(&st.by_camera, jc, &e.residuals);
+    let jc = |k: usize| {
+        let s = s_cam.fixed_rows::<6>(lay.pose[obs[k].camera]).into_owned();
+        scale_columns(e.j_pose[k], &s)
+    };
+    let ji = |k: usize| {
+        let s = s_cam
+            .fixed_rows::<M>(lay.of(p, obs[k].camera).1)
+            .into_owned();
+        scale_columns(e.j_intr[k], &s)
+    };
+    let jp = |k: usize| scale_columns(e.j_point[k], &s_point[obs[k].point]);
+    let per_image: Vec<(Mat6, SMatrix<f64, 6, M>, Vec6)> = st
+        .by_image
+        .par_iter()
+        .map(|ks| {
+            let mut u = Mat6::zeros();
+            let mut ui = SMatrix::<f64, 6, M>::zeros();
+            let mut g = Vec6::zeros();
+            for &k in ks {
+                let (a, b) = (jc(k), ji(k));
+                u += a.transpose() * a;
+                ui += a.transpose() * b;
+                g += a.transpose() * e.residuals[k];
+            }
+            (u, ui, g)
+        })
+        .collect();
+    let mut u_pose: Vec<Mat6> = per_image.iter().map(|x| x.0).collect();
+    let u_pose_intr = per_image.iter().map(|x| x.1).collect();
+    let mut g_pose: Vec<Vec6> = per_image.iter().map(|x| x.2).collect();
+    let (u_intr, g_intr) = normal_blocks(&st.by_camera, ji, &e.residuals);
     let (mut v, mut g_point) = normal_blocks(&st.by_point, jp, &e.residuals);
-    // A prior's Jacobian is diag(1/σ), scaled like the point's columns.
+    // A point prior's Jacobian is diag(1/σ), scaled like the point's columns.
     for q in &priors.points {
         let sp = s_point[q.point];
         let j = Vector3::from(q.sigma).map(|v| 1.0 / v).component_mul(&sp);
@@ -398,38 +774,88 @@ fn scaled_normal(
     }
     for q in &priors.centres {
         let (r, j) = centre_residual(p, q);
-        let j = fixed_columns(j, fixed) * Mat99::from_diagonal(&s_cam[q.camera]);
-        u[q.camera] += j.transpose() * j;
-        g_cam[q.camera] += j.transpose() * r;
+        let s = s_cam.fixed_rows::<6>(lay.pose[q.camera]).into_owned();
+        let j = scale_columns(j, &s);
+        u_pose[q.camera] += j.transpose() * j;
+        g_pose[q.camera] += j.transpose() * r;
     }
-    let w = (0..obs.len())
+    let (w_pose, w_intr) = (0..obs.len())
         .into_par_iter()
-        .map(|k| jc(k).transpose() * jp(k))
-        .collect();
+        .map(|k| {
+            let b = jp(k);
+            (jc(k).transpose() * b, ji(k).transpose() * b)
+        })
+        .unzip();
     Normal {
-        u,
+        u_pose,
+        u_pose_intr,
+        u_intr,
         v,
-        w,
-        g_cam,
+        w_pose,
+        w_intr,
+        g_cam: flat(lay, &g_pose, &g_intr),
         g_point,
     }
 }
 
-/// The reduced camera system `S y = b` of the damped normal equations (the points eliminated)
-/// and the points' inverted damped blocks; `None` when a point's block is singular.
-fn reduced_system(
-    p: &BalProblem,
+/// The LM diagonal: the diagonals of `JᵀJ` clamped to `[lo, hi]`.
+fn clamped_diagonals<const M: usize>(
+    lay: &Layout,
+    n: &Normal<M>,
+    lo: f64,
+    hi: f64,
+) -> (DVector<f64>, Vec<Vector3<f64>>) {
+    let clamp = |x: f64| x.clamp(lo, hi);
+    let poses: Vec<Vec6> = n.u_pose.iter().map(|b| b.diagonal().map(clamp)).collect();
+    let intr: Vec<SVector<f64, M>> = n.u_intr.iter().map(|b| b.diagonal().map(clamp)).collect();
+    (
+        flat(lay, &poses, &intr),
+        n.v.iter().map(|b| b.diagonal().map(clamp)).collect(),
+    )
+}
+
+/// `(JᵀJ)_cameras · x` plus the damping `D/Δ · x`, without the points' part.
+fn camera_block_product<const M: usize>(
+    p: &Problem<M>,
+    lay: &Layout,
+    n: &Normal<M>,
+    damping: &DVector<f64>,
+    x: &DVector<f64>,
+) -> DVector<f64> {
+    let mut y = damping.component_mul(x);
+    for i in 0..p.poses.len() {
+        let (pi, gi) = lay.of(p, i);
+        let (xp, xg) = (
+            x.fixed_rows::<6>(pi).into_owned(),
+            x.fixed_rows::<M>(gi).into_owned(),
+        );
+        let mut yp = y.fixed_rows_mut::<6>(pi);
+        yp += n.u_pose[i] * xp + n.u_pose_intr[i] * xg;
+        let mut yg = y.fixed_rows_mut::<M>(gi);
+        yg += n.u_pose_intr[i].transpose() * xp;
+    }
+    for (g, &o) in lay.intr.iter().enumerate() {
+        let xg = x.fixed_rows::<M>(o).into_owned();
+        let mut yg = y.fixed_rows_mut::<M>(o);
+        yg += n.u_intr[g] * xg;
+    }
+    y
+}
+
+/// The reduced camera system `S y = b` of the damped normal equations, the points eliminated
+/// through their inverted damped blocks `v_inv`.
+fn reduced_system<const M: usize>(
+    p: &Problem<M>,
     st: &Structure,
-    n: &Normal,
-    d_cam: &[Vec9],
-    d_point: &[Vector3<f64>],
+    lay: &Layout,
+    n: &Normal<M>,
+    d_cam: &DVector<f64>,
+    v_inv: &[Matrix3<f64>],
     radius: f64,
-) -> Option<Reduced> {
-    let nc = p.cameras.len();
+) -> (DMatrix<f64>, DVector<f64>) {
     let obs = &p.observations;
-    let v_inv = point_inverses(n, d_point, radius)?;
-    // The reduced camera system S y = b, accumulated point by point in parallel.
-    let dim = 9 * nc;
+    let dim = lay.dim;
+    // Σ W V⁻¹ Wᵀ and Σ W V⁻¹ g, accumulated point by point in parallel.
     let (s_minus, b_plus) = st
         .by_point
         .par_iter()
@@ -438,17 +864,37 @@ fn reduced_system(
             || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim)),
             |(mut s, mut b), (j, ks)| {
                 let vi = &v_inv[j];
-                let wv: Vec<Mat93> = ks.iter().map(|&k| n.w[k] * vi).collect();
-                for (a, &ka) in ks.iter().enumerate() {
-                    let ca = obs[ka].camera;
-                    let bv = wv[a] * n.g_point[j];
-                    let mut rows = b.fixed_rows_mut::<9>(9 * ca);
-                    rows += bv;
+                let wv: Vec<(Mat63, SMatrix<f64, M, 3>)> = ks
+                    .iter()
+                    .map(|&k| (n.w_pose[k] * vi, n.w_intr[k] * vi))
+                    .collect();
+                for (&ka, (wpa, wia)) in ks.iter().zip(&wv) {
+                    let (pa, ia) = lay.of(p, obs[ka].camera);
+                    let mut rows = b.fixed_rows_mut::<6>(pa);
+                    rows += wpa * n.g_point[j];
+                    let mut rows = b.fixed_rows_mut::<M>(ia);
+                    rows += wia * n.g_point[j];
+                    // The lower triangle only (blocks on or below the diagonal): S is
+                    // symmetric, mirrored once at the end.
                     for &kb in ks {
-                        let cb = obs[kb].camera;
-                        let blk = wv[a] * n.w[kb].transpose();
-                        let mut view = s.fixed_view_mut::<9, 9>(9 * ca, 9 * cb);
-                        view += blk;
+                        let (pb, ib) = lay.of(p, obs[kb].camera);
+                        let (wp, wi) = (n.w_pose[kb].transpose(), n.w_intr[kb].transpose());
+                        if pa >= pb {
+                            let mut view = s.fixed_view_mut::<6, 6>(pa, pb);
+                            view += wpa * wp;
+                        }
+                        if pa >= ib {
+                            let mut view = s.fixed_view_mut::<6, M>(pa, ib);
+                            view += wpa * wi;
+                        }
+                        if ia >= pb {
+                            let mut view = s.fixed_view_mut::<M, 6>(ia, pb);
+                            view += wia * wp;
+                        }
+                        if ia >= ib {
+                            let mut view = s.fixed_view_mut::<M, M>(ia, ib);
+                            view += wia * wi;
+                        }
                     }
                 }
                 (s, b)
@@ -459,173 +905,250 @@ fn reduced_system(
             |(s1, b1), (s2, b2)| (s1 + s2, b1 + b2),
         );
     let mut s = -s_minus;
-    let mut b = b_plus;
-    for (i, ((u, d), g)) in n.u.iter().zip(d_cam).zip(&n.g_cam).enumerate() {
-        let mut view = s.fixed_view_mut::<9, 9>(9 * i, 9 * i);
-        view += u + Mat99::from_diagonal(&(d / radius));
-        let mut rows = b.fixed_rows_mut::<9>(9 * i);
-        rows -= g;
+    s.fill_upper_triangle_with_lower_triangle();
+    for i in 0..p.poses.len() {
+        let (pi, gi) = lay.of(p, i);
+        let mut view = s.fixed_view_mut::<6, 6>(pi, pi);
+        view += n.u_pose[i];
+        let mut view = s.fixed_view_mut::<6, M>(pi, gi);
+        view += n.u_pose_intr[i];
+        let mut view = s.fixed_view_mut::<M, 6>(gi, pi);
+        view += n.u_pose_intr[i].transpose();
     }
-    Some((s, b, v_inv))
+    for (g, &o) in lay.intr.iter().enumerate() {
+        let mut view = s.fixed_view_mut::<M, M>(o, o);
+        view += n.u_intr[g];
+    }
+    for (k, d) in d_cam.iter().enumerate() {
+        s[(k, k)] += d / radius;
+    }
+    (s, b_plus - &n.g_cam)
 }
 
 /// The points' damped blocks, inverted; `None` when one is singular.
-fn point_inverses(n: &Normal, d_point: &[Vector3<f64>], radius: f64) -> Option<Vec<Matrix3<f64>>> {
+fn point_inverses<const M: usize>(
+    n: &Normal<M>,
+    d_point: &[Vector3<f64>],
+    radius: f64,
+) -> Option<Vec<Matrix3<f64>>> {
     n.v.par_iter()
         .zip(d_point)
         .map(|(v, d)| (v + Matrix3::from_diagonal(&(d / radius))).try_inverse())
         .collect()
 }
 
+/// Adds a point's `Σ_a W_a V⁻¹ Σ_b W_bᵀ` to the preconditioner's blocks, restricted to each
+/// unit (the observations of one point in one unit are summed first: a shared camera's block
+/// gets the cross terms between its images).
+fn add_unit_blocks<const M: usize>(
+    p: &Problem<M>,
+    lay: &Layout,
+    n: &Normal<M>,
+    ks: &[usize],
+    vi: &Matrix3<f64>,
+    acc: &mut [DMatrix<f64>],
+) {
+    let mut z: Vec<(usize, DMatrix<f64>)> = Vec::with_capacity(2 * ks.len());
+    let mut add = |unit: usize, offset: usize, rows: &[f64], nrows: usize| {
+        let (start, size) = lay.units[unit];
+        let at = match z.iter().position(|(u, _)| *u == unit) {
+            Some(at) => at,
+            None => {
+                z.push((unit, DMatrix::zeros(size, 3)));
+                z.len() - 1
+            }
+        };
+        let block = DMatrix::from_column_slice(nrows, 3, rows);
+        let mut view = z[at].1.view_mut((offset - start, 0), (nrows, 3));
+        view += block;
+    };
+    for &k in ks {
+        let i = p.observations[k].camera;
+        let (pi, gi) = lay.of(p, i);
+        add(lay.pose_unit[i], pi, n.w_pose[k].as_slice(), 6);
+        let g = p.intrinsics_of[i];
+        add(lay.intr_unit[g], gi, n.w_intr[k].as_slice(), M);
+    }
+    for (u, zu) in z {
+        acc[u] += &zu * vi * zu.transpose();
+    }
+}
+
 /// Solves `S y = b` by conjugate gradients without forming `S = U − W V⁻¹ Wᵀ`: each product
-/// goes through the observations, point by point; the preconditioner is `S`'s 9×9 diagonal
-/// blocks. Stops when the residual falls below 1e-10 of `b` (or after `9·cameras` steps).
-fn iterative_reduced_solve(
-    p: &BalProblem,
+/// goes through the observations, point by point; the preconditioner is `S`'s diagonal blocks
+/// (a pose with its own intrinsics, a pose, shared intrinsics). Stops when the residual falls
+/// below 1e-10 of `b` (or after as many steps as unknowns).
+fn iterative_reduced_solve<const M: usize>(
+    p: &Problem<M>,
     st: &Structure,
-    n: &Normal,
-    d_cam: &[Vec9],
+    lay: &Layout,
+    n: &Normal<M>,
+    d_cam: &DVector<f64>,
     v_inv: &[Matrix3<f64>],
     radius: f64,
-) -> Option<Vec<Vec9>> {
-    let nc = p.cameras.len();
+) -> Option<DVector<f64>> {
     let obs = &p.observations;
-    let u_damped: Vec<Mat99> =
-        n.u.iter()
-            .zip(d_cam)
-            .map(|(u, d)| u + Mat99::from_diagonal(&(d / radius)))
-            .collect();
-    // Right-hand side b = −g_c + Σ W V⁻¹ g_p, and the preconditioner's blocks.
-    let zero = || (vec![Vec9::zeros(); nc], vec![Mat99::zeros(); nc]);
-    let (b_plus, s_diag) = st
+    let dim = lay.dim;
+    let damping = d_cam / radius;
+    // b = −g_c + Σ W V⁻¹ g_p, and the Schur part of the preconditioner's blocks.
+    let zero = || {
+        (
+            DVector::<f64>::zeros(dim),
+            lay.units
+                .iter()
+                .map(|&(_, m)| DMatrix::<f64>::zeros(m, m))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (b_plus, schur) = st
         .by_point
         .par_iter()
         .enumerate()
-        .fold(zero, |(mut b, mut d), (j, ks)| {
+        .fold(zero, |(mut b, mut blocks), (j, ks)| {
             for &k in ks {
-                let c = obs[k].camera;
-                let wv = n.w[k] * v_inv[j];
-                b[c] += wv * n.g_point[j];
-                d[c] += wv * n.w[k].transpose();
+                let (pk, ik) = lay.of(p, obs[k].camera);
+                let t = v_inv[j] * n.g_point[j];
+                let mut rows = b.fixed_rows_mut::<6>(pk);
+                rows += n.w_pose[k] * t;
+                let mut rows = b.fixed_rows_mut::<M>(ik);
+                rows += n.w_intr[k] * t;
             }
-            (b, d)
+            add_unit_blocks(p, lay, n, ks, &v_inv[j], &mut blocks);
+            (b, blocks)
         })
-        .reduce(zero, |(mut b1, mut d1), (b2, d2)| {
-            for (x, y) in b1.iter_mut().zip(b2) {
+        .reduce(zero, |(b1, mut m1), (b2, m2)| {
+            for (x, y) in m1.iter_mut().zip(m2) {
                 *x += y;
             }
-            for (x, y) in d1.iter_mut().zip(d2) {
-                *x += y;
-            }
-            (b1, d1)
+            (b1 + b2, m1)
         });
-    let b: Vec<Vec9> = b_plus.iter().zip(&n.g_cam).map(|(a, g)| a - g).collect();
-    let precond: Vec<Mat99> = u_damped
+    let b = b_plus - &n.g_cam;
+    // The camera blocks' own part of each unit: JᵀJ + D/Δ restricted to it.
+    let mut own: Vec<DMatrix<f64>> = lay
+        .units
         .iter()
-        .zip(&s_diag)
-        .map(|(u, d)| (u - d).cholesky().map(|c| c.inverse()))
+        .map(|&(start, size)| DMatrix::from_diagonal(&damping.rows(start, size)))
+        .collect();
+    let local = |unit: usize, offset: usize| offset - lay.units[unit].0;
+    for i in 0..p.poses.len() {
+        let (pi, gi) = lay.of(p, i);
+        let (up, ug) = (lay.pose_unit[i], lay.intr_unit[p.intrinsics_of[i]]);
+        let lp = local(up, pi);
+        let mut view = own[up].fixed_view_mut::<6, 6>(lp, lp);
+        view += n.u_pose[i];
+        if ug == up {
+            let lg = local(up, gi);
+            let mut view = own[up].fixed_view_mut::<6, M>(lp, lg);
+            view += n.u_pose_intr[i];
+            let mut view = own[up].fixed_view_mut::<M, 6>(lg, lp);
+            view += n.u_pose_intr[i].transpose();
+        }
+    }
+    for (g, &o) in lay.intr.iter().enumerate() {
+        let u = lay.intr_unit[g];
+        let lg = local(u, o);
+        let mut view = own[u].fixed_view_mut::<M, M>(lg, lg);
+        view += n.u_intr[g];
+    }
+    let precond: Vec<DMatrix<f64>> = own
+        .into_par_iter()
+        .zip(schur)
+        .map(|(a, b)| (a - b).cholesky().map(|c| c.inverse()))
         .collect::<Option<_>>()?;
-    let apply = |x: &[Vec9]| -> Vec<Vec9> {
+    let preconditioned = |r: &DVector<f64>| {
+        let mut z = DVector::zeros(dim);
+        for (&(start, size), m) in lay.units.iter().zip(&precond) {
+            z.rows_mut(start, size)
+                .copy_from(&(m * r.rows(start, size)));
+        }
+        z
+    };
+    let apply = |x: &DVector<f64>| -> DVector<f64> {
         let minus = st
             .by_point
             .par_iter()
             .enumerate()
             .fold(
-                || vec![Vec9::zeros(); nc],
+                || DVector::<f64>::zeros(dim),
                 |mut acc, (j, ks)| {
                     let mut t = Vector3::zeros();
                     for &k in ks {
-                        t += n.w[k].transpose() * x[obs[k].camera];
+                        let (pk, ik) = lay.of(p, obs[k].camera);
+                        t += n.w_pose[k].transpose() * x.fixed_rows::<6>(pk)
+                            + n.w_intr[k].transpose() * x.fixed_rows::<M>(ik);
                     }
                     let t = v_inv[j] * t;
                     for &k in ks {
-                        acc[obs[k].camera] += n.w[k] * t;
+                        let (pk, ik) = lay.of(p, obs[k].camera);
+                        let mut rows = acc.fixed_rows_mut::<6>(pk);
+                        rows += n.w_pose[k] * t;
+                        let mut rows = acc.fixed_rows_mut::<M>(ik);
+                        rows += n.w_intr[k] * t;
                     }
                     acc
                 },
             )
-            .reduce(
-                || vec![Vec9::zeros(); nc],
-                |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(b) {
-                        *x += y;
-                    }
-                    a
-                },
-            );
-        u_damped
-            .iter()
-            .zip(x)
-            .zip(minus)
-            .map(|((u, xi), m)| u * xi - m)
-            .collect()
+            .reduce(|| DVector::<f64>::zeros(dim), |a, b| a + b);
+        camera_block_product(p, lay, n, &damping, x) - minus
     };
-    let dot = |a: &[Vec9], b: &[Vec9]| a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>();
-    let mut x = vec![Vec9::zeros(); nc];
+    let mut x = DVector::zeros(dim);
     let mut r = b.clone();
-    let mut z: Vec<Vec9> = precond.iter().zip(&r).map(|(m, v)| m * v).collect();
+    let mut z = preconditioned(&r);
     let mut d = z.clone();
-    let mut rz = dot(&r, &z);
-    let b_norm = dot(&b, &b).sqrt();
-    for _ in 0..9 * nc {
-        if dot(&r, &r).sqrt() <= 1e-10 * b_norm {
+    let mut rz = r.dot(&z);
+    let b_norm = b.norm();
+    for _ in 0..dim {
+        if r.norm() <= 1e-10 * b_norm {
             break;
         }
         let q = apply(&d);
-        let dq = dot(&d, &q);
+        let dq = d.dot(&q);
         if !(dq > 0.0) {
             return None;
         }
         let alpha = rz / dq;
-        for ((xi, ri), (di, qi)) in x.iter_mut().zip(r.iter_mut()).zip(d.iter().zip(&q)) {
-            *xi += alpha * di;
-            *ri -= alpha * qi;
-        }
-        z = precond.iter().zip(&r).map(|(m, v)| m * v).collect();
-        let rz_new = dot(&r, &z);
+        x.axpy(alpha, &d, 1.0);
+        r.axpy(-alpha, &q, 1.0);
+        z = preconditioned(&r);
+        let rz_new = r.dot(&z);
         let beta = rz_new / rz;
         rz = rz_new;
-        for (di, zi) in d.iter_mut().zip(&z) {
-            *di = zi + beta * *di;
-        }
+        d = &z + beta * d;
     }
-    x.iter()
-        .all(|v| v.iter().all(|c| c.is_finite()))
-        .then_some(x)
+    x.iter().all(|c| c.is_finite()).then_some(x)
 }
 
 /// Solves the damped system by eliminating the points; `None` when the reduced camera system is
-/// not positive definite. Returns the scaled step (cameras, points).
-fn schur_step(
-    p: &BalProblem,
+/// not positive definite. Returns the scaled step (camera side, points).
+#[allow(clippy::too_many_arguments)]
+fn schur_step<const M: usize>(
+    p: &Problem<M>,
     st: &Structure,
-    n: &Normal,
-    d_cam: &[Vec9],
+    lay: &Layout,
+    n: &Normal<M>,
+    d_cam: &DVector<f64>,
     d_point: &[Vector3<f64>],
     radius: f64,
     solver: LinearSolver,
-) -> Option<(Vec<Vec9>, Vec<Vector3<f64>>)> {
-    let nc = p.cameras.len();
+) -> Option<(DVector<f64>, Vec<Vector3<f64>>)> {
     let obs = &p.observations;
     let dense = match solver {
-        LinearSolver::Auto => nc <= DENSE_MAX_CAMERAS,
+        LinearSolver::Auto => p.poses.len() <= DENSE_MAX_IMAGES,
         LinearSolver::DenseSchur => true,
         LinearSolver::IterativeSchur => false,
     };
     let (y_cam, v_inv) = if dense {
-        let (s, b, v_inv) = reduced_system(p, st, n, d_cam, d_point, radius)?;
+        let v_inv = point_inverses(n, d_point, radius)?;
+        let (s, b) = reduced_system(p, st, lay, n, d_cam, &v_inv, radius);
         let y = s.cholesky()?.solve(&b);
         if !y.iter().all(|v| v.is_finite()) {
             return None;
         }
-        let y_cam: Vec<Vec9> = (0..nc)
-            .map(|i| Vec9::from_iterator(y.rows(9 * i, 9).iter().copied()))
-            .collect();
-        (y_cam, v_inv)
+        (y, v_inv)
     } else {
         let v_inv = point_inverses(n, d_point, radius)?;
         (
-            iterative_reduced_solve(p, st, n, d_cam, &v_inv, radius)?,
+            iterative_reduced_solve(p, st, lay, n, d_cam, &v_inv, radius)?,
             v_inv,
         )
     };
@@ -636,7 +1159,9 @@ fn schur_step(
         .map(|(j, ks)| {
             let mut r = -n.g_point[j];
             for &k in ks {
-                r -= n.w[k].transpose() * y_cam[obs[k].camera];
+                let (pk, ik) = lay.of(p, obs[k].camera);
+                r -= n.w_pose[k].transpose() * y_cam.fixed_rows::<6>(pk)
+                    + n.w_intr[k].transpose() * y_cam.fixed_rows::<M>(ik);
             }
             v_inv[j] * r
         })
@@ -644,26 +1169,36 @@ fn schur_step(
     Some((y_cam, y_point))
 }
 
-/// The covariance of the cameras' parameters at the problem's current values: `9·cameras`
-/// square, camera after camera: the inverse of the information matrix (observations weighted by
-/// `1/σ²`, priors by their own σ) with the points eliminated. `σ` is `sigma_px` or, when `None`,
-/// estimated from the observations' residuals as `Σ r²` over the degrees of freedom
-/// (`2·observations + 3·priors − free parameters`); it is returned beside. Fixed parameters get zero rows and columns. `None` when
-/// the reduced matrix is singular: without priors the gauge (a similarity) is free and the
-/// covariance is not defined.
-pub fn camera_covariance(
-    p: &BalProblem,
+/// The covariance of the camera-side parameters at the problem's current values: the inverse
+/// of the information matrix (observations weighted by `1/σ²`, priors by their own σ) with the
+/// points eliminated. `σ` is `sigma_px` or, when `None`, estimated from the observations'
+/// residuals as `Σ r²` over the degrees of freedom (`2·observations + 3·priors − free
+/// parameters`). Fixed parameters get zero rows and columns. Without priors the gauge (a
+/// similarity) is free and the covariance is not defined ([`BaError::Singular`]).
+pub fn covariance<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
     priors: &Priors,
-    settings: &BaSettings,
     sigma_px: Option<f64>,
-) -> Option<(DMatrix<f64>, f64)> {
-    let (nc, np) = (p.cameras.len(), p.points.len());
+) -> Result<CameraCovariance, BaError> {
+    p.check()?;
     let st = Structure::new(p);
-    let mut e = evaluate(p, &Priors::default(), settings);
-    let fixed = settings.fixed_camera_params;
-    let free = 9 * nc - fixed.iter().filter(|f| **f).count() * nc + 3 * np;
+    let lay = Layout::new(p);
+    let mut e = evaluate(p, model, &Priors::default(), RobustLoss::Squared)
+        .map_err(|k| projection_error(p, k))?;
+    let free = lay.free(p);
+    // A point's observable coordinates: two per image it is seen in and three for a survey.
+    let mut point_rank = vec![0; p.points.len()];
+    for o in &p.observations {
+        point_rank[o.point] += 2;
+    }
+    for q in &priors.points {
+        point_rank[q.point] += 3;
+    }
+    let n_free =
+        free.iter().filter(|f| **f).count() + point_rank.iter().map(|r| (*r).min(3)).sum::<usize>();
     let dof = (2 * p.observations.len() + 3 * (priors.points.len() + priors.centres.len()))
-        .saturating_sub(free);
+        .saturating_sub(n_free);
     let sigma = match sigma_px {
         Some(v) => v,
         None => {
@@ -672,48 +1207,71 @@ pub fn camera_covariance(
         }
     };
     // Whiten the observations; the priors are whitened already.
-    for ((r, jc), jp) in e.residuals.iter_mut().zip(&mut e.j_cam).zip(&mut e.j_point) {
-        *r /= sigma;
-        *jc /= sigma;
-        *jp /= sigma;
+    for k in 0..e.residuals.len() {
+        e.residuals[k] /= sigma;
+        e.j_pose[k] /= sigma;
+        e.j_intr[k] /= sigma;
+        e.j_point[k] /= sigma;
     }
-    let ones_c = vec![Vec9::repeat(1.0); nc];
-    let ones_p = vec![Vector3::repeat(1.0); np];
-    let n = scaled_normal(p, priors, &st, &e, &ones_c, &ones_p, fixed);
-    let zeros_c = vec![Vec9::zeros(); nc];
-    let zeros_p = vec![Vector3::zeros(); np];
-    let (mut s, _, _) = reduced_system(p, &st, &n, &zeros_c, &zeros_p, 1.0)?;
-    for i in 0..nc {
-        for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
-            s[(9 * i + k, 9 * i + k)] = 1.0;
-        }
+    // In Jacobi-scaled variables (as the solver's): focal lengths in pixels beside distortion
+    // coefficients and radians would otherwise defeat the factorisation.
+    let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
+    let n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
+    // A point seen once (and not surveyed) is free along its ray: the pseudo-inverse of its
+    // block gives it no say on the cameras, as it has none.
+    let v_inv: Vec<Matrix3<f64>> =
+        n.v.iter()
+            .map(|v| {
+                v.pseudo_inverse(1e-12 * v.norm())
+                    .unwrap_or_else(|_| Matrix3::zeros())
+            })
+            .collect();
+    let (mut s, _) = reduced_system(p, &st, &lay, &n, &DVector::zeros(lay.dim), &v_inv, 1.0);
+    for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
+        s[(k, k)] = 1.0;
     }
-    let mut cov = s.cholesky()?.inverse();
-    for i in 0..nc {
-        for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
-            cov.row_mut(9 * i + k).fill(0.0);
-            cov.column_mut(9 * i + k).fill(0.0);
-        }
+    let scale = DMatrix::from_diagonal(&s_cam);
+    let mut matrix = &scale * s.cholesky().ok_or(BaError::Singular)?.inverse() * &scale;
+    for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
+        matrix.row_mut(k).fill(0.0);
+        matrix.column_mut(k).fill(0.0);
     }
-    Some((cov, sigma))
+    Ok(CameraCovariance {
+        matrix,
+        sigma_px: sigma,
+        pose_offsets: lay.pose,
+        intrinsics_offsets: lay.intr,
+        intrinsics_len: M,
+    })
+}
+
+fn projection_error<const M: usize>(p: &Problem<M>, k: usize) -> BaError {
+    let o = &p.observations[k];
+    BaError::Projection {
+        observation: k,
+        image: o.camera,
+        point: o.point,
+    }
 }
 
 /// The decrease of the linearised cost along a step `δ` (the problem's own variables):
 /// `−(Jδ)ᵀ(r + Jδ/2)` over the observations and the priors.
-fn model_decrease(
-    p: &BalProblem,
+fn model_decrease<const M: usize>(
+    p: &Problem<M>,
     priors: &Priors,
-    e: &Evaluation,
-    delta_cam: &[Vec9],
+    lay: &Layout,
+    e: &Evaluation<M>,
+    delta_cam: &DVector<f64>,
     delta_point: &[Vector3<f64>],
-    fixed: [bool; 9],
 ) -> f64 {
     let obs = &p.observations;
     let observed: f64 = (0..obs.len())
         .into_par_iter()
         .map(|k| {
-            let jd =
-                e.j_cam[k] * delta_cam[obs[k].camera] + e.j_point[k] * delta_point[obs[k].point];
+            let (pk, ik) = lay.of(p, obs[k].camera);
+            let jd = e.j_pose[k] * delta_cam.fixed_rows::<6>(pk)
+                + e.j_intr[k] * delta_cam.fixed_rows::<M>(ik)
+                + e.j_point[k] * delta_point[obs[k].point];
             -jd.dot(&(e.residuals[k] + jd * 0.5))
         })
         .sum();
@@ -722,7 +1280,7 @@ fn model_decrease(
         .iter()
         .map(|q| {
             let (r, j) = centre_residual(p, q);
-            let jd = fixed_columns(j, fixed) * delta_cam[q.camera];
+            let jd = j * delta_cam.fixed_rows::<6>(lay.pose[q.camera]);
             -jd.dot(&(r + jd * 0.5))
         })
         .sum();
@@ -737,52 +1295,82 @@ fn model_decrease(
     observed + centres + points
 }
 
-/// Adjusts the problem's cameras and points in place.
-pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> BaSummary {
-    bundle_adjust_with_priors(p, &Priors::default(), settings)
-}
-
-/// Adjusts the problem's cameras and points in place, with priors on some points (which also
-/// fix the gauge: without them the solution is defined up to a similarity).
-pub fn bundle_adjust_with_priors(
-    p: &mut BalProblem,
-    priors: &Priors,
-    settings: &BaSettings,
-) -> BaSummary {
-    let start = Instant::now();
-    let s = settings;
-    let (nc, np) = (p.cameras.len(), p.points.len());
-    let st = Structure::new(p);
-    let mut e = evaluate(p, priors, s);
-    let initial_cost = e.cost;
-    // Jacobi scaling from the first Jacobian's column norms.
-    let mut cam_sq = column_norms_sq(&st.by_camera, &e.j_cam);
-    for q in &priors.centres {
-        let j = fixed_columns(centre_residual(p, q).1, s.fixed_camera_params);
-        for r in j.row_iter() {
-            cam_sq[q.camera] += r.transpose().component_mul(&r.transpose());
+/// The problem moved by a step.
+fn stepped<const M: usize>(
+    p: &Problem<M>,
+    lay: &Layout,
+    delta_cam: &DVector<f64>,
+    delta_point: &[Vector3<f64>],
+) -> Problem<M> {
+    let mut q = p.clone();
+    for (pose, &o) in q.poses.iter_mut().zip(&lay.pose) {
+        for (c, v) in pose.iter_mut().enumerate() {
+            *v += delta_cam[o + c];
         }
     }
-    let s_cam = jacobi_scales(&cam_sq);
-    let mut point_sq = column_norms_sq(&st.by_point, &e.j_point);
-    for q in &priors.points {
-        point_sq[q.point] += Vector3::from(q.sigma).map(|v| 1.0 / (v * v));
+    for (k, &o) in q.intrinsics.iter_mut().zip(&lay.intr) {
+        for (c, v) in k.iter_mut().enumerate() {
+            *v += delta_cam[o + c];
+        }
     }
-    let s_point = jacobi_scales(&point_sq);
-    let mut n = scaled_normal(p, priors, &st, &e, &s_cam, &s_point, s.fixed_camera_params);
-    let diag_of = |n: &Normal| {
-        (
-            clamped_diagonals(&n.u, s.min_diagonal, s.max_diagonal),
-            clamped_diagonals(&n.v, s.min_diagonal, s.max_diagonal),
-        )
-    };
+    for (x, d) in q.points.iter_mut().zip(delta_point) {
+        for (v, dv) in x.iter_mut().zip(d.iter()) {
+            *v += dv;
+        }
+    }
+    q
+}
+
+/// Adjusts a BAL problem's cameras and points in place.
+pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> Result<BaSummary, BaError> {
+    let mut q = p.to_problem();
+    let summary = adjust(&mut q, &BalIntrinsics, &Priors::default(), settings)?;
+    p.update_from(&q);
+    Ok(summary)
+}
+
+/// Adjusts the problem's poses, intrinsics and points in place, with priors on some points
+/// and camera centres (which also fix the gauge: without them the solution is defined up to a
+/// similarity).
+pub fn adjust<const M: usize>(
+    p: &mut Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    settings: &BaSettings,
+) -> Result<BaSummary, BaError> {
+    let start = Instant::now();
+    p.check()?;
+    if let Some(q) = priors.points.iter().find(|q| q.point >= p.points.len()) {
+        return Err(BaError::Invalid(format!("a prior names point {}", q.point)));
+    }
+    if let Some(q) = priors.centres.iter().find(|q| q.camera >= p.poses.len()) {
+        return Err(BaError::Invalid(format!(
+            "a prior names image {}",
+            q.camera
+        )));
+    }
+    let s = settings;
+    let st = Structure::new(p);
+    let lay = Layout::new(p);
+    let mut e = evaluate(p, model, priors, s.loss).map_err(|k| projection_error(p, k))?;
+    let initial_cost = e.cost;
+    let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
+    let mut n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
+    let diag_of = |n: &Normal<M>| clamped_diagonals(&lay, n, s.min_diagonal, s.max_diagonal);
     let (mut d_cam, mut d_point) = diag_of(&n);
     // The gradient of the unscaled problem, Jᵀr: the scaled one divided by the scales.
-    let gradient_max = |n: &Normal| -> f64 {
-        unscaled_max(&n.g_cam, &s_cam).max(unscaled_max(&n.g_point, &s_point))
+    let gradient_max = |n: &Normal<M>| -> f64 {
+        n.g_cam.component_div(&s_cam).amax().max(
+            n.g_point
+                .iter()
+                .zip(&s_point)
+                .map(|(g, sc)| g.component_div(sc).amax())
+                .fold(0.0, f64::max),
+        )
     };
-    let x_norm = |p: &BalProblem| -> f64 {
-        (p.cameras.iter().flatten().map(|v| v * v).sum::<f64>()
+    let x_norm = |p: &Problem<M>| -> f64 {
+        (p.poses.iter().flatten().map(|v| v * v).sum::<f64>()
+            + p.intrinsics.iter().flatten().map(|v| v * v).sum::<f64>()
             + p.points.iter().flatten().map(|v| v * v).sum::<f64>())
         .sqrt()
     };
@@ -798,33 +1386,20 @@ pub fn bundle_adjust_with_priors(
     while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
         let t0 = Instant::now();
         // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
-        let step = schur_step(p, &st, &n, &d_cam, &d_point, radius, s.linear_solver).map(
+        let step = schur_step(p, &st, &lay, &n, &d_cam, &d_point, radius, s.linear_solver).map(
             |(y_cam, y_point)| {
-                let delta_cam: Vec<Vec9> = y_cam
-                    .iter()
-                    .zip(&s_cam)
-                    .map(|(y, sc)| y.component_mul(sc))
-                    .collect();
+                let delta_cam = y_cam.component_mul(&s_cam);
                 let delta_point: Vec<Vector3<f64>> = y_point
                     .iter()
                     .zip(&s_point)
                     .map(|(y, sp)| y.component_mul(sp))
                     .collect();
-                let model_change = model_decrease(
-                    p,
-                    priors,
-                    &e,
-                    &delta_cam,
-                    &delta_point,
-                    s.fixed_camera_params,
-                );
+                let model_change = model_decrease(p, priors, &lay, &e, &delta_cam, &delta_point);
                 (delta_cam, delta_point, model_change)
             },
         );
         let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
-            (dc.iter().map(|d| d.norm_squared()).sum::<f64>()
-                + dp.iter().map(|d| d.norm_squared()).sum::<f64>())
-            .sqrt()
+            (dc.norm_squared() + dp.iter().map(|d| d.norm_squared()).sum::<f64>()).sqrt()
         });
         // A step that could not be computed, or whose model does not decrease, is rejected;
         // five in a row is a failure.
@@ -851,23 +1426,8 @@ pub fn bundle_adjust_with_priors(
             continue;
         };
         invalid = 0;
-        let mut candidate = p.clone();
-        for (c, d) in candidate.cameras.iter_mut().zip(&delta_cam) {
-            for (v, dv) in c.iter_mut().zip(d.iter()) {
-                *v += dv;
-            }
-        }
-        for (x, d) in candidate.points.iter_mut().zip(&delta_point) {
-            for (v, dv) in x.iter_mut().zip(d.iter()) {
-                *v += dv;
-            }
-        }
-        let new_cost = cost_of(&candidate, priors, s.loss);
-        let new_cost = if new_cost.is_finite() {
-            new_cost
-        } else {
-            f64::INFINITY
-        };
+        let candidate = stepped(p, &lay, &delta_cam, &delta_point);
+        let new_cost = cost_of(&candidate, model, priors, s.loss);
         let xn = x_norm(p);
         let mut record = BaIteration {
             iteration: iterations.len() + 1,
@@ -880,38 +1440,52 @@ pub fn bundle_adjust_with_priors(
             accepted: false,
             seconds: 0.0,
         };
-        if step_norm <= s.parameter_tolerance * (xn + s.parameter_tolerance) {
+        // Where the candidate's Jacobians cannot be evaluated, the step is rejected.
+        let accepted = if step_norm <= s.parameter_tolerance * (xn + s.parameter_tolerance) {
             termination = BaTermination::ParameterTolerance;
+            None
         } else if (e.cost - new_cost).abs() <= s.function_tolerance * e.cost {
             termination = BaTermination::FunctionTolerance;
+            None
         } else if record.rho > s.min_relative_decrease {
-            *p = candidate;
-            radius = (radius / (1.0 - (2.0 * record.rho - 1.0).powi(3)).max(1.0 / 3.0))
-                .min(s.max_radius);
-            decrease = 2.0;
-            accepted_steps += 1;
-            e = evaluate(p, priors, s);
-            n = scaled_normal(p, priors, &st, &e, &s_cam, &s_point, s.fixed_camera_params);
-            (d_cam, d_point) = diag_of(&n);
-            record.accepted = true;
-            record.gradient_max_norm = gradient_max(&n);
-            if record.gradient_max_norm <= s.gradient_tolerance {
-                termination = BaTermination::GradientTolerance;
-            }
+            evaluate(&candidate, model, priors, s.loss)
+                .ok()
+                .map(|e_new| (candidate, e_new))
         } else {
-            radius /= decrease;
-            decrease *= 2.0;
-            if radius < s.min_radius {
-                termination = BaTermination::MinRadius;
+            None
+        };
+        match accepted {
+            Some((candidate, e_new)) => {
+                *p = candidate;
+                e = e_new;
+                radius = (radius / (1.0 - (2.0 * record.rho - 1.0).powi(3)).max(1.0 / 3.0))
+                    .min(s.max_radius);
+                decrease = 2.0;
+                accepted_steps += 1;
+                n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
+                (d_cam, d_point) = diag_of(&n);
+                record.accepted = true;
+                record.gradient_max_norm = gradient_max(&n);
+                if record.gradient_max_norm <= s.gradient_tolerance {
+                    termination = BaTermination::GradientTolerance;
+                }
             }
+            None if termination == BaTermination::MaxIterations => {
+                radius /= decrease;
+                decrease *= 2.0;
+                if radius < s.min_radius {
+                    termination = BaTermination::MinRadius;
+                }
+            }
+            None => {}
         }
         record.radius = radius;
         record.seconds = t0.elapsed().as_secs_f64();
         iterations.push(record);
     }
-    BaSummary {
-        cameras: nc,
-        points: np,
+    Ok(BaSummary {
+        cameras: p.poses.len(),
+        points: p.points.len(),
         observations: p.observations.len(),
         initial_cost,
         final_cost: e.cost,
@@ -919,13 +1493,13 @@ pub fn bundle_adjust_with_priors(
         accepted_steps,
         termination,
         seconds: start.elapsed().as_secs_f64(),
-    }
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::optim::bal::BalObservation;
+    use crate::optim::bal::{BalObservation, project};
     use rand::{RngExt, SeedableRng};
     use rand_distr::{Distribution, Normal};
 
@@ -1021,7 +1595,7 @@ mod tests {
     fn recovers_a_scene_within_its_noise() {
         let (truth, mut start) = scene(3, 0.5, 0.0);
         let before = rms_to_truth(&truth, &start);
-        let summary = bundle_adjust(&mut start, &BaSettings::default());
+        let summary = bundle_adjust(&mut start, &BaSettings::default()).unwrap();
         assert!(summary.termination.converged(), "{:?}", summary.termination);
         assert!(summary.final_cost < summary.initial_cost);
         // ½ Σ r² of 2 × 2400 residuals of 0.5 px: about 600, less the parameters' share.
@@ -1046,8 +1620,11 @@ mod tests {
         truth.cameras.truncate(4);
         truth.points.truncate(60);
         truth.observations.retain(|o| o.camera < 4 && o.point < 60);
+        let mut truth = truth.to_problem();
+        for f in &mut truth.fixed_intrinsics {
+            *f = [false, true, true];
+        }
         let settings = BaSettings {
-            fixed_camera_params: [false, false, false, false, false, false, false, true, true],
             function_tolerance: 1e-12,
             ..BaSettings::default()
         };
@@ -1063,14 +1640,19 @@ mod tests {
             points: exact.clone(),
             centres: Vec::new(),
         };
-        let (predicted, s) =
-            camera_covariance(&truth, &exact_priors, &settings, Some(0.5)).unwrap();
-        assert_eq!(s, 0.5);
+        let predicted = covariance(&truth, &BalIntrinsics, &exact_priors, Some(0.5)).unwrap();
+        assert_eq!(predicted.sigma_px, 0.5);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let normal = Normal::new(0.0, 1.0).unwrap();
         let trials = 300;
         let mut samples: Vec<Vec<f64>> = Vec::new();
         let mut sigma_hat = Vec::new();
+        // Per camera: the pose's six, then f, k1, k2.
+        let values = |p: &Problem<3>| -> Vec<f64> {
+            (0..4)
+                .flat_map(|i| p.poses[i].into_iter().chain(p.intrinsics[i]))
+                .collect()
+        };
         for _ in 0..trials {
             let mut p = truth.clone();
             for o in &mut p.observations {
@@ -1088,22 +1670,31 @@ mod tests {
                 points: priors,
                 centres: Vec::new(),
             };
-            let summary = bundle_adjust_with_priors(&mut p, &priors, &settings);
+            let summary = adjust(&mut p, &BalIntrinsics, &priors, &settings).unwrap();
             assert!(summary.termination.converged(), "{:?}", summary.termination);
-            sigma_hat.push(camera_covariance(&p, &priors, &settings, None).unwrap().1);
+            sigma_hat.push(
+                covariance(&p, &BalIntrinsics, &priors, None)
+                    .unwrap()
+                    .sigma_px,
+            );
             samples.push(
-                p.cameras
+                values(&p)
                     .iter()
-                    .zip(&truth.cameras)
-                    .flat_map(|(a, b)| (0..9).map(move |k| a[k] - b[k]))
+                    .zip(values(&truth))
+                    .map(|(a, b)| a - b)
                     .collect(),
             );
         }
         let mut checked = 0;
         for k in 0..36 {
-            let want = predicted[(k, k)].sqrt();
+            let (i, c) = (k / 9, k % 9);
+            let want = if c < 6 {
+                predicted.pose_sigma(i, c)
+            } else {
+                predicted.intrinsics_sigma(i, c - 6)
+            };
             let values: Vec<f64> = samples.iter().map(|v| v[k]).collect();
-            if settings.fixed_camera_params[k % 9] {
+            if c >= 7 {
                 assert!(want == 0.0 && values.iter().all(|v| *v == 0.0));
                 continue;
             }
@@ -1122,22 +1713,25 @@ mod tests {
         let mean_hat = sigma_hat.iter().sum::<f64>() / trials as f64;
         assert!((mean_hat / 0.5 - 1.0).abs() < 0.03, "{mean_hat}");
         // Without priors the gauge is free: no covariance.
-        assert!(camera_covariance(&truth, &Priors::default(), &settings, Some(0.5)).is_none());
+        assert_eq!(
+            covariance(&truth, &BalIntrinsics, &Priors::default(), Some(0.5)).unwrap_err(),
+            BaError::Singular
+        );
     }
 
     #[test]
     fn centre_prior_jacobian_agrees_with_finite_differences() {
-        let (truth, _) = scene(2, 0.0, 0.0);
+        let truth = scene(2, 0.0, 0.0).0.to_problem();
         let q = CentrePrior {
             camera: 3,
             position: [0.5, -0.2, 9.0],
             sigma: [0.02, 0.03, 0.05],
         };
         let (_, j) = centre_residual(&truth, &q);
-        for k in 0..9 {
+        for k in 0..6 {
             let (mut a, mut b) = (truth.clone(), truth.clone());
-            a.cameras[3][k] += 1e-6;
-            b.cameras[3][k] -= 1e-6;
+            a.poses[3][k] += 1e-6;
+            b.poses[3][k] -= 1e-6;
             let d = (centre_residual(&a, &q).0 - centre_residual(&b, &q).0) / 2e-6;
             assert!(
                 (d - j.column(k)).norm() < 1e-5 * (1.0 + d.norm()),
@@ -1150,19 +1744,15 @@ mod tests {
     #[test]
     fn rtk_centres_fix_the_gauge_and_the_scene_is_recovered() {
         // Every camera's centre known to 2 cm (RTK), no surveyed point.
-        let (truth, mut start) = scene(9, 0.5, 0.0);
+        let (truth, start) = scene(9, 0.5, 0.0);
+        let (truth, mut start) = (truth.to_problem(), start.to_problem());
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let normal = Normal::new(0.0, 1.0).unwrap();
-        let centre = |p: &BalProblem, i: usize| {
-            let c = &p.cameras[i];
-            -super::super::bal::rotation(&Vector3::new(c[0], c[1], c[2])).transpose()
-                * Vector3::new(c[3], c[4], c[5])
-        };
         let priors = Priors {
             points: Vec::new(),
-            centres: (0..truth.cameras.len())
+            centres: (0..truth.poses.len())
                 .map(|i| {
-                    let c = centre(&truth, i);
+                    let c = truth.centre(i);
                     CentrePrior {
                         camera: i,
                         position: [0, 1, 2].map(|k| c[k] + 0.02 * normal.sample(&mut rng)),
@@ -1172,17 +1762,15 @@ mod tests {
                 .collect(),
         };
         // A calibrated camera: f, k1, k2 fixed (at the truth: the start perturbed only f).
-        for (c, t) in start.cameras.iter_mut().zip(&truth.cameras) {
-            c[6..].copy_from_slice(&t[6..]);
+        start.intrinsics.clone_from(&truth.intrinsics);
+        for f in &mut start.fixed_intrinsics {
+            *f = [true; 3];
         }
-        let settings = BaSettings {
-            fixed_camera_params: [false, false, false, false, false, false, true, true, true],
-            ..BaSettings::default()
-        };
-        let summary = bundle_adjust_with_priors(&mut start, &priors, &settings);
+        let summary = adjust(&mut start, &BalIntrinsics, &priors, &BaSettings::default()).unwrap();
         assert!(summary.termination.converged(), "{:?}", summary.termination);
-        for i in 0..truth.cameras.len() {
-            let err = (centre(&start, i) - centre(&truth, i)).norm();
+        assert_eq!(start.intrinsics, truth.intrinsics);
+        for i in 0..truth.poses.len() {
+            let err = (start.centre(i) - truth.centre(i)).norm();
             assert!(err < 0.05, "camera {i}: {err} m");
         }
         // The points in the site frame itself, not up to a similarity: the frame known from
@@ -1197,7 +1785,7 @@ mod tests {
             / truth.points.len() as f64)
             .sqrt();
         assert!(rms < 0.04, "{rms} m");
-        assert!(camera_covariance(&start, &priors, &settings, None).is_some());
+        assert!(covariance(&start, &BalIntrinsics, &priors, None).is_ok());
     }
 
     #[test]
@@ -1211,7 +1799,8 @@ mod tests {
                     linear_solver: solver,
                     ..BaSettings::default()
                 },
-            );
+            )
+            .unwrap();
             (s, p)
         };
         let (dense, a) = run(LinearSolver::DenseSchur);
@@ -1232,11 +1821,114 @@ mod tests {
         assert!(worst < 1e-6, "{worst}");
     }
 
+    /// The Schur step (dense and iterative) against the full damped normal equations solved
+    /// densely, for a camera shared by every image and for one camera per image, with priors.
+    #[test]
+    fn schur_steps_equal_the_full_system_solution() {
+        let (_, start) = scene(6, 0.5, 0.0);
+        let mut start = start;
+        start.cameras.truncate(5);
+        start.points.truncate(40);
+        start.observations.retain(|o| o.camera < 5 && o.point < 40);
+        let per_image = start.to_problem();
+        let mut shared = per_image.clone();
+        shared.intrinsics.truncate(1);
+        shared.fixed_intrinsics.truncate(1);
+        shared.intrinsics_of = vec![0; 5];
+        shared.fixed_intrinsics[0][2] = true;
+        shared.fixed_poses[1] = [false, true, false, false, false, true];
+        let priors = Priors {
+            points: vec![PointPrior {
+                point: 3,
+                position: [0.1, 0.2, 0.3],
+                sigma: [0.05, 0.05, 0.1],
+            }],
+            centres: vec![CentrePrior {
+                camera: 2,
+                position: [1.0, 0.0, 10.0],
+                sigma: [0.1; 3],
+            }],
+        };
+        for p in [per_image, shared] {
+            let st = Structure::new(&p);
+            let lay = Layout::new(&p);
+            let e = evaluate(&p, &BalIntrinsics, &priors, RobustLoss::Squared).unwrap();
+            let (s_cam, s_point) = scales(&p, &priors, &st, &lay, &e);
+            let n = scaled_normal(&p, &priors, &st, &lay, &e, &s_cam, &s_point);
+            let (d_cam, d_point) = clamped_diagonals(&lay, &n, 1e-6, 1e32);
+            let radius = 1e3;
+            // The full scaled Jacobian, row by row, and its residuals.
+            let dim = lay.dim + 3 * p.points.len();
+            let mut rows: Vec<(DVector<f64>, f64)> = Vec::new();
+            for (k, o) in p.observations.iter().enumerate() {
+                let (pk, ik) = lay.of(&p, o.camera);
+                for r in 0..2 {
+                    let mut j = DVector::zeros(dim);
+                    for c in 0..6 {
+                        j[pk + c] = e.j_pose[k][(r, c)] * s_cam[pk + c];
+                    }
+                    for c in 0..3 {
+                        j[ik + c] = e.j_intr[k][(r, c)] * s_cam[ik + c];
+                        j[lay.dim + 3 * o.point + c] = e.j_point[k][(r, c)] * s_point[o.point][c];
+                    }
+                    rows.push((j, e.residuals[k][r]));
+                }
+            }
+            for q in &priors.points {
+                for c in 0..3 {
+                    let mut j = DVector::zeros(dim);
+                    j[lay.dim + 3 * q.point + c] = s_point[q.point][c] / q.sigma[c];
+                    rows.push((j, prior_residual(&p, q)[c]));
+                }
+            }
+            for q in &priors.centres {
+                let (r, jq) = centre_residual(&p, q);
+                for c in 0..3 {
+                    let mut j = DVector::zeros(dim);
+                    for k in 0..6 {
+                        j[lay.pose[q.camera] + k] = jq[(c, k)] * s_cam[lay.pose[q.camera] + k];
+                    }
+                    rows.push((j, r[c]));
+                }
+            }
+            let mut a = DMatrix::zeros(dim, dim);
+            let mut g = DVector::zeros(dim);
+            for (j, r) in &rows {
+                a += j * j.transpose();
+                g += j * *r;
+            }
+            for k in 0..lay.dim {
+                a[(k, k)] += d_cam[k] / radius;
+            }
+            for (j, d) in d_point.iter().enumerate() {
+                for c in 0..3 {
+                    a[(lay.dim + 3 * j + c, lay.dim + 3 * j + c)] += d[c] / radius;
+                }
+            }
+            let want = a.cholesky().unwrap().solve(&(-g));
+            for solver in [LinearSolver::DenseSchur, LinearSolver::IterativeSchur] {
+                let (y_cam, y_point) =
+                    schur_step(&p, &st, &lay, &n, &d_cam, &d_point, radius, solver).unwrap();
+                let mut got = DVector::zeros(dim);
+                got.rows_mut(0, lay.dim).copy_from(&y_cam);
+                for (j, y) in y_point.iter().enumerate() {
+                    got.fixed_rows_mut::<3>(lay.dim + 3 * j).copy_from(y);
+                }
+                assert!(
+                    (&got - &want).norm() < 1e-8 * want.norm(),
+                    "{solver:?}: {} vs {}",
+                    (&got - &want).norm(),
+                    want.norm()
+                );
+            }
+        }
+    }
+
     #[test]
     fn huber_loss_converges_through_gross_outliers() {
         let (truth, start) = scene(5, 0.5, 0.05);
         let mut plain = start.clone();
-        bundle_adjust(&mut plain, &BaSettings::default());
+        bundle_adjust(&mut plain, &BaSettings::default()).unwrap();
         let mut robust = start;
         let summary = bundle_adjust(
             &mut robust,
@@ -1244,7 +1936,8 @@ mod tests {
                 loss: RobustLoss::Huber(1.0),
                 ..BaSettings::default()
             },
-        );
+        )
+        .unwrap();
         assert!(summary.termination.converged(), "{:?}", summary.termination);
         let (a, b) = (rms_to_truth(&truth, &plain), rms_to_truth(&truth, &robust));
         assert!(b < 0.45 && b < 0.1 * a, "plain {a}, Huber {b}");

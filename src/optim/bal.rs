@@ -1,5 +1,5 @@
 //! The BAL format (Bundle Adjustment in the Large, Agarwal et al. 2010) and its camera (pure):
-//! reader, writer, and the projection with its analytic Jacobians.
+//! reader, writer, and the projection (its analytic Jacobians are [`BalIntrinsics`]'s).
 //!
 //! A BAL camera is nine numbers: a rotation as an angle-axis vector `w`, a translation `t`, a
 //! focal length `f` and two radial distortion coefficients `k1`, `k2`. A point `X` projects as
@@ -12,6 +12,7 @@ use std::path::Path;
 
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 
+use super::ba::{Problem, Projection};
 use crate::io::{FileCtx, FileError};
 
 /// One image measurement: camera `camera` sees point `point` at `xy` (pixels).
@@ -62,50 +63,74 @@ pub fn project(camera: &[f64; 9], point: &[f64; 3]) -> Vector2<f64> {
     let w = Vector3::new(camera[0], camera[1], camera[2]);
     let p_cam =
         rotation(&w) * Vector3::from(*point) + Vector3::new(camera[3], camera[4], camera[5]);
-    // The same arithmetic as `project_with_jacobians`, so that both give the same bits.
-    let iz = 1.0 / p_cam.z;
-    let p = Vector2::new(-p_cam.x * iz, -p_cam.y * iz);
-    let r2 = p.norm_squared();
-    let d = 1.0 + camera[7] * r2 + camera[8] * r2 * r2;
-    camera[6] * d * p
+    BalIntrinsics::pixel(&[camera[6], camera[7], camera[8]], &p_cam)
 }
 
-/// The projection and its Jacobians with respect to the camera's nine parameters and the
-/// point's three coordinates.
-pub fn project_with_jacobians(
-    camera: &[f64; 9],
-    point: &[f64; 3],
-) -> (Vector2<f64>, SMatrix<f64, 2, 9>, SMatrix<f64, 2, 3>) {
-    let w = Vector3::new(camera[0], camera[1], camera[2]);
-    let r = rotation(&w);
-    let rx = r * Vector3::from(*point);
-    let p_cam = rx + Vector3::new(camera[3], camera[4], camera[5]);
-    let (f, k1, k2) = (camera[6], camera[7], camera[8]);
-    let iz = 1.0 / p_cam.z;
-    let p = Vector2::new(-p_cam.x * iz, -p_cam.y * iz);
-    let r2 = p.norm_squared();
-    let d = 1.0 + k1 * r2 + k2 * r2 * r2;
-    let u = f * d * p;
-    // u = f d(p) p: ∂u/∂p = f (d I + 2 (k1 + 2 k2 r²) p pᵀ).
-    let du_dp =
-        f * (nalgebra::Matrix2::identity() * d + 2.0 * (k1 + 2.0 * k2 * r2) * p * p.transpose());
-    // p = −P.xy / P.z.
-    let dp_dpc =
-        SMatrix::<f64, 2, 3>::new(-iz, 0.0, p_cam.x * iz * iz, 0.0, -iz, p_cam.y * iz * iz);
-    let du_dpc = du_dp * dp_dpc;
-    let mut j_cam = SMatrix::<f64, 2, 9>::zeros();
-    j_cam
-        .fixed_view_mut::<2, 3>(0, 0)
-        .copy_from(&(du_dpc * (-rx.cross_matrix() * left_jacobian(&w))));
-    j_cam.fixed_view_mut::<2, 3>(0, 3).copy_from(&du_dpc);
-    j_cam.set_column(6, &(d * p));
-    j_cam.set_column(7, &(f * r2 * p));
-    j_cam.set_column(8, &(f * r2 * r2 * p));
-    let j_point = du_dpc * r;
-    (u, j_cam, j_point)
+/// The BAL camera's intrinsic part (`f`, `k1`, `k2`) for the bundle adjustment engine.
+pub struct BalIntrinsics;
+
+impl BalIntrinsics {
+    /// The same arithmetic as `project_with_jacobians`: the same bits.
+    fn pixel(k: &[f64; 3], p_cam: &Vector3<f64>) -> Vector2<f64> {
+        let iz = 1.0 / p_cam.z;
+        let p = Vector2::new(-p_cam.x * iz, -p_cam.y * iz);
+        let r2 = p.norm_squared();
+        k[0] * (1.0 + k[1] * r2 + k[2] * r2 * r2) * p
+    }
+}
+
+impl Projection<3> for BalIntrinsics {
+    fn project(&self, k: &[f64; 3], p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
+        Some(Self::pixel(k, p_cam))
+    }
+
+    fn project_with_jacobians(
+        &self,
+        k: &[f64; 3],
+        p_cam: &Vector3<f64>,
+    ) -> Option<(Vector2<f64>, SMatrix<f64, 2, 3>, SMatrix<f64, 2, 3>)> {
+        let [f, k1, k2] = *k;
+        let iz = 1.0 / p_cam.z;
+        let p = Vector2::new(-p_cam.x * iz, -p_cam.y * iz);
+        let r2 = p.norm_squared();
+        let d = 1.0 + k1 * r2 + k2 * r2 * r2;
+        // u = f d(p) p: ∂u/∂p = f (d I + 2 (k1 + 2 k2 r²) p pᵀ); p = −P.xy / P.z.
+        let du_dp = f
+            * (nalgebra::Matrix2::identity() * d + 2.0 * (k1 + 2.0 * k2 * r2) * p * p.transpose());
+        let dp_dpc =
+            SMatrix::<f64, 2, 3>::new(-iz, 0.0, p_cam.x * iz * iz, 0.0, -iz, p_cam.y * iz * iz);
+        let mut j_intr = SMatrix::<f64, 2, 3>::zeros();
+        j_intr.set_column(0, &(d * p));
+        j_intr.set_column(1, &(f * r2 * p));
+        j_intr.set_column(2, &(f * r2 * r2 * p));
+        Some((Self::pixel(k, p_cam), du_dp * dp_dpc, j_intr))
+    }
 }
 
 impl BalProblem {
+    /// The problem for the engine: a pose and intrinsics per camera, nothing fixed.
+    pub fn to_problem(&self) -> Problem<3> {
+        Problem::new(
+            self.cameras
+                .iter()
+                .map(|c| [c[0], c[1], c[2], c[3], c[4], c[5]])
+                .collect(),
+            self.cameras.iter().map(|c| [c[6], c[7], c[8]]).collect(),
+            (0..self.cameras.len()).collect(),
+            self.points.clone(),
+            self.observations.clone(),
+        )
+    }
+
+    /// Takes the cameras and points of an adjusted [`Self::to_problem`].
+    pub fn update_from(&mut self, q: &Problem<3>) {
+        for (i, c) in self.cameras.iter_mut().enumerate() {
+            c[..6].copy_from_slice(&q.poses[i]);
+            c[6..].copy_from_slice(&q.intrinsics[q.intrinsics_of[i]]);
+        }
+        self.points.clone_from(&q.points);
+    }
+
     /// `½ Σ ‖u − observed‖²`, the cost as Ceres reports it.
     pub fn cost(&self) -> f64 {
         0.5 * self
@@ -310,7 +335,21 @@ mod tests {
             ),
         ];
         for (cam, pt) in cases {
-            let (u, jc, jp) = project_with_jacobians(&cam, &pt);
+            let q = BalProblem {
+                cameras: vec![cam],
+                points: vec![pt],
+                observations: vec![BalObservation {
+                    camera: 0,
+                    point: 0,
+                    xy: [0.0, 0.0],
+                }],
+            }
+            .to_problem();
+            let (u, j_pose, j_intr, jp) =
+                crate::optim::ba::linearise(&q, &BalIntrinsics, &q.observations[0]).unwrap();
+            let mut jc = SMatrix::<f64, 2, 9>::zeros();
+            jc.fixed_view_mut::<2, 6>(0, 0).copy_from(&j_pose);
+            jc.fixed_view_mut::<2, 3>(0, 6).copy_from(&j_intr);
             assert!((u - project(&cam, &pt)).norm() < 1e-12);
             let (nc, np) = numeric(&cam, &pt);
             for (a, n) in jc.iter().zip(nc.iter()).chain(jp.iter().zip(np.iter())) {

@@ -9,6 +9,7 @@
 
 pub mod assignment;
 pub mod ba;
+pub mod ba_camera;
 pub mod bal;
 
 use serde::Serialize;

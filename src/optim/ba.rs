@@ -1173,19 +1173,20 @@ fn schur_step<const M: usize>(
 /// of the information matrix (observations weighted by `1/σ²`, priors by their own σ) with the
 /// points eliminated. `σ` is `sigma_px` or, when `None`, estimated from the observations'
 /// residuals as `Σ r²` over the degrees of freedom (`2·observations + 3·priors − free
-/// parameters`). Fixed parameters get zero rows and columns. Without priors the gauge (a
-/// similarity) is free and the covariance is not defined ([`BaError::Singular`]).
+/// parameters`). With a robust loss the observations are weighted by `√ρ'` as in the solver
+/// (an outlier's say shrinks). Fixed parameters get zero rows and columns. Without priors the
+/// gauge (a similarity) is free and the covariance is not defined ([`BaError::Singular`]).
 pub fn covariance<const M: usize>(
     p: &Problem<M>,
     model: &impl Projection<M>,
     priors: &Priors,
+    loss: RobustLoss,
     sigma_px: Option<f64>,
 ) -> Result<CameraCovariance, BaError> {
     p.check()?;
     let st = Structure::new(p);
     let lay = Layout::new(p);
-    let mut e = evaluate(p, model, &Priors::default(), RobustLoss::Squared)
-        .map_err(|k| projection_error(p, k))?;
+    let mut e = evaluate(p, model, &Priors::default(), loss).map_err(|k| projection_error(p, k))?;
     let free = lay.free(p);
     // A point's observable coordinates: two per image it is seen in and three for a survey.
     let mut point_rank = vec![0; p.points.len()];
@@ -1640,7 +1641,14 @@ mod tests {
             points: exact.clone(),
             centres: Vec::new(),
         };
-        let predicted = covariance(&truth, &BalIntrinsics, &exact_priors, Some(0.5)).unwrap();
+        let predicted = covariance(
+            &truth,
+            &BalIntrinsics,
+            &exact_priors,
+            RobustLoss::Squared,
+            Some(0.5),
+        )
+        .unwrap();
         assert_eq!(predicted.sigma_px, 0.5);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let normal = Normal::new(0.0, 1.0).unwrap();
@@ -1673,7 +1681,7 @@ mod tests {
             let summary = adjust(&mut p, &BalIntrinsics, &priors, &settings).unwrap();
             assert!(summary.termination.converged(), "{:?}", summary.termination);
             sigma_hat.push(
-                covariance(&p, &BalIntrinsics, &priors, None)
+                covariance(&p, &BalIntrinsics, &priors, RobustLoss::Squared, None)
                     .unwrap()
                     .sigma_px,
             );
@@ -1714,7 +1722,14 @@ mod tests {
         assert!((mean_hat / 0.5 - 1.0).abs() < 0.03, "{mean_hat}");
         // Without priors the gauge is free: no covariance.
         assert_eq!(
-            covariance(&truth, &BalIntrinsics, &Priors::default(), Some(0.5)).unwrap_err(),
+            covariance(
+                &truth,
+                &BalIntrinsics,
+                &Priors::default(),
+                RobustLoss::Squared,
+                Some(0.5)
+            )
+            .unwrap_err(),
             BaError::Singular
         );
     }
@@ -1785,7 +1800,7 @@ mod tests {
             / truth.points.len() as f64)
             .sqrt();
         assert!(rms < 0.04, "{rms} m");
-        assert!(covariance(&start, &BalIntrinsics, &priors, None).is_ok());
+        assert!(covariance(&start, &BalIntrinsics, &priors, RobustLoss::Squared, None).is_ok());
     }
 
     #[test]

@@ -157,6 +157,7 @@ pub fn rigid_pose(q: &[f64; 6]) -> RigidPose {
 mod tests {
     use super::*;
     use crate::camera::PARAM_NAMES;
+    use crate::optim::RobustLoss;
     use crate::optim::ba::{
         BaError, BaSettings, LinearSolver, Observation, PointPrior, Priors, Problem, adjust,
         covariance, linearise,
@@ -378,7 +379,7 @@ mod tests {
             summary.initial_cost,
             summary.final_cost
         );
-        let cov = covariance(&p, &BrownConrady, &priors, None).unwrap();
+        let cov = covariance(&p, &BrownConrady, &priors, RobustLoss::Squared, None).unwrap();
         eprintln!(
             "shared camera: {} observations, cost {:.4e} -> {:.4e} in {} iterations ({}), \
              fx {:.2} ± {:.2} (truth {}), k1 {:.4} ± {:.4} (truth {}), σ0 {:.3} px",
@@ -477,7 +478,7 @@ mod tests {
             }
         }
         assert_eq!(p.poses[0][..3], before.poses[0][..3]);
-        let cov = covariance(&p, &BrownConrady, &priors, None).unwrap();
+        let cov = covariance(&p, &BrownConrady, &priors, RobustLoss::Squared, None).unwrap();
         assert_eq!(cov.pose(0).view((0, 0), (3, 3)).norm(), 0.0);
         for g in 0..2 {
             for c in [param::FX, param::FY] {

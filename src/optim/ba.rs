@@ -1005,9 +1005,9 @@ fn iterative_reduced_solve<const M: usize>(
         .par_iter()
         .enumerate()
         .fold(zero, |(mut b, mut blocks), (j, ks)| {
+            let t = v_inv[j] * n.g_point[j];
             for &k in ks {
                 let (pk, ik) = lay.of(p, obs[k].camera);
-                let t = v_inv[j] * n.g_point[j];
                 let mut rows = b.fixed_rows_mut::<6>(pk);
                 rows += n.w_pose[k] * t;
                 let mut rows = b.fixed_rows_mut::<M>(ik);
@@ -1184,6 +1184,7 @@ pub fn covariance<const M: usize>(
     sigma_px: Option<f64>,
 ) -> Result<CameraCovariance, BaError> {
     p.check()?;
+    check_priors(p, priors)?;
     let st = Structure::new(p);
     let lay = Layout::new(p);
     let mut e = evaluate(p, model, &Priors::default(), loss).map_err(|k| projection_error(p, k))?;
@@ -1322,6 +1323,45 @@ fn stepped<const M: usize>(
     q
 }
 
+/// Every prior names a point or image of the problem and has a finite position and σ > 0.
+fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> Result<(), BaError> {
+    let bad = |m: String| Err(BaError::Invalid(m));
+    let ok = |x: &[f64; 3], s: &[f64; 3]| {
+        x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)
+    };
+    for q in &priors.points {
+        if q.point >= p.points.len() {
+            return bad(format!(
+                "a prior names point {} of {}",
+                q.point,
+                p.points.len()
+            ));
+        }
+        if !ok(&q.position, &q.sigma) {
+            return bad(format!(
+                "the prior on point {} needs a finite position and σ > 0, got {:?} ± {:?}",
+                q.point, q.position, q.sigma
+            ));
+        }
+    }
+    for q in &priors.centres {
+        if q.camera >= p.poses.len() {
+            return bad(format!(
+                "a prior names image {} of {}",
+                q.camera,
+                p.poses.len()
+            ));
+        }
+        if !ok(&q.position, &q.sigma) {
+            return bad(format!(
+                "the prior on image {}'s centre needs a finite position and σ > 0, got {:?} ± {:?}",
+                q.camera, q.position, q.sigma
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Adjusts a BAL problem's cameras and points in place.
 pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> Result<BaSummary, BaError> {
     let mut q = p.to_problem();
@@ -1341,15 +1381,7 @@ pub fn adjust<const M: usize>(
 ) -> Result<BaSummary, BaError> {
     let start = Instant::now();
     p.check()?;
-    if let Some(q) = priors.points.iter().find(|q| q.point >= p.points.len()) {
-        return Err(BaError::Invalid(format!("a prior names point {}", q.point)));
-    }
-    if let Some(q) = priors.centres.iter().find(|q| q.camera >= p.poses.len()) {
-        return Err(BaError::Invalid(format!(
-            "a prior names image {}",
-            q.camera
-        )));
-    }
+    check_priors(p, priors)?;
     let s = settings;
     let st = Structure::new(p);
     let lay = Layout::new(p);
@@ -1800,6 +1832,15 @@ mod tests {
             / truth.points.len() as f64)
             .sqrt();
         assert!(rms < 0.04, "{rms} m");
+        let mut bad = priors.clone();
+        bad.centres[0].sigma[2] = 0.0;
+        let err = adjust(
+            &mut start.clone(),
+            &BalIntrinsics,
+            &bad,
+            &BaSettings::default(),
+        );
+        assert!(matches!(err, Err(BaError::Invalid(m)) if m.contains("σ > 0")));
         assert!(covariance(&start, &BalIntrinsics, &priors, RobustLoss::Squared, None).is_ok());
     }
 

@@ -360,11 +360,12 @@ fn runs_in<I: Iterator<Item = (usize, usize)>>(
 }
 
 /// Runs of a frame's colours in `table`, row by row. When hats span many pixels, a grid of every
-/// `step`-th pixel of every `step`-th row is classified first, and only tiles near a hit (and
-/// their neighbours, which hold any fringe of the same blob) are scanned in full: a 4K frame of
-/// a few dozen hats costs a fraction of a full pass, with the same runs.
+/// `step`-th pixel of every `step`-th row (half the hat's radius: a whole hat holds a dozen grid
+/// points, an edge-cut or half-hidden one several) is classified first, and only tiles near a
+/// hit (and their neighbours, which hold any fringe of the same blob) are scanned in full: a 4K
+/// frame of a few dozen hats costs a fraction of a full pass, with the same runs.
 fn table_runs(f: &FrameView, table: &[u64], r_hat_px: f64) -> Vec<Run> {
-    let step = (r_hat_px / 3.0).floor().max(1.0) as usize;
+    let step = (r_hat_px / 2.0).floor().max(1.0) as usize;
     if step == 1 {
         return runs_in(f, table, 0..f.height, |_| std::iter::once((0, f.width)));
     }

@@ -52,7 +52,7 @@ impl Default for KltSettings {
             fast_fraction: 0.6,
             max_width: 1920,
             refine_window: 31,
-            refine_levels: 1,
+            refine_levels: 0,
             max_fb_error_px: 0.5,
             max_corners: 1000,
             grid_cols: 8,

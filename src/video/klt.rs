@@ -28,7 +28,8 @@ pub struct KltSettings {
     /// The working copy's largest width, pixels.
     pub max_width: i32,
     /// Window side and pyramid levels of the local search around a good prediction (full
-    /// resolution).
+    /// resolution). No coarse level by default: the prediction is within a few pixels (a jump
+    /// beyond 6 px is refused anyway), and a level triples the area of the windows.
     pub refine_window: i32,
     pub refine_levels: i32,
     /// A track whose backward track misses its start by more than this is dropped, pixels.

@@ -188,6 +188,10 @@ pub struct BaSettings {
     pub loss: RobustLoss,
     /// How the reduced camera system is solved.
     pub linear_solver: LinearSolver,
+    /// Conjugate gradients stop when their residual falls below this fraction of the
+    /// right-hand side (Ceres's forcing parameter `eta`, 0.1): an inexact step is still a step
+    /// the trust region judges by the cost it actually reaches.
+    pub iterative_tolerance: f64,
 }
 
 /// The priors of a problem: on points (surveyed ground control points) and on camera centres
@@ -231,6 +235,7 @@ impl Default for BaSettings {
             max_diagonal: 1e32,
             loss: RobustLoss::Squared,
             linear_solver: LinearSolver::Auto,
+            iterative_tolerance: 0.1,
         }
     }
 }
@@ -937,9 +942,9 @@ fn point_inverses<const M: usize>(
         .collect()
 }
 
-/// Adds a point's `Σ_a W_a V⁻¹ Σ_b W_bᵀ` to the preconditioner's blocks, restricted to each
-/// unit (the observations of one point in one unit are summed first: a shared camera's block
-/// gets the cross terms between its images).
+/// Adds a point's `Σ_a Σ_b W_a V⁻¹ W_bᵀ` to the preconditioner's blocks, restricted to each
+/// unit: every pair of its observations whose parameter blocks share a unit (one image's pose
+/// and own intrinsics; a shared camera's intrinsics seen from two images) adds its block there.
 fn add_unit_blocks<const M: usize>(
     p: &Problem<M>,
     lay: &Layout,
@@ -948,48 +953,55 @@ fn add_unit_blocks<const M: usize>(
     vi: &Matrix3<f64>,
     acc: &mut [DMatrix<f64>],
 ) {
-    let mut z: Vec<(usize, DMatrix<f64>)> = Vec::with_capacity(2 * ks.len());
-    let mut add = |unit: usize, offset: usize, rows: &[f64], nrows: usize| {
-        let (start, size) = lay.units[unit];
-        let at = match z.iter().position(|(u, _)| *u == unit) {
-            Some(at) => at,
-            None => {
-                z.push((unit, DMatrix::zeros(size, 3)));
-                z.len() - 1
+    // Per observation: (unit, offset in it) of its pose and of its intrinsics.
+    let at: Vec<((usize, usize), (usize, usize))> = ks
+        .iter()
+        .map(|&k| {
+            let i = p.observations[k].camera;
+            let (pi, gi) = lay.of(p, i);
+            let (up, ug) = (lay.pose_unit[i], lay.intr_unit[p.intrinsics_of[i]]);
+            ((up, pi - lay.units[up].0), (ug, gi - lay.units[ug].0))
+        })
+        .collect();
+    for (&ka, &((upa, lpa), (uga, lga))) in ks.iter().zip(&at) {
+        let (wpa, wia) = (n.w_pose[ka] * vi, n.w_intr[ka] * vi);
+        for (&kb, &((upb, lpb), (ugb, lgb))) in ks.iter().zip(&at) {
+            let (wpb, wib) = (n.w_pose[kb].transpose(), n.w_intr[kb].transpose());
+            if upa == upb {
+                let mut view = acc[upa].fixed_view_mut::<6, 6>(lpa, lpb);
+                view += wpa * wpb;
             }
-        };
-        let block = DMatrix::from_column_slice(nrows, 3, rows);
-        let mut view = z[at].1.view_mut((offset - start, 0), (nrows, 3));
-        view += block;
-    };
-    for &k in ks {
-        let i = p.observations[k].camera;
-        let (pi, gi) = lay.of(p, i);
-        add(lay.pose_unit[i], pi, n.w_pose[k].as_slice(), 6);
-        let g = p.intrinsics_of[i];
-        add(lay.intr_unit[g], gi, n.w_intr[k].as_slice(), M);
-    }
-    for (u, zu) in z {
-        acc[u] += &zu * vi * zu.transpose();
+            if upa == ugb {
+                let mut view = acc[upa].fixed_view_mut::<6, M>(lpa, lgb);
+                view += wpa * wib;
+            }
+            if uga == upb {
+                let mut view = acc[uga].fixed_view_mut::<M, 6>(lga, lpb);
+                view += wia * wpb;
+            }
+            if uga == ugb {
+                let mut view = acc[uga].fixed_view_mut::<M, M>(lga, lgb);
+                view += wia * wib;
+            }
+        }
     }
 }
 
 /// Solves `S y = b` by conjugate gradients without forming `S = U − W V⁻¹ Wᵀ`: each product
 /// goes through the observations, point by point; the preconditioner is `S`'s diagonal blocks
 /// (a pose with its own intrinsics, a pose, shared intrinsics). Stops when the residual falls
-/// below 1e-10 of `b` (or after as many steps as unknowns).
+/// below `tolerance` of `b` (or after as many steps as unknowns).
 fn iterative_reduced_solve<const M: usize>(
     p: &Problem<M>,
     st: &Structure,
     lay: &Layout,
     n: &Normal<M>,
-    d_cam: &DVector<f64>,
+    damping: &DVector<f64>,
     v_inv: &[Matrix3<f64>],
-    radius: f64,
+    tolerance: f64,
 ) -> Option<DVector<f64>> {
     let obs = &p.observations;
     let dim = lay.dim;
-    let damping = d_cam / radius;
     // b = −g_c + Σ W V⁻¹ g_p, and the Schur part of the preconditioner's blocks.
     let zero = || {
         (
@@ -1089,7 +1101,7 @@ fn iterative_reduced_solve<const M: usize>(
                 },
             )
             .reduce(|| DVector::<f64>::zeros(dim), |a, b| a + b);
-        camera_block_product(p, lay, n, &damping, x) - minus
+        camera_block_product(p, lay, n, damping, x) - minus
     };
     let mut x = DVector::zeros(dim);
     let mut r = b.clone();
@@ -1098,7 +1110,7 @@ fn iterative_reduced_solve<const M: usize>(
     let mut rz = r.dot(&z);
     let b_norm = b.norm();
     for _ in 0..dim {
-        if r.norm() <= 1e-10 * b_norm {
+        if r.norm() <= tolerance * b_norm {
             break;
         }
         let q = apply(&d);
@@ -1129,7 +1141,7 @@ fn schur_step<const M: usize>(
     d_cam: &DVector<f64>,
     d_point: &[Vector3<f64>],
     radius: f64,
-    solver: LinearSolver,
+    (solver, tolerance): (LinearSolver, f64),
 ) -> Option<(DVector<f64>, Vec<Vector3<f64>>)> {
     let obs = &p.observations;
     let dense = match solver {
@@ -1148,7 +1160,7 @@ fn schur_step<const M: usize>(
     } else {
         let v_inv = point_inverses(n, d_point, radius)?;
         (
-            iterative_reduced_solve(p, st, lay, n, d_cam, &v_inv, radius)?,
+            iterative_reduced_solve(p, st, lay, n, &(d_cam / radius), &v_inv, tolerance)?,
             v_inv,
         )
     };
@@ -1419,18 +1431,26 @@ pub fn adjust<const M: usize>(
     while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
         let t0 = Instant::now();
         // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
-        let step = schur_step(p, &st, &lay, &n, &d_cam, &d_point, radius, s.linear_solver).map(
-            |(y_cam, y_point)| {
-                let delta_cam = y_cam.component_mul(&s_cam);
-                let delta_point: Vec<Vector3<f64>> = y_point
-                    .iter()
-                    .zip(&s_point)
-                    .map(|(y, sp)| y.component_mul(sp))
-                    .collect();
-                let model_change = model_decrease(p, priors, &lay, &e, &delta_cam, &delta_point);
-                (delta_cam, delta_point, model_change)
-            },
-        );
+        let step = schur_step(
+            p,
+            &st,
+            &lay,
+            &n,
+            &d_cam,
+            &d_point,
+            radius,
+            (s.linear_solver, s.iterative_tolerance),
+        )
+        .map(|(y_cam, y_point)| {
+            let delta_cam = y_cam.component_mul(&s_cam);
+            let delta_point: Vec<Vector3<f64>> = y_point
+                .iter()
+                .zip(&s_point)
+                .map(|(y, sp)| y.component_mul(sp))
+                .collect();
+            let model_change = model_decrease(p, priors, &lay, &e, &delta_cam, &delta_point);
+            (delta_cam, delta_point, model_change)
+        });
         let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
             (dc.norm_squared() + dp.iter().map(|d| d.norm_squared()).sum::<f64>()).sqrt()
         });
@@ -1846,35 +1866,48 @@ mod tests {
 
     #[test]
     fn iterative_schur_reaches_the_dense_solution() {
-        let (_, start) = scene(4, 0.5, 0.0);
-        let run = |solver| {
+        let (truth, start) = scene(4, 0.5, 0.0);
+        let run = |solver, iterative_tolerance| {
             let mut p = start.clone();
             let s = bundle_adjust(
                 &mut p,
                 &BaSettings {
                     linear_solver: solver,
+                    iterative_tolerance,
                     ..BaSettings::default()
                 },
             )
             .unwrap();
             (s, p)
         };
-        let (dense, a) = run(LinearSolver::DenseSchur);
-        let (iterative, b) = run(LinearSolver::IterativeSchur);
-        assert!(dense.termination.converged() && iterative.termination.converged());
+        let (dense, a) = run(LinearSolver::DenseSchur, 0.1);
+        let worst = |b: &BalProblem| {
+            a.points
+                .iter()
+                .zip(&b.points)
+                .map(|(x, y)| (Vector3::from(*x) - Vector3::from(*y)).norm())
+                .fold(0.0, f64::max)
+        };
+        // Solved to 1e-10 the steps are the dense ones: the same optimum.
+        let (exact, b) = run(LinearSolver::IterativeSchur, 1e-10);
+        assert!(dense.termination.converged() && exact.termination.converged());
         assert!(
-            (iterative.final_cost / dense.final_cost - 1.0).abs() < 1e-9,
+            (exact.final_cost / dense.final_cost - 1.0).abs() < 1e-9,
             "{} vs {}",
-            iterative.final_cost,
+            exact.final_cost,
             dense.final_cost
         );
-        let worst = a
-            .points
-            .iter()
-            .zip(&b.points)
-            .map(|(x, y)| (Vector3::from(*x) - Vector3::from(*y)).norm())
-            .fold(0.0, f64::max);
-        assert!(worst < 1e-6, "{worst}");
+        assert!(worst(&b) < 1e-6, "{}", worst(&b));
+        // Inexact steps (the default, Ceres's 0.1) stop within the function tolerance of it.
+        let (inexact, c) = run(LinearSolver::IterativeSchur, 0.1);
+        assert!(inexact.termination.converged());
+        assert!(
+            (inexact.final_cost / dense.final_cost - 1.0).abs() < 1e-5,
+            "{} vs {}",
+            inexact.final_cost,
+            dense.final_cost
+        );
+        assert!(rms_to_truth(&truth, &c) < 1.01 * rms_to_truth(&truth, &a));
     }
 
     /// The Schur step (dense and iterative) against the full damped normal equations solved
@@ -1964,7 +1997,8 @@ mod tests {
             let want = a.cholesky().unwrap().solve(&(-g));
             for solver in [LinearSolver::DenseSchur, LinearSolver::IterativeSchur] {
                 let (y_cam, y_point) =
-                    schur_step(&p, &st, &lay, &n, &d_cam, &d_point, radius, solver).unwrap();
+                    schur_step(&p, &st, &lay, &n, &d_cam, &d_point, radius, (solver, 1e-12))
+                        .unwrap();
                 let mut got = DVector::zeros(dim);
                 got.rows_mut(0, lay.dim).copy_from(&y_cam);
                 for (j, y) in y_point.iter().enumerate() {

@@ -696,6 +696,17 @@ mod tests {
     }
 
     /// A detection at `uv` whose 30 px box is centred on `centre`, σ 2 px.
+    /// A tracker with the default settings on a 640 × 360 synthetic video of `truth`.
+    fn synthetic_tracker(truth: &[Vec<Vector2<f64>>]) -> KltTracker<Synthetic> {
+        KltTracker::new(
+            KltTrackSettings::default(),
+            Synthetic {
+                truth: truth.to_vec(),
+            },
+            (640.0, 360.0),
+        )
+    }
+
     fn detection(centre: &Vector2<f64>, uv: Vector2<f64>, score: f64) -> Detection {
         Detection {
             uv,
@@ -716,13 +727,7 @@ mod tests {
                     .collect()
             })
             .collect();
-        let mut tracker = KltTracker::new(
-            KltTrackSettings::default(),
-            Synthetic {
-                truth: truth.clone(),
-            },
-            (640.0, 360.0),
-        );
+        let mut tracker = synthetic_tracker(&truth);
         let still = |_: usize, p: &Vector2<f64>| *p;
         for (f, people) in truth.iter().enumerate() {
             let mut dets: Vec<Detection> = people
@@ -774,13 +779,7 @@ mod tests {
         let truth: Vec<Vec<Vector2<f64>>> = (0..60)
             .map(|f| vec![Vector2::new(-30.0 + 4.0 * f as f64, 150.0)])
             .collect();
-        let mut tracker = KltTracker::new(
-            KltTrackSettings::default(),
-            Synthetic {
-                truth: truth.clone(),
-            },
-            (640.0, 360.0),
-        );
+        let mut tracker = synthetic_tracker(&truth);
         let still = |_: usize, p: &Vector2<f64>| *p;
         for (f, people) in truth.iter().enumerate() {
             let dets: Vec<Detection> = people

@@ -1337,39 +1337,41 @@ fn stepped<const M: usize>(
 
 /// Every prior names a point or image of the problem and has a finite position and σ > 0.
 fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> Result<(), BaError> {
-    let bad = |m: String| Err(BaError::Invalid(m));
-    let ok = |x: &[f64; 3], s: &[f64; 3]| {
-        x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)
+    // One prior on `kind` number `index` (of `count`), `part` naming what of it ("'s centre").
+    let check = |(kind, part): (&str, &str),
+                 index: usize,
+                 count: usize,
+                 x: &[f64; 3],
+                 s: &[f64; 3]| {
+        if index >= count {
+            return Err(BaError::Invalid(format!(
+                "a prior names {kind} {index} of {count}"
+            )));
+        }
+        if !(x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)) {
+            return Err(BaError::Invalid(format!(
+                "the prior on {kind} {index}{part} needs a finite position and σ > 0, got {x:?} ± {s:?}"
+            )));
+        }
+        Ok(())
     };
     for q in &priors.points {
-        if q.point >= p.points.len() {
-            return bad(format!(
-                "a prior names point {} of {}",
-                q.point,
-                p.points.len()
-            ));
-        }
-        if !ok(&q.position, &q.sigma) {
-            return bad(format!(
-                "the prior on point {} needs a finite position and σ > 0, got {:?} ± {:?}",
-                q.point, q.position, q.sigma
-            ));
-        }
+        check(
+            ("point", ""),
+            q.point,
+            p.points.len(),
+            &q.position,
+            &q.sigma,
+        )?;
     }
     for q in &priors.centres {
-        if q.camera >= p.poses.len() {
-            return bad(format!(
-                "a prior names image {} of {}",
-                q.camera,
-                p.poses.len()
-            ));
-        }
-        if !ok(&q.position, &q.sigma) {
-            return bad(format!(
-                "the prior on image {}'s centre needs a finite position and σ > 0, got {:?} ± {:?}",
-                q.camera, q.position, q.sigma
-            ));
-        }
+        check(
+            ("image", "'s centre"),
+            q.camera,
+            p.poses.len(),
+            &q.position,
+            &q.sigma,
+        )?;
     }
     Ok(())
 }

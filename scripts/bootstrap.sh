@@ -3,6 +3,7 @@
 # second run costs a few dpkg queries. Called by every make target.
 #
 #   OpenCV (+ clang/libclang for the opencv and proj crates' generated bindings), GDAL and PROJ
+#   (proj-bin: cs2cs, the tests' reference for WGS 84 outputs)
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
 #
@@ -13,7 +14,7 @@ set -euo pipefail
 packages=(
   pkg-config cmake clang libclang-dev
   libopencv-dev
-  libgdal-dev gdal-bin libproj-dev proj-data libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
+  libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(g++ libceres-dev)

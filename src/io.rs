@@ -77,6 +77,15 @@ impl FileCtx<'_> {
     }
 }
 
+/// `text` for a message: at most `max` characters, the rest replaced by how long it was, so that a
+/// 200 MB token is not printed whole.
+pub fn clip(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        None => text.to_string(),
+        Some((cut, _)) => format!("{}… ({} bytes in all)", &text[..cut], text.len()),
+    }
+}
+
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over the target. A failed write leaves no partial file and never touches the target.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
@@ -144,6 +153,14 @@ mod tests {
         assert_eq!(iso8601_from_unix(0), "1970-01-01T00:00:00Z");
         assert_eq!(iso8601_from_unix(951_782_400), "2000-02-29T00:00:00Z");
         assert_eq!(iso8601_from_unix(1_795_255_200), "2026-11-21T10:00:00Z");
+    }
+
+    #[test]
+    fn clip_cuts_long_tokens_only() {
+        assert_eq!(clip("short", 10), "short");
+        assert_eq!(clip("abcdefghij", 10), "abcdefghij");
+        assert_eq!(clip("abcdefghijk", 4), "abcd… (11 bytes in all)");
+        assert_eq!(clip("ééé", 1), "é… (6 bytes in all)");
     }
 
     #[test]

@@ -54,6 +54,10 @@ pub struct Args {
     /// alarms, half of them shadows) and KLT tracking
     #[arg(long)]
     crowd: bool,
+    /// Put the site in this CRS (EPSG code, PROJ string or WKT) at the same place, e.g.
+    /// EPSG:31370 for Belgian Lambert 72: the scene's origin is converted with PROJ
+    #[arg(long, value_name = "CRS")]
+    crs: Option<String>,
     /// Simulate only this many seconds (the scene's duration by default)
     #[arg(long, value_parser = super::parse_positive, value_name = "S")]
     duration: Option<f64>,
@@ -322,11 +326,15 @@ fn demo_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, Pat
         .clone()
         .unwrap_or_else(|| PathBuf::from(default));
     let scene_path = survey.join("scene.toml");
-    let scene = Scene::load(&scene_path).map_err(|e| {
+    let mut scene = Scene::load(&scene_path).map_err(|e| {
         super::bad_input(anyhow!(
             "{e} (run the demo from the repository root, or pass --survey)"
         ))
     })?;
+    if let Some(crs) = &args.crs {
+        scene.site = crate::simulate::run::site_in_crs(&scene.site, crs)
+            .map_err(|e| super::bad_input(anyhow!(e)))?;
+    }
     if !matches!(scene.camera.motion, Motion::Hover { .. }) {
         return Err(super::bad_input(anyhow!(
             "{}: the demo needs a hovering camera (camera.motion.kind = \"hover\")",
@@ -349,6 +357,7 @@ fn simulate_scene(
 ) -> anyhow::Result<crate::simulate::run::Summary> {
     let overrides = Overrides {
         duration_s: args.duration,
+        site_crs: args.crs.clone(),
         ..Overrides::default()
     };
     let sim = super::simulate::run_scene(scene_path, dir, &overrides, args.quiet)?;

@@ -6,7 +6,7 @@ use anyhow::{Context, anyhow};
 
 use super::bad_input;
 use super::{load_camera, scale_to};
-use crate::simulate::run::{Overrides, SimError, Summary, simulate};
+use crate::simulate::run::{Overrides, SimError, Summary, simulate, site_in_crs};
 use crate::simulate::scene::Scene;
 
 #[derive(clap::Args)]
@@ -31,14 +31,25 @@ pub struct Args {
     /// Skip the video (truth and exports only)
     #[arg(long)]
     no_video: bool,
+    /// Put the site in this CRS (EPSG code, PROJ string or WKT) at the same place: the scene's
+    /// origin is converted with PROJ
+    #[arg(long, value_name = "CRS")]
+    crs: Option<String>,
     /// No progress bar
     #[arg(short, long)]
     quiet: bool,
 }
 
-/// Loads a scene and its camera (a preset name, or a file relative to the scene).
-pub(crate) fn load(scene_path: &Path) -> anyhow::Result<(Scene, crate::camera::Camera, String)> {
-    let scene = Scene::load(scene_path).map_err(bad_input)?;
+/// Loads a scene and its camera (a preset name, or a file relative to the scene), with the site
+/// moved to `site_crs` when given.
+pub(crate) fn load(
+    scene_path: &Path,
+    site_crs: Option<&str>,
+) -> anyhow::Result<(Scene, crate::camera::Camera, String)> {
+    let mut scene = Scene::load(scene_path).map_err(bad_input)?;
+    if let Some(crs) = site_crs {
+        scene.site = site_in_crs(&scene.site, crs).map_err(|e| bad_input(anyhow!(e)))?;
+    }
     let spec = &scene.camera.calibration;
     let cam_spec = if crate::camera::presets::preset(spec).is_some() {
         spec.clone()
@@ -63,7 +74,7 @@ pub(crate) fn run_scene(
     over: &Overrides,
     quiet: bool,
 ) -> anyhow::Result<Summary> {
-    let (scene, camera, source) = load(scene_path)?;
+    let (scene, camera, source) = load(scene_path, over.site_crs.as_deref())?;
     if let Some(d) = over.duration_s
         && !(d > 0.0)
     {
@@ -101,6 +112,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         duration_s: args.duration,
         no_video: args.no_video,
         frames_every: args.frames_every,
+        site_crs: args.crs,
     };
     let s = run_scene(&args.scene, &args.out, &over, args.quiet)?;
     print_summary(&s);

@@ -620,8 +620,15 @@ fn convert(
             s.points
                 .iter()
                 .map(|p| {
-                    t.apply(p.position.x, p.position.y)
-                        .map(|(x, y)| Vector3::new(x, y, p.position.z))
+                    // The height goes through the operation as cs2cs takes it (a datum's
+                    // rotation moves a point by its height's lever); it is written unchanged.
+                    let h = if p.position.z.is_finite() {
+                        p.position.z
+                    } else {
+                        0.0
+                    };
+                    t.apply_3d(p.position.x, p.position.y, h)
+                        .map(|(x, y, _)| Vector3::new(x, y, p.position.z))
                 })
                 .collect::<Result<_, _>>()
                 .map_err(bad_input)?

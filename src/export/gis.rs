@@ -43,8 +43,18 @@ const POINT_FIELDS: [FieldDef; 11] = [
     ("observed", OGRFieldType::OFTInteger),
 ];
 
+/// A vertex with its height, or without one (`flat`: the height is unknown, NaN).
+fn add_point(g: &mut Geometry, c: &Vector3<f64>, flat: bool) {
+    if flat {
+        g.add_point_2d((c.x, c.y));
+    } else {
+        g.add_point((c.x, c.y, c.z));
+    }
+}
+
 /// Writes the trajectories. `coords` gives each point's position in the file's CRS (the output
-/// CRS for a GeoPackage, longitude/latitude/height for GeoJSON); `crs_wkt` is the GeoPackage's.
+/// CRS for a GeoPackage, longitude/latitude/height for GeoJSON; a NaN height makes the geometry
+/// 2D); `crs_wkt` is the GeoPackage's.
 pub fn write_trajectories(
     path: &Path,
     format: GisFormat,
@@ -77,11 +87,16 @@ pub fn write_trajectories(
                 set_real(&mut f, "length_m", Some(t.length_m()))?;
                 set_real(&mut f, "mean_speed_m_s", Some(t.mean_speed()))?;
                 set_real(&mut f, "height_m", Some(t.height_m))?;
-                let mut g = Geometry::empty(OGRwkbGeometryType::wkbLineString25D)
-                    .map_err(|e| e.to_string())?;
-                for p in &t.points {
-                    let c = coords(p);
-                    g.add_point((c.x, c.y, c.z));
+                let cs: Vec<Vector3<f64>> = t.points.iter().map(coords).collect();
+                let flat = cs.iter().any(|c| c.z.is_nan());
+                let mut g = Geometry::empty(if flat {
+                    OGRwkbGeometryType::wkbLineString
+                } else {
+                    OGRwkbGeometryType::wkbLineString25D
+                })
+                .map_err(|e| e.to_string())?;
+                for c in &cs {
+                    add_point(&mut g, c, flat);
                 }
                 f.set_geometry(g).map_err(|e| e.to_string())?;
                 f.create(&layer)
@@ -125,9 +140,14 @@ pub fn write_trajectories(
                     set_real(&mut f, "sigma_n_m", Some(p.sigma_m.y))?;
                     set_integer(&mut f, "observed", i32::from(p.observed))?;
                     let c = coords(p);
-                    let mut g = Geometry::empty(OGRwkbGeometryType::wkbPoint25D)
-                        .map_err(|e| e.to_string())?;
-                    g.add_point((c.x, c.y, c.z));
+                    let flat = c.z.is_nan();
+                    let mut g = Geometry::empty(if flat {
+                        OGRwkbGeometryType::wkbPoint
+                    } else {
+                        OGRwkbGeometryType::wkbPoint25D
+                    })
+                    .map_err(|e| e.to_string())?;
+                    add_point(&mut g, &c, flat);
                     f.set_geometry(g).map_err(|e| e.to_string())?;
                     f.create(&layer)
                         .map_err(|e| format!("cannot write a position of {}: {e}", t.id))?;

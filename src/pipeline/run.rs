@@ -35,7 +35,7 @@ use crate::progress::Progress;
 use crate::projection::{WorldPoint, project};
 use crate::smooth::{Observation, SmoothSettings};
 use crate::survey::Role;
-use crate::survey::crs::{Crs, Transform};
+use crate::survey::crs::{Crs, HeightKind, OperationInfo, Transform};
 use crate::survey::frame::Origin;
 use crate::survey::load::{Framed, LoadOptions, load_framed};
 use crate::survey::read::{HeightChoice, ReadOptions};
@@ -112,6 +112,9 @@ pub struct RunReport {
     pub parameters: super::project::Project,
     pub site_frame: String,
     pub output_crs: String,
+    /// How GeoJSON's WGS 84 coordinates were made from the output CRS: PROJ's operations.
+    #[serde(default)]
+    pub wgs84_transformations: Vec<String>,
     pub stages: Vec<StageRecord>,
     pub outputs: Vec<String>,
     pub warnings: Vec<String>,
@@ -224,7 +227,13 @@ fn stage_key(stage: &str, parents: &[&str], params: &impl Serialize) -> String {
 }
 
 /// The files an export format wrote, and its warnings.
-type Written = Result<(Vec<String>, Vec<String>), RunError>;
+/// What writing one export format gave: files, warnings, and the WGS 84 transformations used.
+#[derive(Default)]
+struct Written {
+    outputs: Vec<String>,
+    warnings: Vec<String>,
+    transformations: Vec<String>,
+}
 
 /// What the scan stage keeps.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -1090,22 +1099,25 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     // The formats are independent files: written side by side.
     use rayon::prelude::*;
     let origin_note = &framed.frame.origin_note;
-    let tangent = framed.frame.crs.as_ref().and(framed.frame.tangent.clone());
-    let written: Vec<Written> = p
+    let out_crs_spec = out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map(|c| c.spec.clone());
+    let written: Vec<Result<Written, RunError>> = p
         .export
         .formats
         .par_iter()
-        .map(|f| -> Result<(Vec<String>, Vec<String>), RunError> {
-            let mut outputs = Vec::new();
-            let mut warnings = Vec::new();
+        .map(|f| -> Result<Written, RunError> {
+            let mut w = Written::default();
+            let outputs = &mut w.outputs;
             match f.as_str() {
-                "csv" => put("trajectories.csv", &trajectories_csv(trajs), &mut outputs)?,
+                "csv" => put("trajectories.csv", &trajectories_csv(trajs), outputs)?,
                 "petrack" => put(
                     "trajectories.txt",
                     &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
-                    &mut outputs,
+                    outputs,
                 )?,
-                "mot" => put("tracks_mot.txt", &mot_txt(&tracks), &mut outputs)?,
+                "mot" => put("tracks_mot.txt", &mot_txt(&tracks), outputs)?,
                 "gpkg" => {
                     write_trajectories(
                         &out.join("trajectories.gpkg"),
@@ -1119,61 +1131,45 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                     outputs.push("trajectories.gpkg".into());
                 }
                 "geojson" => {
-                    // RFC 7946: WGS 84 longitude/latitude.
-                    // RFC 7946 wants WGS 84; the survey's datum's latitude and longitude, from the
-                    // site's tangent frame (pure, so the formats can be written in parallel).
-                    let lonlat = |q: &TrajectoryPoint| -> Vector3<f64> {
-                        match &tangent {
-                            Some(t) => {
-                                let nan_h = q.local.z.is_nan();
-                                let z = if nan_h { 0.0 } else { q.local.z };
-                                let g = t.geodetic_from_enu(&Vector3::new(q.local.x, q.local.y, z));
-                                Vector3::new(
-                                    g.lon.to_degrees(),
-                                    g.lat.to_degrees(),
-                                    if nan_h { f64::NAN } else { g.h },
-                                )
-                            }
-                            None => Vector3::new(f64::NAN, f64::NAN, f64::NAN),
-                        }
-                    };
-                    if tangent.is_none() {
-                        warnings.push(
+                    let Some(spec) = &out_crs_spec else {
+                        w.warnings.push(
                             "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
                                 .into(),
                         );
-                        return Ok((outputs, warnings));
+                        return Ok(w);
+                    };
+                    // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
+                    // (its own handles: this runs on a worker thread).
+                    let wgs = wgs84_trajectories(spec, &framed.frame.height, trajs)?;
+                    for (name, layers) in [
+                        ("trajectories.geojson", Layers::Lines),
+                        ("positions.geojson", Layers::Points),
+                    ] {
+                        write_trajectories(
+                            &out.join(name),
+                            GisFormat::GeoJson,
+                            "",
+                            layers,
+                            &wgs.trajectories,
+                            &|q| q.crs,
+                        )
+                        .map_err(RunError::Failed)?;
+                        outputs.push(name.into());
                     }
-                    write_trajectories(
-                        &out.join("trajectories.geojson"),
-                        GisFormat::GeoJson,
-                        "",
-                        Layers::Lines,
-                        trajs,
-                        &lonlat,
-                    )
-                    .map_err(RunError::Failed)?;
-                    write_trajectories(
-                        &out.join("positions.geojson"),
-                        GisFormat::GeoJson,
-                        "",
-                        Layers::Points,
-                        trajs,
-                        &lonlat,
-                    )
-                    .map_err(RunError::Failed)?;
-                    outputs.push("trajectories.geojson".into());
-                    outputs.push("positions.geojson".into());
+                    w.warnings.extend(wgs.notes);
+                    w.transformations = wgs.operations;
                 }
                 _ => unreachable!("checked when the project was read"),
             }
-            Ok((outputs, warnings))
+            Ok(w)
         })
         .collect();
+    let mut transformations = Vec::new();
     for w in written {
-        let (o, warn) = w?;
-        outputs.extend(o);
-        warnings.extend(warn);
+        let w = w?;
+        outputs.extend(w.outputs);
+        warnings.extend(w.warnings);
+        transformations.extend(w.transformations);
     }
     stages.push(StageRecord {
         name: "export".into(),
@@ -1193,6 +1189,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         parameters: p.clone(),
         site_frame: framed.frame.origin_note.clone(),
         output_crs: out_crs_label,
+        wgs84_transformations: transformations,
         stages,
         outputs,
         warnings,
@@ -1206,7 +1203,65 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     Ok(report)
 }
 
-/// Known heights: `id,height_m[,sd_m]` (a header line is optional).
+/// Trajectories in WGS 84 for GeoJSON, and what the report should say about them.
+struct Wgs84Trajectories {
+    /// The same trajectories with `crs` = (longitude, latitude, ellipsoidal height or NaN).
+    trajectories: Vec<Trajectory>,
+    /// PROJ's operations used, with their accuracy.
+    operations: Vec<String>,
+    notes: Vec<String>,
+}
+
+/// Converts every point's output-CRS coordinates (`crs`, in the CRS `spec`) to WGS 84 with the
+/// transformation PROJ picks for it (datum change included; the one `cs2cs` uses). Heights are
+/// kept, as WGS 84 ellipsoidal heights, only when the survey's are ellipsoidal: RFC 7946 allows
+/// no other kind.
+fn wgs84_trajectories(
+    spec: &str,
+    heights: &HeightKind,
+    trajectories: &[Trajectory],
+) -> Result<Wgs84Trajectories, RunError> {
+    let heights_ellipsoidal = *heights == HeightKind::Ellipsoidal;
+    let failed = |e: crate::survey::crs::CrsError| RunError::Failed(e.to_string());
+    let crs = Crs::new(spec).map_err(failed)?;
+    let to_wgs84 = Transform::new(&crs, &Crs::new("EPSG:4326").map_err(failed)?).map_err(failed)?;
+    let mut used: Vec<OperationInfo> = Vec::new();
+    let mut out = trajectories.to_vec();
+    for t in &mut out {
+        for q in &mut t.points {
+            let (lon, lat, h) = to_wgs84
+                .apply_3d(q.crs.x, q.crs.y, q.crs.z)
+                .map_err(failed)?;
+            q.crs = Vector3::new(lon, lat, if heights_ellipsoidal { h } else { f64::NAN });
+            if let Some(op) = to_wgs84.last_operation()
+                && !used.contains(&op)
+            {
+                used.push(op);
+            }
+        }
+    }
+    let operations = used
+        .iter()
+        .map(|op| {
+            let acc = op.accuracy_m.map_or("accuracy unknown".to_string(), |a| {
+                format!("accuracy {a} m")
+            });
+            format!("{} to WGS 84: PROJ's '{}' ({acc})", crs.label(), op.name)
+        })
+        .collect();
+    let mut notes = Vec::new();
+    if !heights_ellipsoidal {
+        notes.push(format!(
+            "GeoJSON positions are 2D: RFC 7946 heights are ellipsoidal on WGS 84 and the survey's are {heights}; the heights are in trajectories.csv and the GeoPackage"
+        ));
+    }
+    Ok(Wgs84Trajectories {
+        trajectories: out,
+        operations,
+        notes,
+    })
+}
+
 /// A whole-body detector (`boxes` or `background`), its boxes turned into heads.
 fn body_detector(
     l: &Loaded,
@@ -1377,6 +1432,12 @@ pub fn report_markdown(r: &RunReport) -> String {
     let _ = writeln!(s, "\n## Outputs\n");
     for o in &r.outputs {
         let _ = writeln!(s, "- `{o}`");
+    }
+    if !r.wgs84_transformations.is_empty() {
+        let _ = writeln!(s, "\nWGS 84 (GeoJSON) through PROJ:\n");
+        for t in &r.wgs84_transformations {
+            let _ = writeln!(s, "- {t}");
+        }
     }
     if !r.warnings.is_empty() {
         let _ = writeln!(s, "\n## Warnings\n");

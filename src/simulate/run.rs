@@ -12,7 +12,7 @@ use super::board::{BoardRenderer, random_board_poses};
 use super::flight::camera_pose;
 use super::people::{Body, Person, Pose, spawn};
 use super::render::{CameraPose, FrameInput, RenderSettings, Renderer, Shadow};
-use super::scene::{Gait, Motion, Scene};
+use super::scene::{Gait, Motion, Scene, Site};
 use super::world::World;
 use crate::camera::{BoardSpec, Camera};
 use crate::geom::geodesy::{Geodetic, LocalTangentFrame};
@@ -28,6 +28,24 @@ pub struct Overrides {
     pub duration_s: Option<f64>,
     pub no_video: bool,
     pub frames_every: Option<u32>,
+    /// The site in this CRS instead of the scene's, at the same place (`--crs`).
+    pub site_crs: Option<String>,
+}
+
+/// The same site in another CRS: its origin converted with PROJ, the ellipsoidal height with it
+/// (a datum change moves it).
+pub fn site_in_crs(site: &Site, crs: &str) -> Result<Site, SimError> {
+    let input =
+        |what: &str, e: crate::survey::crs::CrsError| SimError::Input(format!("{what}: {e}"));
+    let from = Crs::new(&site.crs).map_err(|e| input("site.crs", e))?;
+    let to = Crs::new(crs).map_err(|e| input("--crs", e))?;
+    let t = crate::survey::crs::Transform::new(&from, &to).map_err(|e| input("--crs", e))?;
+    let [x, y, h] = site.origin;
+    let (x, y, h) = t.apply_3d(x, y, h).map_err(|e| input("site.origin", e))?;
+    Ok(Site {
+        crs: crs.to_string(),
+        origin: [x, y, h],
+    })
 }
 
 /// What a run produced.

@@ -169,7 +169,41 @@ pub struct Crs {
     from_geodetic: proj::Proj,
     /// WKT of the whole CRS, for GDAL outputs.
     pub wkt: String,
+    /// WKT of the horizontal part (the CRS itself unless it is compound).
+    horizontal_wkt: String,
+    /// Where the CRS may be used: west, south, east, north in degrees (PROJ's area of use).
+    pub area_of_use: Option<AreaOfUse>,
 }
+
+/// A CRS's area of use, degrees (west may exceed east across the antimeridian).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AreaOfUse {
+    pub west: f64,
+    pub south: f64,
+    pub east: f64,
+    pub north: f64,
+    pub name: String,
+}
+
+impl AreaOfUse {
+    /// How far (degrees) a longitude/latitude lies outside the area; 0 inside.
+    pub fn distance_deg(&self, lon: f64, lat: f64) -> f64 {
+        let dlat = (self.south - lat).max(lat - self.north).max(0.0);
+        // Longitudes wrap: the distance to the band [west, east] going either way round.
+        let width = (self.east - self.west).rem_euclid(360.0);
+        let from_west = (lon - self.west).rem_euclid(360.0);
+        let dlon = if from_west <= width {
+            0.0
+        } else {
+            (from_west - width).min(360.0 - from_west)
+        };
+        dlat.max(dlon)
+    }
+}
+
+/// The longest CRS specification accepted: WKT of the most complex CRSs is a few kilobytes, and
+/// PROJ's parser uses many times the text's size in memory.
+pub const MAX_SPEC_BYTES: usize = 64 * 1024;
 
 impl std::fmt::Debug for Crs {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -186,6 +220,16 @@ impl Crs {
             spec: spec.to_string(),
             message,
         };
+        if spec.len() > MAX_SPEC_BYTES {
+            return Err(CrsError {
+                spec: crate::io::clip(spec, 60),
+                message: format!(
+                    "{} bytes long; a CRS is at most {} KiB of WKT (give an EPSG code such as EPSG:32631)",
+                    spec.len(),
+                    MAX_SPEC_BYTES / 1024
+                ),
+            });
+        }
         let normalised = normalise_spec(spec);
         let c = CString::new(normalised.clone()).map_err(|_| err("contains a NUL byte".into()))?;
         let obj = ctx.wrap(unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) }, spec, "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string or a CRS name)")?;
@@ -217,6 +261,7 @@ impl Crs {
             .ok_or_else(|| err("cannot be written as WKT".into()))
         };
         let wkt = wkt_of(&crs)?;
+        let area_of_use = area_of_use(&ctx, &crs);
         let (horizontal_crs, height_kind) = match ty {
             sys::PJ_TYPE_PJ_TYPE_COMPOUND_CRS => {
                 let h = ctx.wrap(
@@ -326,7 +371,20 @@ impl Crs {
             to_geodetic,
             from_geodetic,
             wkt,
+            horizontal_wkt,
+            area_of_use,
         })
+    }
+
+    /// What PROJ should be given for the horizontal part: the specification as the user wrote it
+    /// (so that PROJ picks the operations `cs2cs` picks for it), or the horizontal part's WKT for a
+    /// compound CRS (heights are not transformed).
+    fn horizontal_spec(&self) -> String {
+        if self.height_kind == HeightKind::Unknown || self.height_kind == HeightKind::Ellipsoidal {
+            normalise_spec(&self.spec)
+        } else {
+            self.horizontal_wkt.clone()
+        }
     }
 
     /// Horizontal coordinates to (longitude, latitude) in degrees on this CRS's own datum.
@@ -362,6 +420,22 @@ impl Crs {
     }
 }
 
+fn area_of_use(ctx: &Context, obj: &Pj) -> Option<AreaOfUse> {
+    let (mut w, mut s, mut e, mut n) = (0.0, 0.0, 0.0, 0.0);
+    let mut name: *const std::os::raw::c_char = ptr::null();
+    let ok = unsafe {
+        sys::proj_get_area_of_use(ctx.ptr, obj.ptr, &mut w, &mut s, &mut e, &mut n, &mut name)
+    };
+    // PROJ answers -1000 for an unknown bound.
+    (ok != 0 && [w, s, e, n].iter().all(|v| *v > -999.0)).then(|| AreaOfUse {
+        west: w,
+        south: s,
+        east: e,
+        north: n,
+        name: c_str_opt(name).unwrap_or_default(),
+    })
+}
+
 fn axis_unit(ctx: &Context, crs: &Pj) -> Option<f64> {
     let cs = unsafe { sys::proj_crs_get_coordinate_system(ctx.ptr, crs.ptr) };
     if cs.is_null() {
@@ -386,36 +460,101 @@ fn axis_unit(ctx: &Context, crs: &Pj) -> Option<f64> {
     (ok != 0 && factor > 0.0).then_some(factor)
 }
 
-/// A conversion between two CRSs, horizontal only (heights are carried unchanged), possibly with
-/// a datum change whose accuracy PROJ reports.
+/// The transformation PROJ used for a point: its name and stated accuracy.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct OperationInfo {
+    pub name: String,
+    /// Metres; `None` when PROJ does not know it (a ballpark transformation says nothing).
+    pub accuracy_m: Option<f64>,
+}
+
+/// A conversion between two CRSs through the operation PROJ chooses for each point (the one
+/// `cs2cs SOURCE TARGET` uses), possibly with a datum change whose accuracy PROJ reports.
+/// Horizontal: the vertical part of a compound CRS is left out and the height given is carried
+/// through the operation as an ellipsoidal height (a datum change moves it). Axes in GIS order
+/// (easting or longitude first). Not `Send`: one per thread.
 pub struct Transform {
-    proj: proj::Proj,
+    // Dropped before the context it was made in.
+    op: Pj,
+    ctx: Context,
     pub source: String,
     pub target: String,
 }
 
 impl Transform {
     pub fn new(source: &Crs, target: &Crs) -> Result<Transform, CrsError> {
-        let proj = proj::Proj::new_known_crs(
-            &normalise_spec(&source.spec),
-            &normalise_spec(&target.spec),
-            None,
-        )
-        .map_err(|e| CrsError {
+        let ctx = Context::new();
+        let fail = |ctx: &Context| CrsError {
             spec: target.spec.clone(),
-            message: format!("no conversion from {}: {e}", source.label()),
-        })?;
+            message: format!(
+                "no conversion from {}: {}",
+                source.label(),
+                ctx.last_error()
+            ),
+        };
+        let c_spec = |c: &Crs| {
+            CString::new(c.horizontal_spec()).map_err(|_| CrsError {
+                spec: c.spec.clone(),
+                message: "contains a NUL byte".into(),
+            })
+        };
+        let (src, dst) = (c_spec(source)?, c_spec(target)?);
+        let raw = unsafe {
+            sys::proj_create_crs_to_crs(ctx.ptr, src.as_ptr(), dst.as_ptr(), ptr::null_mut())
+        };
+        if raw.is_null() {
+            return Err(fail(&ctx));
+        }
+        let raw = Pj { ptr: raw };
+        let op = unsafe { sys::proj_normalize_for_visualization(ctx.ptr, raw.ptr) };
+        if op.is_null() {
+            return Err(fail(&ctx));
+        }
         Ok(Transform {
-            proj,
+            op: Pj { ptr: op },
+            ctx,
             source: source.label(),
             target: target.label(),
         })
     }
 
+    /// Horizontal coordinates in the target CRS; the height is taken as 0.
     pub fn apply(&self, x: f64, y: f64) -> Result<(f64, f64), CrsError> {
-        self.proj.convert((x, y)).map_err(|e| CrsError {
-            spec: self.target.clone(),
-            message: format!("cannot convert ({x}, {y}) from {}: {e}", self.source),
+        self.apply_3d(x, y, 0.0).map(|(x, y, _)| (x, y))
+    }
+
+    /// `(x, y, h)` in the target CRS, `h` an ellipsoidal height carried through a datum change.
+    pub fn apply_3d(&self, x: f64, y: f64, h: f64) -> Result<(f64, f64, f64), CrsError> {
+        let c = sys::PJ_COORD {
+            v: [x, y, h, f64::INFINITY],
+        };
+        let v = unsafe { sys::proj_trans(self.op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
+        if v[..3].iter().all(|a| a.is_finite()) {
+            Ok((v[0], v[1], v[2]))
+        } else {
+            Err(CrsError {
+                spec: self.target.clone(),
+                message: format!(
+                    "cannot convert ({x}, {y}) from {}: {}",
+                    self.source,
+                    self.ctx.last_error()
+                ),
+            })
+        }
+    }
+
+    /// The operation used for the last point converted.
+    pub fn last_operation(&self) -> Option<OperationInfo> {
+        let op = unsafe { sys::proj_trans_get_last_used_operation(self.op.ptr) };
+        if op.is_null() {
+            return None;
+        }
+        let op = Pj { ptr: op };
+        let name = c_str_opt(unsafe { sys::proj_get_name(op.ptr) }).unwrap_or_default();
+        let acc = unsafe { sys::proj_coordoperation_get_accuracy(self.ctx.ptr, op.ptr) };
+        Some(OperationInfo {
+            name,
+            accuracy_m: (acc >= 0.0).then_some(acc),
         })
     }
 }

@@ -55,44 +55,69 @@ pub fn write_dataset(
     };
     let driver = DriverManager::get_driver_by_name(driver_name)
         .map_err(|e| format!("GDAL has no {driver_name} driver: {e}"))?;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => std::path::PathBuf::from("."),
-    };
-    let file_name = path
-        .file_name()
-        .ok_or("no file name")?
-        .to_string_lossy()
-        .into_owned();
     let ext = path
         .extension()
         .map(|e| format!(".{}", e.to_string_lossy()))
         .unwrap_or_default();
-    let tmp = dir.join(format!(".{file_name}.tmp-{}{ext}", std::process::id()));
+    let tmp = crate::io::temp_path(path, &ext);
     let _ = std::fs::remove_file(&tmp);
+    let cannot =
+        |what: &str, e: &dyn std::fmt::Display| format!("cannot {what} {}: {e}", path.display());
     let result = (|| -> Result<(), String> {
+        if format == GisFormat::GeoPackage {
+            // GeoPackage stamps its tables with the time of writing: a fixed one makes two
+            // identical runs give identical files.
+            gdal::config::set_config_option("OGR_CURRENT_DATE", FIXED_DATE)
+                .map_err(|e| cannot("write", &e))?;
+        }
+        unsafe { gdal_sys::CPLErrorReset() };
         let mut ds = driver
             .create_vector_only(&tmp)
-            .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+            .map_err(|e| cannot("create", &e))?;
         if format == GisFormat::GeoPackage {
             // One transaction: SQLite otherwise commits (and syncs) every feature.
-            let mut txn = ds
-                .start_transaction()
-                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+            let mut txn = ds.start_transaction().map_err(|e| cannot("write", &e))?;
             fill(&mut txn)?;
-            txn.commit()
-                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+            txn.commit().map_err(|e| cannot("write", &e))?;
         } else {
             fill(&mut ds)?;
         }
-        ds.close()
-            .map_err(|e| format!("cannot finish {}: {e}", path.display()))?;
-        std::fs::rename(&tmp, path).map_err(|e| format!("cannot write {}: {e}", path.display()))
+        ds.close().map_err(|e| cannot("finish", &e))?;
+        // GDAL 3.6 does not return errors from closing (a full disk while GeoJSON's last bytes
+        // are written): its error state and the file's end say whether it is whole.
+        if unsafe { gdal_sys::CPLGetLastErrorType() } >= gdal_sys::CPLErr::CE_Failure {
+            let msg = unsafe { std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg()) };
+            return Err(cannot("write", &msg.to_string_lossy()));
+        }
+        if format == GisFormat::GeoJson && !ends_with_json_close(&tmp) {
+            return Err(cannot(
+                "write",
+                &"the file was cut short (is the disk full?)",
+            ));
+        }
+        crate::io::commit_temp(&tmp, path).map_err(|e| cannot("write", &e))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
+        let _ = std::fs::remove_file(crate::io::temp_path(path, &format!("{ext}-journal")));
     }
     result
+}
+
+/// The time stamp written into GeoPackages (see [`write_dataset`]).
+pub const FIXED_DATE: &str = "2000-01-01T00:00:00.000Z";
+
+/// Whether a GeoJSON file ends with its closing brace (whitespace aside).
+fn ends_with_json_close(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut f) = std::fs::File::open(path) else {
+        return false;
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut tail = Vec::new();
+    f.seek(SeekFrom::Start(len.saturating_sub(64))).is_ok()
+        && f.read_to_end(&mut tail).is_ok()
+        && tail.trim_ascii_end().ends_with(b"}")
 }
 
 /// Sets a string field by name.

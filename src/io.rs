@@ -1,4 +1,6 @@
-//! File output helpers shared by every writer.
+//! Reading and writing files safely: the input limits and field checks every reader shares, and
+//! the output path every writer shares (checked against the inputs, written to a temporary file,
+//! flushed, renamed).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -32,14 +34,58 @@ pub struct FileCtx<'a> {
     pub path: &'a Path,
 }
 
+/// The longest token an error message quotes whole.
+const QUOTE_CHARS: usize = 40;
+
+/// The largest text input read, MiB, unless `GEOSTRIDE_MAX_INPUT_MB` says otherwise: text files of
+/// surveys, calibrations, boxes and projects are kilobytes to tens of megabytes; a bigger one is
+/// more likely a wrong file, and reading it would take memory in proportion.
+pub const MAX_INPUT_MB: u64 = 512;
+
+/// The longest line of a line-based file (CSV and the like), bytes.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// `GEOSTRIDE_MAX_INPUT_MB`, or [`MAX_INPUT_MB`].
+pub fn max_input_bytes() -> u64 {
+    std::env::var("GEOSTRIDE_MAX_INPUT_MB")
+        .ok()
+        .and_then(|v| v.trim().parse::<u64>().ok())
+        .unwrap_or(MAX_INPUT_MB)
+        .saturating_mul(1 << 20)
+}
+
 impl FileCtx<'_> {
     /// Reads the file as UTF-8 text (a byte-order mark is dropped); `what` says what the file
-    /// should be, for the message when it is not text.
+    /// should be, for the message when it is not text. A folder, or a file beyond
+    /// [`max_input_bytes`], is an error.
     pub fn read_text(&self, what: &str) -> Result<String, FileError> {
+        let meta = std::fs::metadata(self.path)
+            .map_err(|e| self.err(None, None, format!("cannot read: {e}")))?;
+        if meta.is_dir() {
+            return Err(self.err(None, None, format!("is a folder; expected {what}")));
+        }
+        let limit = max_input_bytes();
+        if meta.len() > limit {
+            return Err(self.err(
+                None,
+                None,
+                format!(
+                    "{} MB is more than the {} MB geostride reads as {what} (set GEOSTRIDE_MAX_INPUT_MB to raise the limit)",
+                    meta.len() >> 20,
+                    limit >> 20
+                ),
+            ));
+        }
         let bytes = std::fs::read(self.path)
             .map_err(|e| self.err(None, None, format!("cannot read: {e}")))?;
-        let text = String::from_utf8(bytes)
-            .map_err(|e| self.err(None, None, format!("not UTF-8 text ({e}); expected {what}")))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            let line = e.utf8_error().valid_up_to();
+            self.err(
+                None,
+                None,
+                format!("not UTF-8 text (a bad byte at offset {line}); expected {what}"),
+            )
+        })?;
         Ok(match text.strip_prefix('\u{feff}') {
             Some(t) => t.to_string(),
             None => text,
@@ -64,16 +110,144 @@ impl FileCtx<'_> {
         self.err(Some(line), None, message)
     }
 
-    /// Parses a number, naming the line and field on failure.
+    /// The lines of a line-based file with their numbers from 1; a line beyond
+    /// [`MAX_LINE_BYTES`] is an error.
+    pub fn lines<'t>(
+        &self,
+        text: &'t str,
+    ) -> impl Iterator<Item = Result<(usize, &'t str), FileError>> + use<'t, '_> {
+        let ctx = *self;
+        text.lines().enumerate().map(move |(i, l)| {
+            if l.len() > MAX_LINE_BYTES {
+                Err(ctx.at(
+                    i + 1,
+                    format!(
+                        "the line is {} KiB long; a line of this file is at most {} KiB (is it the right file?)",
+                        l.len() >> 10,
+                        MAX_LINE_BYTES >> 10
+                    ),
+                ))
+            } else {
+                Ok((i + 1, l))
+            }
+        })
+    }
+
+    /// Parses a finite number, naming the line and field on failure (NaN, infinity and values
+    /// beyond a double's range are errors).
     pub fn number(&self, text: &str, line: usize, field: &str) -> Result<f64, FileError> {
         let t = text.trim();
-        t.parse::<f64>().map_err(|_| {
-            self.err(
+        match t.parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            Ok(_) => Err(self.err(
                 Some(line),
                 Some(field),
-                format!("expected a number, found '{t}'"),
-            )
-        })
+                format!("expected a finite number, found '{}'", clip(t, QUOTE_CHARS)),
+            )),
+            Err(_) => Err(self.err(
+                Some(line),
+                Some(field),
+                format!(
+                    "expected a number, found '{}'{}",
+                    clip(t, QUOTE_CHARS),
+                    decimal_comma_hint(t)
+                ),
+            )),
+        }
+    }
+
+    /// A finite number, or NaN where the format writes `nan` for "unknown" (OpenDroneMap's
+    /// heights); infinity is an error.
+    pub fn number_or_nan(&self, text: &str, line: usize, field: &str) -> Result<f64, FileError> {
+        if text.trim().eq_ignore_ascii_case("nan") {
+            Ok(f64::NAN)
+        } else {
+            self.number(text, line, field)
+        }
+    }
+
+    /// A standard deviation or other positive quantity: finite and > 0.
+    pub fn positive(&self, text: &str, line: usize, field: &str) -> Result<f64, FileError> {
+        let v = self.number(text, line, field)?;
+        if v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(
+                Some(line),
+                Some(field),
+                format!("expected a positive number, found {v}"),
+            ))
+        }
+    }
+
+    /// A count or index: a whole number from 0 to 2^53 (written `12` or `12.0`).
+    pub fn whole(&self, text: &str, line: usize, field: &str) -> Result<u64, FileError> {
+        let v = self.number(text, line, field)?;
+        if v >= 0.0 && v.fract() == 0.0 && v < 9.007_199_254_740_992e15 {
+            Ok(v as u64)
+        } else {
+            Err(self.err(
+                Some(line),
+                Some(field),
+                format!("expected a whole number ≥ 0, found {v}"),
+            ))
+        }
+    }
+
+    /// Checks a row's number of fields against `min..=max`, with a hint when decimal commas may
+    /// have split numbers into two fields.
+    pub fn field_count(
+        &self,
+        fields: &[&str],
+        line: usize,
+        min: usize,
+        max: usize,
+        layout: &str,
+    ) -> Result<(), FileError> {
+        let n = fields.len();
+        if (min..=max).contains(&n) {
+            return Ok(());
+        }
+        let hint = if n > max && fields.iter().any(|f| looks_like_decimal_part(f)) {
+            " (decimal commas? a number such as 12,5 splits into two fields where the delimiter is a comma: write 12.5, or use ';' between fields)"
+        } else {
+            ""
+        };
+        let expected = if min == max {
+            format!("{min}")
+        } else if max == usize::MAX {
+            format!("at least {min}")
+        } else {
+            format!("{min} to {max}")
+        };
+        Err(self.at(
+            line,
+            format!("expected {expected} fields ({layout}), found {n}{hint}"),
+        ))
+    }
+}
+
+/// Whether a field looks like the digits after a decimal comma (all digits, as `5` in `12,5`).
+fn looks_like_decimal_part(f: &str) -> bool {
+    let t = f.trim();
+    !t.is_empty() && t.len() <= 12 && t.bytes().all(|b| b.is_ascii_digit())
+}
+
+/// A hint for a number written with a decimal comma (`12,5`).
+fn decimal_comma_hint(t: &str) -> &'static str {
+    let Some((a, b)) = t.split_once(',') else {
+        return "";
+    };
+    let digits = |s: &str| {
+        !s.is_empty()
+            && s.trim_start_matches('-')
+                .bytes()
+                .all(|c| c.is_ascii_digit())
+    };
+    if digits(a) && digits(b) {
+        " (a decimal comma? write 12.5, not 12,5)"
+    } else {
+        ""
     }
 }
 
@@ -86,31 +260,245 @@ pub fn clip(text: &str, max: usize) -> String {
     }
 }
 
+/// The temporary file an atomic write fills beside `path` before renaming it into place:
+/// `.NAME.tmp-PID` and then `ext` (for writers that choose a format by the extension, such as
+/// `.gpkg`). A killed run can leave one behind: [`remove_stale_temps`] clears them.
+pub fn temp_path(path: &Path, ext: &str) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}{TEMP_TAG}{}{ext}", std::process::id()))
+}
+
+const TEMP_TAG: &str = ".tmp-";
+
+fn folder_of(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Puts a finished temporary file in place: flushes it to disk, renames it over `path` and
+/// flushes the folder, so that after a crash either the old file or the whole new one is there.
+pub fn commit_temp(tmp: &Path, path: &Path) -> std::io::Result<()> {
+    std::fs::File::open(tmp)?.sync_all()?;
+    std::fs::rename(tmp, path)?;
+    // A folder cannot be flushed everywhere (some file systems refuse): the rename is done.
+    if let Ok(d) = std::fs::File::open(folder_of(path)) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over the target. A failed write leaves no partial file and never touches the target.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::InvalidInput, "no file name"))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
+    if path.file_name().is_none() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "no file name",
+        ));
+    }
+    let tmp = temp_path(path, "");
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
+        drop(f);
+        commit_temp(&tmp, path)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
     result
+}
+
+/// Whether a process with this id is running.
+fn process_alive(pid: u32) -> bool {
+    #[cfg(unix)]
+    {
+        let Ok(pid) = libc::pid_t::try_from(pid) else {
+            return false;
+        };
+        // Signal 0 checks existence; EPERM means it exists under another user.
+        let r = unsafe { libc::kill(pid, 0) };
+        r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = pid;
+        true
+    }
+}
+
+/// Removes the temporaries (`.NAME.tmp-PID…`, see [`temp_path`]) that a geostride process which
+/// no longer runs left in `dir`; returns how many. A missing folder has none.
+pub fn remove_stale_temps(dir: &Path) -> std::io::Result<usize> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = name
+            .strip_prefix('.')
+            .and_then(|n| n.rfind(TEMP_TAG).map(|i| &n[i + TEMP_TAG.len()..]))
+            .map(|tail| {
+                tail.split(|c: char| !c.is_ascii_digit())
+                    .next()
+                    .unwrap_or("")
+            })
+            .and_then(|digits| digits.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid != std::process::id()
+            && !process_alive(pid)
+            && entry.file_type().is_ok_and(|t| t.is_file())
+            && std::fs::remove_file(entry.path()).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    Ok(removed)
+}
+
+/// Why an output path cannot be used. Found before any work, so nothing is lost.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    #[error("{path}: the output would overwrite the input {input}; choose another name")]
+    IsInput { path: PathBuf, input: PathBuf },
+    #[error(
+        "{path}: this output folder holds the input {input}, which an output could overwrite; choose a folder that holds no input (a new sub-folder, say)"
+    )]
+    HoldsInput { path: PathBuf, input: PathBuf },
+    #[error("{path}: is a folder; expected a file name for the output")]
+    IsFolder { path: PathBuf },
+    #[error("{path}: is a file; expected a folder for the outputs")]
+    IsFile { path: PathBuf },
+    #[error("{path}: the output folder {folder} does not exist; create it first")]
+    NoFolder { path: PathBuf, folder: PathBuf },
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// The files and folders a command reads, so that no output replaces one, whatever the paths
+/// given (links and `..` included).
+#[derive(Debug, Default)]
+pub struct Inputs {
+    /// (as given, resolved)
+    paths: Vec<(PathBuf, PathBuf)>,
+}
+
+/// `path` with links and `..` resolved as far as it exists, the rest appended: what it will be.
+fn resolve(path: &Path) -> PathBuf {
+    let abs = if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        std::env::current_dir().unwrap_or_default().join(path)
+    };
+    let mut tail = Vec::new();
+    let mut head = abs.as_path();
+    loop {
+        if let Ok(c) = head.canonicalize() {
+            return tail.iter().rev().fold(c, |acc, t| acc.join(t));
+        }
+        match (head.parent(), head.file_name()) {
+            (Some(p), Some(n)) => {
+                tail.push(n.to_os_string());
+                head = p;
+            }
+            _ => return abs,
+        }
+    }
+}
+
+/// The same file (a hard link too) or the same resolved path.
+fn same_file(a: &Path, b: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
+            return x.dev() == y.dev() && x.ino() == y.ino();
+        }
+    }
+    resolve(a) == resolve(b)
+}
+
+impl Inputs {
+    pub fn new<P: AsRef<Path>>(paths: impl IntoIterator<Item = P>) -> Inputs {
+        Inputs {
+            paths: paths
+                .into_iter()
+                .map(|p| (p.as_ref().to_path_buf(), resolve(p.as_ref())))
+                .collect(),
+        }
+    }
+
+    pub fn add(&mut self, path: impl AsRef<Path>) {
+        let p = path.as_ref();
+        self.paths.push((p.to_path_buf(), resolve(p)));
+    }
+
+    /// An output file: not a folder, in a folder that exists, not an input. Stale temporaries
+    /// of the same name are removed.
+    pub fn check_file(&self, out: &Path) -> Result<(), OutputError> {
+        if out.is_dir() {
+            return Err(OutputError::IsFolder {
+                path: out.to_path_buf(),
+            });
+        }
+        let folder = folder_of(out);
+        if !folder.is_dir() {
+            return Err(OutputError::NoFolder {
+                path: out.to_path_buf(),
+                folder,
+            });
+        }
+        if let Some((input, _)) = self.paths.iter().find(|(p, _)| same_file(p, out)) {
+            return Err(OutputError::IsInput {
+                path: out.to_path_buf(),
+                input: input.clone(),
+            });
+        }
+        Ok(())
+    }
+
+    /// An output folder (it may not exist yet): not a file, and neither an input nor holding one.
+    pub fn check_dir(&self, out: &Path) -> Result<(), OutputError> {
+        if out.exists() && !out.is_dir() {
+            return Err(OutputError::IsFile {
+                path: out.to_path_buf(),
+            });
+        }
+        let dir = resolve(out);
+        if let Some((input, _)) = self.paths.iter().find(|(_, r)| r.starts_with(&dir)) {
+            return Err(OutputError::HoldsInput {
+                path: out.to_path_buf(),
+                input: input.clone(),
+            });
+        }
+        Ok(())
+    }
+
+    /// [`check_dir`](Self::check_dir), then creates the folder and clears the temporaries a
+    /// killed run left in it.
+    pub fn create_dir(&self, out: &Path) -> Result<(), OutputError> {
+        self.check_dir(out)?;
+        let io = |source| OutputError::Io {
+            path: out.to_path_buf(),
+            source,
+        };
+        std::fs::create_dir_all(out).map_err(io)?;
+        remove_stale_temps(out).map_err(io)?;
+        Ok(())
+    }
 }
 
 /// The current UTC time as ISO 8601 (`2026-11-21T10:00:00Z`), without a date-time dependency.
@@ -156,6 +544,38 @@ mod tests {
     }
 
     #[test]
+    fn numbers_are_finite_and_messages_short() {
+        let ctx = FileCtx {
+            path: Path::new("f.csv"),
+        };
+        assert_eq!(ctx.number(" 1.5 ", 3, "x").unwrap(), 1.5);
+        for bad in ["nan", "inf", "-infinity", "1e400", "abc", "12,5"] {
+            let e = ctx.number(bad, 3, "x").unwrap_err();
+            assert_eq!((e.line, e.field.as_deref()), (Some(3), Some("x")), "{bad}");
+        }
+        assert!(
+            ctx.number("12,5", 3, "x")
+                .unwrap_err()
+                .message
+                .contains("decimal comma")
+        );
+        let long = "9".repeat(1_000_000) + "x";
+        assert!(ctx.number(&long, 1, "x").unwrap_err().to_string().len() < 200);
+        assert!(ctx.number_or_nan("NaN", 1, "z").unwrap().is_nan());
+        assert!(ctx.number_or_nan("inf", 1, "z").is_err());
+        assert!(ctx.positive("0", 1, "s").is_err() && ctx.positive("-1", 1, "s").is_err());
+        assert_eq!(ctx.whole("12.0", 1, "frame").unwrap(), 12);
+        for bad in ["1.5", "-1", "1e300"] {
+            assert!(ctx.whole(bad, 1, "frame").is_err(), "{bad}");
+        }
+        let e = ctx
+            .field_count(&["A", "3", "7", "51", "0"], 4, 3, 3, "name,x,y")
+            .unwrap_err();
+        assert!(e.message.contains("decimal commas"), "{e}");
+        assert!(ctx.field_count(&["A", "b"], 4, 2, usize::MAX, "x").is_ok());
+    }
+
+    #[test]
     fn clip_cuts_long_tokens_only() {
         assert_eq!(clip("short", 10), "short");
         assert_eq!(clip("abcdefghij", 10), "abcdefghij");
@@ -172,5 +592,69 @@ mod tests {
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "two");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
         assert!(write_atomic(&dir.path().join("missing/dir/x"), b"x").is_err());
+    }
+
+    #[test]
+    fn stale_temps_of_dead_processes_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        // No process has this id (beyond the kernel's largest).
+        let dead = dir.path().join(".a.csv.tmp-4194999");
+        let dead_gpkg = dir.path().join(".t.gpkg.tmp-4194999.gpkg-journal");
+        let ours = temp_path(&dir.path().join("b.csv"), "");
+        let other = dir.path().join(".hidden-file");
+        for p in [&dead, &dead_gpkg, &ours, &other] {
+            std::fs::write(p, b"x").unwrap();
+        }
+        assert_eq!(remove_stale_temps(dir.path()).unwrap(), 2);
+        assert!(!dead.exists() && !dead_gpkg.exists());
+        assert!(ours.exists() && other.exists());
+        assert_eq!(remove_stale_temps(&dir.path().join("none")).unwrap(), 0);
+    }
+
+    #[test]
+    fn outputs_never_replace_inputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::create_dir(d.join("proj")).unwrap();
+        let gcps = d.join("proj/gcps.csv");
+        std::fs::write(&gcps, b"x").unwrap();
+        std::fs::hard_link(&gcps, d.join("link.csv")).unwrap();
+        let inputs = Inputs::new([&gcps]);
+        // The same file by any path.
+        for out in [
+            gcps.clone(),
+            d.join("proj/../proj/gcps.csv"),
+            d.join("link.csv"),
+        ] {
+            assert!(
+                matches!(inputs.check_file(&out), Err(OutputError::IsInput { .. })),
+                "{}",
+                out.display()
+            );
+        }
+        assert!(inputs.check_file(&d.join("proj/other.csv")).is_ok());
+        assert!(matches!(
+            inputs.check_file(&d.join("proj")),
+            Err(OutputError::IsFolder { .. })
+        ));
+        assert!(matches!(
+            inputs.check_file(&d.join("missing/x.csv")),
+            Err(OutputError::NoFolder { .. })
+        ));
+        // A folder holding an input, at any depth, or the input itself.
+        for out in [d.join("proj"), d.to_path_buf(), d.join("proj/./")] {
+            assert!(
+                matches!(inputs.check_dir(&out), Err(OutputError::HoldsInput { .. })),
+                "{}",
+                out.display()
+            );
+        }
+        assert!(matches!(
+            inputs.check_dir(&gcps),
+            Err(OutputError::IsFile { .. })
+        ));
+        assert!(inputs.check_dir(&d.join("proj/out/run")).is_ok());
+        inputs.create_dir(&d.join("proj/out/run")).unwrap();
+        assert!(d.join("proj/out/run").is_dir());
     }
 }

@@ -161,7 +161,11 @@ fn bad_usage_and_missing_inputs_exit_2_without_output() {
         &[&files[0], &files[0]],
     );
     assert_eq!(o.status.code(), Some(2));
-    assert!(stderr(&o).contains("overwrite an input"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("would overwrite the input"),
+        "{}",
+        stderr(&o)
+    );
     assert_eq!(
         std::fs::read(&files[0]).unwrap(),
         before,

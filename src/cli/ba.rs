@@ -37,6 +37,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .loss
         .parse()
         .map_err(|e: String| bad_input(anyhow!("--loss: {e}")))?;
+    if let Some(out) = &args.out {
+        super::check_output_file(out, [&args.bal])?;
+    }
     let mut problem = read_bal(&args.bal).map_err(bad_input)?;
     let summary = bundle_adjust(
         &mut problem,

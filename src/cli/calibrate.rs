@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, anyhow};
 use clap::ValueEnum;
 
-use super::{bad_input, check_output_path, parse_board_size, parse_fraction, parse_positive};
+use super::{bad_input, check_output_file, parse_board_size, parse_fraction, parse_positive};
 use crate::calibration::detect::{DetectSettings, Detector};
 use crate::calibration::inputs::{CollectSettings, InputError, InputLog, collect};
 use crate::calibration::{CalibrationError, CalibrationResult, Options, calibrate};
@@ -240,7 +240,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (None, None) => None,
     };
     if let Some(out) = &args.output {
-        check_output_path(out, &job.inputs)?;
+        check_output_file(out, &job.inputs)?;
     }
     let outcome = run_job(&job)?;
     let written = match &args.output {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::anyhow;
 
 use super::calibrate::FormatArg;
-use super::{bad_input, check_output_path};
+use super::{bad_input, check_output_file};
 use crate::camera::formats::{self, Format};
 use crate::camera::{Calibration, ImageSize, PARAM_NAMES};
 
@@ -66,7 +66,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             to,
             image_size,
         } => {
-            check_output_path(&output, std::slice::from_ref(&input))?;
+            check_output_file(&output, [&input])?;
             let mut cal = formats::read(&input, from.map(Format::from)).map_err(bad_input)?;
             if let Some((w, h)) = image_size {
                 match cal.camera.image_size {

@@ -13,12 +13,13 @@ mod simulate;
 pub(crate) mod survey;
 mod track;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::anyhow;
 use clap::{Parser, Subcommand};
 
 use crate::camera::{Camera, formats, presets};
+use crate::io::Inputs;
 
 /// An error caused by the user's input or usage (exit code 2), as opposed to a failure while
 /// running (exit code 1).
@@ -126,30 +127,30 @@ pub(crate) fn parse_positive(s: &str) -> Result<f64, String> {
     }
 }
 
-/// Refuses, before any work, an output whose folder does not exist or that would replace an input.
-pub(crate) fn check_output_path(out: &Path, inputs: &[PathBuf]) -> anyhow::Result<()> {
-    let parent = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    if !parent.is_dir() {
-        return Err(bad_input(anyhow!(
-            "{}: the output folder '{}' does not exist",
-            out.display(),
-            parent.display()
-        )));
+/// An unusable output path is the user's to fix (exit 2); an I/O failure on it is not (exit 1).
+pub(crate) fn output_error(e: crate::io::OutputError) -> anyhow::Error {
+    match e {
+        crate::io::OutputError::Io { .. } => anyhow::Error::new(e),
+        _ => bad_input(e),
     }
-    if let Ok(out_abs) = out.canonicalize()
-        && inputs
-            .iter()
-            .any(|i| i.canonicalize().is_ok_and(|i| i == out_abs))
-    {
-        return Err(bad_input(anyhow!(
-            "{}: the output would overwrite an input; choose another file name",
-            out.display()
-        )));
-    }
-    Ok(())
+}
+
+/// Refuses, before any work, an output file that is a folder, whose folder does not exist, or
+/// that would replace one of `inputs`.
+pub(crate) fn check_output_file<P: AsRef<Path>>(
+    out: &Path,
+    inputs: impl IntoIterator<Item = P>,
+) -> anyhow::Result<()> {
+    Inputs::new(inputs).check_file(out).map_err(output_error)
+}
+
+/// Creates an output folder, refusing, before any work, a file or a folder that holds one of
+/// `inputs`; clears the temporary files a killed run left in it.
+pub(crate) fn create_output_dir<P: AsRef<Path>>(
+    out: &Path,
+    inputs: impl IntoIterator<Item = P>,
+) -> anyhow::Result<()> {
+    Inputs::new(inputs).create_dir(out).map_err(output_error)
 }
 
 /// `WIDTHxHEIGHT` in pixels, e.g. `3840x2160`.

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, anyhow};
+use anyhow::anyhow;
 
 use super::{bad_input, load_camera, parse_positive, scale_to};
 use crate::imageio::HeatMap;
@@ -84,10 +84,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         noise,
         map_step_px: args.map_step.max(1),
     };
+    if let Some(dir) = &args.out {
+        super::create_output_dir(dir, [&args.camera])?;
+    }
     let p = plan(&camera, &settings).map_err(bad_input)?;
     let mut written = Vec::new();
     if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let maps = [
             (
                 &p.height_error_map,

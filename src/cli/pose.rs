@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 use serde::Serialize;
 
 use super::survey::{Framed, ReadArgs, read_framed};
-use super::{bad_input, check_output_path, load_camera, parse_positive, scale_to};
+use super::{bad_input, check_output_file, load_camera, parse_positive, scale_to};
 use crate::camera::Camera;
 use crate::draw::Canvas;
 use crate::estimate::p3p::RigidPose;
@@ -701,7 +701,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mut inputs = vec![args.gcps.clone()];
         inputs.extend(args.image.iter().cloned());
         inputs.extend(args.read.picks.iter().cloned());
-        check_output_path(a, &inputs)?;
+        check_output_file(a, &inputs)?;
     }
     let seen = seen_in(&framed, &image, args.pick_sigma, args.gcp_sigma, &camera)?;
     let settings = PoseSettings {

@@ -1,6 +1,7 @@
 //! `geostride pose --video`: every frame's pose of a hovering camera.
 
 use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow};
 use serde::Serialize;
@@ -81,7 +82,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             seen.control.len()
         )));
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut inputs = vec![
+        video.as_path(),
+        Path::new(&args.camera),
+        args.gcps.as_path(),
+    ];
+    inputs.extend(args.read.picks.iter().map(PathBuf::as_path));
+    super::create_output_dir(out, inputs)?;
     let max_frames = args.duration.map(|d| (d * reader.fps).ceil() as usize);
     drop(reader);
 

@@ -80,7 +80,8 @@ pub(crate) fn run_scene(
     {
         return Err(bad_input(anyhow!("--duration must be positive")));
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let calibration = scene.calibration_path(scene_path);
+    super::create_output_dir(out, [scene_path, calibration.as_path()])?;
     let bar = super::progress_bar(
         quiet,
         0,

@@ -9,7 +9,7 @@ use clap::ValueEnum;
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use super::{bad_input, check_output_path};
+use super::{bad_input, check_output_file};
 use crate::geom::similarity::ScaleMode;
 use crate::survey::crs::{Crs, HeightKind, Horizontal, Transform};
 use crate::survey::fit::{FitPoint, FitReport, helmert};
@@ -301,7 +301,10 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             output,
             to_crs,
         } => {
-            check_output_path(&output, std::slice::from_ref(&input.file))?;
+            let inputs = std::iter::once(&input.file)
+                .chain(&input.read.picks)
+                .chain(&input.fit_to);
+            check_output_file(&output, inputs)?;
             let l = load(&input)?;
             let notes = convert(&l, to, &output, to_crs.as_deref(), input.read.image_size)?;
             for w in &l.survey.warnings {

@@ -131,6 +131,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     // A video that cannot be opened is the user's to fix (exit 2).
     crate::video::source::FrameReader::open(&args.video).map_err(|e| bad_input(anyhow!(e)))?;
+    super::create_output_dir(&args.out, std::iter::once(&args.video).chain(&args.boxes))?;
     let bar = super::progress_bar(
         args.quiet || args.json,
         0,
@@ -193,7 +194,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|(i, t)| ImageTrack { id: i + 1, ..t })
         .collect();
 
-    std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
     let points: usize = tracks.iter().map(|t| t.points.len()).sum();
     let report = Report {
         video: args.video.display().to_string(),

@@ -495,6 +495,34 @@ impl Loaded {
         }
     }
 
+    /// Every file the project reads, with its key (`section.key`), resolved: the calibration
+    /// (unless a preset), the GCPs, the picks, the video, the heights, the detector's boxes and
+    /// the DEM.
+    pub fn input_files(&self) -> Vec<(&'static str, PathBuf)> {
+        let p = &self.project;
+        let mut files = Vec::new();
+        if crate::camera::presets::preset(&p.camera.calibration).is_none() {
+            files.push(("camera.calibration", self.resolve(&p.camera.calibration)));
+        }
+        files.push(("survey.gcps", self.resolve(&p.survey.gcps)));
+        for pk in &p.survey.picks {
+            files.push(("survey.picks", self.resolve(pk)));
+        }
+        files.push(("video.path", self.resolve(&p.video.path)));
+        if let Some(h) = &p.projection.heights {
+            files.push(("projection.heights", self.resolve(h)));
+        }
+        if p.detect.kind == "boxes"
+            && let Some(b) = &p.detect.boxes
+        {
+            files.push(("detect.boxes", self.resolve(b)));
+        }
+        if let GroundSection::Dem { path } = &p.ground {
+            files.push(("ground.path", self.resolve(path)));
+        }
+        files
+    }
+
     /// An error about `section.key`, with its line.
     pub fn error(&self, section: &str, key: &str, message: impl Into<String>) -> FileError {
         let field = if key.is_empty() {
@@ -533,8 +561,15 @@ pub fn load(path: &Path) -> Result<Loaded, FileError> {
 fn check(l: &Loaded) -> Result<(), FileError> {
     let p = &l.project;
     let exists = |section: &str, key: &str, path: &str| -> Result<(), FileError> {
-        if l.resolve(path).exists() {
+        let resolved = l.resolve(path);
+        if resolved.is_file() {
             Ok(())
+        } else if resolved.is_dir() {
+            Err(l.error(
+                section,
+                key,
+                format!("'{path}' is a folder; expected a file"),
+            ))
         } else {
             Err(l.error(
                 section,

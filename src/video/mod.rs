@@ -18,6 +18,7 @@ pub struct VideoSink {
     pub codec: &'static str,
     width: i32,
     height: i32,
+    frames: usize,
 }
 
 impl VideoSink {
@@ -41,13 +42,7 @@ impl VideoSink {
         };
         for (codec, cc, ext) in options {
             let path = stem.with_extension(ext);
-            let tmp = path.with_file_name(format!(
-                ".{}.tmp-{}.{ext}",
-                path.file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default(),
-                std::process::id()
-            ));
+            let tmp = crate::io::temp_path(&path, &format!(".{ext}"));
             let fourcc = videoio::VideoWriter::fourcc(cc[0], cc[1], cc[2], cc[3])
                 .map_err(|e| e.to_string())?;
             // OpenCV may print warnings for codecs it lacks; the result decides.
@@ -62,6 +57,7 @@ impl VideoSink {
                     codec,
                     width: size.width,
                     height: size.height,
+                    frames: 0,
                 });
             }
             let _ = std::fs::remove_file(&tmp);
@@ -82,13 +78,29 @@ impl VideoSink {
         let mut bgr = Mat::default();
         imgproc::cvt_color_def(&mat, &mut bgr, imgproc::COLOR_RGB2BGR)
             .map_err(|e| e.to_string())?;
-        self.writer.write(&bgr).map_err(|e| e.to_string())
+        self.writer.write(&bgr).map_err(|e| e.to_string())?;
+        self.frames += 1;
+        Ok(())
     }
 
     /// Finishes the file and moves it into place.
     pub fn finish(mut self) -> Result<PathBuf, String> {
         self.writer.release().map_err(|e| e.to_string())?;
-        std::fs::rename(&self.tmp, &self.path)
+        // OpenCV reports no write errors (a full disk): the file must open with every frame.
+        let frames = videoio::VideoCapture::from_file(
+            self.tmp.to_str().unwrap_or_default(),
+            videoio::CAP_ANY,
+        )
+        .and_then(|c| c.get(videoio::CAP_PROP_FRAME_COUNT))
+        .unwrap_or(0.0);
+        if frames < self.frames as f64 {
+            return Err(format!(
+                "{}: the video was cut short ({frames} of {} frames readable; is the disk full?)",
+                self.path.display(),
+                self.frames
+            ));
+        }
+        crate::io::commit_temp(&self.tmp, &self.path)
             .map_err(|e| format!("{}: {e}", self.path.display()))?;
         Ok(self.path.clone())
     }

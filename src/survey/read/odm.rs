@@ -56,7 +56,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
         let x = ctx.number(f[0], line, "x")?;
         let y = ctx.number(f[1], line, "y")?;
         // NaN is how OpenDroneMap writes an unknown height.
-        let z = ctx.number(f[2], line, "z")?;
+        let z = ctx.number_or_nan(f[2], line, "z")?;
         let u = ctx.number(f[3], line, "u")?;
         let v = ctx.number(f[4], line, "v")?;
         let name = match f.get(6) {

@@ -12,6 +12,9 @@ use std::collections::{BTreeMap, HashMap};
 use nalgebra::Vector2;
 use serde::Serialize;
 
+use std::path::Path;
+
+use crate::io::{FileCtx, FileError};
 use crate::optim::assignment::assign;
 
 /// A position of one object in one frame.
@@ -20,6 +23,82 @@ pub struct Sample {
     pub frame: usize,
     pub id: usize,
     pub position: Vector2<f64>,
+}
+
+/// Positions read from a CSV: those that count, and those that count neither way (a truth row
+/// whose `in_view` is 0).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SampleTable {
+    pub samples: Vec<Sample>,
+    pub ignored: Vec<Sample>,
+}
+
+/// Reads `frame, id, x, y` samples from a CSV with a header, the four columns named by
+/// `columns`. Frames and ids are whole numbers, positions finite, each (frame, id) once; a row
+/// whose `in_view` column is 0 is put apart. A table without rows is an error.
+pub fn read_samples(path: &Path, columns: [&str; 4]) -> Result<SampleTable, FileError> {
+    let ctx = FileCtx { path };
+    let text = ctx.read_text("a CSV of positions with a header")?;
+    let mut lines = ctx.lines(&text);
+    let (_, header) = lines
+        .next()
+        .transpose()?
+        .ok_or_else(|| ctx.err(None, None, "empty file: expected a header line"))?;
+    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let idx: Vec<usize> = columns
+        .iter()
+        .map(|w| {
+            header.iter().position(|h| h == w).ok_or_else(|| {
+                ctx.at(
+                    1,
+                    format!(
+                        "no column '{}' in the header ({})",
+                        crate::io::clip(w, 40),
+                        crate::io::clip(&header.join(","), 200)
+                    ),
+                )
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let in_view = header.iter().position(|h| *h == "in_view");
+    let mut table = SampleTable::default();
+    let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
+    for row in lines {
+        let (line, l) = row?;
+        if l.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = l.split(',').collect();
+        ctx.field_count(&f, line, header.len(), header.len(), "the header's columns")?;
+        let frame = ctx.whole(f[idx[0]], line, columns[0])? as usize;
+        let id = ctx.whole(f[idx[1]], line, columns[1])? as usize;
+        let sample = Sample {
+            frame,
+            id,
+            position: Vector2::new(
+                ctx.number(f[idx[2]], line, columns[2])?,
+                ctx.number(f[idx[3]], line, columns[3])?,
+            ),
+        };
+        if let Some(first) = seen.insert((frame, id), line) {
+            return Err(ctx.at(
+                line,
+                format!(
+                    "{} {id} is in frame {frame} twice (lines {first} and {line})",
+                    columns[1]
+                ),
+            ));
+        }
+        if in_view.is_some_and(|c| f[c].trim() == "0") {
+            table.ignored.push(sample);
+        } else {
+            table.samples.push(sample);
+        }
+    }
+    if seen.is_empty() {
+        return Err(ctx.err(None, None, "no rows below the header"));
+    }
+    Ok(table)
 }
 
 /// The numbers.

@@ -251,6 +251,39 @@ fn decimal_comma_hint(t: &str) -> &'static str {
     }
 }
 
+/// The first key (`section.key`, or `key` at the top) of a TOML document whose value holds a
+/// number that is not finite: TOML allows `nan` and `inf`, which no setting of geostride means.
+pub fn toml_nonfinite_key(text: &str) -> Option<(String, String)> {
+    fn finite(v: &toml::Value) -> bool {
+        match v {
+            toml::Value::Float(f) => f.is_finite(),
+            toml::Value::Array(a) => a.iter().all(finite),
+            toml::Value::Table(t) => t.values().all(finite),
+            _ => true,
+        }
+    }
+    fn walk(prefix: &str, t: &toml::Table) -> Option<(String, String)> {
+        for (k, v) in t {
+            match v {
+                toml::Value::Table(sub) => {
+                    let section = if prefix.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{prefix}.{k}")
+                    };
+                    if let Some(hit) = walk(&section, sub) {
+                        return Some(hit);
+                    }
+                }
+                v if !finite(v) => return Some((prefix.to_string(), k.clone())),
+                _ => {}
+            }
+        }
+        None
+    }
+    walk("", &text.parse::<toml::Table>().ok()?)
+}
+
 /// `text` for a message: at most `max` characters, the rest replaced by how long it was, so that a
 /// 200 MB token is not printed whole.
 pub fn clip(text: &str, max: usize) -> String {

@@ -10,7 +10,8 @@ fn main() {
     }
     let cli = Cli::parse();
     if let Err(e) = cli.run() {
-        eprintln!("error: {e:#}");
+        // A message quoting a huge input is cut (readers clip what they quote; this is the net).
+        eprintln!("error: {}", geostride::io::clip(&format!("{e:#}"), 4000));
         let code = if e.downcast_ref::<BadInput>().is_some() {
             2
         } else {

@@ -145,7 +145,7 @@ fn bad_inputs_are_clear_errors() {
         "no picks name that image",
     );
     // No picks at all.
-    fails(&[], Some("name,image,u,v\n"), "no pixel picks");
+    fails(&[], Some("name,image,u,v\n"), "no picks");
     // A video that is not there, and one that is not a video.
     std::fs::write(dir.path().join("picks.csv"), &good).unwrap();
     fails(

@@ -17,6 +17,13 @@ use nalgebra::SMatrix;
 /// that were held fixed are zero.
 pub type ParamCovariance = SMatrix<f64, N_PARAMS, N_PARAMS>;
 
+/// The widest or tallest image geostride accepts, pixels: the largest sensors are about 15 000
+/// pixels wide; a bigger number is a mistake, and buffers grow with it.
+pub const MAX_IMAGE_SIDE: u32 = 32_768;
+
+/// The largest focal length accepted, pixels.
+pub const MAX_FOCAL_PX: f64 = 1e7;
+
 /// Standard deviations from a covariance's diagonal ([`PARAM_NAMES`] order).
 pub fn std_devs(cov: &ParamCovariance) -> [f64; N_PARAMS] {
     std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt())
@@ -66,6 +73,61 @@ pub struct ViewSummary {
 }
 
 impl Calibration {
+    /// Checks that the numbers can describe a camera: every parameter finite, focal lengths from
+    /// 1 to [`MAX_FOCAL_PX`] pixels, an image size up to [`MAX_IMAGE_SIDE`], and a covariance
+    /// that is finite, symmetric and positive semi-definite. On failure: the field and why.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let c = &self.camera;
+        let params = c.params();
+        if let Some(i) = params.iter().position(|v| !v.is_finite()) {
+            return Err((
+                PARAM_NAMES[i],
+                format!("{} is not a finite number", params[i]),
+            ));
+        }
+        for (name, f) in [("fx", c.fx), ("fy", c.fy)] {
+            if !(1.0..=MAX_FOCAL_PX).contains(&f) {
+                return Err((
+                    name,
+                    format!(
+                        "a focal length of {f} px is not plausible (expected 1 to {MAX_FOCAL_PX:e} px)"
+                    ),
+                ));
+            }
+        }
+        if let Some(s) = c.image_size
+            && !((1..=MAX_IMAGE_SIDE).contains(&s.width)
+                && (1..=MAX_IMAGE_SIDE).contains(&s.height))
+        {
+            return Err((
+                "image_size",
+                format!(
+                    "{}x{} pixels: expected 1 to {MAX_IMAGE_SIDE} on each side",
+                    s.width, s.height
+                ),
+            ));
+        }
+        if let Some(cov) = &self.covariance {
+            if cov.iter().any(|v| !v.is_finite()) {
+                return Err(("covariance", "has numbers that are not finite".into()));
+            }
+            let scale = cov.diagonal().amax().max(f64::MIN_POSITIVE);
+            if (cov - cov.transpose()).amax() > 1e-9 * scale {
+                return Err(("covariance", "is not symmetric".into()));
+            }
+            let min_eigen = cov.symmetric_eigenvalues().min();
+            if min_eigen < -1e-9 * scale {
+                return Err((
+                    "covariance",
+                    format!(
+                        "is not positive semi-definite (an eigenvalue of {min_eigen:e}): variances cannot be negative"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     pub fn from_camera(camera: Camera) -> Self {
         Calibration {
             camera,

@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, anyhow, bail};
+use anyhow::{anyhow, bail};
 use serde::Serialize;
 
 use super::calibrate::{Job, run_job};
@@ -18,7 +18,7 @@ use crate::calibration::Options;
 use crate::calibration::inputs::CollectSettings;
 use crate::camera::formats;
 use crate::camera::{BoardSpec, PARAM_NAMES};
-use crate::evaluate::{Evaluation, Sample, evaluate, ignore_brief};
+use crate::evaluate::{Evaluation, Sample, evaluate, ignore_brief, read_samples};
 use crate::pipeline::project::load;
 use crate::pipeline::run::{RunReport, StageProgress, run as run_project};
 use crate::progress::Progress;
@@ -124,52 +124,14 @@ macro_rules! say {
 
 /// The heads of the truth: those in view, and those just outside (not counted either way).
 fn truth_samples(path: &Path) -> anyhow::Result<(Vec<Sample>, Vec<Sample>)> {
-    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-    let (mut out, mut ignored) = (Vec::new(), Vec::new());
-    for l in text.lines().skip(1) {
-        let f: Vec<&str> = l.split(',').collect();
-        if f.len() < 9 {
-            continue;
-        }
-        let n = |i: usize| {
-            f[i].trim()
-                .parse::<f64>()
-                .map_err(|_| anyhow!("{}: bad number '{}'", path.display(), f[i]))
-        };
-        let s = Sample {
-            frame: n(0)? as usize,
-            id: n(2)? as usize,
-            position: nalgebra::Vector2::new(n(3)?, n(4)?),
-        };
-        if f[8].trim() == "1" {
-            out.push(s)
-        } else {
-            ignored.push(s)
-        }
-    }
-    Ok((out, ignored))
+    let t = read_samples(path, ["frame", "person", "e_m", "n_m"])?;
+    Ok((t.samples, t.ignored))
 }
 
 fn track_samples(path: &Path) -> anyhow::Result<Vec<Sample>> {
-    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-    let mut out = Vec::new();
-    for l in text.lines().skip(1) {
-        let f: Vec<&str> = l.split(',').collect();
-        let n = |i: usize| {
-            f[i].trim()
-                .parse::<f64>()
-                .map_err(|_| anyhow!("{}: bad number '{}'", path.display(), f[i]))
-        };
-        out.push(Sample {
-            frame: n(1)? as usize,
-            id: n(0)? as usize,
-            position: nalgebra::Vector2::new(n(3)?, n(4)?),
-        });
-    }
-    Ok(out)
+    Ok(read_samples(path, ["frame", "id", "e_m", "n_m"])?.samples)
 }
 
-/// Each estimated track's true person: the one it is nearest (within 0.5 m) in most frames.
 fn identify(truth: &[Sample], est: &[Sample]) -> HashMap<usize, usize> {
     let mut by_frame: HashMap<usize, Vec<&Sample>> = HashMap::new();
     for t in truth {

@@ -3,11 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::anyhow;
-use nalgebra::Vector2;
 
 use super::bad_input;
-use crate::evaluate::{Sample, evaluate, ignore_brief};
-use crate::io::FileCtx;
+use crate::evaluate::{SampleTable, evaluate, ignore_brief, read_samples};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -37,69 +35,39 @@ pub struct Args {
     json: bool,
 }
 
-/// Reads `frame, id, x, y` samples from a CSV with a header; rows whose `in_view` column is 0
-/// are returned apart (ignored: neither to be found nor false alarms).
-fn read_samples(
-    path: &Path,
-    columns: &str,
-    what: &str,
-) -> anyhow::Result<(Vec<Sample>, Vec<Sample>)> {
-    let ctx = FileCtx { path };
-    let text = ctx.read_text(what).map_err(bad_input)?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines
-        .next()
-        .unwrap_or("")
-        .split(',')
-        .map(str::trim)
-        .collect();
-    let want: Vec<&str> = columns.split(',').map(str::trim).collect();
-    if want.len() != 4 {
-        return Err(bad_input(anyhow!(
-            "columns '{columns}': expected four names: frame, id, x, y"
-        )));
-    }
-    let idx: Vec<usize> = want
-        .iter()
-        .map(|w| {
-            header.iter().position(|h| h == w).ok_or_else(|| {
-                bad_input(ctx.at(
-                    1,
-                    format!("no column '{w}' in the header ({})", header.join(",")),
-                ))
-            })
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let in_view = header.iter().position(|h| *h == "in_view");
-    let (mut out, mut ignored) = (Vec::new(), Vec::new());
-    for (i, line) in lines.enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').collect();
-        let get = |k: usize, name: &str| -> anyhow::Result<f64> {
-            ctx.number(f.get(idx[k]).copied().unwrap_or(""), i + 2, name)
-                .map_err(bad_input)
-        };
-        let sample = Sample {
-            frame: get(0, want[0])? as usize,
-            id: get(1, want[1])? as usize,
-            position: Vector2::new(get(2, want[2])?, get(3, want[3])?),
-        };
-        if in_view.is_some_and(|c| f.get(c).map(|v| v.trim()) == Some("0")) {
-            ignored.push(sample);
-        } else {
-            out.push(sample);
-        }
-    }
-    Ok((out, ignored))
+/// `F,ID,X,Y` column names.
+fn columns(text: &str, flag: &str) -> anyhow::Result<[String; 4]> {
+    let v: Vec<String> = text.split(',').map(|s| s.trim().to_string()).collect();
+    <[String; 4]>::try_from(v).map_err(|_| {
+        bad_input(anyhow!(
+            "{flag} '{text}': expected four column names: frame, id, x, y"
+        ))
+    })
+}
+
+fn read(path: &Path, cols: &[String; 4]) -> anyhow::Result<SampleTable> {
+    read_samples(
+        path,
+        [&cols[0], &cols[1], &cols[2], &cols[3]].map(String::as_str),
+    )
+    .map_err(bad_input)
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let (mut truth, mut ignored) =
-        read_samples(&args.truth, &args.truth_columns, "a CSV of truth positions")?;
+    let truth_cols = columns(&args.truth_columns, "--truth-columns")?;
+    let tracks_cols = columns(&args.tracks_columns, "--tracks-columns")?;
+    let SampleTable {
+        samples: mut truth,
+        mut ignored,
+    } = read(&args.truth, &truth_cols)?;
+    if truth.is_empty() {
+        return Err(bad_input(anyhow!(
+            "{}: no position counts (every row is out of view)",
+            args.truth.display()
+        )));
+    }
     let brief = ignore_brief(&mut truth, &mut ignored, args.min_frames);
-    let (est, _) = read_samples(&args.tracks, &args.tracks_columns, "a CSV of trajectories")?;
+    let est = read(&args.tracks, &tracks_cols)?.samples;
     let e = evaluate(&truth, &est, &ignored, args.threshold);
     if args.json {
         let mut v = serde_json::to_value(&e)?;

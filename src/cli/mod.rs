@@ -155,10 +155,17 @@ pub(crate) fn create_output_dir<P: AsRef<Path>>(
 
 /// `WIDTHxHEIGHT` in pixels, e.g. `3840x2160`.
 pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let bad = || format!("expected WIDTHxHEIGHT in pixels, e.g. 3840x2160; got '{s}'");
+    let bad = || {
+        format!(
+            "expected WIDTHxHEIGHT in pixels from 1 to {}, e.g. 3840x2160; got '{}'",
+            crate::camera::MAX_IMAGE_SIDE,
+            crate::io::clip(s, 40)
+        )
+    };
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let side = 1..=crate::camera::MAX_IMAGE_SIDE;
     match (w.parse::<u32>(), h.parse::<u32>()) {
-        (Ok(w), Ok(h)) if w > 0 && h > 0 => Ok((w, h)),
+        (Ok(w), Ok(h)) if side.contains(&w) && side.contains(&h) => Ok((w, h)),
         _ => Err(bad()),
     }
 }

@@ -18,9 +18,7 @@ use crate::geom::rvec_of;
 use crate::optim::RobustLoss;
 use crate::pose::attitude::attitude_sigma_deg;
 use crate::pose::solve::gcp_residual;
-use crate::pose::{
-    Attitude, GcpObservation, GcpResidual, PoseError, PoseSettings, PoseSolution, solve_pose,
-};
+use crate::pose::{Attitude, GcpResidual, PoseError, PoseSettings, PoseSolution, solve_pose};
 use crate::survey::Role;
 
 #[derive(clap::Args)]
@@ -97,10 +95,7 @@ pub struct Args {
 }
 
 /// The GCPs seen in one image, split by role.
-pub(crate) struct Seen {
-    pub control: Vec<GcpObservation>,
-    pub check: Vec<GcpObservation>,
-}
+pub(crate) type Seen = crate::survey::load::ImageObservations;
 
 /// The names of the images that the survey's picks refer to, with their pick counts.
 fn picked_images(framed: &Framed) -> BTreeMap<String, usize> {
@@ -181,7 +176,7 @@ pub(crate) fn choose_image(
     )))
 }
 
-/// Site-frame observations of the GCPs picked in `image`.
+/// Site-frame observations of the GCPs picked in `image` (bad picks: exit 2).
 pub(crate) fn seen_in(
     framed: &Framed,
     image: &str,
@@ -189,66 +184,10 @@ pub(crate) fn seen_in(
     gcp_sigma: f64,
     camera: &Camera,
 ) -> anyhow::Result<Seen> {
-    let mut seen = Seen {
-        control: Vec::new(),
-        check: Vec::new(),
-    };
-    for (p, local) in framed.survey.points.iter().zip(&framed.local) {
-        if p.role == Role::Disabled {
-            continue;
-        }
-        let picks: Vec<_> = p.observations.iter().filter(|o| o.image == image).collect();
-        let Some(o) = picks.first() else { continue };
-        if picks.len() > 1 {
-            return Err(bad_input(anyhow!(
-                "'{}' is picked {} times in image '{image}' (line {} and {}); keep one",
-                p.name,
-                picks.len(),
-                picks[0].line,
-                picks[1].line
-            )));
-        }
-        if !local.z.is_finite() {
-            return Err(bad_input(anyhow!(
-                "{}: '{}' has no height; a pose needs 3D points",
-                framed.survey.source.display(),
-                p.name
-            )));
-        }
-        if let Some(size) = camera.image_size {
-            let (w, h) = (f64::from(size.width), f64::from(size.height));
-            if !(o.uv.x >= -0.5 && o.uv.x <= w - 0.5 && o.uv.y >= -0.5 && o.uv.y <= h - 0.5) {
-                return Err(bad_input(anyhow!(
-                    "pick of '{}' (line {}) at ({:.1}, {:.1}) lies outside the {}x{} image: check the picks' image and pixel origin",
-                    p.name,
-                    o.line,
-                    o.uv.x,
-                    o.uv.y,
-                    size.width,
-                    size.height
-                )));
-            }
-        }
-        let sigma = p
-            .sigma_m
-            .unwrap_or(Vector3::new(gcp_sigma, gcp_sigma, gcp_sigma));
-        let world_cov = framed
-            .frame
-            .local_covariance(&p.position, &sigma)
-            .unwrap_or_else(|_| Matrix3::from_diagonal(&sigma.component_mul(&sigma)));
-        let obs = GcpObservation {
-            name: p.name.clone(),
-            world: *local,
-            world_cov,
-            uv: o.uv,
-            sigma_px: o.sigma_px.unwrap_or(pick_sigma),
-        };
-        match p.role {
-            Role::Check => seen.check.push(obs),
-            _ => seen.control.push(obs),
-        }
-    }
-    Ok(seen)
+    let size = camera.image_size.map(|s| (s.width, s.height));
+    framed
+        .observations(image, pick_sigma, gcp_sigma, size)
+        .map_err(bad_input)
 }
 
 /// The camera, scaled to `size` when given.

@@ -76,9 +76,11 @@ pub(crate) fn run_scene(
 ) -> anyhow::Result<Summary> {
     let (scene, camera, source) = load(scene_path, over.site_crs.as_deref())?;
     if let Some(d) = over.duration_s
-        && !(d > 0.0)
+        && !(d > 0.0 && d <= 3600.0)
     {
-        return Err(bad_input(anyhow!("--duration must be positive")));
+        return Err(bad_input(anyhow!(
+            "--duration must be positive and at most 3600 s"
+        )));
     }
     let calibration = scene.calibration_path(scene_path);
     super::create_output_dir(out, [scene_path, calibration.as_path()])?;

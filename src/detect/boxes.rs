@@ -770,41 +770,63 @@ impl BoxFilter {
     }
 
     /// Names the first setting that makes no sense.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), FilterError> {
         let unit = |v: f64| (0.0..=1.0).contains(&v);
-        let range = |r: [f64; 2]| r[0] > 0.0 && r[0] <= r[1];
+        let range = |r: [f64; 2]| r[0] > 0.0 && r[0] <= r[1] && r[1].is_finite();
+        let roi_ok = self.roi.is_none_or(|r| {
+            r.iter().all(|v| v.is_finite() && *v >= 0.0) && r[0] < r[2] && r[1] < r[3]
+        });
         let checks = [
             (
                 self.px_per_m.is_finite() && self.px_per_m > 0.0,
-                "px_per_m must be positive",
+                "px_per_m",
+                "must be positive",
             ),
             (
                 self.person_m.is_finite() && self.person_m > 0.0,
-                "person_m must be positive",
+                "person_m",
+                "must be positive",
             ),
-            (unit(self.min_score), "min_score must be in [0, 1]"),
-            (
-                unit(self.merge_iou) && unit(self.nms_iou),
-                "merge_iou and nms_iou must be in [0, 1]",
-            ),
+            (unit(self.min_score), "min_score", "must be in [0, 1]"),
+            (unit(self.merge_iou), "merge_iou", "must be in [0, 1]"),
+            (unit(self.nms_iou), "nms_iou", "must be in [0, 1]"),
             (
                 range(self.aspect),
-                "aspect must be [min, max] with 0 < min <= max",
+                "aspect",
+                "must be [min, max] with 0 < min <= max",
             ),
             (
                 range(self.size_m),
-                "size_m must be [min, max] with 0 < min <= max",
+                "size_m",
+                "must be [min, max] with 0 < min <= max",
             ),
             (
                 unit(self.max_shadow_fraction),
-                "max_shadow_fraction must be in [0, 1]",
+                "max_shadow_fraction",
+                "must be in [0, 1]",
+            ),
+            (
+                roi_ok,
+                "roi",
+                "must be [x0, y0, x1, y1] in pixels with 0 <= x0 < x1 and 0 <= y0 < y1",
             ),
         ];
-        match checks.iter().find(|(ok, _)| !ok) {
-            Some((_, msg)) => Err(format!("box filter: {msg}")),
+        match checks.iter().find(|(ok, _, _)| !ok) {
+            Some((_, key, message)) => Err(FilterError {
+                key,
+                message: (*message).to_string(),
+            }),
             None => Ok(()),
         }
     }
+}
+
+/// A box filter setting out of its range: the setting and what it must be.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("box filter: {key} {message}")]
+pub struct FilterError {
+    pub key: &'static str,
+    pub message: String,
 }
 
 /// How many boxes each filter removed. Counts add up:

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use nalgebra::Vector2;
 
-use super::boxes::{BoxFilter, FilterCounts, RawBox, filter_frame};
+use super::boxes::{BoxFilter, FilterCounts, FilterError, RawBox, filter_frame};
 use super::{Detection, Detector, ErrorModel, FrameDetections, FrameView, head_from_box};
 
 /// Boxes from a file, filtered frame by frame (the shadow test looks at the frame's pixels).
@@ -18,7 +18,7 @@ pub struct BoxesDetector {
 }
 
 impl BoxesDetector {
-    pub fn new(boxes: Vec<RawBox>, filter: BoxFilter) -> Result<BoxesDetector, String> {
+    pub fn new(boxes: Vec<RawBox>, filter: BoxFilter) -> Result<BoxesDetector, FilterError> {
         filter.check()?;
         let mut by_frame: HashMap<usize, Vec<RawBox>> = HashMap::new();
         for b in boxes {

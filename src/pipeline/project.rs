@@ -554,8 +554,19 @@ pub fn load(path: &Path) -> Result<Loaded, FileError> {
         path: path.to_path_buf(),
         text,
     };
+    check_finite(&l)?;
     check(&l)?;
     Ok(l)
+}
+
+/// Every number in the file finite (TOML allows `nan` and `inf`).
+fn check_finite(l: &Loaded) -> Result<(), FileError> {
+    match crate::io::toml_nonfinite_key(&l.text) {
+        Some((section, key)) => {
+            Err(l.error(&section, &key, "expected finite numbers (not nan or inf)"))
+        }
+        None => Ok(()),
+    }
 }
 
 fn check(l: &Loaded) -> Result<(), FileError> {
@@ -596,8 +607,21 @@ fn check(l: &Loaded) -> Result<(), FileError> {
             format!("expected 'ellipsoidal' or 'orthometric', got '{h}'"),
         ));
     }
-    if !(p.survey.pick_sigma_px > 0.0) || !(p.survey.gcp_sigma_m > 0.0) {
+    if !(p.survey.pick_sigma_px > 0.0) {
         return Err(l.error("survey", "pick_sigma_px", "σ must be positive"));
+    }
+    if !(p.survey.gcp_sigma_m > 0.0) {
+        return Err(l.error("survey", "gcp_sigma_m", "σ must be positive"));
+    }
+    if let Some(c) = &p.survey.crs {
+        crate::survey::crs::Crs::new(c).map_err(|e| l.error("survey", "crs", e.to_string()))?;
+    }
+    if let Some(o) = &p.survey.origin {
+        o.parse::<crate::survey::frame::Origin>()
+            .map_err(|e| l.error("survey", "origin", e))?;
+    }
+    if let Some(c) = &p.export.crs {
+        crate::survey::crs::Crs::new(c).map_err(|e| l.error("export", "crs", e.to_string()))?;
     }
     if p.video.duration_s.is_some_and(|d| !(d > 0.0)) {
         return Err(l.error("video", "duration_s", "must be positive"));
@@ -614,6 +638,12 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     }
     if !(0.0..=1.0).contains(&p.pose.key_fraction) {
         return Err(l.error("pose", "key_fraction", "expected a fraction from 0 to 1"));
+    }
+    if p.pose.key_every_s.is_some_and(|s| !(s > 0.0)) {
+        return Err(l.error("pose", "key_every_s", "must be positive"));
+    }
+    if p.pose.min_features < 4 {
+        return Err(l.error("pose", "min_features", "must be at least 4"));
     }
     match &p.ground {
         GroundSection::Deck {
@@ -637,6 +667,13 @@ fn check(l: &Loaded) -> Result<(), FileError> {
                     "ground",
                     "stations",
                     "give at least 2 stations, or none to fit the GCPs",
+                ));
+            }
+            if stations.windows(2).any(|w| !(w[1][0] > w[0][0])) {
+                return Err(l.error(
+                    "ground",
+                    "stations",
+                    "stations are [chainage, height] with the chainages increasing",
                 ));
             }
             if *degree > 3 {
@@ -701,6 +738,25 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if !(p.detect.hat_diameter_m > 0.0) {
         return Err(l.error("detect", "hat_diameter_m", "must be positive"));
     }
+    if p.detect.sample_frames > 10_000 {
+        return Err(l.error("detect", "sample_frames", "at most 10000"));
+    }
+    if !(p.detect.max_hue_difference_deg > 0.0 && p.detect.max_hue_difference_deg <= 180.0) {
+        return Err(l.error(
+            "detect",
+            "max_hue_difference_deg",
+            "expected an angle from 0 to 180°",
+        ));
+    }
+    if !(p.detect.centroid_sigma_px > 0.0) {
+        return Err(l.error("detect", "centroid_sigma_px", "must be positive"));
+    }
+    if !(p.detect.body_radius_m >= 0.0) {
+        return Err(l.error("detect", "body_radius_m", "must not be negative"));
+    }
+    if p.detect.person_m.is_some_and(|m| !(m > 0.0)) {
+        return Err(l.error("detect", "person_m", "must be positive"));
+    }
     if !super::registry::TRACKERS.contains(&p.track.kind.as_str()) {
         return Err(l.error(
             "track",
@@ -725,6 +781,9 @@ fn check(l: &Loaded) -> Result<(), FileError> {
             "window_px",
             "window_px must be at least 5 and levels 0 to 6",
         ));
+    }
+    if !(p.track.min_length_s >= 0.0) {
+        return Err(l.error("track", "min_length_s", "must not be negative"));
     }
     if p.track.min_features == 0 || p.track.max_features < p.track.min_features {
         return Err(l.error(
@@ -751,6 +810,12 @@ fn check(l: &Loaded) -> Result<(), FileError> {
             "kind",
             format!("expected 'kalman_rts' or 'none', got '{}'", p.smooth.kind),
         ));
+    }
+    if !(p.smooth.q_position_m > 0.0) {
+        return Err(l.error("smooth", "q_position_m", "must be positive"));
+    }
+    if !(p.smooth.q_velocity_m_s > 0.0) {
+        return Err(l.error("smooth", "q_velocity_m_s", "must be positive"));
     }
     if p.smooth.model.parse::<crate::smooth::NoiseModel>().is_err() {
         return Err(l.error(

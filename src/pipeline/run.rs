@@ -226,7 +226,6 @@ fn stage_key(stage: &str, parents: &[&str], params: &impl Serialize) -> String {
     sha256_hex(text.as_bytes())
 }
 
-/// The files an export format wrote, and its warnings.
 /// What writing one export format gave: files, warnings, and the WGS 84 transformations used.
 #[derive(Default)]
 struct Written {
@@ -346,12 +345,16 @@ fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
     load_framed(&l.resolve(&s.gcps), &opts).map_err(|e| RunError::Input(e.to_string()))
 }
 
-/// The picks of the picked frame: (frame, control, check).
+/// The picks of the picked frame: (frame, control, check), checked like `geostride pose` checks
+/// them (inside the image, one per point, heights) and the frame inside the video.
 fn picked(
     l: &Loaded,
     framed: &Framed,
+    size: (u32, u32),
+    frames: Option<usize>,
 ) -> Result<(usize, Vec<GcpObservation>, Vec<GcpObservation>), RunError> {
     let s = &l.project.survey;
+    let input = |key: &str, m: String| RunError::Input(l.error("survey", key, m).to_string());
     let mut images: BTreeMap<String, usize> = BTreeMap::new();
     for p in framed
         .survey
@@ -372,53 +375,61 @@ fn picked(
         .find(|k| k.starts_with(&format!("{video_name}#")))
         .or_else(|| (images.len() == 1).then(|| images.keys().next()).flatten())
         .cloned()
-        .ok_or_else(|| RunError::Input(l.error("survey", "picks", format!("no picks of '{video_name}#N' (the frame N of the video); the picks name {:?}", images.keys().collect::<Vec<_>>())).to_string()))?;
-    let frame = l
-        .project
-        .pose
-        .picks_frame
-        .or_else(|| image.rsplit_once('#').and_then(|(_, n)| n.parse().ok()))
-        .unwrap_or(0);
-    let (mut control, mut check) = (Vec::new(), Vec::new());
-    for (p, local) in framed.survey.points.iter().zip(&framed.local) {
-        if p.role == Role::Disabled {
-            continue;
-        }
-        let Some(o) = p.observations.iter().find(|o| o.image == image) else {
-            continue;
-        };
-        let sigma = p.sigma_m.unwrap_or(Vector3::from_element(s.gcp_sigma_m));
-        let world_cov = framed
-            .frame
-            .local_covariance(&p.position, &sigma)
-            .unwrap_or_else(|_| Matrix3::from_diagonal(&sigma.component_mul(&sigma)));
-        let obs = GcpObservation {
-            name: p.name.clone(),
-            world: *local,
-            world_cov,
-            uv: o.uv,
-            sigma_px: o.sigma_px.unwrap_or(s.pick_sigma_px),
-        };
-        if p.role == Role::Check {
-            check.push(obs)
-        } else {
-            control.push(obs)
-        }
-    }
-    if control.len() < 4 {
-        return Err(RunError::Input(
-            l.error(
-                "survey",
+        .ok_or_else(|| {
+            input(
                 "picks",
                 format!(
-                    "image '{image}' has picks of {} control point(s); a pose needs at least 4",
-                    control.len()
+                    "no picks of '{video_name}#N' (the frame N of the video); the picks name {:?}",
+                    images.keys().take(10).collect::<Vec<_>>()
                 ),
             )
-            .to_string(),
+        })?;
+    let frame = match (l.project.pose.picks_frame, image.rsplit_once('#')) {
+        (Some(f), _) => f,
+        (None, Some((_, n))) => n.parse().map_err(|_| {
+            input(
+                "picks",
+                format!(
+                    "the picks' image '{}' should end in '#N', N the frame number (from 0)",
+                    crate::io::clip(&image, 60)
+                ),
+            )
+        })?,
+        (None, None) => 0,
+    };
+    if let Some(n) = frames
+        && frame >= n
+    {
+        let key = if l.project.pose.picks_frame.is_some() {
+            RunError::Input(
+                l.error(
+                    "pose",
+                    "picks_frame",
+                    format!("frame {frame} is beyond the {n} frame(s) processed"),
+                )
+                .to_string(),
+            )
+        } else {
+            input(
+                "picks",
+                format!("the picks are on frame {frame}, beyond the {n} frame(s) processed"),
+            )
+        };
+        return Err(key);
+    }
+    let seen = framed
+        .observations(&image, s.pick_sigma_px, s.gcp_sigma_m, Some(size))
+        .map_err(|e| RunError::Input(e.to_string()))?;
+    if seen.control.len() < 4 {
+        return Err(input(
+            "picks",
+            format!(
+                "image '{image}' has picks of {} control point(s); a pose needs at least 4",
+                seen.control.len()
+            ),
         ));
     }
-    Ok((frame, control, check))
+    Ok((frame, seen.control, seen.check))
 }
 
 /// The ground of the project in the site frame.
@@ -464,10 +475,17 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
             if stations.is_empty() {
                 let (deck, _) = DeckProfile::fit_polynomial(line, 0.0, *width_m, *degree, &control)
                     .map_err(|e| {
-                        err(
-                            "degree",
-                            format!("fitting the deck profile to the control GCPs: {e}"),
-                        )
+                        if matches!(e, crate::terrain::deck::DeckError::TooFewPoints { got: 0, .. }) {
+                            err(
+                                "centre_line",
+                                format!("none of the {} control GCPs lies on the deck ({width_m} m wide along the centre line): check the centre line and the survey's CRS (survey.crs, or the GCP file's own)", control.len()),
+                            )
+                        } else {
+                            err(
+                                "degree",
+                                format!("fitting the deck profile to the control GCPs: {e}"),
+                            )
+                        }
                     })?;
                 Ok(Box::new(deck))
             } else {
@@ -500,36 +518,30 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
     }
 }
 
-/// Runs a project into `out`.
+/// Runs a project into `out`. Every input is read and checked before anything is written, so
+/// a bad project leaves nothing behind.
 pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunReport, RunError> {
     let p = &l.project;
-    std::fs::create_dir_all(out.join(".stages"))
-        .map_err(|e| RunError::Failed(format!("{}: {e}", out.display())))?;
-    let cache = Cache {
-        dir: out.join(".stages"),
-    };
+    let files = l.input_files();
+    let mut guard = crate::io::Inputs::new(files.iter().map(|(_, f)| f));
+    guard.add(&l.path);
+    guard.check_dir(out).map_err(output_error)?;
+
     let mut warnings = Vec::new();
     let mut stages = Vec::new();
 
-    // Inputs and their checksums.
-    let mut inputs = Vec::new();
-    if presets::preset(&p.camera.calibration).is_none() {
-        inputs.push(file_record("camera", &l.resolve(&p.camera.calibration))?);
-    }
-    inputs.push(file_record("gcps", &l.resolve(&p.survey.gcps))?);
-    for pk in &p.survey.picks {
-        inputs.push(file_record("picks", &l.resolve(pk))?);
-    }
-    inputs.push(file_record("video", &l.resolve(&p.video.path))?);
-    if let Some(h) = &p.projection.heights {
-        inputs.push(file_record("heights", &l.resolve(h))?);
-    }
+    // Inputs and their checksums: every one is part of every stage's key.
+    let inputs = files
+        .iter()
+        .map(|(key, path)| file_record(key, path))
+        .collect::<Result<Vec<_>, _>>()?;
     let sums: Vec<&str> = inputs.iter().map(|i| i.sha256.as_str()).collect();
 
     let video = l.resolve(&p.video.path);
     let reader = crate::video::source::FrameReader::open(&video)
         .map_err(|e| RunError::Input(l.error("video", "path", e).to_string()))?;
-    let (fps, width, height) = (reader.fps, reader.width, reader.height);
+    let (fps, width, height, frame_count) =
+        (reader.fps, reader.width, reader.height, reader.frame_count);
     drop(reader);
     if !(fps > 0.0) {
         return Err(RunError::Input(
@@ -537,12 +549,16 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 .to_string(),
         ));
     }
+    let max_frames = p.video.duration_s.map(|d| (d * fps).ceil() as usize);
+    let frames_total = match (frame_count, max_frames) {
+        (Some(c), Some(m)) => Some(c.min(m)),
+        (c, m) => c.or(m),
+    };
     let camera = project_camera(l, width, height)?;
     let framed = load_survey(l)?;
     warnings.extend(framed.survey.warnings.iter().cloned());
-    let (pick_frame, control, check) = picked(l, &framed)?;
+    let (pick_frame, control, check) = picked(l, &framed, (width, height), frames_total)?;
     let surface = ground(l, &framed)?;
-    let max_frames = p.video.duration_s.map(|d| (d * fps).ceil() as usize);
 
     // The scale of a head in the image, from a pose of the picked frame.
     let first = solve_pose(&camera, &control, &PoseSettings::default())
@@ -556,6 +572,57 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         )
     })? + p.projection.head_height_m;
     let px_per_m = 0.5 * (camera.fx + camera.fy) / (centre.z - head_z).max(1.0);
+
+    // What the later stages read, checked now rather than after hours of scanning.
+    let heights = match &p.projection.heights {
+        Some(h) => read_heights(&l.resolve(h)).map_err(|e| RunError::Input(e.to_string()))?,
+        None => BTreeMap::new(),
+    };
+    let out_crs =
+        match &p.export.crs {
+            Some(c) => Some(Crs::new(c).map_err(|e| {
+                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
+            })?),
+            None => None,
+        };
+    let transform =
+        match (&out_crs, &framed.frame.crs) {
+            (Some(o), Some(s)) => Some(Transform::new(s, o).map_err(|e| {
+                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
+            })?),
+            (Some(_), None) => {
+                return Err(RunError::Input(
+                    l.error("export", "crs", "the GCP file has no CRS to convert from")
+                        .to_string(),
+                ));
+            }
+            _ => None,
+        };
+    let detector = match p.detect.kind.as_str() {
+        "colour" => super::registry::colour_detector(
+            ColourSettings {
+                target_rgb: p.detect.colour,
+                clusters: p.detect.clusters,
+                max_hue_difference_deg: p.detect.max_hue_difference_deg,
+                seed: p.detect.seed,
+                hat_diameter_m: p.detect.hat_diameter_m,
+                px_per_m,
+                centroid_sigma_px: p.detect.centroid_sigma_px,
+                ..ColourSettings::default()
+            },
+            frames_total,
+            p.detect.sample_frames,
+        ),
+        _ => body_detector(l, &video, &camera, &first_pose, px_per_m, frames_total)?,
+    };
+
+    guard.create_dir(out).map_err(output_error)?;
+    guard
+        .create_dir(&out.join(".stages"))
+        .map_err(output_error)?;
+    let cache = Cache {
+        dir: out.join(".stages"),
+    };
 
     // Stage 1: scan.
     let scan_key = stage_key(
@@ -575,31 +642,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     let (scan_data, status) = match cache.load::<ScanData>("scan", &scan_key) {
         Some(d) => (d, "reused"),
         None => {
-            let frames_total = match (
-                crate::video::source::FrameReader::open(&video)
-                    .map_err(RunError::Failed)?
-                    .frame_count,
-                max_frames,
-            ) {
-                (Some(c), Some(m)) => Some(c.min(m)),
-                (c, m) => c.or(m),
-            };
-            let cs = ColourSettings {
-                target_rgb: p.detect.colour,
-                clusters: p.detect.clusters,
-                max_hue_difference_deg: p.detect.max_hue_difference_deg,
-                seed: p.detect.seed,
-                hat_diameter_m: p.detect.hat_diameter_m,
-                px_per_m,
-                centroid_sigma_px: p.detect.centroid_sigma_px,
-                ..ColourSettings::default()
-            };
-            let detector = match p.detect.kind.as_str() {
-                "colour" => {
-                    super::registry::colour_detector(cs, frames_total, p.detect.sample_frames)
-                }
-                _ => body_detector(l, &video, &camera, &first_pose, px_per_m)?,
-            };
+            let detector = detector;
             let stabilise = StabiliseSettings {
                 min_features: p.pose.min_features,
                 min_fraction: p.pose.key_fraction,
@@ -621,9 +664,10 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 bar.as_ref(),
             )
             .map_err(|e| match e {
-                ScanError::Detector(e) => {
-                    RunError::Input(l.error("detect", "colour", e).to_string())
-                }
+                ScanError::Detector(e) => RunError::Input(
+                    l.error("detect", detector_key(&p.detect.kind), e)
+                        .to_string(),
+                ),
                 ScanError::Other(e) => RunError::Failed(e),
             })?;
             let d = ScanData {
@@ -681,8 +725,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 progress.stage("pose").as_ref(),
             )
             .map_err(|e| RunError::Input(format!("{}: {e}", video.display())))?;
-            std::fs::create_dir_all(&pose_dir)
-                .map_err(|e| RunError::Failed(format!("{}: {e}", pose_dir.display())))?;
+            guard.create_dir(&pose_dir).map_err(output_error)?;
             write_pose_outputs(
                 &pose_dir,
                 &PoseRun {
@@ -850,10 +893,6 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     });
 
     // Stage 4: project.
-    let heights = match &p.projection.heights {
-        Some(h) => read_heights(&l.resolve(h)).map_err(RunError::Input)?,
-        None => BTreeMap::new(),
-    };
     let project_key = stage_key(
         "project",
         &[&track_key, &pose_key],
@@ -930,26 +969,6 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     // Stage 5: smooth.
     let smooth_key = stage_key("smooth", &[&project_key], &p.smooth);
     let t0 = Instant::now();
-    let out_crs =
-        match &p.export.crs {
-            Some(c) => Some(Crs::new(c).map_err(|e| {
-                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
-            })?),
-            None => None,
-        };
-    let transform =
-        match (&out_crs, &framed.frame.crs) {
-            (Some(o), Some(s)) => Some(Transform::new(s, o).map_err(|e| {
-                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
-            })?),
-            (Some(_), None) => {
-                return Err(RunError::Input(
-                    l.error("export", "crs", "the GCP file has no CRS to convert from")
-                        .to_string(),
-                ));
-            }
-            _ => None,
-        };
     let to_out = |local: &Vector3<f64>| -> Result<Vector3<f64>, RunError> {
         let src = framed
             .frame
@@ -1262,6 +1281,23 @@ fn wgs84_trajectories(
     })
 }
 
+/// The key a detector's errors are about.
+fn detector_key(kind: &str) -> &'static str {
+    match kind {
+        "colour" => "colour",
+        "boxes" => "boxes",
+        _ => "method",
+    }
+}
+
+/// An output path that cannot be used is the project's to fix; an I/O failure is not.
+fn output_error(e: crate::io::OutputError) -> RunError {
+    match e {
+        crate::io::OutputError::Io { .. } => RunError::Failed(e.to_string()),
+        _ => RunError::Input(e.to_string()),
+    }
+}
+
 /// A whole-body detector (`boxes` or `background`), its boxes turned into heads.
 fn body_detector(
     l: &Loaded,
@@ -1269,6 +1305,7 @@ fn body_detector(
     camera: &Camera,
     first_pose: &RigidPose,
     px_per_m: f64,
+    frames: Option<usize>,
 ) -> Result<Box<dyn crate::detect::Detector>, RunError> {
     use crate::detect::ErrorModel;
     use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
@@ -1280,15 +1317,44 @@ fn body_detector(
         let path = l.resolve(d.boxes.as_deref().unwrap_or_default());
         let format = d.boxes_format.as_deref().and_then(BoxFormat::parse);
         let boxes = read_boxes(&path, format).map_err(|e| RunError::Input(e.to_string()))?;
+        if let Some(n) = frames
+            && !boxes.iter().any(|b| b.frame < n)
+        {
+            let first = boxes.iter().map(|b| b.frame).min().unwrap_or(0);
+            return Err(input(
+                "boxes",
+                format!(
+                    "none of the {} boxes is on one of the {n} frames processed (the first is on frame {first}, counting from 0): is it the box file of another video?",
+                    boxes.len()
+                ),
+            ));
+        }
         let shadow = if d.shadow_samples.is_empty() {
             None
         } else {
-            let mut frames = Vec::new();
+            let mut patches = Vec::new();
             for s in &d.shadow_samples {
-                let bgr = crate::video::source::FrameReader::frame_bgr(video, s[0] as usize)
+                let whole = |v: f64| v >= 0.0 && v.fract() == 0.0 && v < 1e9;
+                if !s.iter().all(|v| whole(*v)) || s[3] < 1.0 || s[4] < 1.0 {
+                    return Err(input(
+                        "shadow_samples",
+                        format!(
+                            "expected [frame, x, y, width, height] in whole pixels, found {s:?}"
+                        ),
+                    ));
+                }
+                let frame = s[0] as usize;
+                if frames.is_some_and(|n| frame >= n) {
+                    return Err(input(
+                        "shadow_samples",
+                        format!("frame {frame} is beyond the frames processed"),
+                    ));
+                }
+                let bgr = crate::video::source::FrameReader::frame_bgr(video, frame)
                     .map_err(|e| input("shadow_samples", e))?;
-                frames.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v.max(0.0) as usize)));
+                patches.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v as usize)));
             }
+            let frames = patches;
             let bytes: Vec<&[u8]> = frames
                 .iter()
                 .map(|(m, _)| m.data_bytes())
@@ -1324,7 +1390,7 @@ fn body_detector(
             max_shadow_fraction: d.max_shadow_fraction,
             ..BoxFilter::new(px_per_m)
         };
-        Box::new(BoxesDetector::new(boxes, filter).map_err(|e| input("boxes", e))?)
+        Box::new(BoxesDetector::new(boxes, filter).map_err(|e| input(e.key, e.to_string()))?)
     } else {
         use crate::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
         let settings = BackgroundSettings {
@@ -1362,36 +1428,52 @@ fn body_detector(
 
 /// The `klt` tracker: a second decoding pass, features followed through every frame with the
 /// scan's detections and the solved poses.
-fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, String> {
+fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
     let ctx = crate::io::FileCtx { path };
-    let text = ctx
-        .read_text("a CSV of heights")
-        .map_err(|e| e.to_string())?;
-    let mut out = BTreeMap::new();
-    for (i, line) in text.lines().enumerate() {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        if line.trim().is_empty() || (i == 0 && f[0].parse::<usize>().is_err()) {
+    let text = ctx.read_text("a CSV of heights")?;
+    // id -> (height, σ, line)
+    let mut out: BTreeMap<usize, (f64, f64, usize)> = BTreeMap::new();
+    for row in ctx.lines(&text) {
+        let (line, l) = row?;
+        let f: Vec<&str> = l.split(',').map(str::trim).collect();
+        if l.trim().is_empty() || (line == 1 && f[0].parse::<f64>().is_err()) {
             continue;
         }
-        let id = f[0].parse::<usize>().map_err(|_| {
-            ctx.at(i + 1, format!("expected a track id, found '{}'", f[0]))
-                .to_string()
-        })?;
-        let h = ctx
-            .number(f.get(1).copied().unwrap_or(""), i + 1, "height_m")
-            .map_err(|e| e.to_string())?;
+        ctx.field_count(&f, line, 2, 3, "id,height_m[,sd_m]")?;
+        let id = ctx.whole(f[0], line, "id")?;
+        let h = ctx.number(f[1], line, "height_m")?;
         let sd = match f.get(2).filter(|s| !s.is_empty()) {
-            Some(s) => ctx.number(s, i + 1, "sd_m").map_err(|e| e.to_string())?,
+            Some(s) => {
+                let sd = ctx.number(s, line, "sd_m")?;
+                if sd < 0.0 {
+                    return Err(ctx.err(
+                        Some(line),
+                        Some("sd_m"),
+                        format!("a σ cannot be negative, found {sd}"),
+                    ));
+                }
+                sd
+            }
             None => 0.0,
         };
         if !(h > 0.0 && h < 3.0) {
-            return Err(ctx
-                .at(i + 1, format!("a head height of {h} m is not plausible"))
-                .to_string());
+            return Err(ctx.err(
+                Some(line),
+                Some("height_m"),
+                format!("a head height of {h} m is not plausible (expected 0 to 3 m)"),
+            ));
         }
-        out.insert(id, (h, sd));
+        if let Some((_, _, first)) = out.insert(id as usize, (h, sd, line)) {
+            return Err(ctx.at(
+                line,
+                format!("track {id} has a height on line {first} already; keep one"),
+            ));
+        }
     }
-    Ok(out)
+    Ok(out
+        .into_iter()
+        .map(|(k, (h, sd, _))| (k, (h, sd)))
+        .collect())
 }
 
 /// The report as Markdown.

@@ -99,59 +99,62 @@ pub struct PoseSolution {
     pub termination: Termination,
 }
 
-/// Ascending eigenvalues of a scatter matrix, relative to the largest.
-fn relative(mut e: Vec<f64>) -> Vec<f64> {
-    e.sort_by(f64::total_cmp);
-    let top = *e.last().expect("non-empty");
-    e.iter()
-        .map(|x| if top > 0.0 { x / top } else { 0.0 })
-        .collect()
-}
-
-fn spread3(pts: &[Vector3<f64>]) -> Vec<f64> {
-    let c = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-    let s = pts
+/// RMS distances of points (rows of `pts`) from their centroid along the principal axes,
+/// largest first.
+fn axes_rms(pts: &nalgebra::DMatrix<f64>) -> Vec<f64> {
+    let n = pts.nrows() as f64;
+    let c = pts.row_mean();
+    let centred = pts - nalgebra::DMatrix::from_fn(pts.nrows(), pts.ncols(), |_, j| c[j]);
+    let s = centred.transpose() * &centred;
+    let mut e: Vec<f64> = SymmetricEigen::new(s)
+        .eigenvalues
         .iter()
-        .fold(Matrix3::zeros(), |s, p| s + (p - c) * (p - c).transpose());
-    relative(SymmetricEigen::new(s).eigenvalues.iter().copied().collect())
+        .map(|l| (l.max(0.0) / n).sqrt())
+        .collect();
+    e.sort_by(|a, b| b.total_cmp(a));
+    e
 }
 
-fn spread2(pts: &[Vector2<f64>]) -> Vec<f64> {
-    let c = pts.iter().sum::<Vector2<f64>>() / pts.len() as f64;
-    let s = pts
-        .iter()
-        .fold(Matrix2::zeros(), |s, p| s + (p - c) * (p - c).transpose());
-    relative(SymmetricEigen::new(s).eigenvalues.iter().copied().collect())
-}
+/// How far from a line points must spread, as a fraction of their extent along it: closer,
+/// the rotation about that line is not determined.
+const MIN_LINE_OFFSET: f64 = 0.01;
 
-/// Rejects inputs no pose can come from: too few points, coincident or collinear GCPs or picks.
+/// Rejects inputs no pose can come from: too few points, coincident GCPs or picks, or GCPs or
+/// picks on one line, within their noise (3 σ) or 1 % of their extent.
 pub fn check_geometry(obs: &[GcpObservation]) -> Result<(), PoseError> {
     if obs.len() < 4 {
         return Err(PoseError::TooFewPoints { got: obs.len() });
     }
-    let world: Vec<Vector3<f64>> = obs.iter().map(|o| o.world).collect();
-    let uv: Vec<Vector2<f64>> = obs.iter().map(|o| o.uv).collect();
-    let ws = spread3(&world);
-    if ws[2] == 0.0 {
+    let world = nalgebra::DMatrix::from_fn(obs.len(), 3, |i, j| obs[i].world[j]);
+    let uv = nalgebra::DMatrix::from_fn(obs.len(), 2, |i, j| obs[i].uv[j]);
+    let ws = axes_rms(&world);
+    if ws[0] == 0.0 {
         return Err(PoseError::Degenerate(
             "all GCPs are at the same position".into(),
         ));
     }
-    if ws[1] < 1e-8 {
-        return Err(PoseError::Degenerate(
-            "the GCPs lie on one line: a pose needs GCPs spread over an area".into(),
-        ));
+    let sigma_world = obs
+        .iter()
+        .map(|o| (o.world_cov.trace().max(0.0) / 3.0).sqrt())
+        .fold(0.0, f64::max);
+    if ws[1] < (3.0 * sigma_world).max(MIN_LINE_OFFSET * ws[0]) {
+        return Err(PoseError::Degenerate(format!(
+            "the GCPs lie on one line (within {:.3} m RMS over {:.1} m): a pose needs GCPs spread over an area",
+            ws[1], ws[0]
+        )));
     }
-    let ps = spread2(&uv);
-    if ps[1] == 0.0 && ps[0] == 0.0 {
+    let ps = axes_rms(&uv);
+    if ps[0] == 0.0 {
         return Err(PoseError::Degenerate(
             "all picks are at the same pixel".into(),
         ));
     }
-    if ps[0] < 1e-8 {
-        return Err(PoseError::Degenerate(
-            "the picks lie on one image line".into(),
-        ));
+    let sigma_px = obs.iter().map(|o| o.sigma_px).fold(0.0, f64::max);
+    if ps[1] < (3.0 * sigma_px).max(MIN_LINE_OFFSET * ps[0]) {
+        return Err(PoseError::Degenerate(format!(
+            "the picks lie on one image line (within {:.2} px RMS over {:.0} px)",
+            ps[1], ps[0]
+        )));
     }
     for (i, a) in obs.iter().enumerate() {
         if let Some(b) = obs[..i].iter().find(|b| (b.uv - a.uv).norm() < 1e-6) {

@@ -126,7 +126,16 @@ pub enum PlanError {
     NoImageSize,
     #[error("the altitude ({altitude} m) must exceed the head height plus its error ({head} m)")]
     TooLow { altitude: f64, head: f64 },
+    #[error(
+        "the maps would have {cells} cells (more than {MAX_MAP_CELLS}): give a larger --map-step"
+    )]
+    MapTooLarge { cells: u64 },
+    #[error("{0} must be a finite number, not negative")]
+    NotFinite(&'static str),
 }
+
+/// The most samples a map may have (each costs a ray intersection and 16 bytes).
+pub const MAX_MAP_CELLS: u64 = 20_000_000;
 
 /// A nadir camera: east along image x, north along image −y.
 struct Nadir {
@@ -161,6 +170,19 @@ impl Nadir {
 /// Plans a flight: footprint, GSD and both error maps.
 pub fn plan(camera: &Camera, s: &PlanSettings) -> Result<Plan, PlanError> {
     let size = camera.image_size.ok_or(PlanError::NoImageSize)?;
+    for (v, name) in [
+        (s.head_height_m, "the head height"),
+        (s.height_error_m, "the height error"),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(PlanError::NotFinite(name));
+        }
+    }
+    let step = u64::from(s.map_step_px.max(1));
+    let cells = (u64::from(size.width) / step + 2) * (u64::from(size.height) / step + 2);
+    if cells > MAX_MAP_CELLS {
+        return Err(PlanError::MapTooLarge { cells });
+    }
     if !(s.altitude_m > s.head_height_m + s.height_error_m.max(0.0)) {
         return Err(PlanError::TooLow {
             altitude: s.altitude_m,

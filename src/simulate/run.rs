@@ -69,6 +69,26 @@ pub enum SimError {
     Output(String),
 }
 
+/// The site's CRS and its tangent frame at the origin.
+fn site_frame(site: &Site) -> Result<(Crs, LocalTangentFrame), SimError> {
+    let crs = Crs::new(&site.crs).map_err(|e| SimError::Input(format!("site.crs: {e}")))?;
+    let o = site.origin;
+    let (lon, lat) = crs
+        .to_lon_lat(o[0], o[1])
+        .ok()
+        .filter(|(lon, lat)| lon.is_finite() && lat.abs() <= 90.0)
+        .ok_or_else(|| {
+            SimError::Input(format!(
+                "site.origin: ({}, {}) is not a position in {}",
+                o[0],
+                o[1],
+                crs.label()
+            ))
+        })?;
+    let tangent = LocalTangentFrame::new(crs.ellipsoid, Geodetic::from_degrees(lat, lon, o[2]));
+    Ok((crs, tangent))
+}
+
 /// The sun's direction (towards the sun) from azimuth and elevation in degrees.
 pub fn sun_vector(azimuth_deg: f64, elevation_deg: f64) -> Vector3<f64> {
     let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
@@ -143,6 +163,15 @@ pub fn simulate(
     let size = camera
         .image_size
         .ok_or_else(|| SimError::Input("the camera has no image size".into()))?;
+    let max = super::scene::MAX_SIDE_PX;
+    if size.width > max || size.height > max {
+        return Err(SimError::Input(format!(
+            "camera: {}x{} pixels; a scene renders at most {max}x{max} (set camera.video_mode)",
+            size.width, size.height
+        )));
+    }
+    // The site, before any frame is rendered.
+    site_frame(&scene.site)?;
     let world = World::new(&scene.ground, &scene.gcp, seed);
     let people = spawn(&scene.people, &world, duration, seed);
     let sun = sun_vector(scene.people.sun_azimuth_deg, scene.people.sun_elevation_deg);
@@ -447,12 +476,7 @@ fn write_gcps(
     if world.gcps.is_empty() {
         return Ok(Vec::new());
     }
-    let crs = Crs::new(&scene.site.crs).map_err(|e| SimError::Input(format!("site.crs: {e}")))?;
-    let o = scene.site.origin;
-    let (lon, lat) = crs
-        .to_lon_lat(o[0], o[1])
-        .map_err(|e| SimError::Input(format!("site.origin: {e}")))?;
-    let tangent = LocalTangentFrame::new(crs.ellipsoid, Geodetic::from_degrees(lat, lon, o[2]));
+    let (crs, tangent) = site_frame(&scene.site)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x6C9_5EED);
     let [sh, sv] = scene.output.gcp_noise_m;
     let (nh, nv) = (

@@ -10,6 +10,10 @@ use serde::Deserialize;
 
 use crate::io::{FileCtx, FileError};
 
+/// The widest or tallest image a scene may render, pixels (8K video is 7680 wide): frame
+/// buffers grow with the area.
+pub const MAX_SIDE_PX: u32 = 8192;
+
 fn default_fps() -> f64 {
     25.0
 }
@@ -339,52 +343,182 @@ impl Scene {
             ctx.err(line, None, format!("not a valid scene: {}", e.message()))
         })?;
         let bad = |field: &str, m: &str| Err(ctx.err(None, Some(field), m.to_string()));
+        if let Some((section, key)) = crate::io::toml_nonfinite_key(text) {
+            let field = if section.is_empty() {
+                key
+            } else {
+                format!("{section}.{key}")
+            };
+            return bad(&field, "expected finite numbers (not nan or inf)");
+        }
         if !(scene.fps > 0.0 && scene.fps <= 240.0) {
             return bad("fps", "must be in (0, 240]");
         }
         if !(scene.duration_s > 0.0 && scene.duration_s <= 3600.0) {
             return bad("duration_s", "must be in (0, 3600]");
         }
+        if let Some([w, h]) = scene.camera.video_mode
+            && !((16..=MAX_SIDE_PX).contains(&w) && (16..=MAX_SIDE_PX).contains(&h))
+        {
+            return bad(
+                "camera.video_mode",
+                &format!("expected [width, height] from 16 to {MAX_SIDE_PX} pixels"),
+            );
+        }
         match scene.people.mode.as_str() {
             "stream" | "group" => {}
             _ => return bad("people.mode", "must be 'stream' or 'group'"),
         }
-        if scene.people.height_m[0] <= 0.5 || scene.people.height_m[1] < 0.0 {
+        let pp = &scene.people;
+        if pp.height_m[0] <= 0.5 || pp.height_m[0] > 2.5 || !(0.0..=0.5).contains(&pp.height_m[1]) {
             return bad(
                 "people.height_m",
-                "expected [mean, sd] with a mean above 0.5 m",
+                "expected [mean, sd] with a mean from 0.5 to 2.5 m and an sd from 0 to 0.5 m",
             );
         }
-        if scene.people.speed_m_s[0] <= 0.0 || scene.people.speed_m_s[1] < 0.0 {
+        let speed_ok = pp.speed_m_s[0] > 0.0
+            && pp.speed_m_s[0] <= 15.0
+            && (0.0..=pp.speed_m_s[0] / 2.0).contains(&pp.speed_m_s[1]);
+        if !speed_ok {
             return bad(
                 "people.speed_m_s",
-                "expected [mean, sd] with a positive mean",
+                "expected [mean, sd] with a mean from 0 to 15 m/s and an sd up to half the mean",
             );
         }
-        if !(1.0..=89.0).contains(&scene.people.sun_elevation_deg) {
+        if pp.count > 10_000 {
+            return bad("people.count", "at most 10000");
+        }
+        if !(pp.rate_per_s > 0.0 && pp.rate_per_s <= 50.0) {
+            return bad("people.rate_per_s", "must be in (0, 50]");
+        }
+        if !(0.0..=60.0).contains(&pp.lane_changes_per_min) {
+            return bad("people.lane_changes_per_min", "must be from 0 to 60");
+        }
+        if !(0.0..=1.0).contains(&pp.light_change) {
+            return bad("people.light_change", "must be from 0 to 1");
+        }
+        if !(0.0..=5.0).contains(&pp.min_spacing_m) {
+            return bad("people.min_spacing_m", "must be from 0 to 5 m");
+        }
+        if !(1.0..=89.0).contains(&pp.sun_elevation_deg) {
             return bad(
                 "people.sun_elevation_deg",
                 "must be between 1 and 89 degrees",
             );
         }
-        if let Motion::Path {
-            waypoints,
-            speed_m_s,
-            ..
-        } = &scene.camera.motion
-            && (waypoints.is_empty() || *speed_m_s <= 0.0)
-        {
-            return bad(
-                "camera.waypoints",
-                "a path needs waypoints and a positive speed_m_s",
-            );
+        let o = &scene.output;
+        if o.checkerboards > 100 {
+            return bad("output.checkerboards", "at most 100");
         }
-        if let Ground::Deck {
-            width_m, length_m, ..
-        } = &scene.ground
-            && (*width_m <= 0.0 || *length_m <= 0.0)
-        {
-            return bad("ground.width_m", "a deck needs a positive width and length");
+        if !(o.gcp_noise_m.iter().all(|v| (0.0..=10.0).contains(v))) {
+            return bad("output.gcp_noise_m", "expected two σ from 0 to 10 m");
+        }
+        if !(0.0..=100.0).contains(&o.pick_noise_px) {
+            return bad("output.pick_noise_px", "must be from 0 to 100 px");
+        }
+        if !(0.0..=100.0).contains(&o.image_noise) {
+            return bad("output.image_noise", "must be from 0 to 100");
+        }
+        let jitter_ok = |j: f64| (0.0..=10.0).contains(&j);
+        match &scene.camera.motion {
+            Motion::Path {
+                waypoints,
+                speed_m_s,
+                jitter_deg,
+                ..
+            } => {
+                if waypoints.is_empty() || !(*speed_m_s > 0.0) {
+                    return bad(
+                        "camera.waypoints",
+                        "a path needs waypoints and a positive speed_m_s",
+                    );
+                }
+                if !jitter_ok(*jitter_deg) {
+                    return bad("camera.motion.jitter_deg", "must be from 0 to 10 degrees");
+                }
+            }
+            Motion::Hover {
+                drift_m,
+                drift_period_s,
+                jitter_deg,
+                ..
+            } => {
+                if !(*drift_m >= 0.0 && *drift_period_s > 0.0 && jitter_ok(*jitter_deg)) {
+                    return bad(
+                        "camera.motion",
+                        "drift_m must not be negative, drift_period_s positive, jitter_deg from 0 to 10",
+                    );
+                }
+            }
+            Motion::Follow {
+                altitude_m,
+                jitter_deg,
+                ..
+            } => {
+                if !(*altitude_m > 2.0 && jitter_ok(*jitter_deg)) {
+                    return bad(
+                        "camera.motion",
+                        "altitude_m must be above 2 m, jitter_deg from 0 to 10",
+                    );
+                }
+            }
+        }
+        match &scene.ground {
+            Ground::Deck {
+                width_m,
+                length_m,
+                height_m,
+                camber_m,
+                ..
+            } => {
+                // People walk at least 0.45 m from the parapets.
+                if !(*width_m >= 1.0 && *length_m > 0.0 && *length_m <= 2000.0) {
+                    return bad(
+                        "ground.width_m",
+                        "a deck needs a width of at least 1 m and a length up to 2000 m",
+                    );
+                }
+                if !(*height_m >= 0.0 && camber_m.abs() <= *length_m) {
+                    return bad(
+                        "ground.height_m",
+                        "height_m must not be negative and camber_m no more than the length",
+                    );
+                }
+            }
+            Ground::Track {
+                lanes,
+                lane_width_m,
+                straight_m,
+                radius_m,
+                ..
+            } => {
+                let track_ok = (1..=12).contains(lanes)
+                    && (0.9..=5.0).contains(lane_width_m)
+                    && *straight_m > 0.0
+                    && *straight_m <= 1000.0
+                    && (1.0..=1000.0).contains(radius_m);
+                if !track_ok {
+                    return bad(
+                        "ground",
+                        "a track needs 1 to 12 lanes of 0.9 to 5 m, straights up to 1000 m and a radius of 1 to 1000 m",
+                    );
+                }
+            }
+        }
+        let mut names = std::collections::HashSet::new();
+        for g in &scene.gcp {
+            if !names.insert(g.name.as_str()) {
+                return bad(
+                    "gcp.name",
+                    &format!("two GCPs are named '{}'", crate::io::clip(&g.name, 40)),
+                );
+            }
+            if g.name.trim().is_empty() || g.name.contains([',', '\n', '"']) {
+                return bad(
+                    "gcp.name",
+                    "a GCP name must be non-empty text without commas or quotes",
+                );
+            }
         }
         if matches!(scene.camera.motion, Motion::Follow { .. }) && scene.people.mode != "group" {
             return bad(

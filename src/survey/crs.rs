@@ -190,7 +190,14 @@ impl AreaOfUse {
     pub fn distance_deg(&self, lon: f64, lat: f64) -> f64 {
         let dlat = (self.south - lat).max(lat - self.north).max(0.0);
         // Longitudes wrap: the distance to the band [west, east] going either way round.
-        let width = (self.east - self.west).rem_euclid(360.0);
+        let width = if self.east >= self.west {
+            self.east - self.west
+        } else {
+            self.east - self.west + 360.0
+        };
+        if width >= 360.0 {
+            return dlat;
+        }
         let from_west = (lon - self.west).rem_euclid(360.0);
         let dlon = if from_west <= width {
             0.0
@@ -613,6 +620,31 @@ mod tests {
                 .message
                 .contains("geocentric")
         );
+    }
+
+    #[test]
+    fn distance_to_the_area_of_use() {
+        let a = |w, s, e, n| AreaOfUse {
+            west: w,
+            south: s,
+            east: e,
+            north: n,
+            name: String::new(),
+        };
+        let world = a(-180.0, -90.0, 180.0, 90.0);
+        assert_eq!(world.distance_deg(4.3, 50.8), 0.0);
+        let utm31 = a(0.0, 0.0, 6.0, 84.0);
+        assert_eq!(utm31.distance_deg(3.0, 50.0), 0.0);
+        assert!((utm31.distance_deg(81.5, 50.0) - 75.5).abs() < 1e-9);
+        assert!((utm31.distance_deg(-2.0, 50.0) - 2.0).abs() < 1e-9);
+        assert!((utm31.distance_deg(3.0, -5.0) - 5.0).abs() < 1e-9);
+        // Across the antimeridian (Fiji).
+        let fiji = a(176.0, -20.0, -178.0, -12.0);
+        assert_eq!(fiji.distance_deg(179.0, -15.0), 0.0);
+        assert_eq!(fiji.distance_deg(-179.0, -15.0), 0.0);
+        assert!((fiji.distance_deg(170.0, -15.0) - 6.0).abs() < 1e-9);
+        let l72 = Crs::new("EPSG:31370").unwrap().area_of_use.unwrap();
+        assert!(l72.distance_deg(4.43, 51.07) == 0.0 && l72.distance_deg(20.0, 51.0) > 10.0);
     }
 
     #[test]

@@ -73,7 +73,8 @@ pub struct Observation {
     /// Pixel, (0, 0) at the centre of the top-left pixel.
     pub uv: Vector2<f64>,
     pub sigma_px: Option<f64>,
-    /// Line of the file it came from.
+    /// The file it came from (the survey's or a picks file) and its line there.
+    pub file: std::path::PathBuf,
     pub line: usize,
 }
 

@@ -230,7 +230,8 @@ impl DeckProfile {
         for w in self.centre_line.windows(2) {
             let d = w[1] - w[0];
             let len = d.norm();
-            if len == 0.0 {
+            // A repeated or non-finite vertex makes no segment (and `clamp` would panic on NaN).
+            if !(len > 0.0 && len.is_finite()) {
                 continue;
             }
             let t = d / len;

@@ -20,12 +20,22 @@ pub struct FrameReader {
 
 impl FrameReader {
     pub fn open(path: &Path) -> Result<FrameReader, String> {
+        if path.is_dir() {
+            return Err(format!(
+                "{}: is a folder; expected a video file",
+                path.display()
+            ));
+        }
         if !path.is_file() {
             return Err(format!("{}: no such video file", path.display()));
         }
         let name = path
             .to_str()
             .ok_or_else(|| format!("{}: not a UTF-8 path", path.display()))?;
+        // OpenCV opens a still image as a video of one frame.
+        if opencv::imgcodecs::have_image_reader(name).unwrap_or(false) {
+            return Err(format!("{}: is an image; expected a video", path.display()));
+        }
         let cap = videoio::VideoCapture::from_file(name, videoio::CAP_ANY)
             .map_err(|e| format!("{}: {e}", path.display()))?;
         if !cap.is_opened().unwrap_or(false) {

@@ -98,14 +98,21 @@ pub fn parse(src: &str) -> Result<Node, SyntaxError> {
             message: "empty document".into(),
         });
     }
-    let mut p = Parser { lines, pos: 0 };
+    let mut p = Parser {
+        lines,
+        pos: 0,
+        depth: 0,
+    };
     let indent = p.lines[0].indent;
     let node = p.block(indent)?;
     if p.pos < p.lines.len() {
         let l = &p.lines[p.pos];
         return Err(SyntaxError {
             line: l.number,
-            message: format!("unexpected indentation before '{}'", l.text),
+            message: format!(
+                "unexpected indentation before '{}'",
+                crate::io::clip(&l.text, 40)
+            ),
         });
     }
     match node {
@@ -137,6 +144,19 @@ fn strip_comment(line: &str) -> &str {
 struct Parser {
     lines: Vec<Line>,
     pos: usize,
+    /// Nesting of block collections, bounded like flow collections'.
+    depth: usize,
+}
+
+/// The deepest nesting of collections read: OpenCV's files nest two or three levels; a bound
+/// keeps a hostile file from exhausting the stack.
+pub const MAX_DEPTH: usize = 64;
+
+fn too_deep(line: usize) -> SyntaxError {
+    SyntaxError {
+        line,
+        message: format!("collections nested more than {MAX_DEPTH} deep"),
+    }
 }
 
 impl Parser {
@@ -151,7 +171,23 @@ impl Parser {
 
     fn block_map(&mut self, indent: usize, tag: Option<String>) -> Result<Node, SyntaxError> {
         let start = self.lines[self.pos].number;
+        self.depth += 1;
+        if self.depth > MAX_DEPTH {
+            return Err(too_deep(start));
+        }
+        let node = self.block_map_entries(indent, tag, start);
+        self.depth -= 1;
+        node
+    }
+
+    fn block_map_entries(
+        &mut self,
+        indent: usize,
+        tag: Option<String>,
+        start: usize,
+    ) -> Result<Node, SyntaxError> {
         let mut entries: Vec<(String, Node)> = Vec::new();
+        let mut keys = std::collections::HashSet::new();
         while self.pos < self.lines.len() {
             let (number, line_indent) = (self.lines[self.pos].number, self.lines[self.pos].indent);
             if line_indent < indent {
@@ -169,12 +205,15 @@ impl Parser {
             }
             let (key, rest) = split_key(&text).ok_or_else(|| SyntaxError {
                 line: number,
-                message: format!("expected 'name: value', found '{text}'"),
+                message: format!(
+                    "expected 'name: value', found '{}'",
+                    crate::io::clip(&text, 40)
+                ),
             })?;
-            if entries.iter().any(|(k, _)| *k == key) {
+            if !keys.insert(key.clone()) {
                 return Err(SyntaxError {
                     line: number,
-                    message: format!("duplicate key '{key}'"),
+                    message: format!("duplicate key '{}'", crate::io::clip(&key, 40)),
                 });
             }
             self.pos += 1;
@@ -230,6 +269,7 @@ impl Parser {
                 s: text.as_bytes(),
                 i: 0,
                 line: number,
+                depth: self.depth,
             };
             let node = f.value()?;
             f.skip_ws();
@@ -257,8 +297,10 @@ impl Parser {
     /// Joins continuation lines until the brackets of a flow collection balance.
     fn gather_flow(&mut self, first: &str, number: usize) -> Result<String, SyntaxError> {
         let mut text = first.to_string();
+        let mut balance = Balance::default();
+        balance.add(first);
         loop {
-            match bracket_balance(&text) {
+            match balance.depth {
                 0 => return Ok(text),
                 b if b < 0 => {
                     return Err(SyntaxError {
@@ -275,6 +317,7 @@ impl Parser {
                     }
                     text.push(' ');
                     text.push_str(&self.lines[self.pos].text);
+                    balance.add(&self.lines[self.pos].text);
                     self.pos += 1;
                 }
             }
@@ -283,6 +326,16 @@ impl Parser {
 
     fn block_seq(&mut self, indent: usize) -> Result<Node, SyntaxError> {
         let start = self.lines[self.pos].number;
+        self.depth += 1;
+        if self.depth > MAX_DEPTH {
+            return Err(too_deep(start));
+        }
+        let node = self.block_seq_items(indent, start);
+        self.depth -= 1;
+        node
+    }
+
+    fn block_seq_items(&mut self, indent: usize, start: usize) -> Result<Node, SyntaxError> {
         let mut items = Vec::new();
         while self.pos < self.lines.len() {
             let l = &self.lines[self.pos];
@@ -316,6 +369,7 @@ impl Parser {
                     s: text.as_bytes(),
                     i: 0,
                     line: number,
+                    depth: self.depth,
                 };
                 items.push(f.value()?);
             } else if split_key(&rest).is_some() {
@@ -373,28 +427,37 @@ fn unquote(s: &str) -> String {
     }
 }
 
-fn bracket_balance(s: &str) -> i32 {
-    let mut depth = 0;
-    let mut in_quote: Option<char> = None;
-    for c in s.chars() {
-        match in_quote {
-            Some(q) if c == q => in_quote = None,
-            Some(_) => {}
-            None => match c {
-                '"' | '\'' => in_quote = Some(c),
-                '[' | '{' => depth += 1,
-                ']' | '}' => depth -= 1,
-                _ => {}
-            },
+/// The nesting of brackets in flow text read so far, outside quotes: lines are added one at a
+/// time, so joining a long collection costs its length once.
+#[derive(Default)]
+struct Balance {
+    depth: i64,
+    in_quote: Option<char>,
+}
+
+impl Balance {
+    fn add(&mut self, s: &str) {
+        for c in s.chars() {
+            match self.in_quote {
+                Some(q) if c == q => self.in_quote = None,
+                Some(_) => {}
+                None => match c {
+                    '"' | '\'' => self.in_quote = Some(c),
+                    '[' | '{' => self.depth += 1,
+                    ']' | '}' => self.depth -= 1,
+                    _ => {}
+                },
+            }
         }
     }
-    depth
 }
 
 struct Flow<'a> {
     s: &'a [u8],
     i: usize,
     line: usize,
+    /// Nesting so far (block collections around it included).
+    depth: usize,
 }
 
 impl Flow<'_> {
@@ -412,6 +475,16 @@ impl Flow<'_> {
     }
 
     fn value(&mut self) -> Result<Node, SyntaxError> {
+        self.depth += 1;
+        if self.depth > MAX_DEPTH {
+            return Err(too_deep(self.line));
+        }
+        let v = self.value_inner();
+        self.depth -= 1;
+        v
+    }
+
+    fn value_inner(&mut self) -> Result<Node, SyntaxError> {
         self.skip_ws();
         match self.s.get(self.i) {
             Some(b'[') => {

@@ -111,7 +111,10 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
             return Err(ctx.err(
                 Some(line_of(&doc, p)),
                 Some("projection"),
-                format!("only frame (pinhole) cameras are supported, found '{kind}'"),
+                format!(
+                    "only frame (pinhole) cameras are supported, found '{}'",
+                    crate::io::clip(kind, 40)
+                ),
             ));
         }
     }
@@ -133,27 +136,40 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
             None => Ok(None),
             Some(n) => {
                 let t = n.text().unwrap_or("").trim();
-                t.parse::<f64>().map(Some).map_err(|_| {
-                    ctx.err(Some(line_of(&doc, n)), Some(name), format!("expected a number, found '{t}'"))
-                })
+                ctx.number(t, line_of(&doc, n), name).map(Some)
             }
         }
     };
     let width = number("width", true)?.unwrap_or(0.0);
     let height = number("height", true)?.unwrap_or(0.0);
-    if width < 1.0 || height < 1.0 || width.fract() != 0.0 || height.fract() != 0.0 {
+    let side = 1.0..=f64::from(crate::camera::MAX_IMAGE_SIDE);
+    if !side.contains(&width)
+        || !side.contains(&height)
+        || width.fract() != 0.0
+        || height.fract() != 0.0
+    {
         return Err(ctx.err(
             None,
             Some("width"),
-            "width and height must be positive whole numbers of pixels",
+            format!(
+                "width and height must be whole numbers of pixels from 1 to {}",
+                crate::camera::MAX_IMAGE_SIDE
+            ),
         ));
     }
     let mut ms = [0.0; 11];
     for (i, name) in MS_NAMES.iter().enumerate() {
         ms[i] = number(name, *name == "f")?.unwrap_or(0.0);
     }
-    if ms[MS_F] <= 0.0 {
-        return Err(ctx.err(None, Some("f"), "focal length f must be positive"));
+    if !(1.0..=crate::camera::MAX_FOCAL_PX).contains(&ms[MS_F]) {
+        return Err(ctx.err(
+            None,
+            Some("f"),
+            format!(
+                "a focal length f of {} px is not plausible (expected 1 to 1e7 px)",
+                ms[MS_F]
+            ),
+        ));
     }
     for name in ["p3", "p4"] {
         if number(name, false)?.is_some_and(|v| v != 0.0) {
@@ -243,7 +259,7 @@ fn read_covariance(
         .collect::<Result<_, _>>()
         .map_err(|_| ctx.err(line, Some("covariance/coeffs"), "expected numbers"))?;
     let n = params.len();
-    if n == 0 || coeffs.len() != n * n {
+    if n > MS_NAMES.len() || n == 0 || coeffs.len() != n * n {
         return Err(ctx.err(
             line,
             Some("covariance"),
@@ -257,13 +273,21 @@ fn read_covariance(
     let mut idx = Vec::with_capacity(n);
     for p in &params {
         match MS_NAMES.iter().position(|m| m == p) {
+            Some(i) if idx.contains(&i) => {
+                return Err(ctx.err(
+                    line,
+                    Some("covariance/params"),
+                    format!("'{p}' is named twice"),
+                ));
+            }
             Some(i) => idx.push(i),
             None => {
                 return Err(ctx.err(
                     line,
                     Some("covariance/params"),
                     format!(
-                        "unknown parameter '{p}' (expected some of {})",
+                        "unknown parameter '{}' (expected some of {})",
+                        crate::io::clip(p, 20),
                         MS_NAMES.join(" ")
                     ),
                 ));
@@ -310,11 +334,13 @@ fn refit_k4(cam: &Camera, k1: f64, k2: f64, k3: f64, k4: f64) -> ([f64; 3], f64)
         a[(i, 2)] = r * r2 * r2 * r2;
         rhs[i] = r * (k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2 + k4 * r2 * r2 * r2 * r2);
     }
-    let sol = a
-        .clone()
-        .svd(true, true)
-        .solve(&rhs, 1e-15)
-        .expect("svd solve");
+    // Out of range numbers (a principal point far outside the image) make no fit.
+    if !(a.iter().chain(rhs.iter()).all(|v| v.is_finite())) {
+        return ([k1, k2, k3], f64::INFINITY);
+    }
+    let Ok(sol) = a.clone().svd(true, true).solve(&rhs, 1e-15) else {
+        return ([k1, k2, k3], f64::INFINITY);
+    };
     let residual = a * &sol - rhs;
     let max_err = residual.amax() * cam.fx.max(cam.fy);
     ([sol[0], sol[1], sol[2]], max_err)

@@ -82,11 +82,14 @@ pub fn parse(path: &Path, text: &str, format: Option<Format>) -> Result<Calibrat
             ));
         }
     };
-    match format {
+    let cal = match format {
         Format::OpenCvYaml => opencv::parse(&ctx, text),
         Format::Metashape => metashape::parse(&ctx, text),
         Format::Json => json::parse(&ctx, text),
-    }
+    }?;
+    cal.validate()
+        .map_err(|(field, message)| ctx.err(None, Some(field), message))?;
+    Ok(cal)
 }
 
 /// Renders a calibration in a format.

@@ -106,7 +106,7 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
             format!(
                 "no camera matrix: expected one of {} (found keys: {})",
                 CAMERA_MATRIX_KEYS.join(", "),
-                found.join(", ")
+                crate::io::clip(&found.join(", "), 200)
             ),
         ));
     };

@@ -184,6 +184,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
 
     let mut points: Vec<Gcp> = Vec::new();
     let mut dropped = Vec::new();
+    let mut names = super::Names::default();
     let mut same_heights = true;
     let cell = |r: &super::table::Row, c: usize| {
         r.fields
@@ -192,8 +193,16 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             .unwrap_or_default()
     };
     for r in &rows {
+        let fields: Vec<&str> = r.fields.iter().map(String::as_str).collect();
+        ctx.field_count(
+            &fields,
+            r.line,
+            1,
+            header.fields.len(),
+            "the header's columns",
+        )?;
         let name = cell(r, name_col);
-        if !super::admit_name(ctx, &points, &mut dropped, &name, r.line)? {
+        if !names.admit(ctx, &mut dropped, &name, r.line)? {
             continue;
         }
         let num = |c: usize, field: &str| ctx.number(&cell(r, c), r.line, field);
@@ -221,9 +230,9 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             let s = [cell(r, a), cell(r, b), cell(r, c)];
             if s.iter().all(|v| !v.is_empty()) {
                 gcp.sigma_m = Some(Vector3::new(
-                    ctx.number(&s[0], r.line, "Easting RMS")?,
-                    ctx.number(&s[1], r.line, "Northing RMS")?,
-                    ctx.number(&s[2], r.line, "Elevation RMS")?,
+                    ctx.positive(&s[0], r.line, "Easting RMS")?,
+                    ctx.positive(&s[1], r.line, "Northing RMS")?,
+                    ctx.positive(&s[2], r.line, "Elevation RMS")?,
                 ));
             }
         }

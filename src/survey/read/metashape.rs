@@ -96,7 +96,9 @@ pub(super) fn read(
             .is_some_and(|f| f.trim().parse::<f64>().is_err())
     };
 
-    // Column indices: --columns, else (Metashape) a header comment or the default order.
+    // Column indices: --columns, else (Metashape) a header comment or the default order. The
+    // header's width, when there is one, bounds every row's.
+    let mut header_width: Option<usize> = None;
     let columns: Vec<(Field, usize)> = match &opts.columns {
         Some(map) => {
             let names_columns = map
@@ -112,6 +114,7 @@ pub(super) fn read(
             } else {
                 None
             };
+            header_width = header.as_ref().map(|h| h.fields.len());
             map.resolve(ctx, header.as_ref())?
         }
         None if format == SurveyFormat::Csv => {
@@ -123,16 +126,20 @@ pub(super) fn read(
         }
         None => {
             let from_comment = table.comments.iter().rev().find_map(|(_, c)| {
-                map_from_header(
-                    &c.split([',', '\t', ';'])
-                        .map(str::to_string)
-                        .collect::<Vec<_>>(),
-                )
+                let fields = c
+                    .split([',', '\t', ';'])
+                    .map(str::to_string)
+                    .collect::<Vec<_>>();
+                map_from_header(&fields).map(|m| (m, fields.len()))
             });
             match from_comment {
-                Some(m) => m,
+                Some((m, width)) => {
+                    header_width = Some(width);
+                    m
+                }
                 None if first_is_header(&rows, 1) => {
                     let header = rows.remove(0);
+                    header_width = Some(header.fields.len());
                     map_from_header(&header.fields).ok_or_else(|| {
                         ctx.err(
                             Some(header.line),
@@ -166,10 +173,25 @@ pub(super) fn read(
 
     let mut points: Vec<Gcp> = Vec::new();
     let mut dropped = Vec::new();
+    let mut names = super::Names::default();
     let mut warnings = Vec::new();
     let used_max = columns.iter().map(|(_, i)| *i).max().unwrap_or(0);
     let mut extra_columns = false;
+    // Without a header, the first row sets the width: a longer row is a shifted one.
+    let width = header_width.or_else(|| rows.first().map(|r| r.fields.len()));
     for r in rows {
+        if let Some(w) = width
+            && r.fields.len() > w
+        {
+            let fields: Vec<&str> = r.fields.iter().map(String::as_str).collect();
+            ctx.field_count(
+                &fields,
+                r.line,
+                1,
+                w,
+                "as many as the header or the first row",
+            )?;
+        }
         let cell = |i: Option<usize>| {
             i.and_then(|i| r.fields.get(i))
                 .map(|s| s.trim())
@@ -189,7 +211,7 @@ pub(super) fn read(
             Some(_) => cell(get(Field::Name)).to_string(),
             None => format!("P{}", points.len() + 1),
         };
-        if !super::admit_name(ctx, &points, &mut dropped, &name, r.line)? {
+        if !names.admit(ctx, &mut dropped, &name, r.line)? {
             continue;
         }
         let x = ctx.number(cell(get(Field::X)), r.line, "x")?;
@@ -204,7 +226,7 @@ pub(super) fn read(
         let sig = |f: Field, label: &str| -> Result<Option<f64>, SurveyError> {
             match cell(get(f)) {
                 "" => Ok(None),
-                t => ctx.number(t, r.line, label).map(Some),
+                t => ctx.positive(t, r.line, label).map(Some),
             }
         };
         let all = sig(Field::Sigma, "sigma")?;

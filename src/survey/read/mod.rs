@@ -149,7 +149,64 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Survey, SurveyError> {
         None => {}
     }
     resolve_height(&ctx, &mut survey, opts)?;
+    check_positions(&ctx, &mut survey)?;
     Ok(survey)
+}
+
+/// How far outside its CRS's area of use a point may lie, degrees, before it is an error: a CRS
+/// is often used somewhat beyond its official area (Norway maps in UTM 33), but not across a
+/// continent (swapped or mistyped coordinates, the wrong CRS).
+pub const AREA_MARGIN_DEG: f64 = 10.0;
+
+/// Coordinates that fit the CRS: latitudes within ±90° and longitudes within ±360° for a
+/// geographic CRS, and every point within [`AREA_MARGIN_DEG`] of the CRS's area of use (a
+/// warning beyond 1°).
+fn check_positions(ctx: &Ctx, survey: &mut Survey) -> Result<(), SurveyError> {
+    let Some(spec) = &survey.crs else {
+        return Ok(());
+    };
+    let crs = Crs::new(spec).map_err(|e| ctx.err(None, None, e.to_string()))?;
+    let geographic = crs.horizontal == crate::survey::crs::Horizontal::Geographic;
+    let mut worst: Option<(f64, usize, String)> = None;
+    for p in &survey.points {
+        let (x, y) = (p.position.x, p.position.y);
+        if geographic && !((-90.0..=90.0).contains(&y) && (-360.0..=360.0).contains(&x)) {
+            return Err(ctx.at(
+                p.line,
+                format!(
+                    "'{}': longitude {x}, latitude {y} are out of range (a latitude is within ±90°): are the columns swapped, or is the CRS wrong?",
+                    crate::io::clip(&p.name, 40)
+                ),
+            ));
+        }
+        let (lon, lat) = crs
+            .to_lon_lat(x, y)
+            .map_err(|e| ctx.at(p.line, e.to_string()))?;
+        if let Some(area) = &crs.area_of_use {
+            let d = area.distance_deg(lon, lat);
+            if d > AREA_MARGIN_DEG {
+                return Err(ctx.at(
+                    p.line,
+                    format!(
+                        "'{}' ({x}, {y}) is at longitude {lon:.3}°, latitude {lat:.3}°, {d:.0}° outside where {} is used ({}): are the coordinates or the CRS wrong?",
+                        crate::io::clip(&p.name, 40),
+                        crs.label(),
+                        area.name
+                    ),
+                ));
+            }
+            if d > 1.0 && worst.as_ref().is_none_or(|w| d > w.0) {
+                worst = Some((d, p.line, area.name.clone()));
+            }
+        }
+    }
+    if let Some((d, line, area)) = worst {
+        survey.warnings.push(format!(
+            "points lie up to {d:.1}° outside where {} is meant to be used ({area}; line {line}): check the CRS",
+            crs.label()
+        ));
+    }
+    Ok(())
 }
 
 /// Settles what the heights mean: what the CRS says, what the reader found, or `--height`;
@@ -257,32 +314,38 @@ pub fn assign_roles(
     Ok(())
 }
 
-/// Whether a row's point name may start a new point: an empty name is a dropped row (Ok(false)),
-/// a name seen before is an error naming both lines.
-pub(crate) fn admit_name(
-    ctx: &Ctx,
-    points: &[super::model::Gcp],
-    dropped: &mut Vec<super::model::Dropped>,
-    name: &str,
-    line: usize,
-) -> Result<bool, SurveyError> {
-    if name.is_empty() {
-        dropped.push(super::model::Dropped {
-            line,
-            reason: "no point name".into(),
-        });
-        return Ok(false);
+/// The names of the points read so far, with their lines, to refuse a second point of a name.
+#[derive(Default)]
+pub(crate) struct Names(HashMap<String, usize>);
+
+impl Names {
+    /// Whether a row's point name may start a new point: an empty name is a dropped row
+    /// (Ok(false)), a name seen before is an error naming both lines.
+    pub(crate) fn admit(
+        &mut self,
+        ctx: &Ctx,
+        dropped: &mut Vec<super::model::Dropped>,
+        name: &str,
+        line: usize,
+    ) -> Result<bool, SurveyError> {
+        if name.is_empty() {
+            dropped.push(super::model::Dropped {
+                line,
+                reason: "no point name".into(),
+            });
+            return Ok(false);
+        }
+        if let Some(prev) = self.0.insert(name.to_string(), line) {
+            return Err(ctx.at(
+                line,
+                format!(
+                    "duplicate point name '{}' (first on line {prev})",
+                    crate::io::clip(name, 40)
+                ),
+            ));
+        }
+        Ok(true)
     }
-    if let Some(prev) = points.iter().find(|p| p.name == name) {
-        return Err(ctx.at(
-            line,
-            format!(
-                "duplicate point name '{name}' (first on line {})",
-                prev.line
-            ),
-        ));
-    }
-    Ok(true)
 }
 
 /// Warns about, or with `fix_only` drops, points whose solution is not FIX.

@@ -2,6 +2,8 @@
 //! separated by spaces or tabs, `#` comments. Pixels are (column, row) with (0, 0) at the centre
 //! of the top-left pixel, as in geostride. For `EPSG:4326`, x is the longitude.
 
+use std::collections::{HashMap, HashSet};
+
 use nalgebra::{Vector2, Vector3};
 
 use super::ReadOptions;
@@ -36,23 +38,24 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     } else {
         3
     };
-    let mut unnamed_keys: Vec<(String, String)> = Vec::new();
+    // Coordinates text -> generated name, and the generated names taken.
+    let mut unnamed_keys: HashMap<String, String> = HashMap::new();
+    let mut unnamed_names: HashSet<String> = HashSet::new();
+    let mut index: HashMap<String, usize> = HashMap::new();
+    // (point, image) -> line: a point is picked once per image.
+    let mut picked: HashMap<(usize, String), usize> = HashMap::new();
 
     let mut points: Vec<Gcp> = Vec::new();
     for (line, l) in lines {
         if l.is_empty() {
             continue;
         }
-        let f: Vec<&str> = l.split_whitespace().collect();
-        if f.len() < 6 {
-            return Err(ctx.at(
-                line,
-                format!(
-                    "expected 'x y z u v image [name]', found {} field(s): '{l}'",
-                    f.len()
-                ),
-            ));
+        if l.len() > crate::io::MAX_LINE_BYTES {
+            return Err(ctx.at(line, "a line of a gcp_list.txt longer than 1 MiB"));
         }
+        let f: Vec<&str> = l.split_whitespace().collect();
+        // OpenDroneMap reads x y z u v image [name] and ignores what follows.
+        ctx.field_count(&f, line, 6, usize::MAX, "x y z u v image [name]")?;
         let x = ctx.number(f[0], line, "x")?;
         let y = ctx.number(f[1], line, "y")?;
         // NaN is how OpenDroneMap writes an unknown height.
@@ -63,18 +66,18 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             Some(n) => n.to_string(),
             None => {
                 let key = format!("{} {} {}", f[0], f[1], f[2]);
-                match unnamed_keys.iter().find(|(k, _)| *k == key) {
-                    Some((_, n)) => n.clone(),
+                match unnamed_keys.get(&key) {
+                    Some(n) => n.clone(),
                     None => {
                         let base = format!("{x:.decimals$},{y:.decimals$},{z:.3}");
-                        let taken = |n: &str| unnamed_keys.iter().any(|(_, m)| m == n);
                         let mut n = base.clone();
                         let mut k = 2;
-                        while taken(&n) {
+                        while unnamed_names.contains(&n) {
                             n = format!("{base}#{k}");
                             k += 1;
                         }
-                        unnamed_keys.push((key, n.clone()));
+                        unnamed_names.insert(n.clone());
+                        unnamed_keys.insert(key, n.clone());
                         n
                     }
                 }
@@ -85,30 +88,44 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             image: f[5].to_string(),
             uv: Vector2::new(u, v),
             sigma_px: None,
+            file: ctx.path.to_path_buf(),
             line,
         };
         let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
-        match points.iter_mut().find(|p| p.name == name) {
-            Some(p) => {
+        let k = match index.get(&name) {
+            Some(&k) => {
+                let p = &points[k];
                 if !(same(p.position.x, x) && same(p.position.y, y) && same(p.position.z, z)) {
                     return Err(ctx.at(
                         line,
                         format!(
-                            "point '{name}' has other coordinates than on line {} ({:?} vs {:?})",
+                            "point '{}' has other coordinates than on line {} ({:?} vs {:?})",
+                            crate::io::clip(&name, 40),
                             p.line,
                             (p.position.x, p.position.y, p.position.z),
                             (x, y, z)
                         ),
                     ));
                 }
-                p.observations.push(obs);
+                k
             }
             None => {
-                let mut g = Gcp::new(name, position, line);
-                g.observations.push(obs);
-                points.push(g);
+                index.insert(name.clone(), points.len());
+                points.push(Gcp::new(name, position, line));
+                points.len() - 1
             }
+        };
+        if let Some(first) = picked.insert((k, obs.image.clone()), line) {
+            return Err(ctx.at(
+                line,
+                format!(
+                    "'{}' is picked twice in image '{}' (lines {first} and {line}); keep one",
+                    crate::io::clip(&points[k].name, 40),
+                    crate::io::clip(&obs.image, 60)
+                ),
+            ));
         }
+        points[k].observations.push(obs);
     }
     if points.is_empty() {
         return Err(ctx.err(None, None, "no GCP rows after the CRS line"));

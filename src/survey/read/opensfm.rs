@@ -3,6 +3,8 @@
 //! image coordinates, converted to pixels:
 //! `u = x·max(w, h) + w/2 − 0.5`, `v = y·max(w, h) + h/2 − 0.5`.
 
+use std::collections::{HashMap, HashSet};
+
 use nalgebra::{Vector2, Vector3};
 use serde::Deserialize;
 
@@ -55,23 +57,41 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
         ctx.err(
             Some(e.line()),
             None,
-            format!("not an OpenSfM ground_control_points.json: {e}"),
+            format!(
+                "not an OpenSfM ground_control_points.json: {}",
+                crate::io::clip(&e.to_string(), 200)
+            ),
         )
     })?;
-    // Line numbers of the points, for messages: the line where each id appears.
-    let line_of = |id: &str| {
-        let key = format!("\"{id}\"");
-        text.lines()
-            .position(|l| l.contains(&key))
-            .map_or(1, |i| i + 1)
-    };
+    if file.points.is_empty() {
+        return Err(ctx.err(None, Some("points"), "no points"));
+    }
+    // Line numbers of the points, for messages: the first line where each id appears, found in
+    // one pass over the lines that hold an "id" key.
+    let mut lines_of: HashMap<&str, usize> = HashMap::new();
+    for (i, l) in text.lines().enumerate() {
+        let mut rest = l;
+        while let Some(k) = rest.find("\"id\"") {
+            rest = &rest[k + 4..];
+            let Some(q) = rest.find('"') else { break };
+            rest = &rest[q + 1..];
+            let Some(end) = rest.find('"') else { break };
+            lines_of.entry(&rest[..end]).or_insert(i + 1);
+            rest = &rest[end + 1..];
+        }
+    }
+    let line_of = |id: &str| lines_of.get(id).copied().unwrap_or(1);
     let mut points: Vec<Gcp> = Vec::new();
+    let mut ids: HashSet<String> = HashSet::new();
     let mut dropped = Vec::new();
     let mut missing_alt = 0;
     for p in file.points {
         let line = line_of(&p.id);
-        if points.iter().any(|q| q.name == p.id) {
-            return Err(ctx.at(line, format!("duplicate point id '{}'", p.id)));
+        if !ids.insert(p.id.clone()) {
+            return Err(ctx.at(
+                line,
+                format!("duplicate point id '{}'", crate::io::clip(&p.id, 40)),
+            ));
         }
         let Some(pos) = p.position else {
             dropped.push(crate::survey::model::Dropped {
@@ -98,6 +118,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
                     image: o.shot_id,
                     uv: pixel_from_normalized(o.projection, w, h),
                     sigma_px: None,
+                    file: ctx.path.to_path_buf(),
                     line,
                 });
             }

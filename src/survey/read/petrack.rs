@@ -19,9 +19,15 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     let count: usize = count_text.parse().map_err(|_| {
         ctx.at(
             count_line,
-            format!("expected the number of points, found '{count_text}'"),
+            format!(
+                "expected the number of points, found '{}'",
+                crate::io::clip(count_text, 40)
+            ),
         )
     })?;
+    if count == 0 {
+        return Err(ctx.at(count_line, "the count line says 0 points: no points"));
+    }
     let image = opts.image.clone().unwrap_or_else(|| "petrack-image".into());
     let mut points = Vec::new();
     for (line, l) in lines {
@@ -46,6 +52,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
                 image: image.clone(),
                 uv: Vector2::new(ctx.number(f[3], line, "px")?, ctx.number(f[4], line, "py")?),
                 sigma_px: None,
+                file: ctx.path.to_path_buf(),
                 line,
             });
         }

@@ -1,6 +1,7 @@
 //! Pixel picks of GCPs: CSV rows `name,image,u,v[,sigma]` (a header line is optional), merged
 //! into a survey by point name. Pixels have (0, 0) at the centre of the top-left pixel.
 
+use std::collections::HashMap;
 use std::path::Path;
 
 use nalgebra::Vector2;
@@ -14,33 +15,59 @@ pub fn read_picks(path: &Path, survey: &mut Survey) -> Result<usize, SurveyError
     let ctx = Ctx { path };
     let text = ctx.read_text("a CSV of picks")?;
     let table = read_table(&ctx, &text, sniff_delimiter(&text))?;
-    let mut added = 0;
-    for (i, r) in table.rows.iter().enumerate() {
-        if r.fields.len() < 4 {
-            return Err(ctx.at(
-                r.line,
-                format!(
-                    "expected 'name,image,u,v[,sigma]', found {} field(s)",
-                    r.fields.len()
-                ),
-            ));
+    let index: HashMap<String, usize> = survey
+        .points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (p.name.clone(), i))
+        .collect();
+    // (point, image) -> line, to refuse a second pick of a point in one image.
+    let mut seen: HashMap<(usize, String), usize> = HashMap::new();
+    for p in &survey.points {
+        for o in &p.observations {
+            if o.file == path {
+                seen.insert((index[&p.name], o.image.clone()), o.line);
+            }
         }
+    }
+    let mut added = 0;
+    let mut rows = 0;
+    for (i, r) in table.rows.iter().enumerate() {
+        let fields: Vec<&str> = r.fields.iter().map(String::as_str).collect();
+        ctx.field_count(&fields, r.line, 4, 5, "name,image,u,v[,sigma]")?;
         if i == 0 && r.fields[2].trim().parse::<f64>().is_err() {
             continue; // header
         }
+        rows += 1;
         let u = ctx.number(&r.fields[2], r.line, "u")?;
         let v = ctx.number(&r.fields[3], r.line, "v")?;
         let sigma_px = match r.fields.get(4).map(|s| s.trim()).filter(|s| !s.is_empty()) {
-            Some(s) => Some(ctx.number(s, r.line, "sigma")?),
+            Some(s) => Some(ctx.positive(s, r.line, "sigma")?),
             None => None,
         };
         let name = r.fields[0].trim();
-        match survey.points.iter_mut().find(|p| p.name == name) {
-            Some(p) => {
-                p.observations.push(Observation {
-                    image: r.fields[1].trim().to_string(),
+        let image = r.fields[1].trim().to_string();
+        if image.is_empty() {
+            return Err(ctx.err(Some(r.line), Some("image"), "no image name"));
+        }
+        match index.get(name) {
+            Some(&k) => {
+                if let Some(first) = seen.insert((k, image.clone()), r.line) {
+                    return Err(ctx.at(
+                        r.line,
+                        format!(
+                            "'{}' is picked twice in image '{}' (lines {first} and {}); keep one",
+                            crate::io::clip(name, 40),
+                            crate::io::clip(&image, 60),
+                            r.line
+                        ),
+                    ));
+                }
+                survey.points[k].observations.push(Observation {
+                    image,
                     uv: Vector2::new(u, v),
                     sigma_px,
+                    file: path.to_path_buf(),
                     line: r.line,
                 });
                 added += 1;
@@ -48,12 +75,20 @@ pub fn read_picks(path: &Path, survey: &mut Survey) -> Result<usize, SurveyError
             None => survey.dropped.push(Dropped {
                 line: r.line,
                 reason: format!(
-                    "pick of '{name}' in {}: no such point in {}",
+                    "pick of '{}' in {}: no such point in {}",
+                    crate::io::clip(name, 40),
                     path.display(),
                     survey.source.display()
                 ),
             }),
         }
+    }
+    if rows == 0 {
+        return Err(ctx.err(
+            None,
+            None,
+            "no picks: expected rows of 'name,image,u,v[,sigma]'",
+        ));
     }
     Ok(added)
 }

@@ -55,19 +55,51 @@ pub(crate) fn read_table(ctx: &Ctx, text: &str, delimiter: u8) -> Result<Table, 
             comments.push((i + 1, c.trim().to_string()));
         }
     }
+    // Comment lines are blanked (same length, so byte offsets hold) rather than left to the csv
+    // crate, and lines come from byte offsets: the crate's line numbers skip comments.
+    let blanked: String = text
+        .split_inclusive('\n')
+        .map(|l| {
+            if l.trim_start().starts_with('#') {
+                l.chars()
+                    .map(|c| if c == '\n' || c == '\r' { c } else { ' ' })
+                    .collect::<String>()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect();
+    let starts: Vec<usize> = std::iter::once(0)
+        .chain(text.match_indices('\n').map(|(i, _)| i + 1))
+        .collect();
+    let bytes = blanked.as_bytes();
+    // The line of the first character at or after `byte` that is not blank.
+    let line_at = |byte: u64| {
+        let mut b = byte as usize;
+        while b < bytes.len() && bytes[b].is_ascii_whitespace() {
+            b += 1;
+        }
+        starts.partition_point(|&s| s <= b)
+    };
     let mut reader = csv::ReaderBuilder::new()
         .delimiter(delimiter)
         .has_headers(false)
         .flexible(true)
-        .comment(Some(b'#'))
         .trim(csv::Trim::All)
-        .from_reader(text.as_bytes());
+        .from_reader(bytes);
     for rec in reader.records() {
         let rec = rec.map_err(|e| {
-            let line = e.position().map(|p| p.line() as usize);
-            ctx.err(line, None, format!("not valid CSV: {e}"))
+            let line = e.position().map(|p| line_at(p.byte()));
+            ctx.err(
+                line,
+                None,
+                format!("not valid CSV: {}", crate::io::clip(&e.to_string(), 200)),
+            )
         })?;
-        let line = rec.position().map_or(0, |p| p.line() as usize);
+        let line = rec.position().map_or(0, |p| line_at(p.byte()));
+        if rec.as_slice().len() > crate::io::MAX_LINE_BYTES {
+            return Err(ctx.at(line, "a row longer than 1 MiB: is it the right file?"));
+        }
         if rec.iter().all(|f| f.is_empty()) {
             continue;
         }

@@ -394,7 +394,21 @@ fn roles_picks_and_height_conflicts() {
     assert_eq!(s.dropped.len(), 1);
     assert!(s.dropped[0].reason.contains("'X'"));
 
+    // Coordinates that are not in the CRS given (UTM 31N as Belgian Lambert 72: the Arctic).
+    let opts = ReadOptions {
+        crs: Some("EPSG:6190".into()),
+        ..ReadOptions::default()
+    };
+    let e = read(&p, &opts).unwrap_err();
+    assert!(e.message.contains("outside where"), "{e}");
+    assert_eq!(e.line, Some(2));
+
     // A compound CRS says orthometric; --height ellipsoidal contradicts it.
+    let p = write(
+        dir.path(),
+        "r72.csv",
+        "#CoordinateSystem: x (EPSG::31370)\nA,150000,170000,45\nB,150010,170010,46\n",
+    );
     let opts = ReadOptions {
         crs: Some("EPSG:6190".into()),
         height: Some(HeightChoice::Ellipsoidal),
@@ -410,4 +424,27 @@ fn roles_picks_and_height_conflicts() {
         read(&p, &opts).unwrap().height,
         HeightKind::Orthometric(Some(_))
     ));
+}
+
+#[test]
+fn rows_after_comment_lines_keep_their_line_numbers() {
+    // The csv crate does not count comment lines: a Metashape file's header comments shifted
+    // every row's line in messages.
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(
+        dir.path(),
+        "m.csv",
+        "#CoordinateSystem: x (EPSG::31370)\n#Label,X,Y,Z\nA,150000,170000,45\n# note\nB,150010,abc,46\n",
+    );
+    let e = read(&p, &ReadOptions::default()).unwrap_err();
+    assert_eq!(e.line, Some(5), "{e}");
+    // A decimal comma shifts the columns: more fields than the header names.
+    let p = write(
+        dir.path(),
+        "m2.csv",
+        "#CoordinateSystem: x (EPSG::31370)\n#Label,X,Y,Z\nA,150000,5,170000,2,45,1\n",
+    );
+    let e = read(&p, &ReadOptions::default()).unwrap_err();
+    assert_eq!(e.line, Some(3), "{e}");
+    assert!(e.message.contains("decimal commas"), "{e}");
 }

@@ -8,6 +8,22 @@ use opencv::prelude::*;
 
 use crate::simulate::board::GrayImage;
 
+/// Whether OpenCV can write an image named `path` (its extension names a format it encodes).
+pub fn check_writable(path: &Path) -> Result<(), String> {
+    let known = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| imgcodecs::have_image_writer(&format!("x.{e}")).unwrap_or(false));
+    if known {
+        Ok(())
+    } else {
+        Err(format!(
+            "{}: cannot tell the image format from the extension; use .jpg, .png or .tif",
+            path.display()
+        ))
+    }
+}
+
 /// Encodes a Mat in the format of `path`'s extension and writes it atomically.
 pub(crate) fn encode_to(path: &Path, mat: &impl opencv::core::ToInputArray) -> Result<(), String> {
     let ext = path

@@ -228,16 +228,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         quiet: args.quiet || args.json,
     };
     // Refuse an unwritable output format before the work, not after it.
-    let format = match (args.format, &args.output) {
-        (Some(f), _) => Some(Format::from(f)),
-        (None, Some(p)) => Some(Format::from_extension(p).ok_or_else(|| {
-            bad_input(anyhow!(
-                "{}: cannot tell the output format from the extension; use .yaml (OpenCV), .json \
-                 (geostride) or .xml (Metashape), or pass --format",
-                p.display()
-            ))
-        })?),
-        (None, None) => None,
+    let format = match &args.output {
+        Some(p) => {
+            Some(formats::output_format(p, args.format.map(Format::from)).map_err(bad_input)?)
+        }
+        None => args.format.map(Format::from),
     };
     if let Some(out) = &args.output {
         check_output_file(out, &job.inputs)?;
@@ -246,7 +241,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let written = match &args.output {
         Some(path) => {
             let cal = outcome.result.to_calibration();
-            formats::write(&cal, path, format).map_err(bad_input)?;
+            formats::write(&cal, path, format).map_err(super::write_error)?;
             Some((path.clone(), format.expect("format chosen with the output")))
         }
         None => None,

@@ -67,6 +67,7 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             image_size,
         } => {
             check_output_file(&output, [&input])?;
+            formats::output_format(&output, to.map(Format::from)).map_err(bad_input)?;
             let mut cal = formats::read(&input, from.map(Format::from)).map_err(bad_input)?;
             if let Some((w, h)) = image_size {
                 match cal.camera.image_size {
@@ -89,7 +90,8 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             for n in &cal.notes {
                 eprintln!("note: {n}");
             }
-            let f = formats::write(&cal, &output, to.map(Format::from)).map_err(bad_input)?;
+            let f =
+                formats::write(&cal, &output, to.map(Format::from)).map_err(super::write_error)?;
             println!("Written: {} ({})", output.display(), f.name());
             Ok(())
         }

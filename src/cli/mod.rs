@@ -135,6 +135,15 @@ pub(crate) fn output_error(e: crate::io::OutputError) -> anyhow::Error {
     }
 }
 
+/// A calibration not written: exit 2 when the calibration or the name is the problem, 1 when the
+/// file system failed.
+pub(crate) fn write_error(e: formats::WriteError) -> anyhow::Error {
+    match e {
+        formats::WriteError::Format(f) => bad_input(f),
+        io => anyhow::Error::new(io),
+    }
+}
+
 /// Refuses, before any work, an output file that is a folder, whose folder does not exist, or
 /// that would replace one of `inputs`.
 pub(crate) fn check_output_file<P: AsRef<Path>>(

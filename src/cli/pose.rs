@@ -640,7 +640,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mut inputs = vec![args.gcps.clone()];
         inputs.extend(args.image.iter().cloned());
         inputs.extend(args.read.picks.iter().cloned());
+        inputs.push(PathBuf::from(&args.camera));
         check_output_file(a, &inputs)?;
+        crate::imageio::check_writable(a).map_err(|e| bad_input(anyhow!(e)))?;
     }
     let seen = seen_in(&framed, &image, args.pick_sigma, args.gcp_sigma, &camera)?;
     let settings = PoseSettings {

@@ -153,6 +153,14 @@ const MOT_FIELDS: [&str; 10] = [
     "frame", "id", "left", "top", "width", "height", "conf", "x", "y", "z",
 ];
 
+/// A JSON value for a message, cut short.
+fn show(v: &serde_json::Value) -> String {
+    crate::io::clip(&v.to_string(), 60)
+}
+
+/// The largest frame number accepted: a day of video at 100 frames/s is 8.6 million.
+const MAX_FRAME: f64 = 1e15;
+
 fn parse_mot(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
     let mut out = Vec::new();
     let mut first_row = true;
@@ -174,15 +182,16 @@ fn parse_mot(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
         if std::mem::take(&mut first_row) && fields[0].eq_ignore_ascii_case("frame") {
             continue;
         }
-        if !(7..=10).contains(&fields.len()) {
-            return Err(ctx.at(
-                line,
-                format!(
-                    "expected 7 to 10 columns (frame, id, left, top, width, height, conf[, x, y, z]), found {}",
-                    fields.len()
-                ),
-            ));
+        if l.len() > crate::io::MAX_LINE_BYTES {
+            return Err(ctx.at(line, "a line longer than 1 MiB: is it the right file?"));
         }
+        ctx.field_count(
+            &fields,
+            line,
+            7,
+            10,
+            "frame, id, left, top, width, height, conf[, x, y, z]",
+        )?;
         let at = At {
             ctx,
             line: Some(line),
@@ -199,12 +208,12 @@ fn parse_mot(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
             }
         };
         let frame = num(0)?;
-        if frame < 1.0 || frame.fract() != 0.0 {
+        if frame < 1.0 || frame.fract() != 0.0 || frame > MAX_FRAME {
             return Err(at.err(
                 "frame",
                 format!(
-                    "expected a whole frame number >= 1 (MOT frames start at 1), found '{}'",
-                    fields[0]
+                    "expected a whole frame number from 1 (MOT frames start at 1), found '{}'",
+                    crate::io::clip(fields[0], 40)
                 ),
             ));
         }
@@ -242,7 +251,7 @@ fn json_message(e: &serde_json::Error) -> String {
 fn json_number(at: At, field: &str, v: &Value) -> Result<f64, FileError> {
     v.as_f64()
         .filter(|x| x.is_finite())
-        .ok_or_else(|| at.err(field, format!("expected a number, found {v}")))
+        .ok_or_else(|| at.err(field, format!("expected a number, found {}", show(v))))
 }
 
 fn json_frame(at: At, field: &str, v: &Value) -> Result<usize, FileError> {
@@ -250,7 +259,10 @@ fn json_frame(at: At, field: &str, v: &Value) -> Result<usize, FileError> {
         Some(x) if x >= 0.0 && x.fract() == 0.0 && x < 1e15 => Ok(x as usize),
         _ => Err(at.err(
             field,
-            format!("expected a 0-based frame index (a whole number >= 0), found {v}"),
+            format!(
+                "expected a 0-based frame index (a whole number >= 0), found {}",
+                show(v)
+            ),
         )),
     }
 }
@@ -265,10 +277,12 @@ fn json_box(
 ) -> Result<RawBox, FileError> {
     let field = |name: &str| format!("{prefix}{name}");
     let four = |name: &str, v: &Value| -> Result<[f64; 4], FileError> {
-        let a = v
-            .as_array()
-            .filter(|a| a.len() == 4)
-            .ok_or_else(|| at.err(&field(name), format!("expected 4 numbers, found {v}")))?;
+        let a = v.as_array().filter(|a| a.len() == 4).ok_or_else(|| {
+            at.err(
+                &field(name),
+                format!("expected 4 numbers, found {}", show(v)),
+            )
+        })?;
         let mut out = [0.0; 4];
         for (o, x) in out.iter_mut().zip(a) {
             *o = json_number(at, &field(name), x)?;
@@ -312,7 +326,12 @@ fn json_box(
     let label = match obj.get("label") {
         None | Some(Value::Null) => None,
         Some(Value::String(s)) => Some(s.clone()),
-        Some(v) => return Err(at.err(&field("label"), format!("expected a string, found {v}"))),
+        Some(v) => {
+            return Err(at.err(
+                &field("label"),
+                format!("expected a string, found {}", show(v)),
+            ));
+        }
     };
     Ok(RawBox {
         frame,
@@ -368,7 +387,10 @@ fn parse_json_lines(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> 
                 }
             }
             Some(v) => {
-                return Err(at.err("boxes", format!("expected an array of boxes, found {v}")));
+                return Err(at.err(
+                    "boxes",
+                    format!("expected an array of boxes, found {}", show(v)),
+                ));
             }
         }
     }
@@ -521,7 +543,7 @@ fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
             return Err(ctx.err(
                 None,
                 Some("categories"),
-                format!("expected an array, found {v}"),
+                format!("expected an array, found {}", show(v)),
             ));
         }
     }
@@ -543,12 +565,17 @@ fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
                         frame_from_file_name(name).ok_or_else(|| {
                             at.err(
                                 "images.file_name",
-                                format!("no digits in '{name}' and no 'frame_index'; expected the frame number in the file name or a 'frame_index'"),
+                                format!("no digits in '{}' and no 'frame_index'; expected the frame number in the file name or a 'frame_index'", crate::io::clip(name, 60)),
                             )
                         })?
                     }
                 };
-                map.insert(id.to_string(), frame);
+                if map.insert(id.to_string(), frame).is_some() {
+                    return Err(at.err(
+                        "images.id",
+                        format!("the image id {} is used twice", show(id)),
+                    ));
+                }
             }
             Some(map)
         }
@@ -556,7 +583,7 @@ fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
             return Err(ctx.err(
                 None,
                 Some("images"),
-                format!("expected an array, found {v}"),
+                format!("expected an array, found {}", show(v)),
             ));
         }
     };
@@ -565,7 +592,10 @@ fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
     for (i, a) in annotations.iter().enumerate() {
         let at = at(key, i);
         let Value::Object(a) = a else {
-            return Err(at.err("annotation", format!("expected an object, found {a}")));
+            return Err(at.err(
+                "annotation",
+                format!("expected an object, found {}", show(a)),
+            ));
         };
         if let Some(c) = a.get("category_id")
             && !person_ids.contains(&c.to_string())
@@ -576,9 +606,9 @@ fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
             return Err(at.err("image_id", "missing; expected the image (frame) id"));
         };
         let frame = match &frames {
-            Some(map) => *map
-                .get(&image.to_string())
-                .ok_or_else(|| at.err("image_id", format!("{image} is not among 'images'")))?,
+            Some(map) => *map.get(&image.to_string()).ok_or_else(|| {
+                at.err("image_id", format!("{} is not among 'images'", show(image)))
+            })?,
             None => json_frame(at, "image_id", image)?,
         };
         let mut b = json_box(at, a, "", frame)?;

@@ -56,10 +56,15 @@ pub fn read_truth_boxes(path: &Path) -> Result<Vec<TruthBox>, FileError> {
         };
         let n = |k: usize, name: &str| ctx.number(f[k], line, name);
         out.push(TruthBox {
-            frame: n(0, "frame")? as usize,
-            person: n(1, "person")? as usize,
+            frame: ctx.whole(f[0], line, "frame")? as usize,
+            person: ctx.whole(f[1], line, "person")? as usize,
             shadow,
-            bbox: [n(3, "x")?, n(4, "y")?, n(5, "w")?, n(6, "h")?],
+            bbox: [
+                n(3, "x")?,
+                n(4, "y")?,
+                ctx.positive(f[5], line, "w")?,
+                ctx.positive(f[6], line, "h")?,
+            ],
         });
     }
     Ok(out)

@@ -175,7 +175,10 @@ impl<'a> Tokens<'a> {
             self.ctx.err(
                 Some(line),
                 Some(what),
-                format!("expected a whole number, found '{t}'"),
+                format!(
+                    "expected a whole number, found '{}'",
+                    crate::io::clip(t, 40)
+                ),
             )
         })
     }
@@ -231,6 +234,30 @@ pub fn parse_bal(path: &Path, text: &str) -> Result<BalProblem, FileError> {
             xy: [x, y],
         });
     }
+    // A point seen twice by one camera is a duplicated row (sorted, to keep memory low).
+    let mut pairs: Vec<(usize, usize, usize)> = observations
+        .iter()
+        .enumerate()
+        .map(|(k, o)| (o.camera, o.point, k))
+        .collect();
+    pairs.sort_unstable();
+    if let Some(w) = pairs
+        .windows(2)
+        .find(|w| (w[0].0, w[0].1) == (w[1].0, w[1].1))
+    {
+        return Err(ctx.err(
+            None,
+            Some("observations"),
+            format!(
+                "observations {} and {} are both of point {} in camera {}: each camera sees a point once",
+                w[0].2.min(w[1].2),
+                w[0].2.max(w[1].2),
+                w[0].1,
+                w[0].0
+            ),
+        ));
+    }
+    drop(pairs);
     const CAMERA: [&str; 9] = ["wx", "wy", "wz", "tx", "ty", "tz", "f", "k1", "k2"];
     let mut cameras = Vec::with_capacity(nc.min(room / 9));
     for c in 0..nc {
@@ -251,7 +278,10 @@ pub fn parse_bal(path: &Path, text: &str) -> Result<BalProblem, FileError> {
     if let Some((line, t)) = tokens.iter.next() {
         return Err(ctx.at(
             line,
-            format!("'{t}' after the last point: the header's counts do not match the file"),
+            format!(
+                "'{}' after the last point: the header's counts do not match the file",
+                crate::io::clip(t, 40)
+            ),
         ));
     }
     Ok(BalProblem {

@@ -14,31 +14,37 @@ use crate::io::{FileCtx, FileError};
 /// A data row: its line number and its fields by column name.
 type Row = (usize, HashMap<String, String>);
 
-/// A CSV with a header: each row as a map from column name to field, with its line number.
+/// A CSV with a header: each row as a map from column name to field, with its line number. Every
+/// row has the header's number of fields.
 fn rows(path: &Path, needed: &[&str]) -> Result<Vec<Row>, FileError> {
     let ctx = FileCtx { path };
     let text = ctx.read_text("a CSV table")?;
-    let mut lines = text.lines().enumerate();
-    let header: Vec<String> = lines
-        .next()
-        .map(|(_, h)| h.split(',').map(|s| s.trim().to_string()).collect())
-        .unwrap_or_default();
+    let mut lines = ctx.lines(&text);
+    let header: Vec<String> = match lines.next().transpose()? {
+        Some((_, h)) => h.split(',').map(|s| s.trim().to_string()).collect(),
+        None => Vec::new(),
+    };
     if let Some(missing) = needed.iter().find(|n| !header.iter().any(|h| h == *n)) {
         return Err(ctx.at(1, format!("no column '{missing}' in the header")));
     }
-    Ok(lines
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            (
-                i + 1,
-                header
-                    .iter()
-                    .cloned()
-                    .zip(l.split(',').map(|s| s.trim().to_string()))
-                    .collect(),
-            )
-        })
-        .collect())
+    let mut out = Vec::new();
+    for row in lines {
+        let (line, l) = row?;
+        if l.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = l.split(',').map(str::trim).collect();
+        ctx.field_count(&f, line, header.len(), header.len(), "the header's columns")?;
+        out.push((
+            line,
+            header
+                .iter()
+                .cloned()
+                .zip(f.iter().map(|s| s.to_string()))
+                .collect(),
+        ));
+    }
+    Ok(out)
 }
 
 /// `cam_from_world` of every frame, by frame number, from a CSV with `frame`, `rvec_x..z` and
@@ -51,15 +57,15 @@ pub fn read_poses(path: &Path) -> Result<Vec<(usize, Pose)>, FileError> {
     rows(path, &cols)?
         .into_iter()
         .map(|(line, r)| {
-            let v: Vec<f64> = cols
+            let v: Vec<f64> = cols[1..]
                 .iter()
                 .map(|c| ctx.number(&r[*c], line, c))
                 .collect::<Result<_, _>>()?;
             Ok((
-                v[0] as usize,
+                ctx.whole(&r["frame"], line, "frame")? as usize,
                 pose_from_rvec_tvec(
-                    &Vector3::new(v[1], v[2], v[3]),
-                    &Vector3::new(v[4], v[5], v[6]),
+                    &Vector3::new(v[0], v[1], v[2]),
+                    &Vector3::new(v[3], v[4], v[5]),
                 ),
             ))
         })

@@ -7,6 +7,9 @@ use gdal::Dataset;
 
 use super::dem::RasterGrid;
 
+/// The most cells read from a DEM (8 bytes each: 800 MB at most).
+pub const MAX_CELLS: u64 = 100_000_000;
+
 /// Reads band 1 of a raster. Returns the grid and the CRS WKT (empty when the raster has none).
 pub fn load(path: &Path) -> Result<(RasterGrid, String), String> {
     let ds = Dataset::open(path)
@@ -21,6 +24,18 @@ pub fn load(path: &Path) -> Result<(RasterGrid, String), String> {
         .rasterband(1)
         .map_err(|e| format!("{}: no band 1: {e}", path.display()))?;
     let (w, h) = band.size();
+    if w == 0 || h == 0 || (w as u64) * (h as u64) > MAX_CELLS {
+        return Err(format!(
+            "{}: {w}x{h} cells; a DEM is read whole, up to {MAX_CELLS} cells (crop it to the site, e.g. with gdal_translate -projwin)",
+            path.display()
+        ));
+    }
+    if !(gt.iter().all(|v| v.is_finite()) && gt[1] != 0.0 && gt[5] != 0.0) {
+        return Err(format!(
+            "{}: its geotransform {gt:?} gives the cells no size",
+            path.display()
+        ));
+    }
     let buf = band
         .read_as::<f64>((0, 0), (w, h), (w, h), None)
         .map_err(|e| format!("{}: cannot read band 1: {e}", path.display()))?;
@@ -33,7 +48,7 @@ pub fn load(path: &Path) -> Result<(RasterGrid, String), String> {
             width: w,
             height: h,
             geotransform: gt,
-            data: buf.data().to_vec(),
+            data: buf.into_shape_and_vec().1,
             nodata: band.no_data_value(),
         },
         wkt,

@@ -108,26 +108,41 @@ pub fn render(
     }
 }
 
-/// Writes a calibration atomically; the format follows `format` or else the file extension.
-pub fn write(
-    cal: &Calibration,
-    path: &Path,
-    format: Option<Format>,
-) -> Result<Format, FormatError> {
-    let ctx = Ctx { path };
-    let format = format
+/// Why a calibration was not written: the calibration or the name cannot be written in a
+/// format (the user's to fix), or the file system failed.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteError {
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    #[error("{path}: cannot write: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// The format a calibration written to `path` gets: `format`, or else the file extension.
+pub fn output_format(path: &Path, format: Option<Format>) -> Result<Format, FormatError> {
+    format
         .or_else(|| Format::from_extension(path))
         .ok_or_else(|| {
-            ctx.err(
+            Ctx { path }.err(
                 None,
                 None,
                 "cannot tell the output format from the extension: use .yaml (OpenCV), .xml \
              (Metashape) or .json (geostride), or pass --format",
             )
-        })?;
+        })
+}
+
+/// Writes a calibration atomically; the format follows `format` or else the file extension.
+pub fn write(cal: &Calibration, path: &Path, format: Option<Format>) -> Result<Format, WriteError> {
+    let format = output_format(path, format)?;
     let text = render(cal, format, path)?;
-    crate::io::write_atomic(path, text.as_bytes())
-        .map_err(|e| ctx.err(None, None, format!("cannot write: {e}")))?;
+    crate::io::write_atomic(path, text.as_bytes()).map_err(|source| WriteError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
     Ok(format)
 }
 

@@ -206,7 +206,8 @@ pub(crate) fn camera_for(spec: &str, size: Option<(u32, u32)>) -> anyhow::Result
     }
 }
 
-fn pose_error(e: PoseError, seen: &Seen) -> anyhow::Error {
+/// A pose that cannot be solved from these picks, said with where they come from.
+fn pose_error(e: PoseError, seen: &Seen, picks: &str) -> anyhow::Error {
     let e = match e {
         PoseError::BehindCamera { points } => {
             let names: Vec<&str> = points
@@ -221,7 +222,7 @@ fn pose_error(e: PoseError, seen: &Seen) -> anyhow::Error {
         }
         other => anyhow!(other),
     };
-    bad_input(e)
+    bad_input(e.context(picks.to_string()))
 }
 
 #[derive(Serialize)]
@@ -651,8 +652,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         loss: args.loss,
         ..PoseSettings::default()
     };
-    let solution =
-        solve_pose(&camera, &seen.control, &settings).map_err(|e| pose_error(e, &seen))?;
+    let solution = solve_pose(&camera, &seen.control, &settings).map_err(|e| {
+        let files: Vec<String> = std::iter::once(&args.gcps)
+            .chain(&args.read.picks)
+            .map(|p| p.display().to_string())
+            .collect();
+        pose_error(
+            e,
+            &seen,
+            &format!("{}: the picks of image '{image}'", files.join(", ")),
+        )
+    })?;
     let pose = RigidPose::from(&solution.cam_from_world);
     let checks = seen
         .check

@@ -82,6 +82,8 @@ pub(crate) fn run_scene(
             "--duration must be positive and at most 3600 s"
         )));
     }
+    let input = |m: String| bad_input(anyhow!("{}: {m}", scene_path.display()));
+    crate::simulate::run::check(&scene, &camera).map_err(|e| input(e.to_string()))?;
     let calibration = scene.calibration_path(scene_path);
     super::create_output_dir(out, [scene_path, calibration.as_path()])?;
     let bar = super::progress_bar(

@@ -620,6 +620,9 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     guard
         .create_dir(&out.join(".stages"))
         .map_err(output_error)?;
+    // pose/ is written only when the pose stage runs; a killed one's temporaries go now.
+    crate::io::remove_stale_temps(&out.join("pose"))
+        .map_err(|e| RunError::Failed(format!("{}: {e}", out.join("pose").display())))?;
     let cache = Cache {
         dir: out.join(".stages"),
     };

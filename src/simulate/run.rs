@@ -148,6 +148,22 @@ fn view_box(camera: &Camera, world: &World, poses: &[CameraPose]) -> (Vector2<f6
     (lo - Vector2::repeat(3.0), hi + Vector2::repeat(3.0))
 }
 
+/// What a scene needs beyond its file's own checks, known before anything is rendered or
+/// written: a camera size it can render, and a site PROJ knows.
+pub fn check(scene: &Scene, camera: &Camera) -> Result<(), SimError> {
+    let size = camera
+        .image_size
+        .ok_or_else(|| SimError::Input("the camera has no image size".into()))?;
+    let max = super::scene::MAX_SIDE_PX;
+    if size.width > max || size.height > max {
+        return Err(SimError::Input(format!(
+            "camera: {}x{} pixels; a scene renders at most {max}x{max} (set camera.video_mode)",
+            size.width, size.height
+        )));
+    }
+    site_frame(&scene.site).map(|_| ())
+}
+
 /// Runs a scene into `out`.
 pub fn simulate(
     scene: &Scene,
@@ -160,18 +176,8 @@ pub fn simulate(
     let frames_every = over.frames_every.unwrap_or(scene.output.frames_every);
     let duration = over.duration_s.unwrap_or(scene.duration_s);
     let frames = ((duration * scene.fps).round() as usize).max(1);
-    let size = camera
-        .image_size
-        .ok_or_else(|| SimError::Input("the camera has no image size".into()))?;
-    let max = super::scene::MAX_SIDE_PX;
-    if size.width > max || size.height > max {
-        return Err(SimError::Input(format!(
-            "camera: {}x{} pixels; a scene renders at most {max}x{max} (set camera.video_mode)",
-            size.width, size.height
-        )));
-    }
-    // The site, before any frame is rendered.
-    site_frame(&scene.site)?;
+    check(scene, camera)?;
+    let size = camera.image_size.expect("checked");
     let world = World::new(&scene.ground, &scene.gcp, seed);
     let people = spawn(&scene.people, &world, duration, seed);
     let sun = sun_vector(scene.people.sun_azimuth_deg, scene.people.sun_elevation_deg);

@@ -221,6 +221,30 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             Vector3::new(num(xc, xf)?, num(yc, yf)?, num(zc, zf)?),
             r.line,
         );
+        // The file's own longitude and latitude must agree with its eastings and northings in
+        // the CRS used: they do not when --crs names the wrong one. A kilometre of slack: the
+        // columns may be on another datum.
+        if projected
+            && let (Some(lc), Some(bc)) = (col("Longitude"), col("Latitude"))
+            && let (Ok(lon), Ok(lat)) = (cell(r, lc).parse::<f64>(), cell(r, bc).parse::<f64>())
+            && lon.is_finite()
+            && lat.is_finite()
+        {
+            let (x, y) = (gcp.position.x, gcp.position.y);
+            let (clon, clat) = crs
+                .to_lon_lat(x, y)
+                .map_err(|e| ctx.at(r.line, e.to_string()))?;
+            if (clon - lon).abs() > 0.01 || (clat - lat).abs() > 0.01 {
+                return Err(ctx.err(
+                    Some(r.line),
+                    Some("Longitude"),
+                    format!(
+                        "the file gives longitude {lon}, latitude {lat}, but its easting and northing in {} are at {clon:.5}, {clat:.5}: is the CRS right?",
+                        crs.label()
+                    ),
+                ));
+            }
+        }
         if let (Some(e), Some(h)) = (elev_col, ell_col)
             && let (Ok(a), Ok(b)) = (cell(r, e).parse::<f64>(), cell(r, h).parse::<f64>())
         {

@@ -5,8 +5,11 @@
 //! geodetic datum and back, without any datum change, and what its heights mean. Conversions
 //! between two CRSs ([`Transform`]) may change datum; their accuracy is reported.
 
+use std::cell::RefCell;
+use std::collections::HashMap;
 use std::ffi::{CStr, CString};
 use std::ptr;
+use std::rc::Rc;
 
 use proj_sys as sys;
 use thiserror::Error;
@@ -14,7 +17,7 @@ use thiserror::Error;
 use crate::geom::geodesy::Ellipsoid;
 
 #[derive(Debug, Error, Clone, PartialEq)]
-#[error("CRS '{spec}': {message}")]
+#[error("CRS '{}': {message}", crate::io::clip(spec, 60))]
 pub struct CrsError {
     pub spec: String,
     pub message: String,
@@ -80,6 +83,16 @@ impl Drop for Context {
     }
 }
 
+thread_local! {
+    /// One PROJ context per thread: a context opens PROJ's database, which costs milliseconds.
+    static CONTEXT: std::cell::OnceCell<Rc<Context>> = const { std::cell::OnceCell::new() };
+    /// CRSs already made on this thread, by specification, and the specifications PROJ refused.
+    static CACHE: RefCell<HashMap<String, Result<Crs, CrsError>>> = RefCell::new(HashMap::new());
+}
+
+/// The most CRSs kept per thread (a run uses two or three).
+const CACHE_SIZE: usize = 64;
+
 impl Context {
     fn new() -> Self {
         let ptr = unsafe { sys::proj_context_create() };
@@ -88,6 +101,11 @@ impl Context {
             sys::proj_log_level(ptr, sys::PJ_LOG_LEVEL_PJ_LOG_NONE);
         }
         Context { ptr }
+    }
+
+    /// This thread's context. Objects made in it hold it, so it outlives them.
+    fn shared() -> Rc<Context> {
+        CONTEXT.with(|c| c.get_or_init(|| Rc::new(Context::new())).clone())
     }
 
     fn last_error(&self) -> String {
@@ -132,8 +150,10 @@ pub fn normalise_spec(spec: &str) -> String {
         && words[1].eq_ignore_ascii_case("UTM")
     {
         let zone = words[2];
-        let (num, hemi) = zone.split_at(zone.len().saturating_sub(1));
-        if let (Ok(z), Some(h)) = (num.parse::<u32>(), hemi.chars().next())
+        // The hemisphere is the last character, which need not be one byte.
+        let hemi = zone.chars().last();
+        let num = &zone[..zone.len() - hemi.map_or(0, char::len_utf8)];
+        if let (Ok(z), Some(h)) = (num.parse::<u32>(), hemi)
             && (1..=60).contains(&z)
         {
             match h.to_ascii_uppercase() {
@@ -149,30 +169,40 @@ pub fn normalise_spec(spec: &str) -> String {
     s.to_string()
 }
 
-/// A coordinate reference system.
-pub struct Crs {
-    /// The specification as given (EPSG code, PROJ string, name, WKT).
-    pub spec: String,
-    /// PROJ's name for it.
-    pub name: String,
-    /// `AUTH:CODE` when PROJ knows one.
-    pub id: Option<String>,
-    pub horizontal: Horizontal,
-    /// What heights mean according to the CRS itself (a compound or 3D CRS says; a 2D one does not).
-    pub height_kind: HeightKind,
-    /// Metres per unit of the horizontal axes of a projected CRS (1 for metres).
-    pub unit_m: f64,
-    pub ellipsoid: Ellipsoid,
-    /// Name of the geodetic datum the horizontal coordinates are on.
-    pub geodetic_name: String,
-    to_geodetic: proj::Proj,
-    from_geodetic: proj::Proj,
-    /// WKT of the whole CRS, for GDAL outputs.
-    pub wkt: String,
-    /// WKT of the horizontal part (the CRS itself unless it is compound).
-    horizontal_wkt: String,
-    /// Where the CRS may be used: west, south, east, north in degrees (PROJ's area of use).
-    pub area_of_use: Option<AreaOfUse>,
+/// Whether a specification is a CRS's name rather than `AUTH:CODE`, a URN, a PROJ string, WKT or
+/// PROJJSON (which PROJ parses).
+fn is_crs_name(spec: &str) -> bool {
+    let s = spec.trim();
+    let auth_code = s.split_once(':').is_some_and(|(a, c)| {
+        !a.is_empty()
+            && !c.is_empty()
+            && a.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_')
+            && c.bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'.')
+    });
+    let wkt = s.find('[').is_some_and(|i| {
+        i > 0
+            && s[..i]
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_')
+    });
+    !(auth_code
+        || wkt
+        || s.starts_with('+')
+        || s.contains("proj=")
+        || s.starts_with('{')
+        || s.to_ascii_lowercase().starts_with("urn:"))
+}
+
+/// A coordinate reference system: a cheap handle (made once per thread and specification).
+#[derive(Clone)]
+pub struct Crs(Rc<CrsData>);
+
+impl std::ops::Deref for Crs {
+    type Target = CrsData;
+    fn deref(&self) -> &CrsData {
+        &self.0
+    }
 }
 
 /// A CRS's area of use, degrees (west may exceed east across the antimeridian).
@@ -212,6 +242,34 @@ impl AreaOfUse {
 /// PROJ's parser uses many times the text's size in memory.
 pub const MAX_SPEC_BYTES: usize = 64 * 1024;
 
+/// What a [`Crs`] knows.
+pub struct CrsData {
+    /// The specification as given (EPSG code, PROJ string, name, WKT).
+    pub spec: String,
+    /// PROJ's name for it.
+    pub name: String,
+    /// `AUTH:CODE` when PROJ knows one.
+    pub id: Option<String>,
+    pub horizontal: Horizontal,
+    /// What heights mean according to the CRS itself (a compound or 3D CRS says; a 2D one does not).
+    pub height_kind: HeightKind,
+    /// Metres per unit of the horizontal axes of a projected CRS (1 for metres).
+    pub unit_m: f64,
+    pub ellipsoid: Ellipsoid,
+    /// Name of the geodetic datum the horizontal coordinates are on.
+    pub geodetic_name: String,
+    /// WKT of the whole CRS, for GDAL outputs.
+    pub wkt: String,
+    /// WKT of the horizontal part (the CRS itself unless it is compound).
+    horizontal_wkt: String,
+    /// Where the CRS may be used: west, south, east, north in degrees (PROJ's area of use).
+    pub area_of_use: Option<AreaOfUse>,
+    // Conversions to and from latitude/longitude on the same datum, dropped before the context.
+    to_geodetic: Pj,
+    from_geodetic: Pj,
+    ctx: Rc<Context>,
+}
+
 impl std::fmt::Debug for Crs {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "Crs({}: {})", self.spec, self.name)
@@ -222,11 +280,6 @@ impl Crs {
     /// Parses a CRS: `EPSG:nnnn`, a PROJ string, a CRS name PROJ knows, WKT, or OpenDroneMap's
     /// `WGS84 UTM 17N`.
     pub fn new(spec: &str) -> Result<Crs, CrsError> {
-        let ctx = Context::new();
-        let err = |message: String| CrsError {
-            spec: spec.to_string(),
-            message,
-        };
         if spec.len() > MAX_SPEC_BYTES {
             return Err(CrsError {
                 spec: crate::io::clip(spec, 60),
@@ -237,9 +290,63 @@ impl Crs {
                 ),
             });
         }
+        if let Some(c) = CACHE.with(|c| c.borrow().get(spec).cloned()) {
+            return c;
+        }
+        let crs = Crs::make(spec);
+        CACHE.with(|c| {
+            let mut c = c.borrow_mut();
+            if c.len() >= CACHE_SIZE {
+                c.clear();
+            }
+            c.insert(spec.to_string(), crs.clone());
+        });
+        crs
+    }
+
+    fn make(spec: &str) -> Result<Crs, CrsError> {
+        let ctx = Context::shared();
+        let err = |message: String| CrsError {
+            spec: spec.to_string(),
+            message,
+        };
         let normalised = normalise_spec(spec);
         let c = CString::new(normalised.clone()).map_err(|_| err("contains a NUL byte".into()))?;
-        let obj = ctx.wrap(unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) }, spec, "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string or a CRS name)")?;
+        let unknown = "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string, WKT or a CRS's exact name)";
+        let obj = if is_crs_name(&normalised) {
+            // A name is looked up exactly: PROJ's approximate matching takes a third of a
+            // second and may pick another CRS of a similar name (Belge 1972 for BD72).
+            let list = unsafe {
+                sys::proj_create_from_name(
+                    ctx.ptr,
+                    ptr::null(),
+                    c.as_ptr(),
+                    ptr::null(),
+                    0,
+                    0,
+                    1,
+                    ptr::null(),
+                )
+            };
+            if list.is_null() {
+                return Err(err(unknown.into()));
+            }
+            let found = unsafe {
+                if sys::proj_list_get_count(list) > 0 {
+                    sys::proj_list_get(ctx.ptr, list, 0)
+                } else {
+                    ptr::null_mut()
+                }
+            };
+            unsafe { sys::proj_list_destroy(list) };
+            ctx.wrap(found, spec, unknown)?
+        } else {
+            ctx.wrap(
+                unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) },
+                spec,
+                unknown,
+            )?
+        };
         let mut crs = obj;
         let mut ty = unsafe { sys::proj_get_type(crs.ptr) };
         if ty == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
@@ -360,13 +467,38 @@ impl Crs {
             1.0
         };
         // The geodetic CRS of the same datum: no datum change, so no grid or Helmert involved.
-        let geodetic_wkt = wkt_of(&geodetic)?;
+        let conversion = |from: &Pj, to: &Pj, what: &str| -> Result<Pj, CrsError> {
+            let raw = ctx.wrap(
+                unsafe {
+                    sys::proj_create_crs_to_crs_from_pj(
+                        ctx.ptr,
+                        from.ptr,
+                        to.ptr,
+                        ptr::null_mut(),
+                        ptr::null(),
+                    )
+                },
+                spec,
+                what,
+            )?;
+            ctx.wrap(
+                unsafe { sys::proj_normalize_for_visualization(ctx.ptr, raw.ptr) },
+                spec,
+                what,
+            )
+        };
+        let to_geodetic = conversion(
+            &horizontal_crs,
+            &geodetic,
+            "cannot convert to latitude/longitude",
+        )?;
+        let from_geodetic = conversion(
+            &geodetic,
+            &horizontal_crs,
+            "cannot convert from latitude/longitude",
+        )?;
         let horizontal_wkt = wkt_of(&horizontal_crs)?;
-        let to_geodetic = proj::Proj::new_known_crs(&horizontal_wkt, &geodetic_wkt, None)
-            .map_err(|e| err(format!("cannot convert to latitude/longitude: {e}")))?;
-        let from_geodetic = proj::Proj::new_known_crs(&geodetic_wkt, &horizontal_wkt, None)
-            .map_err(|e| err(format!("cannot convert from latitude/longitude: {e}")))?;
-        Ok(Crs {
+        Ok(Crs(Rc::new(CrsData {
             spec: spec.to_string(),
             name,
             id,
@@ -375,12 +507,13 @@ impl Crs {
             unit_m,
             ellipsoid,
             geodetic_name,
-            to_geodetic,
-            from_geodetic,
             wkt,
             horizontal_wkt,
             area_of_use,
-        })
+            to_geodetic,
+            from_geodetic,
+            ctx: ctx.clone(),
+        })))
     }
 
     /// What PROJ should be given for the horizontal part: the specification as the user wrote it
@@ -399,10 +532,7 @@ impl Crs {
         if self.horizontal == Horizontal::Geographic {
             return Ok((x, y));
         }
-        self.to_geodetic.convert((x, y)).map_err(|e| CrsError {
-            spec: self.spec.clone(),
-            message: format!("cannot convert ({x}, {y}) to latitude/longitude: {e}"),
-        })
+        self.trans(&self.to_geodetic, x, y, "to latitude/longitude")
     }
 
     /// (longitude, latitude) in degrees on this CRS's datum to its horizontal coordinates.
@@ -410,12 +540,25 @@ impl Crs {
         if self.horizontal == Horizontal::Geographic {
             return Ok((lon, lat));
         }
-        self.from_geodetic
-            .convert((lon, lat))
-            .map_err(|e| CrsError {
+        self.trans(&self.from_geodetic, lon, lat, "from latitude/longitude")
+    }
+
+    fn trans(&self, op: &Pj, x: f64, y: f64, what: &str) -> Result<(f64, f64), CrsError> {
+        let c = sys::PJ_COORD {
+            v: [x, y, 0.0, f64::INFINITY],
+        };
+        let v = unsafe { sys::proj_trans(op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
+        if v[0].is_finite() && v[1].is_finite() {
+            Ok((v[0], v[1]))
+        } else {
+            Err(CrsError {
                 spec: self.spec.clone(),
-                message: format!("cannot convert ({lon}, {lat}) from latitude/longitude: {e}"),
+                message: format!(
+                    "cannot convert ({x}, {y}) {what}: {}",
+                    self.ctx.last_error()
+                ),
             })
+        }
     }
 
     /// A short label: `EPSG:31370 (BD72 / Belgian Lambert 72)`.
@@ -483,14 +626,14 @@ pub struct OperationInfo {
 pub struct Transform {
     // Dropped before the context it was made in.
     op: Pj,
-    ctx: Context,
+    ctx: Rc<Context>,
     pub source: String,
     pub target: String,
 }
 
 impl Transform {
     pub fn new(source: &Crs, target: &Crs) -> Result<Transform, CrsError> {
-        let ctx = Context::new();
+        let ctx = Context::shared();
         let fail = |ctx: &Context| CrsError {
             spec: target.spec.clone(),
             message: format!(
@@ -579,6 +722,9 @@ mod tests {
             "+proj=utm +zone=22 +type=crs"
         );
         assert_eq!(normalise_spec("EPSG:31370"), "EPSG:31370");
+        // Found by fuzzing: a zone ending in a character of two bytes panicked.
+        assert_eq!(normalise_spec("WGS84 UTM 17é"), "WGS84 UTM 17é");
+        assert_eq!(normalise_spec("WGS84 UTM é"), "WGS84 UTM é");
     }
 
     #[test]
@@ -623,6 +769,27 @@ mod tests {
     }
 
     #[test]
+    fn names_are_matched_exactly() {
+        assert!(is_crs_name("ETRS89 / Belgian Lambert 2008"));
+        assert!(!is_crs_name("EPSG:3812") && !is_crs_name("+proj=utm +zone=31"));
+        assert!(!is_crs_name("PROJCRS[\"x\"]") && !is_crs_name("urn:ogc:def:crs:EPSG::4326"));
+        assert_eq!(
+            Crs::new("ETRS89 / Belgian Lambert 2008")
+                .unwrap()
+                .id
+                .as_deref(),
+            Some("EPSG:3812")
+        );
+        assert_eq!(
+            Crs::new("BD72 / Belgian Lambert 72").unwrap().id.as_deref(),
+            Some("EPSG:31370")
+        );
+        // Close is not the same: Belge 1972 (EPSG:31300) is another CRS.
+        assert!(Crs::new("Belgian Lambert 72").is_err());
+        assert!(Crs::new("ETRS89 / Belgian Lambert 2009").is_err());
+    }
+
+    #[test]
     fn distance_to_the_area_of_use() {
         let a = |w, s, e, n| AreaOfUse {
             west: w,
@@ -643,7 +810,7 @@ mod tests {
         assert_eq!(fiji.distance_deg(179.0, -15.0), 0.0);
         assert_eq!(fiji.distance_deg(-179.0, -15.0), 0.0);
         assert!((fiji.distance_deg(170.0, -15.0) - 6.0).abs() < 1e-9);
-        let l72 = Crs::new("EPSG:31370").unwrap().area_of_use.unwrap();
+        let l72 = Crs::new("EPSG:31370").unwrap().area_of_use.clone().unwrap();
         assert!(l72.distance_deg(4.43, 51.07) == 0.0 && l72.distance_deg(20.0, 51.0) > 10.0);
     }
 

@@ -11,7 +11,7 @@ mod table;
 use std::collections::HashMap;
 use std::path::Path;
 
-pub use picks::read_picks;
+pub use picks::{MAX_PICKS, parse_picks, read_picks};
 pub use table::ColumnMap;
 
 use super::crs::{Crs, HeightKind};
@@ -106,9 +106,27 @@ pub fn detect(text: &str) -> Option<SurveyFormat> {
 
 /// Reads a survey file.
 pub fn read(path: &Path, opts: &ReadOptions) -> Result<Survey, SurveyError> {
+    let text = Ctx { path }.read_text("a survey file saved as UTF-8")?;
+    parse(path, &text, opts)
+}
+
+/// The most rows a survey file may have: surveys hold tens of points; a file of more is not a
+/// survey (and its table would take memory in proportion).
+pub const MAX_SURVEY_ROWS: usize = 100_000;
+
+/// Parses a survey file's text; `path` names it in messages and says where it is.
+pub fn parse(path: &Path, text: &str, opts: &ReadOptions) -> Result<Survey, SurveyError> {
     let ctx = Ctx { path };
-    let text = ctx.read_text("a survey file saved as UTF-8")?;
-    let text = text.as_str();
+    let rows = text.lines().count();
+    if rows > MAX_SURVEY_ROWS {
+        return Err(ctx.err(
+            None,
+            None,
+            format!(
+                "{rows} lines: a survey file has at most {MAX_SURVEY_ROWS} (is it the right file?)"
+            ),
+        ));
+    }
     let format = match opts.format.or_else(|| detect(text)) {
         Some(f) => f,
         None => {
@@ -218,11 +236,10 @@ fn resolve_height(ctx: &Ctx, survey: &mut Survey, opts: &ReadOptions) -> Result<
         return Ok(());
     }
     let from_crs = match &survey.crs {
-        Some(spec) => {
-            Crs::new(spec)
-                .map_err(|e| ctx.err(None, None, e.to_string()))?
-                .height_kind
-        }
+        Some(spec) => Crs::new(spec)
+            .map_err(|e| ctx.err(None, None, e.to_string()))?
+            .height_kind
+            .clone(),
         None => HeightKind::Unknown,
     };
     let from_user = opts.height.map(|h| match h {

@@ -37,9 +37,18 @@ pub struct SampleTable {
 /// `columns`. Frames and ids are whole numbers, positions finite, each (frame, id) once; a row
 /// whose `in_view` column is 0 is put apart. A table without rows is an error.
 pub fn read_samples(path: &Path, columns: [&str; 4]) -> Result<SampleTable, FileError> {
+    let text = FileCtx { path }.read_text("a CSV of positions with a header")?;
+    parse_samples(path, &text, columns)
+}
+
+/// [`read_samples`] on text; `path` names the file in messages.
+pub fn parse_samples(
+    path: &Path,
+    text: &str,
+    columns: [&str; 4],
+) -> Result<SampleTable, FileError> {
     let ctx = FileCtx { path };
-    let text = ctx.read_text("a CSV of positions with a header")?;
-    let mut lines = ctx.lines(&text);
+    let mut lines = ctx.lines(text);
     let (_, header) = lines
         .next()
         .transpose()?

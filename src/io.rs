@@ -24,7 +24,8 @@ impl std::fmt::Display for FileError {
         if let Some(field) = &self.field {
             write!(f, ": field '{field}'")?;
         }
-        write!(f, ": {}", self.message)
+        // Readers quote short pieces of the input; this bounds whatever a message holds.
+        write!(f, ": {}", clip(&self.message, 1000))
     }
 }
 
@@ -59,20 +60,30 @@ impl FileCtx<'_> {
     /// should be, for the message when it is not text. A folder, or a file beyond
     /// [`max_input_bytes`], is an error.
     pub fn read_text(&self, what: &str) -> Result<String, FileError> {
+        let limit = max_input_bytes();
+        self.read_text_up_to(what, limit, "set GEOSTRIDE_MAX_INPUT_MB to raise the limit")
+    }
+
+    /// [`read_text`](Self::read_text) for a file of settings (a project, a scene, a
+    /// calibration), which is never more than `max_bytes`.
+    pub fn read_small_text(&self, what: &str, max_bytes: u64) -> Result<String, FileError> {
+        self.read_text_up_to(what, max_bytes, "is it the right file?")
+    }
+
+    fn read_text_up_to(&self, what: &str, limit: u64, hint: &str) -> Result<String, FileError> {
         let meta = std::fs::metadata(self.path)
             .map_err(|e| self.err(None, None, format!("cannot read: {e}")))?;
         if meta.is_dir() {
             return Err(self.err(None, None, format!("is a folder; expected {what}")));
         }
-        let limit = max_input_bytes();
         if meta.len() > limit {
             return Err(self.err(
                 None,
                 None,
                 format!(
-                    "{} MB is more than the {} MB geostride reads as {what} (set GEOSTRIDE_MAX_INPUT_MB to raise the limit)",
-                    meta.len() >> 20,
-                    limit >> 20
+                    "{} bytes is more than the {} KiB geostride reads as {what} ({hint})",
+                    meta.len(),
+                    limit >> 10
                 ),
             ));
         }

@@ -25,8 +25,13 @@ pub struct TruthBox {
 
 /// Reads `truth/boxes.csv` (`frame,person,kind,x,y,w,h`).
 pub fn read_truth_boxes(path: &Path) -> Result<Vec<TruthBox>, FileError> {
+    let text = FileCtx { path }.read_text("the simulator's truth boxes")?;
+    parse_truth_boxes(path, &text)
+}
+
+/// [`read_truth_boxes`] on text; `path` names the file in messages.
+pub fn parse_truth_boxes(path: &Path, text: &str) -> Result<Vec<TruthBox>, FileError> {
     let ctx = FileCtx { path };
-    let text = ctx.read_text("the simulator's truth boxes")?;
     let mut lines = text.lines().enumerate();
     match lines.next() {
         Some((_, h)) if h.trim() == "frame,person,kind,x,y,w,h" => {}

@@ -539,10 +539,19 @@ impl Loaded {
     }
 }
 
+/// The largest project file read: a project is a page of settings.
+pub const MAX_PROJECT_BYTES: u64 = 1 << 20;
+
 /// Reads and checks a project file.
 pub fn load(path: &Path) -> Result<Loaded, FileError> {
     let ctx = FileCtx { path };
-    let text = ctx.read_text("a TOML project file")?;
+    let text = ctx.read_small_text("a TOML project file", MAX_PROJECT_BYTES)?;
+    parse(path, text)
+}
+
+/// Parses and checks a project file's text; `path` names it and anchors its relative paths.
+pub fn parse(path: &Path, text: String) -> Result<Loaded, FileError> {
+    let ctx = FileCtx { path };
     let project: Project = toml::from_str(&text).map_err(|e| {
         let line = e
             .span()

@@ -1432,11 +1432,20 @@ fn body_detector(
 /// The `klt` tracker: a second decoding pass, features followed through every frame with the
 /// scan's detections and the solved poses.
 fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
+    let text = crate::io::FileCtx { path }.read_text("a CSV of heights")?;
+    parse_heights(path, &text)
+}
+
+/// Known head heights, `id,height_m[,sd_m]` per line (a header is optional): track id to
+/// (height, σ), metres. `path` names the file in messages.
+pub fn parse_heights(
+    path: &Path,
+    text: &str,
+) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
     let ctx = crate::io::FileCtx { path };
-    let text = ctx.read_text("a CSV of heights")?;
     // id -> (height, σ, line)
     let mut out: BTreeMap<usize, (f64, f64, usize)> = BTreeMap::new();
-    for row in ctx.lines(&text) {
+    for row in ctx.lines(text) {
         let (line, l) = row?;
         let f: Vec<&str> = l.split(',').map(str::trim).collect();
         if l.trim().is_empty() || (line == 1 && f[0].parse::<f64>().is_err()) {

@@ -331,7 +331,7 @@ impl Scene {
     /// Reads and checks a scene file.
     pub fn load(path: &Path) -> Result<Scene, FileError> {
         let ctx = FileCtx { path };
-        let text = ctx.read_text("a TOML scene")?;
+        let text = ctx.read_small_text("a TOML scene", 1 << 20)?;
         Self::parse(&ctx, &text)
     }
 

@@ -16,10 +16,9 @@ type Row = (usize, HashMap<String, String>);
 
 /// A CSV with a header: each row as a map from column name to field, with its line number. Every
 /// row has the header's number of fields.
-fn rows(path: &Path, needed: &[&str]) -> Result<Vec<Row>, FileError> {
+fn rows(path: &Path, text: &str, needed: &[&str]) -> Result<Vec<Row>, FileError> {
     let ctx = FileCtx { path };
-    let text = ctx.read_text("a CSV table")?;
-    let mut lines = ctx.lines(&text);
+    let mut lines = ctx.lines(text);
     let header: Vec<String> = match lines.next().transpose()? {
         Some((_, h)) => h.split(',').map(|s| s.trim().to_string()).collect(),
         None => Vec::new(),
@@ -50,11 +49,17 @@ fn rows(path: &Path, needed: &[&str]) -> Result<Vec<Row>, FileError> {
 /// `cam_from_world` of every frame, by frame number, from a CSV with `frame`, `rvec_x..z` and
 /// `tvec_x..z` columns.
 pub fn read_poses(path: &Path) -> Result<Vec<(usize, Pose)>, FileError> {
+    let text = FileCtx { path }.read_text("a CSV of camera poses")?;
+    parse_poses(path, &text)
+}
+
+/// [`read_poses`] on text; `path` names the file in messages.
+pub fn parse_poses(path: &Path, text: &str) -> Result<Vec<(usize, Pose)>, FileError> {
     let cols = [
         "frame", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y", "tvec_z",
     ];
     let ctx = FileCtx { path };
-    rows(path, &cols)?
+    rows(path, text, &cols)?
         .into_iter()
         .map(|(line, r)| {
             let v: Vec<f64> = cols[1..]
@@ -74,8 +79,14 @@ pub fn read_poses(path: &Path) -> Result<Vec<(usize, Pose)>, FileError> {
 
 /// The exact GCPs of `truth/gcps.csv`: name and site-frame position.
 pub fn read_gcps(path: &Path) -> Result<Vec<(String, Vector3<f64>)>, FileError> {
+    let text = FileCtx { path }.read_text("a CSV of GCPs")?;
+    parse_gcps(path, &text)
+}
+
+/// [`read_gcps`] on text; `path` names the file in messages.
+pub fn parse_gcps(path: &Path, text: &str) -> Result<Vec<(String, Vector3<f64>)>, FileError> {
     let ctx = FileCtx { path };
-    rows(path, &["name", "e_m", "n_m", "u_m"])?
+    rows(path, text, &["name", "e_m", "n_m", "u_m"])?
         .into_iter()
         .map(|(line, r)| {
             Ok((

@@ -42,7 +42,12 @@ impl std::str::FromStr for Origin {
             .split(',')
             .map(|x| x.trim().parse::<f64>())
             .collect::<Result<_, _>>()
-            .map_err(|_| format!("expected 'centroid', 'point:NAME' or 'LAT,LON,H', got '{s}'"))?;
+            .map_err(|_| {
+                format!(
+                    "expected 'centroid', 'point:NAME' or 'LAT,LON,H', got '{}'",
+                    crate::io::clip(s, 40)
+                )
+            })?;
         match v.as_slice() {
             [lat, lon, h] if lat.abs() <= 90.0 && lon.abs() <= 360.0 => Ok(Origin::Geodetic {
                 lat: *lat,
@@ -50,7 +55,8 @@ impl std::str::FromStr for Origin {
                 h: *h,
             }),
             _ => Err(format!(
-                "expected 'centroid', 'point:NAME' or 'LAT,LON,H' in degrees and metres, got '{s}'"
+                "expected 'centroid', 'point:NAME' or 'LAT,LON,H' in degrees and metres, got '{}'",
+                crate::io::clip(s, 40)
             )),
         }
     }

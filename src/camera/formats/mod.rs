@@ -61,10 +61,13 @@ impl Format {
 pub type FormatError = crate::io::FileError;
 pub(crate) use crate::io::FileCtx as Ctx;
 
+/// The largest calibration file read: parameters and the views of a calibration fit in kilobytes.
+pub const MAX_CALIBRATION_BYTES: u64 = 16 << 20;
+
 /// Reads a calibration file, detecting its format from the content unless `format` is given.
 pub fn read(path: &Path, format: Option<Format>) -> Result<Calibration, FormatError> {
     let ctx = Ctx { path };
-    let text = ctx.read_text("a YAML, XML or JSON calibration")?;
+    let text = ctx.read_small_text("a YAML, XML or JSON calibration", MAX_CALIBRATION_BYTES)?;
     parse(path, &text, format)
 }
 

@@ -12,9 +12,25 @@ use crate::survey::model::{Ctx, Dropped, Observation, Survey, SurveyError};
 /// Adds the picks in `path` to the survey's points. Picks of names the survey lacks are
 /// recorded as dropped rows, not lost silently.
 pub fn read_picks(path: &Path, survey: &mut Survey) -> Result<usize, SurveyError> {
+    let text = Ctx { path }.read_text("a CSV of picks")?;
+    parse_picks(path, &text, survey)
+}
+
+/// The most picks a file may hold (50 GCPs in 20 000 images).
+pub const MAX_PICKS: usize = 1_000_000;
+
+/// [`read_picks`] on text; `path` names the file in messages.
+pub fn parse_picks(path: &Path, text: &str, survey: &mut Survey) -> Result<usize, SurveyError> {
     let ctx = Ctx { path };
-    let text = ctx.read_text("a CSV of picks")?;
-    let table = read_table(&ctx, &text, sniff_delimiter(&text))?;
+    let lines = text.lines().count();
+    if lines > MAX_PICKS + 1 {
+        return Err(ctx.err(
+            None,
+            None,
+            format!("{lines} lines: a picks file has at most {MAX_PICKS} picks"),
+        ));
+    }
+    let table = read_table(&ctx, text, sniff_delimiter(text))?;
     let index: HashMap<String, usize> = survey
         .points
         .iter()

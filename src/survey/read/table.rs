@@ -182,10 +182,18 @@ impl std::str::FromStr for ColumnMap {
         for (i, p) in parts.iter().enumerate() {
             if keyed {
                 let (k, v) = p.split_once('=').ok_or_else(|| {
-                    format!("'{p}': expected field=column (all entries or none use '=')")
+                    format!(
+                        "'{}': expected field=column (all entries or none use '=')",
+                        crate::io::clip(p, 40)
+                    )
                 })?;
-                let field = Field::parse(k)
-                    .ok_or_else(|| format!("unknown field '{k}'; fields are {}", Field::HELP))?;
+                let field = Field::parse(k).ok_or_else(|| {
+                    format!(
+                        "unknown field '{}'; fields are {}",
+                        crate::io::clip(k, 40),
+                        Field::HELP
+                    )
+                })?;
                 let column = match v.trim().parse::<usize>() {
                     Ok(n) if n >= 1 => Column::Position(n),
                     Ok(_) => return Err("column positions start at 1".into()),
@@ -193,8 +201,13 @@ impl std::str::FromStr for ColumnMap {
                 };
                 entries.push((field, column));
             } else {
-                let field = Field::parse(p)
-                    .ok_or_else(|| format!("unknown field '{p}'; fields are {}", Field::HELP))?;
+                let field = Field::parse(p).ok_or_else(|| {
+                    format!(
+                        "unknown field '{}'; fields are {}",
+                        crate::io::clip(p, 40),
+                        Field::HELP
+                    )
+                })?;
                 if field != Field::Skip {
                     entries.push((field, Column::Position(i + 1)));
                 }

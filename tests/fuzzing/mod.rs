@@ -1,0 +1,685 @@
+//! Fuzzing every parser of geostride on the stable toolchain: seeded generators (random bytes,
+//! mutations of valid files, structured rows of hostile values) fed to the in-memory parsers.
+//! A parser must return `Ok` or an error that names the file, never panic, and stay fast and
+//! small. Shared by `tests/fuzz.rs` (a bounded run in `make test`) and `examples/fuzz.rs` (the
+//! long run of `make fuzz`, which also feeds 200 MB inputs to the commands).
+
+#![allow(dead_code)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// The system allocator, counting the bytes in use and their peak.
+pub struct Counting;
+
+pub static IN_USE: AtomicUsize = AtomicUsize::new(0);
+pub static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let p = unsafe { System.alloc(layout) };
+        if !p.is_null() {
+            let now = IN_USE.fetch_add(layout.size(), Ordering::Relaxed) + layout.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) };
+        IN_USE.fetch_sub(layout.size(), Ordering::Relaxed);
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let p = unsafe { System.realloc(ptr, layout, new_size) };
+        if !p.is_null() {
+            if new_size >= layout.size() {
+                let now = IN_USE.fetch_add(new_size - layout.size(), Ordering::Relaxed) + new_size
+                    - layout.size();
+                PEAK.fetch_max(now, Ordering::Relaxed);
+            } else {
+                IN_USE.fetch_sub(layout.size() - new_size, Ordering::Relaxed);
+            }
+        }
+        p
+    }
+}
+
+/// What a parser did with one input.
+pub enum Outcome {
+    Ok,
+    /// An error and its message.
+    Err(String),
+}
+
+/// One parser under fuzzing.
+pub struct Target {
+    pub name: &'static str,
+    /// The share of a run's inputs this target gets: PROJ's parser, behind `crs`, takes
+    /// milliseconds on a string that is nearly a CRS.
+    pub share: f64,
+    /// The file name the parser is told it reads (errors must name it).
+    pub file: &'static str,
+    /// Valid inputs to mutate.
+    pub seeds: Vec<Vec<u8>>,
+    pub run: Box<dyn Fn(&Path, &[u8]) -> Outcome + Send + Sync>,
+}
+
+fn text(bytes: &[u8]) -> Option<&str> {
+    std::str::from_utf8(bytes).ok()
+}
+
+fn outcome<T, E: std::fmt::Display>(r: Result<T, E>) -> Outcome {
+    match r {
+        Ok(_) => Outcome::Ok,
+        Err(e) => Outcome::Err(e.to_string()),
+    }
+}
+
+/// Text parsers see what `FileCtx::read_text` would give them: bytes that are not UTF-8 are an
+/// error there, named with the file.
+fn not_text(path: &Path) -> Outcome {
+    Outcome::Err(format!("{}: not UTF-8 text", path.display()))
+}
+
+macro_rules! target {
+    ($name:expr, $file:expr, [$($seed:expr),* $(,)?], |$p:ident, $t:ident| $body:expr) => {
+        Target {
+            name: $name,
+            share: 1.0,
+            file: $file,
+            seeds: vec![$(Vec::from($seed.as_bytes())),*],
+            run: Box::new(|$p: &Path, bytes: &[u8]| match text(bytes) {
+                Some($t) => outcome($body),
+                None => not_text($p),
+            }),
+        }
+    };
+}
+
+const EMLID: &str = "Name,Easting,Northing,Elevation,Description,Longitude,Latitude,Ellipsoidal height,Easting RMS,Northing RMS,Elevation RMS,Lateral RMS,Antenna height,Antenna height units,Solution status,Averaging start,Averaging end,Samples,PDOP,Base easting,Base northing,Base elevation,Base longitude,Base latitude,Base ellipsoidal height,Baseline,CS name
+GCP1,654481.99876,695998.08092,58.454,,4.432755527,51.074089203,58.454,0.01,0.01,0.02,,,,FIX,,,,,,,,,,,,ETRS89 / Belgian Lambert 2008
+GCP2,654481.98491,696001.88703,58.407,,4.432755384,51.074123416,58.407,0.01,0.01,0.02,,,,FIX,,,,,,,,,,,,ETRS89 / Belgian Lambert 2008
+CHK-1,654495.5,696001.9,58.5,,4.432947,51.0741233,58.5,0.012,0.011,0.02,,,,FLOAT,,,,,,,,,,,,ETRS89 / Belgian Lambert 2008
+";
+const ODM: &str = "EPSG:32631\n600391.4 5659042.6 52.1 1520.5 980.25 DJI_0001.JPG GCP1\n600401.4 5659042.6 52.3 2020.5 985.25 DJI_0001.JPG GCP2\n600391.4 5659052.6 nan 1525.5 480.25 DJI_0002.JPG\n";
+const OPENSFM: &str = r#"{"points": [{"id": "g1", "position": {"latitude": 50.8, "longitude": 4.35, "altitude": 52.0}, "observations": [{"shot_id": "a.jpg", "projection": [0.1, -0.2]}]}, {"id": "g2", "position": {"latitude": 50.8001, "longitude": 4.3502}, "observations": []}]}"#;
+const METASHAPE: &str = "#CoordinateSystem: ETRS89 / Belgian Lambert 2008 (EPSG::3812)\n#Label,X/East,Y/North,Z/Altitude,X_error,Y_error,Z_error,Enabled\nA,654482.0,696000.0,58.4,0.01,0.01,0.02,1\nB,654490.5,695990.25,58.1,0.01,0.01,0.02,0\nCHK-C,654470,696010,57.9,,,,1\n";
+const CSV: &str = "name,x,y,z\nA,654482.0,696000.0,58.4\nB,654490.5,695990.25,58.1\n";
+const PETRACK: &str =
+    "3\n100.0 200.0 0.0 512.5 300.25\n300.0 200.0 0.0 900.5 310.0\n100.0 400.0 15.0 520.0 700.0\n";
+const PICKS: &str = "name,image,u,v,sigma\nGCP1,video.mp4#0,99.21,445.86,0.5\nGCP2,video.mp4#0,99.74,331.96,0.5\nCHK-1,video.mp4#0,500,500\n";
+const YAML: &str = "%YAML:1.0\n---\nimage_width: 1920\nimage_height: 1080\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1378.3, 0., 959.5, 0., 1378.3, 539.5, 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ -0.01, 0.02, 0.0001, -0.0002, 0.001 ]\navg_reprojection_error: 0.3\n";
+const XML: &str = "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<calibration>\n  <projection>frame</projection>\n  <width>4000</width>\n  <height>3000</height>\n  <f>3000.5</f>\n  <cx>10.2</cx>\n  <cy>-5.1</cy>\n  <b1>0.5</b1>\n  <k1>-0.01</k1>\n  <k2>0.02</k2>\n  <k4>0.0001</k4>\n  <p1>0.0001</p1>\n  <covariance>\n    <params>f cx cy</params>\n    <coeffs>1 0 0 0 1 0 0 0 1</coeffs>\n  </covariance>\n</calibration>\n";
+const JSON_CAL: &str = include_str!("../../calib/dji-mini3pro-4k.json");
+const SCENE: &str = include_str!("../scenes/hover-drift.toml");
+const PROJECT: &str = "name = \"fuzz\"\n[camera]\ncalibration = \"mini3pro\"\n[survey]\ngcps = \"gcps.csv\"\npicks = [\"picks.csv\"]\nheight = \"ellipsoidal\"\norigin = \"51.07,4.43,52\"\n[video]\npath = \"video.mp4\"\nduration_s = 2\n[ground]\nkind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0\n[detect]\nkind = \"boxes\"\nboxes = \"boxes.txt\"\nroi = [0, 0, 100, 100]\n[track]\nkind = \"klt\"\n[projection]\nhead_height_m = 1.7\n[smooth]\nkind = \"kalman_rts\"\n[export]\ncrs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\"]\n";
+const MOT: &str = "frame,id,left,top,width,height,conf\n1,-1,100,100,40,80,0.9\n2,-1,102.5,101,40,80,0.95,-1,-1,-1\n3,7,104,102,40,80,-1\n";
+const JSONL: &str = "{\"frame\": 0, \"boxes\": [{\"bbox\": [1, 2, 30, 60], \"score\": 0.9, \"label\": \"person\"}]}\n{\"frame\": 1, \"bbox\": [3, 4, 30, 60], \"score\": 0.8}\n";
+const COCO: &str = r#"{"images": [{"id": 1, "file_name": "frame_0001.jpg"}, {"id": 2, "frame_index": 7}], "categories": [{"id": 1, "name": "person"}, {"id": 2, "name": "car"}], "annotations": [{"image_id": 1, "category_id": 1, "bbox": [1, 2, 30, 60], "score": 0.9}, {"image_id": 2, "category_id": 2, "bbox": [1, 2, 3, 4]}]}"#;
+const BAL: &str = "2 2 4\n0 0 -1.0 2.0\n1 0 -1.5 2.5\n0 1 3.0 -1.0\n1 1 2.5 -0.5\n0.01 0.02 0.03 0.1 0.2 -5.0 500 0 0\n-0.01 0.02 0.0 0.3 0.1 -5.0 500 0 0\n0.5 0.2 1.0\n-0.3 0.4 0.8\n";
+const HEIGHTS: &str = "id,height_m,sd_m\n1,1.75,0.02\n2,1.62\n3,1.8,0\n";
+const SAMPLES: &str = "frame,id,e_m,n_m,in_view\n0,1,1.5,2.5,1\n0,2,3.25,-4,0\n1,1,1.6,2.5,1\n";
+const POSES: &str = "frame,time_s,centre_e_m,centre_n_m,centre_u_m,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n0,0.0,0,0.25,36.58,3.1409,0.0004,-0.0029,0.0686,0.2745,36.5816\n1,0.04,0.0019,0.253,36.58,3.1411,0.0003,-0.0027,0.0606,0.2707,36.5814\n";
+const GCPS_TRUTH: &str = "name,e_m,n_m,u_m,x,y,ellipsoidal_height_m\nGCP1,-18.0,-1.9,6.39875,654482.002377,695998.082162,58.398776\nGCP2,-18.0,1.9,6.39875,654481.9986,696001.882059,58.398776\n";
+const TRUTH_BOXES: &str = "frame,person,kind,x,y,w,h\n0,7,body,1471.64,568.05,81.12,50.45\n0,7,shadow,1443.71,512.73,62.48,88.02\n";
+
+/// A folder with the (empty) files the project seed names.
+fn project_dir() -> &'static Path {
+    static DIR: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("geostride-fuzz-project-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        for f in [
+            "gcps.csv",
+            "picks.csv",
+            "video.mp4",
+            "boxes.txt",
+            "heights.csv",
+        ] {
+            std::fs::write(d.join(f), b"").unwrap();
+        }
+        d
+    })
+}
+
+/// A survey of the seeds' points, for the picks parser to merge into.
+fn picks_survey() -> geostride::survey::Survey {
+    geostride::survey::read::parse(
+        Path::new("gcps.csv"),
+        EMLID,
+        &geostride::survey::read::ReadOptions::default(),
+    )
+    .expect("the Emlid seed is valid")
+}
+
+/// Every parser, with its seeds.
+pub fn targets() -> Vec<Target> {
+    use geostride::survey::model::SurveyFormat;
+    use geostride::survey::read::{ReadOptions, parse};
+    let survey =
+        |name: &'static str, file: &'static str, seeds: Vec<&str>, format: Option<SurveyFormat>| {
+            let opts = ReadOptions {
+                format,
+                columns: (format == Some(SurveyFormat::Csv)).then(|| "name,x,y,z".parse().unwrap()),
+                crs: (format == Some(SurveyFormat::Csv)).then(|| "EPSG:3812".to_string()),
+                image_size: Some((4000, 3000)),
+                ..ReadOptions::default()
+            };
+            Target {
+                name,
+                share: 1.0,
+                file,
+                seeds: seeds.into_iter().map(|s| s.as_bytes().to_vec()).collect(),
+                run: Box::new(move |p: &Path, b: &[u8]| match text(b) {
+                    Some(t) => outcome(parse(p, t, &opts)),
+                    None => not_text(p),
+                }),
+            }
+        };
+    let all_surveys = vec![EMLID, ODM, OPENSFM, METASHAPE, PETRACK];
+    let base = picks_survey();
+    vec![
+        survey("survey", "gcps.csv", all_surveys, None),
+        survey(
+            "survey-emlid",
+            "gcps.csv",
+            vec![EMLID],
+            Some(SurveyFormat::Emlid),
+        ),
+        survey(
+            "survey-odm",
+            "gcp_list.txt",
+            vec![ODM],
+            Some(SurveyFormat::Odm),
+        ),
+        survey(
+            "survey-opensfm",
+            "ground_control_points.json",
+            vec![OPENSFM],
+            Some(SurveyFormat::OpenSfm),
+        ),
+        survey(
+            "survey-metashape",
+            "reference.csv",
+            vec![METASHAPE],
+            Some(SurveyFormat::Metashape),
+        ),
+        survey(
+            "survey-csv",
+            "points.csv",
+            vec![CSV],
+            Some(SurveyFormat::Csv),
+        ),
+        survey(
+            "survey-petrack",
+            "points.3dc",
+            vec![PETRACK],
+            Some(SurveyFormat::Petrack),
+        ),
+        Target {
+            name: "picks",
+            share: 1.0,
+            file: "picks.csv",
+            seeds: vec![PICKS.as_bytes().to_vec()],
+            run: Box::new(move |p: &Path, b: &[u8]| match text(b) {
+                Some(t) => outcome(geostride::survey::read::parse_picks(
+                    p,
+                    t,
+                    &mut base.clone(),
+                )),
+                None => not_text(p),
+            }),
+        },
+        target!(
+            "calibration",
+            "camera.cal",
+            [YAML, XML, JSON_CAL],
+            |p, t| { geostride::camera::formats::parse(p, t, None) }
+        ),
+        target!("calibration-yaml", "camera.yaml", [YAML], |p, t| {
+            geostride::camera::formats::parse(
+                p,
+                t,
+                Some(geostride::camera::formats::Format::OpenCvYaml),
+            )
+        }),
+        target!("calibration-xml", "camera.xml", [XML], |p, t| {
+            geostride::camera::formats::parse(
+                p,
+                t,
+                Some(geostride::camera::formats::Format::Metashape),
+            )
+        }),
+        target!("calibration-json", "camera.json", [JSON_CAL], |p, t| {
+            geostride::camera::formats::parse(p, t, Some(geostride::camera::formats::Format::Json))
+        }),
+        Target {
+            name: "project",
+            share: 1.0,
+            file: "project.toml",
+            seeds: vec![PROJECT.as_bytes().to_vec()],
+            // In a folder that has the files the seed names, so that checks go past them.
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => outcome(geostride::pipeline::project::parse(
+                    &project_dir().join("project.toml"),
+                    t.to_string(),
+                )),
+                None => not_text(Path::new("project.toml")),
+            }),
+        },
+        target!("scene", "scene.toml", [SCENE], |p, t| {
+            geostride::simulate::scene::Scene::parse(&geostride::io::FileCtx { path: p }, t)
+        }),
+        target!("boxes-mot", "boxes.txt", [MOT], |p, t| {
+            geostride::detect::boxes::parse_boxes(p, t, geostride::detect::boxes::BoxFormat::Mot)
+        }),
+        target!("boxes-jsonl", "boxes.jsonl", [JSONL], |p, t| {
+            geostride::detect::boxes::parse_boxes(
+                p,
+                t,
+                geostride::detect::boxes::BoxFormat::JsonLines,
+            )
+        }),
+        target!("boxes-coco", "boxes.json", [COCO], |p, t| {
+            geostride::detect::boxes::parse_boxes(p, t, geostride::detect::boxes::BoxFormat::Coco)
+        }),
+        target!("bal", "problem.txt", [BAL], |p, t| {
+            geostride::optim::bal::parse_bal(p, t)
+        }),
+        target!("heights", "heights.csv", [HEIGHTS], |p, t| {
+            geostride::pipeline::run::parse_heights(p, t)
+        }),
+        target!("samples", "tracks.csv", [SAMPLES], |p, t| {
+            geostride::evaluate::parse_samples(p, t, ["frame", "id", "e_m", "n_m"])
+        }),
+        target!("truth-poses", "camera.csv", [POSES], |p, t| {
+            geostride::simulate::truth::parse_poses(p, t)
+        }),
+        target!("truth-gcps", "gcps.csv", [GCPS_TRUTH], |p, t| {
+            geostride::simulate::truth::parse_gcps(p, t)
+        }),
+        target!("truth-boxes", "boxes.csv", [TRUTH_BOXES], |p, t| {
+            geostride::detect::simulated::parse_truth_boxes(p, t)
+        }),
+        Target {
+            name: "crs",
+            share: 0.05,
+            file: "",
+            seeds: [
+                "EPSG:31370",
+                "WGS84 UTM 17N",
+                "+proj=utm +zone=22 +south +datum=WGS84",
+                "ETRS89 / Belgian Lambert 2008",
+                "EPSG:6190",
+                "local",
+            ]
+            .iter()
+            .map(|s| s.as_bytes().to_vec())
+            .collect(),
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => outcome(geostride::survey::crs::Crs::new(t)),
+                None => Outcome::Err("not text".into()),
+            }),
+        },
+        Target {
+            name: "origin",
+            share: 1.0,
+            file: "",
+            seeds: ["centroid", "point:GCP1", "51.07,4.43,52.5"]
+                .iter()
+                .map(|s| s.as_bytes().to_vec())
+                .collect(),
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => outcome(t.parse::<geostride::survey::frame::Origin>()),
+                None => Outcome::Err("not text".into()),
+            }),
+        },
+        Target {
+            name: "columns",
+            share: 1.0,
+            file: "",
+            seeds: [
+                "name=Label,x=E,y=N,z=H,sx=1",
+                "name,x,y,z,sx,sy,sz",
+                "x=3,y=2,name=1",
+            ]
+            .iter()
+            .map(|s| s.as_bytes().to_vec())
+            .collect(),
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => outcome(t.parse::<geostride::survey::read::ColumnMap>()),
+                None => Outcome::Err("not text".into()),
+            }),
+        },
+    ]
+}
+
+/// Values that break careless parsers.
+const HOSTILE: &[&str] = &[
+    "nan",
+    "NaN",
+    "-nan",
+    "inf",
+    "-inf",
+    "infinity",
+    "1e400",
+    "-1e400",
+    "1e-400",
+    "0",
+    "-0",
+    "-1",
+    "1e308",
+    "4294967296",
+    "18446744073709551616",
+    "9007199254740993",
+    "99999999999999999999999999999",
+    ".nan",
+    ".Inf",
+    "-.Inf",
+    "",
+    " ",
+    "1,5",
+    "12,5;3,4",
+    "0x10",
+    "1_000",
+    "+",
+    "-",
+    ".",
+    "e5",
+    "\"",
+    "'",
+    "\\",
+    "#",
+    "[",
+    "{",
+    "]",
+    "}",
+    "\t",
+    "\u{feff}",
+    "é",
+    "\u{0}",
+    "null",
+    "true",
+    "[]",
+    "{}",
+    "[[[[[[[[",
+    "\"\"\"",
+];
+
+fn is_number_byte(b: u8) -> bool {
+    b.is_ascii_digit() || b == b'.' || b == b'-' || b == b'+' || b == b'e' || b == b'E'
+}
+
+/// One mutation of `input`.
+fn mutate_once(rng: &mut ChaCha8Rng, input: &mut Vec<u8>, seeds: &[Vec<u8>]) {
+    let len = input.len();
+    match rng.random_range(0..14) {
+        0 if len > 0 => {
+            let i = rng.random_range(0..len);
+            input[i] ^= 1 << rng.random_range(0..8);
+        }
+        1 if len > 0 => {
+            let a = rng.random_range(0..len);
+            let b = (a + rng.random_range(1..=16.min(len - a).max(1))).min(len);
+            input.drain(a..b);
+        }
+        2 => {
+            let at = rng.random_range(0..=len);
+            let n = rng.random_range(1..8);
+            let bytes: Vec<u8> = (0..n).map(|_| rng.random()).collect();
+            input.splice(at..at, bytes);
+        }
+        3 if len > 0 => {
+            let a = rng.random_range(0..len);
+            let b = (a + rng.random_range(1..=64)).min(len);
+            let chunk = input[a..b].to_vec();
+            let at = rng.random_range(0..=input.len());
+            input.splice(at..at, chunk);
+        }
+        4 | 5 | 6 => {
+            // A number, or anything between delimiters, replaced by a hostile value.
+            if len == 0 {
+                input.extend_from_slice(HOSTILE[rng.random_range(0..HOSTILE.len())].as_bytes());
+                return;
+            }
+            let i = rng.random_range(0..len);
+            let (mut a, mut b) = (i, i);
+            if is_number_byte(input[i]) {
+                while a > 0 && is_number_byte(input[a - 1]) {
+                    a -= 1;
+                }
+                while b < len && is_number_byte(input[b]) {
+                    b += 1;
+                }
+            } else {
+                let stop =
+                    |c: u8| matches!(c, b',' | b';' | b'\t' | b' ' | b'\n' | b'"' | b':' | b'=');
+                while a > 0 && !stop(input[a - 1]) {
+                    a -= 1;
+                }
+                while b < len && !stop(input[b]) {
+                    b += 1;
+                }
+            }
+            let v = HOSTILE[rng.random_range(0..HOSTILE.len())];
+            input.splice(a..b, v.bytes());
+        }
+        7 => {
+            // A line duplicated, deleted or swapped.
+            let mut lines: Vec<Vec<u8>> =
+                input.split(|c| *c == b'\n').map(<[u8]>::to_vec).collect();
+            if lines.len() > 1 {
+                let i = rng.random_range(0..lines.len());
+                let j = rng.random_range(0..lines.len());
+                match rng.random_range(0..3) {
+                    0 => {
+                        let l = lines[i].clone();
+                        lines.insert(j, l);
+                    }
+                    1 => {
+                        lines.remove(i);
+                    }
+                    _ => lines.swap(i, j),
+                }
+                *input = lines.join(&b'\n');
+            }
+        }
+        8 if len > 0 => {
+            // Delimiters changed.
+            let from = [b',', b';', b'\t', b' ', b'\n', b':'][rng.random_range(0..6)];
+            let to = [b',', b';', b'\t', b' ', b'\n', b'.'][rng.random_range(0..6)];
+            for c in input.iter_mut() {
+                if *c == from && rng.random_bool(0.5) {
+                    *c = to;
+                }
+            }
+        }
+        9 => {
+            // Something long: a token, a line, or deep nesting.
+            let at = rng.random_range(0..=len);
+            let n = 1usize << rng.random_range(4..16);
+            let piece: Vec<u8> = match rng.random_range(0..4) {
+                0 => vec![b'9'; n],
+                1 => b"[".repeat(n),
+                2 => b"{\"a\":".repeat(n / 5),
+                _ => {
+                    let l = input
+                        .split(|c| *c == b'\n')
+                        .nth(1)
+                        .unwrap_or(b"x,1,2")
+                        .to_vec();
+                    let mut v = Vec::new();
+                    for _ in 0..(n / 64).max(2) {
+                        v.extend_from_slice(&l);
+                        v.push(b'\n');
+                    }
+                    v
+                }
+            };
+            input.splice(at..at, piece);
+        }
+        10 if len > 0 => input.truncate(rng.random_range(0..len)),
+        11 => {
+            // Crossover with another seed.
+            let other = &seeds[rng.random_range(0..seeds.len())];
+            if !other.is_empty() {
+                let cut = rng.random_range(0..=len);
+                let from = rng.random_range(0..other.len());
+                input.truncate(cut);
+                input.extend_from_slice(&other[from..]);
+            }
+        }
+        12 if len > 0 => {
+            // A byte repeated (quotes, brackets, separators).
+            let i = rng.random_range(0..len);
+            let b = input[i];
+            let n = rng.random_range(1..64);
+            input.splice(i..i, std::iter::repeat_n(b, n));
+        }
+        _ => {
+            let at = rng.random_range(0..=len);
+            let v = HOSTILE[rng.random_range(0..HOSTILE.len())];
+            input.splice(at..at, v.bytes());
+        }
+    }
+}
+
+/// A structured table of `rows` lines of hostile and ordinary fields: what a spreadsheet or a
+/// careless export makes of a CSV.
+fn random_table(rng: &mut ChaCha8Rng, seed: &[u8]) -> Vec<u8> {
+    let header = seed.split(|c| *c == b'\n').next().unwrap_or(b"");
+    let mut out = header.to_vec();
+    out.push(b'\n');
+    let fields = header.iter().filter(|c| **c == b',').count() + 1;
+    for _ in 0..rng.random_range(0..20) {
+        let n = (fields as i64 + rng.random_range(-2i64..=2)).max(1);
+        let row: Vec<String> = (0..n)
+            .map(|_| match rng.random_range(0..4) {
+                0 => HOSTILE[rng.random_range(0..HOSTILE.len())].to_string(),
+                1 => format!("{}", rng.random_range(-1e7..1e7)),
+                2 => format!("{}", rng.random_range(0..100u32)),
+                _ => ["GCP1", "CHK-2", "a.jpg", "video.mp4#0", "FIX", "body"]
+                    [rng.random_range(0..6)]
+                .to_string(),
+            })
+            .collect();
+        out.extend_from_slice(row.join(",").as_bytes());
+        out.push(b'\n');
+    }
+    out
+}
+
+/// The `index`-th input of a run: the same seed and index give the same input.
+pub fn input(target: &Target, seed: u64, index: u64) -> Vec<u8> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let seeds = &target.seeds;
+    match rng.random_range(0..20) {
+        0 => (0..rng.random_range(0..512))
+            .map(|_| rng.random())
+            .collect(),
+        1 => {
+            let s = &seeds[rng.random_range(0..seeds.len())];
+            random_table(&mut rng, s)
+        }
+        _ => {
+            let mut v = seeds[rng.random_range(0..seeds.len())].clone();
+            for _ in 0..rng.random_range(1..=5) {
+                mutate_once(&mut rng, &mut v, seeds);
+            }
+            v
+        }
+    }
+}
+
+/// What fuzzing one target found.
+#[derive(Debug, Default)]
+pub struct Report {
+    pub target: String,
+    pub inputs: u64,
+    pub ok: u64,
+    pub errors: u64,
+    /// (index, the panic's message)
+    pub panics: Vec<(u64, String)>,
+    /// (index, why): an error that does not name the file, or a message over 8 kB.
+    pub bad_messages: Vec<(u64, String)>,
+    /// The slowest input: (index, seconds, bytes).
+    pub slowest: (u64, f64, usize),
+    /// The largest heap in use at once, bytes (with the counting allocator installed).
+    pub peak_bytes: usize,
+    pub seconds: f64,
+}
+
+/// Fuzzes `target` with inputs `first..first + count` of `seed`.
+pub fn fuzz(target: &Target, seed: u64, first: u64, count: u64) -> Report {
+    let path = Path::new(if target.file.is_empty() {
+        "input"
+    } else {
+        target.file
+    });
+    let mut r = Report {
+        target: target.name.to_string(),
+        ..Report::default()
+    };
+    PEAK.store(IN_USE.load(Ordering::Relaxed), Ordering::Relaxed);
+    let started = Instant::now();
+    let quiet = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    for i in first..first + count {
+        let bytes = input(target, seed, i);
+        let t0 = Instant::now();
+        let result =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (target.run)(path, &bytes)));
+        let dt = t0.elapsed().as_secs_f64();
+        if dt > r.slowest.1 {
+            r.slowest = (i, dt, bytes.len());
+        }
+        r.inputs += 1;
+        match result {
+            Ok(Outcome::Ok) => r.ok += 1,
+            Ok(Outcome::Err(m)) => {
+                r.errors += 1;
+                if !target.file.is_empty() && !m.contains(target.file) && r.bad_messages.len() < 10
+                {
+                    r.bad_messages.push((
+                        i,
+                        format!(
+                            "does not name {}: {}",
+                            target.file,
+                            geostride::io::clip(&m, 200)
+                        ),
+                    ));
+                }
+                if m.len() > 8000 && r.bad_messages.len() < 10 {
+                    r.bad_messages.push((
+                        i,
+                        format!(
+                            "a message of {} bytes: {}",
+                            m.len(),
+                            geostride::io::clip(&m, 160)
+                        ),
+                    ));
+                }
+            }
+            Err(p) => {
+                let msg = p
+                    .downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                    .unwrap_or_default();
+                if r.panics.len() < 10 {
+                    r.panics.push((i, msg));
+                }
+            }
+        }
+    }
+    std::panic::set_hook(quiet);
+    r.peak_bytes = PEAK.load(Ordering::Relaxed);
+    r.seconds = started.elapsed().as_secs_f64();
+    r
+}

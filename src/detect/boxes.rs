@@ -1081,9 +1081,9 @@ mod tests {
             ),
             (
                 "0,-1,10,10,20,40,0.9",
-                "boxes.txt:7: field 'frame': expected a whole frame number >= 1",
+                "boxes.txt:7: field 'frame': expected a whole frame number from 1 (MOT frames start at 1)",
             ),
-            ("1,-1,10,10,20,40", "boxes.txt:7: expected 7 to 10 columns"),
+            ("1,-1,10,10,20,40", "boxes.txt:7: expected 7 to 10 fields"),
         ];
         for (bad, want) in cases {
             let e = err("boxes.txt", &format!("{good}{bad}\n{good}"), BoxFormat::Mot);

@@ -39,8 +39,9 @@ fn emlid_rows() -> Vec<HashMap<&'static str, String>> {
         m.insert("Northing", format!("{n}"));
         m.insert("Elevation", format!("{el}"));
         m.insert("Ellipsoidal height", format!("{h}"));
-        m.insert("Longitude", "4.3".into());
-        m.insert("Latitude", "50.8".into());
+        // Where these eastings and northings lie in EPSG:3812 (the reader checks).
+        m.insert("Longitude", "4.35598".into());
+        m.insert("Latitude", "50.79726".into());
         m.insert("Easting RMS", format!("{rms}"));
         m.insert("Northing RMS", format!("{}", rms * 1.5));
         m.insert("Elevation RMS", format!("{}", rms * 2.0));
@@ -128,6 +129,8 @@ fn emlid_without_vertical_datum_has_ellipsoidal_elevations() {
         let h = r["Ellipsoidal height"].clone();
         r.insert("Elevation", h);
         r.insert("CS name", "WGS 84 / UTM zone 31N".into());
+        r.insert("Longitude", "4.34717".into());
+        r.insert("Latitude", "6.01639".into());
     }
     let s = read(
         &write(dir.path(), "e.csv", &emlid_csv(&COLUMNS_27, &rows)),

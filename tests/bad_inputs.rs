@@ -612,14 +612,6 @@ fn cases() -> Vec<Case> {
             place: "gcp_list.txt:2",
         },
         Case {
-            id: "odm-picked-twice",
-            category: "nonsense accepted",
-            files: vec![("gcp_list.txt", "EPSG:3812\n654482 696000 58 100 445.9 a.jpg G1\n654482 696000 58 101 446.9 a.jpg G1\n".into())],
-            args: survey("gcp_list.txt"),
-            expect: "picked twice",
-            place: "gcp_list.txt:3",
-        },
-        Case {
             id: "odm-too-few-fields",
             category: "nonsense accepted",
             files: vec![("gcp_list.txt", "EPSG:3812\n654482 696000 58 100 445.9\n".into())],

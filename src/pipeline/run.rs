@@ -557,6 +557,14 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     let camera = project_camera(l, width, height)?;
     let framed = load_survey(l)?;
     warnings.extend(framed.survey.warnings.iter().cloned());
+    warnings.extend(framed.survey.dropped.iter().map(|d| {
+        format!(
+            "{}:{}: dropped: {}",
+            framed.survey.source.display(),
+            d.line,
+            d.reason
+        )
+    }));
     let (pick_frame, control, check) = picked(l, &framed, (width, height), frames_total)?;
     let surface = ground(l, &framed)?;
 
@@ -1436,6 +1444,9 @@ fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::F
     parse_heights(path, &text)
 }
 
+/// The most rows of a heights file (tracks of a day of a marathon are fewer).
+pub const MAX_HEIGHTS: usize = 1_000_000;
+
 /// Known head heights, `id,height_m[,sd_m]` per line (a header is optional): track id to
 /// (height, σ), metres. `path` names the file in messages.
 pub fn parse_heights(
@@ -1443,6 +1454,14 @@ pub fn parse_heights(
     text: &str,
 ) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
     let ctx = crate::io::FileCtx { path };
+    let lines = text.lines().count();
+    if lines > MAX_HEIGHTS {
+        return Err(ctx.err(
+            None,
+            None,
+            format!("{lines} lines: a heights file has at most {MAX_HEIGHTS}, one per track"),
+        ));
+    }
     // id -> (height, σ, line)
     let mut out: BTreeMap<usize, (f64, f64, usize)> = BTreeMap::new();
     for row in ctx.lines(text) {

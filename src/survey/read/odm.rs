@@ -8,7 +8,7 @@ use nalgebra::{Vector2, Vector3};
 
 use super::ReadOptions;
 use crate::survey::crs::{Crs, HeightKind};
-use crate::survey::model::{Ctx, Gcp, Observation, Survey, SurveyError, SurveyFormat};
+use crate::survey::model::{Ctx, Dropped, Gcp, Observation, Survey, SurveyError, SurveyFormat};
 
 fn strip_comment(line: &str) -> &str {
     match line.find('#') {
@@ -46,6 +46,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     let mut picked: HashMap<(usize, String), usize> = HashMap::new();
 
     let mut points: Vec<Gcp> = Vec::new();
+    let mut dropped: Vec<Dropped> = Vec::new();
     for (line, l) in lines {
         if l.is_empty() {
             continue;
@@ -115,16 +116,40 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
                 points.len() - 1
             }
         };
-        if let Some(first) = picked.insert((k, obs.image.clone()), line) {
-            return Err(ctx.at(
-                line,
-                format!(
-                    "'{}' is picked twice in image '{}' (lines {first} and {line}); keep one",
-                    crate::io::clip(&points[k].name, 40),
-                    crate::io::clip(&obs.image, 60)
-                ),
-            ));
+        // OpenDroneMap's own lists hold the odd point picked twice in one image (one of the
+        // published lists does): the same pixel is kept once; two places are ambiguous, so that
+        // image's picks of the point are dropped, and both lines listed.
+        if let Some(&first) = picked.get(&(k, obs.image.clone())) {
+            let obs_list = &mut points[k].observations;
+            if let Some(i) = obs_list.iter().position(|o| o.image == obs.image) {
+                if obs_list[i].uv == obs.uv {
+                    dropped.push(Dropped {
+                        line,
+                        reason: format!(
+                            "'{}' picked again at the same pixel in image '{}' (line {first}): kept once",
+                            crate::io::clip(&points[k].name, 40),
+                            crate::io::clip(&obs.image, 60)
+                        ),
+                    });
+                    continue;
+                }
+                obs_list.remove(i);
+            }
+            let reason = format!(
+                "'{}' is picked at two places in image '{}' (lines {first} and {line}): both picks dropped; keep the right one",
+                crate::io::clip(&points[k].name, 40),
+                crate::io::clip(&obs.image, 60)
+            );
+            if !dropped.iter().any(|d| d.line == first) {
+                dropped.push(Dropped {
+                    line: first,
+                    reason: reason.clone(),
+                });
+            }
+            dropped.push(Dropped { line, reason });
+            continue;
         }
+        picked.insert((k, obs.image.clone()), line);
         points[k].observations.push(obs);
     }
     if points.is_empty() {
@@ -143,7 +168,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
         crs: Some(spec),
         height: HeightKind::Unknown,
         points,
-        dropped: Vec::new(),
+        dropped,
         warnings,
     })
 }

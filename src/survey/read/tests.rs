@@ -250,6 +250,25 @@ fn odm_lists_with_comments_tabs_nan_and_unnamed_points() {
         .line,
         Some(1)
     );
+    // A point picked twice in one image (a published list has one): the same pixel is kept
+    // once; two places drop both, each line listed with the reason.
+    let p = write(
+        dir.path(),
+        "twice.txt",
+        "EPSG:32631\n1 2 3 4 5 a.jpg P\n1 2 3 4 5 a.jpg P\n1 2 3 40 50 b.jpg P\n\
+         1 2 3 41 52 b.jpg P\n1 2 3 7 8 c.jpg P\n",
+    );
+    let s = read(&p, &ReadOptions::default()).unwrap();
+    let images: Vec<&str> = s.points[0]
+        .observations
+        .iter()
+        .map(|o| o.image.as_str())
+        .collect();
+    assert_eq!(images, ["a.jpg", "c.jpg"]);
+    let lines: Vec<usize> = s.dropped.iter().map(|d| d.line).collect();
+    assert_eq!(lines, [3, 4, 5]);
+    assert!(s.dropped[0].reason.contains("same pixel"), "{:?}", s.dropped);
+    assert!(s.dropped[2].reason.contains("lines 4 and 5"), "{:?}", s.dropped);
 }
 
 #[test]

@@ -108,6 +108,57 @@ impl Context {
         CONTEXT.with(|c| c.get_or_init(|| Rc::new(Context::new())).clone())
     }
 
+    /// The CRSs of PROJ's database, listed once per thread: PROJ takes milliseconds to fail on
+    /// an unknown code (it tries every other kind of object first) and to look a name up (its
+    /// name search scans every table); a table lookup takes microseconds.
+    fn with_catalogue<T>(&self, f: impl FnOnce(&Catalogue) -> T) -> T {
+        thread_local! {
+            static CATALOGUE: std::cell::OnceCell<Catalogue> = const { std::cell::OnceCell::new() };
+        }
+        CATALOGUE.with(|c| {
+            f(c.get_or_init(|| {
+                let mut cat = Catalogue::default();
+                let mut n = 0;
+                let list = unsafe {
+                    sys::proj_get_crs_info_list_from_database(
+                        self.ptr,
+                        ptr::null(),
+                        ptr::null(),
+                        &mut n,
+                    )
+                };
+                if list.is_null() {
+                    return cat;
+                }
+                for i in 0..usize::try_from(n).unwrap_or(0) {
+                    let info = unsafe { &**list.add(i) };
+                    let (Some(a), Some(c)) = (c_str_opt(info.auth_name), c_str_opt(info.code))
+                    else {
+                        continue;
+                    };
+                    let code = format!("{a}:{c}");
+                    cat.codes.insert(code.to_ascii_uppercase());
+                    if let Some(name) = c_str_opt(info.name) {
+                        // One code per name: EPSG's first, then one not deprecated.
+                        let better = |old: &(String, bool)| {
+                            (a == "EPSG" && !old.0.starts_with("EPSG:"))
+                                || (old.1 && info.deprecated == 0)
+                        };
+                        let key = name.to_lowercase();
+                        match cat.names.get(&key) {
+                            Some(old) if !better(old) => {}
+                            _ => {
+                                cat.names.insert(key, (code, info.deprecated != 0));
+                            }
+                        }
+                    }
+                }
+                unsafe { sys::proj_crs_info_list_destroy(list) };
+                cat
+            }))
+        })
+    }
+
     fn last_error(&self) -> String {
         unsafe {
             let code = sys::proj_context_errno(self.ptr);
@@ -169,6 +220,43 @@ pub fn normalise_spec(spec: &str) -> String {
     s.to_string()
 }
 
+/// PROJ's CRSs: their `AUTH:CODE`s (upper case), and each name (lower case) with its code and
+/// whether that code is deprecated.
+#[derive(Default)]
+struct Catalogue {
+    codes: std::collections::HashSet<String>,
+    names: HashMap<String, (String, bool)>,
+}
+
+/// Whether a name could be a CRS's: letters, digits, spaces and the punctuation of EPSG's names,
+/// at most 200 bytes. Anything else is not looked up in PROJ's name search (a tenth of a second).
+fn name_like(s: &str) -> bool {
+    s.len() <= 200
+        && s.chars()
+            .all(|c| c.is_alphanumeric() || " /()._-+,'".contains(c))
+}
+
+/// `AUTH:CODE` split, when the specification is one (an authority PROJ's database knows).
+fn auth_code(spec: &str) -> Option<(&str, &str)> {
+    let (a, c) = spec.trim().split_once(':')?;
+    let known = ["EPSG", "ESRI", "IGNF", "IAU_2015", "NKG", "OGC", "PROJ"];
+    (known.iter().any(|k| k.eq_ignore_ascii_case(a))
+        && !c.is_empty()
+        && c.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'.'))
+    .then_some((a, c))
+}
+
+/// Whether a specification is WKT: a keyword, then `[`.
+fn is_wkt(spec: &str) -> bool {
+    let s = spec.trim();
+    s.find('[').is_some_and(|i| {
+        i > 0
+            && s[..i]
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_')
+    })
+}
+
 /// Whether a specification is a CRS's name rather than `AUTH:CODE`, a URN, a PROJ string, WKT or
 /// PROJJSON (which PROJ parses).
 fn is_crs_name(spec: &str) -> bool {
@@ -180,14 +268,8 @@ fn is_crs_name(spec: &str) -> bool {
             && c.bytes()
                 .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'.')
     });
-    let wkt = s.find('[').is_some_and(|i| {
-        i > 0
-            && s[..i]
-                .bytes()
-                .all(|b| b.is_ascii_alphanumeric() || b == b'_')
-    });
     !(auth_code
-        || wkt
+        || is_wkt(s)
         || s.starts_with('+')
         || s.contains("proj=")
         || s.starts_with('{')
@@ -313,33 +395,78 @@ impl Crs {
         let normalised = normalise_spec(spec);
         let c = CString::new(normalised.clone()).map_err(|_| err("contains a NUL byte".into()))?;
         let unknown = "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string, WKT or a CRS's exact name)";
-        let obj = if is_crs_name(&normalised) {
+        // An AUTH:CODE (or urn:ogc:def:crs:AUTH::CODE) PROJ's database does not hold fails here.
+        if let Some((auth, code)) = auth_code(&normalised)
+            && !ctx.with_catalogue(|c| {
+                c.codes
+                    .contains(&format!("{auth}:{code}").to_ascii_uppercase())
+            })
+        {
+            return Err(err(format!(
+                "PROJ does not know it: its database has no CRS {}:{} (expected an EPSG code such as EPSG:32631)",
+                crate::io::clip(auth, 40),
+                crate::io::clip(code, 40)
+            )));
+        }
+        // A PROJ string PROJ cannot parse, and WKT it cannot read, fail here: PROJ's own
+        // fallback searches names approximately, a tenth of a second and never the right CRS.
+        if normalised.starts_with('+') && !normalised.contains("proj=") && !normalised.contains("init=")
+        {
+            return Err(err(
+                "a PROJ string needs +proj= (expected an EPSG code such as EPSG:32631, or a PROJ string such as +proj=utm +zone=31 +datum=WGS84)".into(),
+            ));
+        }
+        let obj = if is_wkt(&normalised) {
+            ctx.wrap(
+                unsafe {
+                    sys::proj_create_from_wkt(
+                        ctx.ptr,
+                        c.as_ptr(),
+                        ptr::null(),
+                        ptr::null_mut(),
+                        ptr::null_mut(),
+                    )
+                },
+                spec,
+                "PROJ cannot read it as WKT",
+            )?
+        } else if is_crs_name(&normalised) {
             // A name is looked up exactly: PROJ's approximate matching takes a third of a
-            // second and may pick another CRS of a similar name (Belge 1972 for BD72).
-            let list = unsafe {
-                sys::proj_create_from_name(
-                    ctx.ptr,
-                    ptr::null(),
-                    c.as_ptr(),
-                    ptr::null(),
-                    0,
-                    0,
-                    1,
-                    ptr::null(),
-                )
-            };
-            if list.is_null() {
-                return Err(err(unknown.into()));
-            }
-            let found = unsafe {
-                if sys::proj_list_get_count(list) > 0 {
-                    sys::proj_list_get(ctx.ptr, list, 0)
-                } else {
-                    ptr::null_mut()
+            // second and may pick another CRS of a similar name (Belge 1972 for BD72). Names in
+            // the CRS list by their code; others (aliases) through PROJ's exact name search.
+            let code = ctx.with_catalogue(|c| c.names.get(&normalised.to_lowercase()).cloned());
+            if let Some((code, _)) = code {
+                let cc = CString::new(code).map_err(|_| err("contains a NUL byte".into()))?;
+                ctx.wrap(unsafe { sys::proj_create(ctx.ptr, cc.as_ptr()) }, spec, unknown)?
+            } else {
+                if !name_like(&normalised) {
+                    return Err(err(unknown.into()));
                 }
-            };
-            unsafe { sys::proj_list_destroy(list) };
-            ctx.wrap(found, spec, unknown)?
+                let list = unsafe {
+                    sys::proj_create_from_name(
+                        ctx.ptr,
+                        ptr::null(),
+                        c.as_ptr(),
+                        ptr::null(),
+                        0,
+                        0,
+                        1,
+                        ptr::null(),
+                    )
+                };
+                if list.is_null() {
+                    return Err(err(unknown.into()));
+                }
+                let found = unsafe {
+                    if sys::proj_list_get_count(list) > 0 {
+                        sys::proj_list_get(ctx.ptr, list, 0)
+                    } else {
+                        ptr::null_mut()
+                    }
+                };
+                unsafe { sys::proj_list_destroy(list) };
+                ctx.wrap(found, spec, unknown)?
+            }
         } else {
             ctx.wrap(
                 unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) },

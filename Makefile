@@ -10,7 +10,7 @@ ifeq ($(origin GEOSTRIDE_DATA), undefined)
   endif
 endif
 
-.PHONY: all bootstrap build demo test bench fmt clean
+.PHONY: all bootstrap build demo test bench fuzz fmt clean
 
 all: build
 
@@ -34,6 +34,12 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench simulate
 	$(CARGO) bench --locked --bench pipeline_throughput
 	$(CARGO) bench --locked --bench ba_vs_ceres
+
+# The long fuzzing run: 10^6 inputs per parser (about 40 minutes on 2 cores), then every command
+# on 200 MB inputs with its peak memory measured. `make test` runs a bounded version.
+fuzz: build
+	$(CARGO) run --release --locked --example fuzz -- --inputs 1000000
+	$(CARGO) run --release --locked --example fuzz -- --big --mb 200
 
 fmt:
 	$(CARGO) fmt

@@ -13,7 +13,7 @@ pub fn check_writable(path: &Path) -> Result<(), String> {
     let known = path
         .extension()
         .and_then(|e| e.to_str())
-        .is_some_and(|e| imgcodecs::have_image_writer(&format!("x.{e}")).unwrap_or(false));
+        .is_some_and(|e| imgcodecs::have_image_writer(format!("x.{e}").as_str()).unwrap_or(false));
     if known {
         Ok(())
     } else {

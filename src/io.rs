@@ -545,6 +545,14 @@ impl Inputs {
     }
 }
 
+/// This process's resident memory, bytes (Linux; `None` elsewhere).
+pub fn resident_bytes() -> Option<u64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    u64::try_from(page).ok().map(|p| pages * p)
+}
+
 /// The current UTC time as ISO 8601 (`2026-11-21T10:00:00Z`), without a date-time dependency.
 pub fn utc_now_iso8601() -> String {
     let secs = std::time::SystemTime::now()

@@ -170,7 +170,7 @@ fn a_full_disk_leaves_no_invalid_file_and_exits_non_zero() {
     // From a disk too small for the first stage to one that holds nearly everything.
     for fraction in [0.02, 0.1, 0.3, 0.5, 0.7, 0.85, 0.95] {
         let size_kb = ((total as f64 * fraction) / 1024.0).ceil() as usize + 8;
-        let args = vec![
+        let args = [
             "run".to_string(),
             project.display().to_string(),
             "--out".into(),

@@ -24,6 +24,10 @@ pub struct Args {
     /// preconditioner) or auto (dense up to 200 cameras)
     #[arg(long, default_value = "auto", value_parser = ["auto", "dense", "iterative"])]
     linear_solver: String,
+    /// The most memory the command may take, GB: the adjustment's is estimated before anything
+    /// is allocated, and a problem that would need more is refused
+    #[arg(long, default_value = "2", value_parser = super::parse_positive, value_name = "GB")]
+    max_memory_gb: f64,
     /// Write the adjusted problem here (BAL)
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
@@ -51,6 +55,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "iterative" => LinearSolver::IterativeSchur,
                 _ => LinearSolver::Auto,
             },
+            // What the process holds already (the problem read) counts against the budget.
+            max_memory_bytes: ((args.max_memory_gb * 1e9) as u64)
+                .saturating_sub(crate::io::resident_bytes().unwrap_or(0)),
             ..BaSettings::default()
         },
     )

@@ -153,6 +153,9 @@ const MOT_FIELDS: [&str; 10] = [
     "frame", "id", "left", "top", "width", "height", "conf", "x", "y", "z",
 ];
 
+/// The largest COCO file read: it is parsed whole into a JSON tree, some fifteen times its size.
+pub const MAX_COCO_BYTES: usize = 64 << 20;
+
 /// A JSON value for a message, cut short.
 fn show(v: &serde_json::Value) -> String {
     crate::io::clip(&v.to_string(), 60)
@@ -482,6 +485,17 @@ fn frame_from_file_name(name: &str) -> Option<usize> {
 /// dataset `{images, annotations, categories}`. Only people are kept: the categories named
 /// "person" when categories are given, else category_id 1 (COCO's person) or none.
 fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileError> {
+    if text.len() > MAX_COCO_BYTES {
+        return Err(ctx.err(
+            None,
+            None,
+            format!(
+                "{} MB of COCO JSON: a COCO file is read whole, up to {} MB (about a million boxes); write the boxes as JSON Lines, which is read a line at a time",
+                text.len() >> 20,
+                MAX_COCO_BYTES >> 20
+            ),
+        ));
+    }
     let doc: Value = serde_json::from_str(text).map_err(|e| {
         ctx.at(
             e.line(),

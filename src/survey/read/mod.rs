@@ -46,7 +46,12 @@ pub struct ReadOptions {
 
 /// Detects the format from the content.
 pub fn detect(text: &str) -> Option<SurveyFormat> {
-    let t = text.trim_start_matches('\u{feff}').trim_start();
+    // The first lines decide; a file of one huge line must not be split whole.
+    let mut head = text.len().min(64 * 1024);
+    while !text.is_char_boundary(head) {
+        head -= 1;
+    }
+    let t = text[..head].trim_start_matches('\u{feff}').trim_start();
     if t.starts_with('{') {
         return t.contains("\"points\"").then_some(SurveyFormat::OpenSfm);
     }

@@ -66,6 +66,17 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     if file.points.is_empty() {
         return Err(ctx.err(None, Some("points"), "no points"));
     }
+    if file.points.len() > super::MAX_SURVEY_ROWS {
+        return Err(ctx.err(
+            None,
+            Some("points"),
+            format!(
+                "{} points: a survey has at most {} (is it the right file?)",
+                file.points.len(),
+                super::MAX_SURVEY_ROWS
+            ),
+        ));
+    }
     // Line numbers of the points, for messages: the first line where each id appears, found in
     // one pass over the lines that hold an "id" key.
     let mut lines_of: HashMap<&str, usize> = HashMap::new();

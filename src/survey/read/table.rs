@@ -31,6 +31,10 @@ pub(crate) fn sniff_delimiter(text: &str) -> u8 {
 }
 
 pub(crate) fn read_table(ctx: &Ctx, text: &str, delimiter: u8) -> Result<Table, SurveyError> {
+    // Line lengths first: a huge line would be split into fields whole before any check.
+    for l in ctx.lines(text) {
+        l?;
+    }
     let mut comments = Vec::new();
     let mut rows = Vec::new();
     if delimiter == b' ' {

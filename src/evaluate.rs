@@ -7,7 +7,7 @@
 //! IDF1 matches whole trajectories once, maximising the frames they agree on (Ristani et al.
 //! 2016).
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 
 use nalgebra::Vector2;
 use serde::Serialize;
@@ -41,13 +41,14 @@ pub fn read_samples(path: &Path, columns: [&str; 4]) -> Result<SampleTable, File
     parse_samples(path, &text, columns)
 }
 
-/// [`read_samples`] on text; `path` names the file in messages.
-pub fn parse_samples(
-    path: &Path,
-    text: &str,
-    columns: [&str; 4],
-) -> Result<SampleTable, FileError> {
-    let ctx = FileCtx { path };
+/// A CSV with a header: its columns, where each of `columns` is, and its data rows (blank lines
+/// skipped, each with the header's field count) as (line, fields).
+fn csv_rows<'t>(
+    ctx: FileCtx<'_>,
+    text: &'t str,
+    columns: &[&str],
+    mut each: impl FnMut(usize, &[&'t str], &[usize], &[&'t str]) -> Result<(), FileError>,
+) -> Result<usize, FileError> {
     let mut lines = ctx.lines(text);
     let (_, header) = lines
         .next()
@@ -69,9 +70,7 @@ pub fn parse_samples(
             })
         })
         .collect::<Result<_, _>>()?;
-    let in_view = header.iter().position(|h| *h == "in_view");
-    let mut table = SampleTable::default();
-    let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
+    let mut rows = 0;
     for row in lines {
         let (line, l) = row?;
         if l.trim().is_empty() {
@@ -79,6 +78,23 @@ pub fn parse_samples(
         }
         let f: Vec<&str> = l.split(',').collect();
         ctx.field_count(&f, line, header.len(), header.len(), "the header's columns")?;
+        each(line, &f, &idx, &header)?;
+        rows += 1;
+    }
+    Ok(rows)
+}
+
+/// [`read_samples`] on text; `path` names the file in messages.
+pub fn parse_samples(
+    path: &Path,
+    text: &str,
+    columns: [&str; 4],
+) -> Result<SampleTable, FileError> {
+    let ctx = FileCtx { path };
+    let mut table = SampleTable::default();
+    let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
+    csv_rows(ctx, text, &columns, |line, f, idx, header| {
+        let in_view = header.iter().position(|h| *h == "in_view");
         let frame = ctx.whole(f[idx[0]], line, columns[0])? as usize;
         let id = ctx.whole(f[idx[1]], line, columns[1])? as usize;
         let sample = Sample {
@@ -103,7 +119,8 @@ pub fn parse_samples(
         } else {
             table.samples.push(sample);
         }
-    }
+        Ok(())
+    })?;
     if seen.is_empty() {
         return Err(ctx.err(None, None, "no rows below the header"));
     }
@@ -143,12 +160,83 @@ pub struct Evaluation {
     pub id_switch_rate: f64,
 }
 
-fn by_frame(samples: &[Sample]) -> BTreeMap<usize, Vec<Sample>> {
-    let mut m: BTreeMap<usize, Vec<Sample>> = BTreeMap::new();
-    for s in samples {
-        m.entry(s.frame).or_default().push(*s);
+/// The samples sorted by frame, each frame's in their order: frames are then runs of a slice
+/// (a map of small vectors took some 20 times the memory of millions of samples).
+fn by_frame(samples: &[Sample]) -> Vec<Sample> {
+    let mut v = samples.to_vec();
+    v.sort_by_key(|s| s.frame);
+    v
+}
+
+/// The run of `sorted` (by frame) in `frame`, starting the search at `from`.
+fn frame_run(sorted: &[Sample], from: usize, frame: usize) -> std::ops::Range<usize> {
+    let start = from + sorted[from..].partition_point(|s| s.frame < frame);
+    let end = start + sorted[start..].partition_point(|s| s.frame == frame);
+    start..end
+}
+
+/// The largest total of `weight` over a one-to-one pairing of `a`s with `b`s, found per
+/// connected group of pairs of positive weight (trajectories that never agree cannot help).
+fn best_pairing(weight: &HashMap<(usize, usize), usize>) -> usize {
+    // Union-find over the truth ids and the estimate ids (tagged apart).
+    let mut nodes: HashMap<(bool, usize), usize> = HashMap::new();
+    let mut parent: Vec<usize> = Vec::new();
+    fn find(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
     }
-    m
+    let mut node = |key: (bool, usize), parent: &mut Vec<usize>| {
+        *nodes.entry(key).or_insert_with(|| {
+            parent.push(parent.len());
+            parent.len() - 1
+        })
+    };
+    let mut pairs: Vec<(usize, usize, usize, usize)> = Vec::new();
+    let mut keys: Vec<_> = weight.keys().copied().collect();
+    keys.sort_unstable();
+    for (g, h) in keys {
+        let (a, b) = (node((true, g), &mut parent), node((false, h), &mut parent));
+        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
+        if ra != rb {
+            parent[ra] = rb;
+        }
+        pairs.push((a, b, g, h));
+    }
+    let mut groups: HashMap<usize, Vec<(usize, usize)>> = HashMap::new();
+    for &(a, _, g, h) in &pairs {
+        let r = find(&mut parent, a);
+        groups.entry(r).or_default().push((g, h));
+    }
+    let big = 1e12;
+    let mut total = 0;
+    let mut roots: Vec<usize> = groups.keys().copied().collect();
+    roots.sort_unstable();
+    for r in roots {
+        let group = &groups[&r];
+        let mut gs: Vec<usize> = group.iter().map(|p| p.0).collect();
+        let mut hs: Vec<usize> = group.iter().map(|p| p.1).collect();
+        gs.sort_unstable();
+        gs.dedup();
+        hs.sort_unstable();
+        hs.dedup();
+        let cost: Vec<Vec<f64>> = gs
+            .iter()
+            .map(|g| {
+                hs.iter()
+                    .map(|h| weight.get(&(*g, *h)).map_or(big, |&n| -(n as f64)))
+                    .collect()
+            })
+            .collect();
+        for (k, m) in assign(&cost, 0.0).into_iter().enumerate() {
+            if let Some(m) = m {
+                total += weight.get(&(gs[k], hs[m])).copied().unwrap_or(0);
+            }
+        }
+    }
+    total
 }
 
 /// Moves the people seen in fewer than `min_frames` frames of `truth` into `ignored`: someone
@@ -184,27 +272,32 @@ pub fn evaluate(
     ignored: &[Sample],
     threshold_m: f64,
 ) -> Evaluation {
+    evaluate_matches(truth, estimated, ignored, threshold_m).0
+}
+
+/// [`evaluate`], and the matched pairs (truth, estimate) of every frame, in frame order.
+pub fn evaluate_matches(
+    truth: &[Sample],
+    estimated: &[Sample],
+    ignored: &[Sample],
+    threshold_m: f64,
+) -> (Evaluation, Vec<(Sample, Sample)>) {
+    let mut matched = Vec::new();
     let ig = by_frame(ignored);
-    let estimated: Vec<Sample> = estimated
+    // One sorted copy of each side: a run's tables can hold millions of positions.
+    let mut ef: Vec<Sample> = estimated
         .iter()
         .filter(|e| {
-            !ig.get(&e.frame).is_some_and(|v| {
-                v.iter()
-                    .any(|i| (i.position - e.position).norm() <= threshold_m)
-            })
+            !ig[frame_run(&ig, 0, e.frame)]
+                .iter()
+                .any(|i| (i.position - e.position).norm() <= threshold_m)
         })
         .copied()
         .collect();
-    let estimated = &estimated[..];
-    let (tf, ef) = (by_frame(truth), by_frame(estimated));
-    let frames: Vec<usize> = tf
-        .keys()
-        .chain(ef.keys())
-        .copied()
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    let empty = Vec::new();
+    drop(ig);
+    ef.sort_by_key(|s| s.frame);
+    let estimated = &ef[..];
+    let tf = by_frame(truth);
     let mut last_match: HashMap<usize, usize> = HashMap::new(); // truth id → estimated id
     // Per truth id: whether it has been tracked, and whether it is in an interruption now.
     let mut interrupted: HashMap<usize, bool> = HashMap::new();
@@ -214,9 +307,18 @@ pub fn evaluate(
     let (mut misses, mut fps, mut idsw, mut frags) = (0, 0, 0, 0);
     // IDF1: frames each (truth, estimate) pair agree within the threshold.
     let mut agree: HashMap<(usize, usize), usize> = HashMap::new();
-    for f in &frames {
-        let t = tf.get(f).unwrap_or(&empty);
-        let e = ef.get(f).unwrap_or(&empty);
+    let (mut ti0, mut ei0) = (0, 0);
+    // The frames of either, in order.
+    while ti0 < tf.len() || ei0 < ef.len() {
+        let f = match (tf.get(ti0), ef.get(ei0)) {
+            (Some(a), Some(b)) => a.frame.min(b.frame),
+            (Some(a), None) => a.frame,
+            (None, Some(b)) => b.frame,
+            (None, None) => unreachable!("loop condition"),
+        };
+        let (tr, er) = (frame_run(&tf, ti0, f), frame_run(&ef, ei0, f));
+        (ti0, ei0) = (tr.end, er.end);
+        let (t, e) = (&tf[tr], &ef[er]);
         for a in t {
             *truth_frames.entry(a.id).or_default() += 1;
             for b in e {
@@ -266,6 +368,7 @@ pub fn evaluate(
             }
             last_match.insert(a.id, b.id);
             errors.push((a.position - b.position).norm());
+            matched.push((*a, *b));
             *matched_frames.entry(a.id).or_default() += 1;
         }
         for (i, a) in t.iter().enumerate() {
@@ -295,23 +398,7 @@ pub fn evaluate(
     for s in estimated {
         *est_len.entry(s.id).or_default() += 1;
     }
-    let est_ids: Vec<usize> = est_len.keys().copied().collect();
-    let big = 1e12;
-    let cost: Vec<Vec<f64>> = truth_ids
-        .iter()
-        .map(|g| {
-            est_ids
-                .iter()
-                .map(|h| agree.get(&(*g, *h)).map_or(big, |&n| -(n as f64)))
-        })
-        .map(|r| r.collect())
-        .collect();
-    let mut idtp = 0usize;
-    for (k, m) in assign(&cost, 0.0).into_iter().enumerate() {
-        if let Some(m) = m {
-            idtp += agree.get(&(truth_ids[k], est_ids[m])).copied().unwrap_or(0);
-        }
-    }
+    let idtp = best_pairing(&agree);
     let n_truth = truth.len();
     let n_est = estimated.len();
     let idf1 = if n_truth + n_est > 0 {
@@ -339,7 +426,7 @@ pub fn evaluate(
     let ratio =
         |id: &usize| matched_frames.get(id).copied().unwrap_or(0) as f64 / truth_frames[id] as f64;
     let tracked_90 = truth_ids.iter().filter(|id| ratio(id) >= 0.9).count();
-    Evaluation {
+    let evaluation = Evaluation {
         threshold_m,
         rmse_m: rmse,
         mean_error_m: mean,
@@ -360,7 +447,7 @@ pub fn evaluate(
         motp_m: mean,
         idf1,
         truth_tracks: truth_ids.len(),
-        estimated_tracks: est_ids.len(),
+        estimated_tracks: est_len.len(),
         mostly_tracked: truth_ids.iter().filter(|id| ratio(id) >= 0.8).count(),
         mostly_lost: truth_ids.iter().filter(|id| ratio(id) <= 0.2).count(),
         tracked_90,
@@ -374,7 +461,8 @@ pub fn evaluate(
         } else {
             idsw as f64 / truth_ids.len() as f64
         },
-    }
+    };
+    (evaluation, matched)
 }
 
 #[cfg(test)]
@@ -461,4 +549,135 @@ mod tests {
         let e = evaluate(&truth, &est, &ignored, 0.2);
         assert_eq!((e.false_positives, e.misses, e.truth_tracks), (0, 30, 1));
     }
+}
+
+/// The 95 % point of χ² with two degrees of freedom: a 2D error inside its 95 % ellipse has a
+/// squared Mahalanobis distance below this.
+pub const CHI2_2D_95: f64 = 5.991_464_547_107_979;
+
+/// A point's stated covariance, by source (m²), looked up by (frame, id) of the estimate.
+pub type Covariances = HashMap<(usize, usize), crate::export::PointCov>;
+
+/// How well stated uncertainties describe the errors of matched points.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct Consistency {
+    /// Matched points with a covariance.
+    pub points: usize,
+    /// The share whose 95 % error ellipse holds the truth (0.95 when the covariances are right).
+    pub inside_95: f64,
+    /// The mean of the squared Mahalanobis distance over two (1 when right), and its median
+    /// normalised error d/√2.
+    pub mean_nees_per_axis: f64,
+    pub median_normalised_error: f64,
+    /// The mean error over σ east and north (0 without a bias).
+    pub mean_normalised_e: f64,
+    pub mean_normalised_n: f64,
+    /// Median σ per axis (√(trace/2)) of the whole covariance and of each source, metres.
+    pub median_sigma_m: f64,
+    pub median_sigma_random_m: f64,
+    pub median_sigma_height_m: f64,
+    pub median_sigma_pose_m: f64,
+}
+
+/// One matched point's error against its stated covariance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointCheck {
+    pub truth: Sample,
+    pub estimate: Sample,
+    pub cov: crate::export::PointCov,
+    /// Squared Mahalanobis distance of the error under the total covariance.
+    pub d2: f64,
+}
+
+/// Checks matched points (from [`evaluate_matches`]) against their covariances; points
+/// without one, or with a singular one, are left out.
+pub fn consistency(
+    matches: &[(Sample, Sample)],
+    covariances: &Covariances,
+) -> (Consistency, Vec<PointCheck>) {
+    let mut checks = Vec::new();
+    for (t, e) in matches {
+        let Some(cov) = covariances.get(&(e.frame, e.id)) else {
+            continue;
+        };
+        let err = e.position - t.position;
+        let Some(inv) = cov.total().try_inverse() else {
+            continue;
+        };
+        let d2 = (err.transpose() * inv * err)[(0, 0)];
+        if d2.is_finite() {
+            checks.push(PointCheck {
+                truth: *t,
+                estimate: *e,
+                cov: *cov,
+                d2,
+            });
+        }
+    }
+    let n = checks.len();
+    if n == 0 {
+        return (Consistency::default(), checks);
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let rms = crate::export::rms_sigma;
+    let mean = |f: &dyn Fn(&PointCheck) -> f64| checks.iter().map(f).sum::<f64>() / n as f64;
+    let c = Consistency {
+        points: n,
+        inside_95: checks.iter().filter(|c| c.d2 <= CHI2_2D_95).count() as f64 / n as f64,
+        mean_nees_per_axis: mean(&|c| c.d2 / 2.0),
+        median_normalised_error: median(checks.iter().map(|c| (c.d2 / 2.0).sqrt()).collect()),
+        mean_normalised_e: mean(&|c| {
+            (c.estimate.position.x - c.truth.position.x) / c.cov.total()[(0, 0)].sqrt()
+        }),
+        mean_normalised_n: mean(&|c| {
+            (c.estimate.position.y - c.truth.position.y) / c.cov.total()[(1, 1)].sqrt()
+        }),
+        median_sigma_m: median(checks.iter().map(|c| rms(&c.cov.total())).collect()),
+        median_sigma_random_m: median(checks.iter().map(|c| rms(&c.cov.random)).collect()),
+        median_sigma_height_m: median(checks.iter().map(|c| rms(&c.cov.height)).collect()),
+        median_sigma_pose_m: median(checks.iter().map(|c| rms(&c.cov.pose)).collect()),
+    };
+    (c, checks)
+}
+
+/// The covariances of a `trajectories.csv` (its `sigma_e_m`, `sigma_n_m`, `cov_en_m2` and the
+/// σ of each source), by (frame, id). The total is exact; the height's and the pose's parts are
+/// taken as isotropic (the file gives their σ only) and the random part is the rest.
+pub fn read_covariances(path: &Path) -> Result<Covariances, FileError> {
+    let ctx = FileCtx { path };
+    let text = ctx.read_text("a trajectories.csv")?;
+    let names = [
+        "frame",
+        "id",
+        "sigma_e_m",
+        "sigma_n_m",
+        "cov_en_m2",
+        "sigma_random_m",
+        "sigma_height_m",
+        "sigma_pose_m",
+    ];
+    let mut out = Covariances::new();
+    csv_rows(ctx, &text, &names, |line, f, idx, _| {
+        let v = |k: usize| ctx.number(f[idx[k]], line, names[k]);
+        let frame = ctx.whole(f[idx[0]], line, names[0])? as usize;
+        let id = ctx.whole(f[idx[1]], line, names[1])? as usize;
+        let (se, sn, en) = (v(2)?, v(3)?, v(4)?);
+        let total = nalgebra::Matrix2::new(se * se, en, en, sn * sn);
+        v(5)?;
+        let height = nalgebra::Matrix2::identity() * v(6)?.powi(2);
+        let pose = nalgebra::Matrix2::identity() * v(7)?.powi(2);
+        out.insert(
+            (frame, id),
+            crate::export::PointCov {
+                random: total - height - pose,
+                height,
+                pose,
+            },
+        );
+        Ok(())
+    })?;
+    Ok(out)
 }

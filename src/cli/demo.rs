@@ -18,7 +18,10 @@ use crate::calibration::Options;
 use crate::calibration::inputs::CollectSettings;
 use crate::camera::formats;
 use crate::camera::{BoardSpec, PARAM_NAMES};
-use crate::evaluate::{Evaluation, Sample, evaluate, ignore_brief, read_samples};
+use crate::evaluate::{
+    CHI2_2D_95, Consistency, Evaluation, Sample, consistency, evaluate_matches, ignore_brief,
+    read_covariances, read_samples,
+};
 use crate::pipeline::project::load;
 use crate::pipeline::run::{RunReport, StageProgress, run as run_project};
 use crate::progress::Progress;
@@ -111,6 +114,9 @@ struct DemoReport {
     pose: PoseCheck,
     default_height: Evaluation,
     known_heights: Evaluation,
+    /// The stated covariances against the errors (`accuracy-*.csv` per point).
+    default_height_uncertainty: Consistency,
+    known_heights_uncertainty: Consistency,
     seconds: f64,
     passed: bool,
 }
@@ -130,6 +136,102 @@ fn truth_samples(path: &Path) -> anyhow::Result<(Vec<Sample>, Vec<Sample>)> {
 
 fn track_samples(path: &Path) -> anyhow::Result<Vec<Sample>> {
     Ok(read_samples(path, ["frame", "id", "e_m", "n_m"])?.samples)
+}
+
+/// A run's trajectories against the truth: the tracking and error numbers, and how well the
+/// stated covariances describe the errors; every matched point's check written to `points_csv`.
+fn check_run(
+    run_dir: &Path,
+    truth: &[Sample],
+    ignored: &[Sample],
+    points_csv: &Path,
+) -> anyhow::Result<(Evaluation, Consistency)> {
+    let trajectories = run_dir.join("trajectories.csv");
+    let (e, matches) = evaluate_matches(truth, &track_samples(&trajectories)?, ignored, 0.5);
+    let (c, points) = consistency(&matches, &read_covariances(&trajectories)?);
+    let mut text = String::from(
+        "frame,person,id,truth_e_m,truth_n_m,e_m,n_m,sigma_e_m,sigma_n_m,cov_en_m2,sigma_random_m,sigma_height_m,sigma_pose_m,normalised_error,inside_95\n",
+    );
+    for p in &points {
+        let t = p.cov.total();
+        let rms = crate::export::rms_sigma;
+        let _ = writeln!(
+            text,
+            "{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.4},{:.3},{}",
+            p.truth.frame,
+            p.truth.id,
+            p.estimate.id,
+            p.truth.position.x,
+            p.truth.position.y,
+            p.estimate.position.x,
+            p.estimate.position.y,
+            t[(0, 0)].sqrt(),
+            t[(1, 1)].sqrt(),
+            t[(0, 1)],
+            rms(&p.cov.random),
+            rms(&p.cov.height),
+            rms(&p.cov.pose),
+            (p.d2 / 2.0).sqrt(),
+            u8::from(p.d2 <= CHI2_2D_95)
+        );
+    }
+    crate::io::write_atomic(points_csv, text.as_bytes())?;
+    Ok((e, c))
+}
+
+/// The share of points whose 95 % ellipse holds the truth that counts as right: 95 ± 3 %.
+const INSIDE_95: (f64, f64) = (0.92, 0.98);
+
+/// The table rows on the stated uncertainties: label, a value per run, target.
+fn uncertainty_rows(runs: &[&Consistency]) -> Vec<(&'static str, Vec<String>, &'static str)> {
+    let each = |f: &dyn Fn(&Consistency) -> String| runs.iter().map(|c| f(c)).collect();
+    vec![
+        (
+            "95 % ellipses holding the truth",
+            each(&|c| format!("{:.1} %", 100.0 * c.inside_95)),
+            "95 ± 3 %",
+        ),
+        (
+            "error / σ: median; mean of squares",
+            each(&|c| {
+                format!(
+                    "{:.2}; {:.2}",
+                    c.median_normalised_error, c.mean_nees_per_axis
+                )
+            }),
+            "0.83; 1",
+        ),
+        (
+            "mean error / σ, east / north",
+            each(&|c| format!("{:+.2} / {:+.2}", c.mean_normalised_e, c.mean_normalised_n)),
+            "0 / 0",
+        ),
+        (
+            "median σ: random/height/pose",
+            each(&|c| {
+                format!(
+                    "{:.1}/{:.1}/{:.1} cm",
+                    100.0 * c.median_sigma_random_m,
+                    100.0 * c.median_sigma_height_m,
+                    100.0 * c.median_sigma_pose_m
+                )
+            }),
+            "",
+        ),
+    ]
+}
+
+/// Says when the stated uncertainties miss their target. Not yet a failed check: the crowd's
+/// box detector understates its error along the running direction, and one run's share is
+/// dominated by its few shared draws (one pose, each person's height); docs/accuracy.md.
+fn coverage_note(json: bool, run: &str, c: &Consistency) {
+    if !(INSIDE_95.0..=INSIDE_95.1).contains(&c.inside_95) {
+        say!(
+            json,
+            "   not met yet ({run}): the 95 % ellipses hold the truth for {:.1} % of the points, target 95 ± 3 % (docs/accuracy.md)",
+            100.0 * c.inside_95
+        );
+    }
 }
 
 fn identify(truth: &[Sample], est: &[Sample]) -> HashMap<usize, usize> {
@@ -458,12 +560,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
 
     let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
-    let default_eval = evaluate(
+    let (default_eval, default_cons) = check_run(
+        &dir.join("run"),
         &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
         &ignored,
-        0.5,
-    );
+        &dir.join("accuracy-default.csv"),
+    )?;
 
     // 4. The same with every person's height known (as measured before an event): each track's
     // person identified against the truth, their height written to heights.csv.
@@ -500,12 +602,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let report_h =
         run_project(&loaded_h, &dir.join("run-heights"), &bars).map_err(|e| anyhow!("{e}"))?;
     print_stages(json, &report_h);
-    let known_eval = evaluate(
+    let (known_eval, known_cons) = check_run(
+        &dir.join("run-heights"),
         &truth,
-        &track_samples(&dir.join("run-heights/trajectories.csv"))?,
         &ignored,
-        0.5,
-    );
+        &dir.join("accuracy-heights.csv"),
+    )?;
 
     // 5. The accuracy table.
     let checks = [
@@ -611,6 +713,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ""
         )
     );
+    for (label, v, target) in uncertainty_rows(&[&known_cons, &default_cons]) {
+        say!(json, "{}", row(label, v[0].clone(), v[1].clone(), target));
+    }
+    // The default run's height part is one draw per person: how far these people's heights lie
+    // from 1.7 m, against the σ stated for them.
+    let tracked_heights: Vec<f64> = ids
+        .values()
+        .filter_map(|p| people.get(p))
+        .copied()
+        .collect();
+    let height_rms = (tracked_heights
+        .iter()
+        .map(|h| (h - 1.7).powi(2))
+        .sum::<f64>()
+        / tracked_heights.len().max(1) as f64)
+        .sqrt();
+    say!(
+        json,
+        "{}",
+        row(
+            "heights' RMS about 1.7 m (σ stated)",
+            String::new(),
+            format!("{height_rms:.3} m"),
+            "0.1 m"
+        )
+    );
     say!(
         json,
         "{}",
@@ -631,6 +759,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "≤ 5"
         )
     );
+    coverage_note(json, "heights known", &known_cons);
+    coverage_note(json, "1.7 m default", &default_cons);
     let failed: Vec<&String> = checks.iter().filter(|c| !c.0).map(|c| &c.1).collect();
     let report = DemoReport {
         rmse_m: default_eval.rmse_m,
@@ -639,6 +769,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pose,
         default_height: default_eval,
         known_heights: known_eval,
+        default_height_uncertainty: default_cons,
+        known_heights_uncertainty: known_cons,
         seconds: started.elapsed().as_secs_f64(),
         passed: failed.is_empty(),
     };
@@ -674,7 +806,7 @@ fn finish(
     title[..1].make_ascii_uppercase();
     say!(
         json,
-        "\n{title} OK in {seconds:.0} s: every target met. Outputs in {}.",
+        "\n{title} OK in {seconds:.0} s: every target checked is met (those not met yet are listed above). Outputs in {}.",
         dir.display()
     );
     Ok(())
@@ -692,6 +824,8 @@ struct CrowdReport {
     /// People in view for fewer frames than the shortest track kept: not counted.
     brief_people_not_counted: usize,
     evaluation: Evaluation,
+    /// The stated covariances against the errors (`accuracy.csv` per point).
+    uncertainty: Consistency,
     mostly_tracked_fraction: f64,
     seconds: f64,
     passed: bool,
@@ -765,12 +899,12 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     // video's start or end) count neither way.
     let min_frames = (loaded.project.track.min_length_s * scene.fps).round() as usize;
     let brief = ignore_brief(&mut truth, &mut ignored, min_frames);
-    let e = evaluate(
+    let (e, cons) = check_run(
+        &dir.join("run"),
         &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
         &ignored,
-        0.5,
-    );
+        &dir.join("accuracy.csv"),
+    )?;
     let mostly = e.mostly_tracked as f64 / e.truth_tracks.max(1) as f64;
     say!(
         json,
@@ -823,6 +957,9 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
             ""
         )
     );
+    for (label, v, target) in uncertainty_rows(&[&cons]) {
+        say!(json, "{}", row(label, v[0].clone(), target));
+    }
     let checks = [
         (e.rmse_m <= CROWD_RMSE_M, format!("RMSE ≤ {CROWD_RMSE_M} m")),
         (
@@ -840,12 +977,14 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
             ),
         ),
     ];
+    coverage_note(json, "crowd", &cons);
     let failed: Vec<&String> = checks.iter().filter(|c| !c.0).map(|c| &c.1).collect();
     let out = CrowdReport {
         rmse_m: e.rmse_m,
         boxes: boxes.len(),
         brief_people_not_counted: brief,
         evaluation: e,
+        uncertainty: cons,
         mostly_tracked_fraction: mostly,
         seconds: started.elapsed().as_secs_f64(),
         passed: failed.is_empty(),

@@ -5,7 +5,7 @@ pub mod gis;
 
 use std::fmt::Write as _;
 
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Matrix2, Vector2, Vector3};
 
 use crate::track::ImageTrack;
 
@@ -22,8 +22,31 @@ pub struct TrajectoryPoint {
     pub velocity: Vector2<f64>,
     /// Total σ east and north (random after smoothing, and systematic), metres.
     pub sigma_m: Vector2<f64>,
+    /// The horizontal covariance, split by source.
+    pub cov: PointCov,
     /// Whether the frame had a detection (else predicted through a gap).
     pub observed: bool,
+}
+
+/// A trajectory point's horizontal covariance (east, north; m²) by source: what is left of the
+/// detections' random errors after smoothing, the person's height (the same error in every
+/// frame of the person), and the camera pose (shared by everyone in the frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PointCov {
+    pub random: Matrix2<f64>,
+    pub height: Matrix2<f64>,
+    pub pose: Matrix2<f64>,
+}
+
+impl PointCov {
+    pub fn total(&self) -> Matrix2<f64> {
+        self.random + self.height + self.pose
+    }
+}
+
+/// The σ of a covariance per axis, as one number: the square root of half its trace, metres.
+pub fn rms_sigma(cov: &Matrix2<f64>) -> f64 {
+    (0.5 * cov.trace()).max(0.0).sqrt()
 }
 
 /// A person's trajectory.
@@ -57,13 +80,13 @@ impl Trajectory {
 /// The trajectories as CSV: one row per point.
 pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
     let mut s = String::from(
-        "id,frame,time_s,e_m,n_m,u_m,x,y,z,ve_m_s,vn_m_s,speed_m_s,sigma_e_m,sigma_n_m,observed,height_m\n",
+        "id,frame,time_s,e_m,n_m,u_m,x,y,z,ve_m_s,vn_m_s,speed_m_s,sigma_e_m,sigma_n_m,cov_en_m2,sigma_random_m,sigma_height_m,sigma_pose_m,observed,height_m\n",
     );
     for t in trajectories {
         for p in &t.points {
             let _ = writeln!(
                 s,
-                "{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.3}",
+                "{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.4},{},{:.3}",
                 t.id,
                 p.frame,
                 p.time_s,
@@ -78,6 +101,10 @@ pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
                 p.velocity.norm(),
                 p.sigma_m.x,
                 p.sigma_m.y,
+                p.cov.total()[(0, 1)],
+                rms_sigma(&p.cov.random),
+                rms_sigma(&p.cov.height),
+                rms_sigma(&p.cov.pose),
                 u8::from(p.observed),
                 t.height_m
             );
@@ -146,6 +173,11 @@ mod tests {
                 crs: Vector3::new(654501.0, 696002.0, 60.2),
                 velocity: Vector2::new(3.5, 0.0),
                 sigma_m: Vector2::new(0.02, 0.03),
+                cov: PointCov {
+                    random: Matrix2::new(0.0003, 0.0001, 0.0001, 0.0008),
+                    height: Matrix2::new(0.0001, 0.0, 0.0, 0.0001),
+                    pose: Matrix2::zeros(),
+                },
                 observed: k != 1,
             })
             .collect();

@@ -25,7 +25,9 @@ use crate::detect::Detection;
 use crate::detect::colour::ColourSettings;
 use crate::estimate::p3p::RigidPose;
 use crate::export::gis::{Layers, write_trajectories};
-use crate::export::{Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv};
+use crate::export::{
+    PointCov, Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv,
+};
 use crate::gis::GisFormat;
 use crate::io::write_atomic;
 use crate::pose::hover::solve_with_checks;
@@ -294,6 +296,9 @@ struct SmoothData {
     em_iterations: usize,
     em_converged: bool,
     q: Vec<f64>,
+    /// The share of the detections' variance that persists from frame to frame
+    /// (`smooth::persistent_share`): added back to every point's random part.
+    persistent_share: f64,
 }
 
 /// The camera of the project, scaled to the video.
@@ -1023,6 +1028,12 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 RunError::Input(l.error("smooth", "kind", "unknown smoother").to_string())
             })?;
             let r = smoother.smooth(&obs);
+            // What smoothing cannot average away: detection errors that persist over frames.
+            let persistent = if p.smooth.kind == "none" {
+                0.0
+            } else {
+                crate::smooth::persistent_share(&obs, &r.tracks).unwrap_or(0.0)
+            };
             let (states, iterations, converged) = (r.tracks, r.em_iterations, r.converged);
             let q: Vec<f64> = if p.smooth.kind == "none" {
                 Vec::new()
@@ -1044,8 +1055,13 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                         .next_back()
                         .or_else(|| by_frame.range(frame..).next())
                         .map(|(_, w)| *w);
-                    let sys = near.map_or(Matrix2::zeros(), |w| w.cov_height + w.cov_pose);
-                    let total = cov_random + sys;
+                    let cov = PointCov {
+                        random: cov_random
+                            + near.map_or(Matrix2::zeros(), |w| w.cov_pixel * persistent),
+                        height: near.map_or(Matrix2::zeros(), |w| w.cov_height),
+                        pose: near.map_or(Matrix2::zeros(), |w| w.cov_pose),
+                    };
+                    let total = cov.total();
                     let u = surface.height(&en).map_or(f64::NAN, |z| z + t.height_m);
                     let local = Vector3::new(en.x, en.y, u);
                     points.push(TrajectoryPoint {
@@ -1055,6 +1071,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                         crs: to_out(&local)?,
                         velocity: vel,
                         sigma_m: Vector2::new(total[(0, 0)].sqrt(), total[(1, 1)].sqrt()),
+                        cov,
                         observed,
                     });
                 }
@@ -1070,6 +1087,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 em_iterations: iterations,
                 em_converged: converged,
                 q,
+                persistent_share: persistent,
             };
             cache.store("smooth", &smooth_key, &d)?;
             (d, "computed")
@@ -1084,6 +1102,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     let mut counts = BTreeMap::from([
         ("trajectories".into(), smoothed.trajectories.len() as f64),
         ("em_iterations".into(), smoothed.em_iterations as f64),
+        ("persistent_share".into(), smoothed.persistent_share),
     ]);
     if smoothed.q.len() == 16 {
         counts.insert("q_velocity_e_m2_s2".into(), smoothed.q[10]);

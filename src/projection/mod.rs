@@ -209,4 +209,78 @@ mod tests {
             .is_none()
         );
     }
+
+    /// The stated covariances against a Monte Carlo of the projection: the pose drawn from its
+    /// covariance (correlated rotation and translation, through the `pose_step` increment), the
+    /// pixel from its covariance and the height from its σ; 20 000 draws.
+    #[test]
+    fn covariances_agree_with_a_monte_carlo_of_pose_pixel_and_height() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let camera = Camera::pinhole(1400.0, 1400.0, 960.0, 540.0).with_distortion(&[-0.1, 0.03]);
+        let pose = pose_step(
+            &nadir(Vector3::new(1.0, 2.0, 30.0)),
+            &Vector6::new(0.05, -0.03, 0.2, 0.0, 0.0, 0.0),
+        );
+        // A pose covariance as a GCP solve gives it: tilt and position correlated.
+        let sd = Vector6::new(4e-4, 6e-4, 3e-4, 0.01, 0.02, 0.008);
+        let mut corr = Matrix6::identity();
+        for (a, b, r) in [(0, 4, 0.8), (1, 3, -0.7), (2, 5, 0.3)] {
+            corr[(a, b)] = r;
+            corr[(b, a)] = r;
+        }
+        let pose_cov = Matrix6::from_diagonal(&sd) * corr * Matrix6::from_diagonal(&sd);
+        let chol = pose_cov.cholesky().expect("SPD").l();
+        let surface = Ramp;
+        let uv_cov = nalgebra::Matrix2::new(0.09, 0.03, 0.03, 0.05);
+        let uv_chol = uv_cov.cholesky().unwrap().l();
+        let (height, height_sd) = (1.75, 0.03);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        for uv in [Vector2::new(960.0, 540.0), Vector2::new(1700.0, 200.0)] {
+            let w = project(
+                &camera,
+                &pose,
+                Some(&pose_cov),
+                &surface,
+                &uv,
+                &uv_cov,
+                height,
+                height_sd,
+            )
+            .unwrap();
+            let n = 20_000;
+            let mut draws = Vec::with_capacity(n);
+            for _ in 0..n {
+                let z6 = Vector6::from_fn(|_, _| normal.sample(&mut rng));
+                let z2 = Vector2::from_fn(|_, _| normal.sample(&mut rng));
+                let p = pose_step(&pose, &(chol * z6));
+                let h = height + height_sd * normal.sample(&mut rng);
+                let x = intersect(&camera, &p, &surface, h, &(uv + uv_chol * z2)).unwrap();
+                draws.push(x.xy() - w.position.xy());
+            }
+            let mean = draws.iter().sum::<Vector2<f64>>() / n as f64;
+            let mc = draws
+                .iter()
+                .map(|d| (d - mean) * (d - mean).transpose())
+                .sum::<nalgebra::Matrix2<f64>>()
+                / (n - 1) as f64;
+            let stated = w.cov_total();
+            // The pose's part is a sizeable share, so a wrong increment convention shows.
+            assert!(w.cov_pose.trace() > 0.3 * stated.trace(), "{}", w.cov_pose);
+            let scale = stated.trace();
+            assert!(
+                (mc - stated).abs().max() < 0.05 * scale,
+                "at {uv}: Monte Carlo {mc} vs stated {stated}"
+            );
+            // And the 95 % ellipse holds 95 % of the draws.
+            let inv = stated.try_inverse().unwrap();
+            let inside = draws
+                .iter()
+                .filter(|d| (d.transpose() * inv * *d)[(0, 0)] <= 5.991)
+                .count() as f64
+                / n as f64;
+            assert!((inside - 0.95).abs() < 0.01, "at {uv}: {inside}");
+        }
+    }
 }

@@ -242,7 +242,8 @@ fn auth_code(spec: &str) -> Option<(&str, &str)> {
     let known = ["EPSG", "ESRI", "IGNF", "IAU_2015", "NKG", "OGC", "PROJ"];
     (known.iter().any(|k| k.eq_ignore_ascii_case(a))
         && !c.is_empty()
-        && c.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'.'))
+        && c.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'.'))
     .then_some((a, c))
 }
 
@@ -410,7 +411,9 @@ impl Crs {
         }
         // A PROJ string PROJ cannot parse, and WKT it cannot read, fail here: PROJ's own
         // fallback searches names approximately, a tenth of a second and never the right CRS.
-        if normalised.starts_with('+') && !normalised.contains("proj=") && !normalised.contains("init=")
+        if normalised.starts_with('+')
+            && !normalised.contains("proj=")
+            && !normalised.contains("init=")
         {
             return Err(err(
                 "a PROJ string needs +proj= (expected an EPSG code such as EPSG:32631, or a PROJ string such as +proj=utm +zone=31 +datum=WGS84)".into(),
@@ -437,7 +440,11 @@ impl Crs {
             let code = ctx.with_catalogue(|c| c.names.get(&normalised.to_lowercase()).cloned());
             if let Some((code, _)) = code {
                 let cc = CString::new(code).map_err(|_| err("contains a NUL byte".into()))?;
-                ctx.wrap(unsafe { sys::proj_create(ctx.ptr, cc.as_ptr()) }, spec, unknown)?
+                ctx.wrap(
+                    unsafe { sys::proj_create(ctx.ptr, cc.as_ptr()) },
+                    spec,
+                    unknown,
+                )?
             } else {
                 if !name_like(&normalised) {
                     return Err(err(unknown.into()));

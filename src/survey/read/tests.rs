@@ -267,8 +267,16 @@ fn odm_lists_with_comments_tabs_nan_and_unnamed_points() {
     assert_eq!(images, ["a.jpg", "c.jpg"]);
     let lines: Vec<usize> = s.dropped.iter().map(|d| d.line).collect();
     assert_eq!(lines, [3, 4, 5]);
-    assert!(s.dropped[0].reason.contains("same pixel"), "{:?}", s.dropped);
-    assert!(s.dropped[2].reason.contains("lines 4 and 5"), "{:?}", s.dropped);
+    assert!(
+        s.dropped[0].reason.contains("same pixel"),
+        "{:?}",
+        s.dropped
+    );
+    assert!(
+        s.dropped[2].reason.contains("lines 4 and 5"),
+        "{:?}",
+        s.dropped
+    );
 }
 
 #[test]

@@ -475,9 +475,11 @@ fn element_lines(text: &str) -> HashMap<String, Vec<usize>> {
 fn frame_from_file_name(name: &str) -> Option<usize> {
     let stem = Path::new(name).file_stem()?.to_str()?;
     let end = stem.rfind(|c: char| c.is_ascii_digit())? + 1;
+    // After the last character that is not a digit, whatever its width in bytes.
     let start = stem[..end]
-        .rfind(|c: char| !c.is_ascii_digit())
-        .map_or(0, |i| i + 1);
+        .char_indices()
+        .rfind(|(_, c)| !c.is_ascii_digit())
+        .map_or(0, |(i, c)| i + c.len_utf8());
     stem[start..end].parse().ok()
 }
 
@@ -1230,6 +1232,11 @@ mod tests {
 
     #[test]
     fn coco_dataset_takes_frames_from_file_names() {
+        // Digits after a character of two or three bytes (a panic, found by make fuzz).
+        assert_eq!(frame_from_file_name("frame_é0001.jpg"), Some(1));
+        assert_eq!(frame_from_file_name("frame_\u{feff}0012.png"), Some(12));
+        assert_eq!(frame_from_file_name("Դ޹01.jpg"), Some(1));
+        assert_eq!(frame_from_file_name("été.jpg"), None);
         let b = parse("dino.json", DATASET, BoxFormat::Coco).unwrap();
         assert_eq!(
             b.iter().map(|b| (b.frame, b.line)).collect::<Vec<_>>(),

@@ -108,6 +108,8 @@ struct Step {
     detected: bool,
     /// Whether the features measured this frame's motion.
     measured: bool,
+    /// The detection's position and covariance, when there was one.
+    det: Option<(Vector2<f64>, Matrix2<f64>)>,
 }
 
 struct Live {
@@ -479,6 +481,7 @@ impl<F: Features> KltTracker<F> {
                 bbox: t.bbox,
                 detected,
                 measured,
+                det: m.map(|j| (detections[j].uv, detections[j].cov)),
             });
             let gap = if t.hits >= CONFIRM_HITS {
                 s.max_gap
@@ -534,6 +537,7 @@ impl<F: Features> KltTracker<F> {
                     bbox: d.bbox,
                     detected: true,
                     measured: false,
+                    det: Some((d.uv, d.cov)),
                 }],
                 since_detection: 0,
                 hits: 1,
@@ -561,7 +565,10 @@ impl<F: Features> KltTracker<F> {
             t.exited = true;
             all.push(t);
         }
-        let mut tracks: Vec<Vec<TrackPoint>> = Vec::new();
+        // Smoothed first, then the share of the detections' error that persists over frames
+        // (pooled over the tracks), which smoothing cannot average and which KLT carries along:
+        // added back to every point (`smooth::white_share`).
+        let mut smoothed = Vec::new();
         for t in all {
             let first = t.steps.iter().position(|x| x.detected);
             let last = t.steps.iter().rposition(|x| x.detected);
@@ -595,6 +602,28 @@ impl<F: Features> KltTracker<F> {
                 let p = steps[k].est_cov + c * (ps - next.pred_cov) * c.transpose();
                 smooth[k] = (x, 0.5 * (p + p.transpose()));
             }
+            smoothed.push((t, a, e, smooth));
+        }
+        let white = crate::smooth::white_share(smoothed.iter().map(|(t, a, e, smooth)| {
+            t.steps[*a..=*e]
+                .iter()
+                .zip(&smooth[*a..=*e])
+                .filter_map(|(x, (uv, _))| x.det.map(|(d, c)| (x.frame, d - uv, c)))
+                .collect::<Vec<_>>()
+        }));
+        let persistent = white.map_or(0.0, |w| 1.0 - w);
+        let mut tracks: Vec<Vec<TrackPoint>> = Vec::new();
+        for (t, a, e, smooth) in smoothed {
+            let steps = &t.steps[..=e];
+            // Each point's detection covariance: its own, else the nearest earlier one's.
+            let mut det_cov = Vec::with_capacity(steps.len());
+            let mut last = steps[a].det.map_or(Matrix2::zeros(), |d| d.1);
+            for x in steps {
+                if let Some((_, c)) = x.det {
+                    last = c;
+                }
+                det_cov.push(last * persistent);
+            }
             // The backward pass's frames, tied to the smoothed first point; the variance grows
             // by a frame's feature motion per frame.
             let (uv0, cov0) = smooth[a];
@@ -612,7 +641,9 @@ impl<F: Features> KltTracker<F> {
                     TrackPoint {
                         frame: *frame,
                         uv,
-                        cov: cov0 + Matrix2::identity() * (s.motion_var_px2 * (m + 1) as f64),
+                        cov: cov0
+                            + det_cov[a]
+                            + Matrix2::identity() * (s.motion_var_px2 * (m + 1) as f64),
                         bbox,
                     }
                 })
@@ -621,10 +652,11 @@ impl<F: Features> KltTracker<F> {
                 steps[a..=e]
                     .iter()
                     .zip(&smooth[a..=e])
-                    .map(|(x, (uv, cov))| TrackPoint {
+                    .zip(&det_cov[a..=e])
+                    .map(|((x, (uv, cov)), extra)| TrackPoint {
                         frame: x.frame,
                         uv: *uv,
-                        cov: *cov,
+                        cov: cov + extra,
                         bbox: x.bbox,
                     }),
             );

@@ -469,6 +469,52 @@ pub fn evaluate_matches(
 mod tests {
     use super::*;
 
+    /// Errors drawn from the stated covariance fill its 95 % ellipse 95 % of the time; errors
+    /// twice as large do not, and a shift shows as a mean error over σ.
+    #[test]
+    fn consistency_of_errors_drawn_from_the_stated_covariance() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let cov = crate::export::PointCov {
+            random: nalgebra::Matrix2::new(4e-4, 1e-4, 1e-4, 2e-4),
+            height: nalgebra::Matrix2::identity() * 1e-4,
+            pose: nalgebra::Matrix2::zeros(),
+        };
+        let chol = cov.total().cholesky().unwrap().l();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n01 = Normal::new(0.0, 1.0).unwrap();
+        let run = |scale: f64, shift: f64, rng: &mut rand_chacha::ChaCha8Rng| {
+            let mut matches = Vec::new();
+            let mut covs = Covariances::new();
+            for k in 0..20_000 {
+                let z = Vector2::new(n01.sample(rng), n01.sample(rng));
+                let t = s(k, 1, 10.0, 5.0);
+                let e = s(k, 1, 10.0 + shift, 5.0);
+                let e = Sample {
+                    position: e.position + chol * z * scale,
+                    ..e
+                };
+                covs.insert((k, 1), cov);
+                matches.push((t, e));
+            }
+            consistency(&matches, &covs).0
+        };
+        let c = run(1.0, 0.0, &mut rng);
+        assert_eq!(c.points, 20_000);
+        assert!((c.inside_95 - 0.95).abs() < 0.005, "{c:?}");
+        assert!((c.mean_nees_per_axis - 1.0).abs() < 0.03, "{c:?}");
+        assert!((c.median_normalised_error - 0.833).abs() < 0.02, "{c:?}");
+        assert!(c.mean_normalised_e.abs() < 0.03, "{c:?}");
+        assert!((c.median_sigma_height_m - 0.01).abs() < 1e-9, "{c:?}");
+        let c = run(2.0, 0.0, &mut rng);
+        assert!(c.inside_95 < 0.6, "{c:?}");
+        let c = run(1.0, 0.02, &mut rng);
+        assert!(
+            (c.mean_normalised_e - 0.02 / 5e-4f64.sqrt()).abs() < 0.05,
+            "{c:?}"
+        );
+    }
+
     fn s(frame: usize, id: usize, x: f64, y: f64) -> Sample {
         Sample {
             frame,

@@ -5,7 +5,9 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 
 use super::bad_input;
-use crate::evaluate::{SampleTable, evaluate, ignore_brief, read_samples};
+use crate::evaluate::{
+    SampleTable, consistency, evaluate_matches, ignore_brief, read_covariances, read_samples,
+};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -68,10 +70,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let brief = ignore_brief(&mut truth, &mut ignored, args.min_frames);
     let est = read(&args.tracks, &tracks_cols)?.samples;
-    let e = evaluate(&truth, &est, &ignored, args.threshold);
+    let (e, matches) = evaluate_matches(&truth, &est, &ignored, args.threshold);
+    // The stated uncertainties against the errors, when the tracks carry them (geostride's
+    // trajectories.csv, read by its own frame and id columns).
+    let uncertainty = if tracks_cols[..2] == ["frame", "id"] {
+        match read_covariances(&args.tracks) {
+            Ok(c) => Some(consistency(&matches, &c).0).filter(|c| c.points > 0),
+            Err(err) if err.message.starts_with("no column") => None,
+            Err(err) => return Err(bad_input(anyhow!(err))),
+        }
+    } else {
+        None
+    };
     if args.json {
         let mut v = serde_json::to_value(&e)?;
         v["brief_people_not_counted"] = brief.into();
+        if let Some(u) = &uncertainty {
+            v["uncertainty"] = serde_json::to_value(u)?;
+        }
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
@@ -112,5 +128,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         e.mostly_lost,
         e.estimated_tracks
     );
+    if let Some(u) = uncertainty {
+        println!(
+            "  stated σ: the 95 % ellipse holds the truth for {:.1} % of {} points; error / σ median {:.2}, mean of squares {:.2}; mean error / σ east {:+.2}, north {:+.2}; median σ random {:.3}, height {:.3}, pose {:.3} m",
+            100.0 * u.inside_95,
+            u.points,
+            u.median_normalised_error,
+            u.mean_nees_per_axis,
+            u.mean_normalised_e,
+            u.mean_normalised_n,
+            u.median_sigma_random_m,
+            u.median_sigma_height_m,
+            u.median_sigma_pose_m
+        );
+    }
     Ok(())
 }

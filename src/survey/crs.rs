@@ -545,7 +545,8 @@ impl Crs {
             }
             _ => {
                 return Err(err(format!(
-                    "'{normalised}' is not a coordinate reference system (append +type=crs to a PROJ string?)"
+                    "'{}' is not a coordinate reference system (append +type=crs to a PROJ string?)",
+                    crate::io::clip(&normalised, 60)
                 )));
             }
         };
@@ -894,6 +895,11 @@ mod tests {
         let e = Crs::new("EPSG:999999").unwrap_err();
         assert!(e.to_string().contains("EPSG:999999"), "{e}");
         assert!(Crs::new("not a crs at all").is_err());
+        // PROJ makes something that is not a CRS of this: the message quotes it clipped (found
+        // by make fuzz).
+        let long = format!("+proj=utm +zone=22 +south {}+datum=", "[".repeat(8189));
+        let e = Crs::new(&long).unwrap_err().to_string();
+        assert!(e.len() < 400, "{} bytes: {e}", e.len());
         assert!(
             Crs::new("EPSG:4978")
                 .unwrap_err()

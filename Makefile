@@ -35,8 +35,9 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench pipeline_throughput
 	$(CARGO) bench --locked --bench ba_vs_ceres
 
-# The long fuzzing run: 10^6 inputs per parser (about 40 minutes on 2 cores), then every command
-# on 200 MB inputs with its peak memory measured. `make test` runs a bounded version.
+# The long fuzzing run: 10^6 inputs per parser (about 45 minutes on 2 cores, most of it crs through
+# PROJ), then every command on 200 MB inputs with its peak memory measured. `make test` runs a
+# bounded version.
 fuzz: build
 	$(CARGO) run --release --locked --example fuzz -- --inputs 1000000
 	$(CARGO) run --release --locked --example fuzz -- --big --mb 200

@@ -51,28 +51,15 @@ fn project(dir: &Path) -> PathBuf {
             .output()
             .unwrap(),
     );
-    let video = if dir.join("video.mp4").is_file() {
-        "video.mp4"
-    } else {
-        "video.avi"
-    };
+    let video = common::simulated_video(&dir);
     let p = dir.join("project.toml");
     std::fs::write(
         &p,
-        format!(
-            r#"[camera]
-calibration = "mini3pro"
-[survey]
-gcps = "gcps.csv"
-picks = ["picks.csv"]
-height = "ellipsoidal"
-[video]
-path = "{video}"
-[ground]
-kind = "plane"
-[export]
-formats = ["csv", "geojson", "gpkg", "petrack", "mot"]
-"#
+        common::hover_project(
+            "full disk",
+            video,
+            "kind = \"plane\"",
+            "formats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\"]",
         ),
     )
     .unwrap();

@@ -28,21 +28,11 @@ fn scene(crs: &str, origin: [f64; 3]) -> String {
 }
 
 fn project(video: &str) -> String {
-    format!(
-        r#"name = "WGS 84 test"
-[camera]
-calibration = "mini3pro"
-[survey]
-gcps = "gcps.csv"
-picks = ["picks.csv"]
-height = "ellipsoidal"
-[video]
-path = "{video}"
-[ground]
-kind = "plane"
-[export]
-formats = ["csv", "geojson"]
-"#
+    common::hover_project(
+        "WGS 84 test",
+        video,
+        "kind = \"plane\"",
+        "formats = [\"csv\", \"geojson\"]",
     )
 }
 
@@ -108,11 +98,7 @@ fn check_site(crs: &str, origin: [f64; 3]) -> (f64, f64) {
             .output()
             .unwrap(),
     );
-    let video = if sim.join("video.mp4").is_file() {
-        "video.mp4"
-    } else {
-        "video.avi"
-    };
+    let video = common::simulated_video(&sim);
     std::fs::write(sim.join("project.toml"), project(video)).unwrap();
     let out = dir.join("run");
     assert_success(

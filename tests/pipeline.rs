@@ -23,29 +23,12 @@ fn setup(dir: &Path) -> PathBuf {
         .output()
         .unwrap();
     common::assert_success(&out);
-    let video = if dir.join("video.mp4").is_file() {
-        "video.mp4"
-    } else {
-        "video.avi"
-    };
-    let project = format!(
-        r#"name = "pipeline test"
-[camera]
-calibration = "mini3pro"
-[survey]
-gcps = "gcps.csv"
-picks = ["picks.csv"]
-height = "ellipsoidal"
-[video]
-path = "{video}"
-[ground]
-kind = "deck"
-centre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]
-width_m = 5.0
-[export]
-crs = "EPSG:32631"
-formats = ["csv", "geojson", "gpkg", "petrack", "mot"]
-"#
+    let video = common::simulated_video(&dir);
+    let project = common::hover_project(
+        "pipeline test",
+        video,
+        "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
+        "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\"]",
     );
     // The simulator names the picks' image after its video.
     let picks = std::fs::read_to_string(dir.join("picks.csv")).unwrap();

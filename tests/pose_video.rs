@@ -80,11 +80,7 @@ fn every_frame_of_a_drifting_hover_is_within_a_pixel_of_the_truth() {
     let crs = Crs::new(scene_json["site"]["crs"].as_str().unwrap()).unwrap();
     let (lon, lat) = crs.to_lon_lat(origin[0], origin[1]).unwrap();
     let origin_arg = format!("{lat:.10},{lon:.10},{}", origin[2]);
-    let video = if sim.join("video.mp4").is_file() {
-        "video.mp4"
-    } else {
-        "video.avi"
-    };
+    let video = common::simulated_video(&sim);
 
     let res = dir.path().join("pose");
     let out = geostride()

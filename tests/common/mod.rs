@@ -41,3 +41,20 @@ pub fn assert_success(out: &std::process::Output) {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// The video `geostride simulate` wrote into `dir`: H.264 MP4 where the encoder exists, else AVI.
+pub fn simulated_video(dir: &std::path::Path) -> &'static str {
+    if dir.join("video.mp4").is_file() {
+        "video.mp4"
+    } else {
+        "video.avi"
+    }
+}
+
+/// A project file for a simulated hover (mini3pro camera, the simulator's GCPs and picks,
+/// ellipsoidal heights), with its own `[ground]` lines and `[export]` lines.
+pub fn hover_project(name: &str, video: &str, ground: &str, export: &str) -> String {
+    format!(
+        "name = \"{name}\"\n[camera]\ncalibration = \"mini3pro\"\n[survey]\ngcps = \"gcps.csv\"\npicks = [\"picks.csv\"]\nheight = \"ellipsoidal\"\n[video]\npath = \"{video}\"\n[ground]\n{ground}\n[export]\n{export}\n"
+    )
+}

@@ -51,7 +51,7 @@ fn project(dir: &Path) -> PathBuf {
             .output()
             .unwrap(),
     );
-    let video = common::simulated_video(&dir);
+    let video = common::simulated_video(dir);
     let p = dir.join("project.toml");
     std::fs::write(
         &p,

@@ -23,7 +23,7 @@ fn setup(dir: &Path) -> PathBuf {
         .output()
         .unwrap();
     common::assert_success(&out);
-    let video = common::simulated_video(&dir);
+    let video = common::simulated_video(dir);
     let project = common::hover_project(
         "pipeline test",
         video,

@@ -253,16 +253,19 @@ fn a_killed_runs_temporaries_are_removed_by_the_next() {
     let tmp = tempfile::tempdir().unwrap();
     let project = project(&tmp.path().join("p"));
     let out = tmp.path().join("out");
-    assert_success(
-        &geostride()
-            .arg("run")
-            .arg(&project)
-            .arg("--out")
-            .arg(&out)
-            .arg("-q")
-            .output()
-            .unwrap(),
-    );
+    let run = || {
+        assert_success(
+            &geostride()
+                .arg("run")
+                .arg(&project)
+                .arg("--out")
+                .arg(&out)
+                .arg("-q")
+                .output()
+                .unwrap(),
+        )
+    };
+    run();
     // What a kill during the export and during a stage's store leaves (no process has this id).
     let stale = [
         out.join(".trajectories.csv.tmp-4194999"),
@@ -276,16 +279,7 @@ fn a_killed_runs_temporaries_are_removed_by_the_next() {
     }
     // A file of the user's that merely looks hidden stays.
     std::fs::write(out.join(".notes"), b"mine").unwrap();
-    assert_success(
-        &geostride()
-            .arg("run")
-            .arg(&project)
-            .arg("--out")
-            .arg(&out)
-            .arg("-q")
-            .output()
-            .unwrap(),
-    );
+    run();
     for s in &stale {
         assert!(!s.exists(), "{} was not removed", s.display());
     }

@@ -43,7 +43,7 @@ pub fn read_samples(path: &Path, columns: [&str; 4]) -> Result<SampleTable, File
 
 /// A CSV with a header: its columns, where each of `columns` is, and its data rows (blank lines
 /// skipped, each with the header's field count) as (line, fields).
-fn csv_rows<'t>(
+pub(crate) fn csv_rows<'t>(
     ctx: FileCtx<'_>,
     text: &'t str,
     columns: &[&str],

@@ -813,6 +813,50 @@ fn cases() -> Vec<Case> {
             place: "t.csv:3",
         },
         Case {
+            id: "project-error-profile-unsorted",
+            category: "nonsense accepted",
+            files: vec![(
+                "project.toml",
+                replace("project.toml", "[export]", "[detect]\nerror_profile_px2 = [[0.5, 4, 9], [0.2, 4, 9]]\n[export]"),
+            )],
+            args: args(&["run", "project.toml", "--out", "out"]),
+            expect: "t rising within 0 to 1",
+            place: "field 'detect.error_profile_px2'",
+        },
+        Case {
+            id: "fit-error-no-width",
+            category: "nonsense accepted",
+            files: vec![
+                ("det.csv", "frame,u_px,v_px\n0,10,10\n".into()),
+                ("ann.csv", "frame,x_px,y_px\n0,11,10\n".into()),
+            ],
+            args: args(&["fit-error", "--detections", "det.csv", "--annotations", "ann.csv"]),
+            expect: "give --width",
+            place: "report.json",
+        },
+        Case {
+            id: "fit-error-too-few-heads",
+            category: "nonsense accepted",
+            files: vec![
+                ("det.csv", "frame,u_px,v_px\n0,10,10\n1,20,20\n".into()),
+                ("ann.csv", "frame,x_px,y_px\n0,11,10\n1,20,22\n".into()),
+            ],
+            args: args(&["fit-error", "--detections", "det.csv", "--annotations", "ann.csv", "--width", "1920"]),
+            expect: "at least 20",
+            place: "ann.csv",
+        },
+        Case {
+            id: "fit-error-missing-column",
+            category: "nonsense accepted",
+            files: vec![
+                ("det.csv", "frame,u_px,v_px\n0,10,10\n".into()),
+                ("ann.csv", "frame,x,y\n0,11,10\n".into()),
+            ],
+            args: args(&["fit-error", "--detections", "det.csv", "--annotations", "ann.csv", "--width", "1920"]),
+            expect: "no column 'x_px'",
+            place: "ann.csv:1",
+        },
+        Case {
             id: "scene-huge-video",
             category: "runaway memory",
             files: vec![("scene.toml", replace("scene.toml", "video_mode = [1280, 720]", "video_mode = [160000, 90000]"))],

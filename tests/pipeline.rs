@@ -28,7 +28,7 @@ fn setup(dir: &Path) -> PathBuf {
         "pipeline test",
         video,
         "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
-        "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\"]",
+        "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\", \"detections\"]",
     );
     // The simulator names the picks' image after its video.
     let picks = std::fs::read_to_string(dir.join("picks.csv")).unwrap();
@@ -55,8 +55,9 @@ fn report(out: &Path) -> serde_json::Value {
 
 /// The outputs that must not depend on how the run went: byte for byte, the GeoPackage too
 /// (its time stamps are fixed).
-const SAME: [&str; 7] = [
+const SAME: [&str; 8] = [
     "trajectories.csv",
+    "detections.csv",
     "trajectories.txt",
     "tracks_mot.txt",
     "trajectories.geojson",
@@ -213,6 +214,29 @@ fn runs_reuses_resumes_and_writes_gis_files() {
     );
     let mot = std::fs::read_to_string(a.join("tracks_mot.txt")).unwrap();
     assert!(mot.lines().all(|l| l.split(',').count() == 10));
+
+    // The detector's error model from the truth's heads as annotations, the image width from
+    // the run's report.
+    let o = geostride()
+        .args(["fit-error", "--json", "--annotation-columns", "frame,px,py"])
+        .arg("--detections")
+        .arg(a.join("detections.csv"))
+        .arg("--annotations")
+        .arg(tmp.path().join("truth/heads.csv"))
+        .output()
+        .unwrap();
+    common::assert_success(&o);
+    let fit: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    println!("{fit}");
+    assert!(fit["pairs_used"].as_f64().unwrap() > 100.0, "{fit}");
+    assert!(fit["width_px"].as_f64().unwrap() > 100.0, "{fit}");
+    // Hats found to within a few pixels.
+    for knot in fit["model"]["knots"].as_array().unwrap() {
+        for k in ["vertical_px2", "horizontal_px2"] {
+            let v = knot[k].as_f64().unwrap();
+            assert!(v > 0.0 && v < 30.0, "{k} {v}");
+        }
+    }
 }
 
 /// Writes a minimal valid project with dummy inputs, then `edit`s it.

@@ -5,6 +5,7 @@ mod calibrate;
 mod camera;
 pub mod demo;
 mod evaluate;
+mod fit_error;
 mod plan;
 mod pose;
 mod pose_video;
@@ -66,6 +67,8 @@ enum Command {
     Demo(demo::Args),
     /// Compare trajectories with the truth: position errors and tracking metrics
     Evaluate(evaluate::Args),
+    /// Fit a detector's error model (detect.error_px2) to heads annotated in some frames
+    FitError(fit_error::Args),
     /// Render a simulated scene (drone video of walkers or runners) with exact ground truth
     Simulate(simulate::Args),
     /// Camera pose from ground control points: one image, or every frame of a hovering video
@@ -90,6 +93,7 @@ impl Cli {
             Command::Camera(cmd) => camera::run(cmd),
             Command::Demo(args) => demo::run(args),
             Command::Evaluate(args) => evaluate::run(args),
+            Command::FitError(args) => fit_error::run(args),
             Command::Run(args) => run::run(args),
             Command::Track(args) => track::run(args),
             Command::Survey(cmd) => survey::run(cmd),

@@ -6,6 +6,7 @@
 pub mod background;
 pub mod boxes;
 pub mod colour;
+pub mod error_fit;
 pub mod morph;
 pub mod person;
 pub mod simulated;
@@ -61,34 +62,105 @@ pub trait Detector: Send {
     }
 }
 
-/// The detection error of a person detector across the image (the paper's section 4.1.3): the
-/// vertical variance is constant, the horizontal one rises linearly from the centre to the
-/// left and right edges, where people are seen most obliquely.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// The detection error of a person detector across the image: vertical and horizontal
+/// variances at knots of `t`, how far across the image the head lies (0 on the vertical centre
+/// line, 1 at the left and right edges), linear between the knots and constant beyond the
+/// first and last. The paper's model (section 4.1.3) has two knots: the vertical variance
+/// constant, the horizontal one rising from the centre to the edges, where people are seen most
+/// obliquely; a fitted model ([`error_fit`]) may have more.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ErrorModel {
+    /// By increasing `t`; at least one.
+    pub knots: Vec<ErrorKnot>,
+}
+
+/// The variances at one place across the image.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ErrorKnot {
+    pub t: f64,
     pub vertical_px2: f64,
-    pub horizontal_centre_px2: f64,
-    pub horizontal_edge_px2: f64,
+    pub horizontal_px2: f64,
 }
 
 impl Default for ErrorModel {
     fn default() -> Self {
-        ErrorModel {
-            vertical_px2: 10.0,
-            horizontal_centre_px2: 10.0,
-            horizontal_edge_px2: 20.0,
-        }
+        ErrorModel::paper(10.0, 10.0, 20.0)
     }
 }
 
 impl ErrorModel {
+    /// The paper's form: the vertical variance, the horizontal one at the centre and at the
+    /// edges, px².
+    pub fn paper(vertical_px2: f64, horizontal_centre_px2: f64, horizontal_edge_px2: f64) -> Self {
+        ErrorModel {
+            knots: vec![
+                ErrorKnot {
+                    t: 0.0,
+                    vertical_px2,
+                    horizontal_px2: horizontal_centre_px2,
+                },
+                ErrorKnot {
+                    t: 1.0,
+                    vertical_px2,
+                    horizontal_px2: horizontal_edge_px2,
+                },
+            ],
+        }
+    }
+
+    /// From rows `[t, vertical, horizontal]`; None unless the `t` rise strictly within [0, 1]
+    /// and every variance is positive and finite.
+    pub fn from_rows(rows: &[[f64; 3]]) -> Option<Self> {
+        let ok = !rows.is_empty()
+            && rows.iter().all(|r| {
+                (0.0..=1.0).contains(&r[0]) && r[1..].iter().all(|v| v.is_finite() && *v > 0.0)
+            })
+            && rows.windows(2).all(|w| w[0][0] < w[1][0]);
+        ok.then(|| ErrorModel {
+            knots: rows
+                .iter()
+                .map(|r| ErrorKnot {
+                    t: r[0],
+                    vertical_px2: r[1],
+                    horizontal_px2: r[2],
+                })
+                .collect(),
+        })
+    }
+
+    /// Where across an image `width` pixels wide `u` lies: 0 on the vertical centre line, 1 at
+    /// the left and right edges.
+    pub fn across(u: f64, width: f64) -> f64 {
+        let half = (width / 2.0).max(1.0);
+        ((u - (width - 1.0) / 2.0).abs() / half).min(1.0)
+    }
+
+    /// (vertical, horizontal) variances at `t`, px².
+    pub fn at(&self, t: f64) -> (f64, f64) {
+        let k = &self.knots;
+        let Some(first) = k.first() else {
+            return (f64::NAN, f64::NAN);
+        };
+        if t <= first.t {
+            return (first.vertical_px2, first.horizontal_px2);
+        }
+        for w in k.windows(2) {
+            if t <= w[1].t {
+                let f = (t - w[0].t) / (w[1].t - w[0].t);
+                return (
+                    w[0].vertical_px2 + f * (w[1].vertical_px2 - w[0].vertical_px2),
+                    w[0].horizontal_px2 + f * (w[1].horizontal_px2 - w[0].horizontal_px2),
+                );
+            }
+        }
+        let last = k[k.len() - 1];
+        (last.vertical_px2, last.horizontal_px2)
+    }
+
     /// Covariance (px²) of a detection at `uv` in an image `width` pixels wide.
     pub fn cov(&self, uv: &Vector2<f64>, width: f64) -> Matrix2<f64> {
-        let half = (width / 2.0).max(1.0);
-        let t = ((uv.x - (width - 1.0) / 2.0).abs() / half).min(1.0);
-        let h = self.horizontal_centre_px2
-            + (self.horizontal_edge_px2 - self.horizontal_centre_px2) * t;
-        Matrix2::new(h, 0.0, 0.0, self.vertical_px2)
+        let (v, h) = self.at(Self::across(uv.x, width));
+        Matrix2::new(h, 0.0, 0.0, v)
     }
 }
 
@@ -121,6 +193,16 @@ mod model_tests {
         assert!((m.cov(&Vector2::new(0.0, 100.0), w)[(0, 0)] - 20.0).abs() < 0.01);
         assert!((m.cov(&Vector2::new(w * 0.75, 5.0), w)[(0, 0)] - 15.0).abs() < 0.01);
         assert_eq!(m.cov(&Vector2::new(0.0, 100.0), w)[(1, 1)], 10.0);
+        // More knots: linear between them, constant beyond.
+        let m =
+            ErrorModel::from_rows(&[[0.2, 4.0, 20.0], [0.6, 2.0, 6.0], [1.0, 2.0, 5.0]]).unwrap();
+        assert_eq!(m.at(0.0), (4.0, 20.0));
+        let near = |a: (f64, f64), b: (f64, f64)| (a.0 - b.0).abs() + (a.1 - b.1).abs() < 1e-12;
+        assert!(near(m.at(0.4), (3.0, 13.0)), "{:?}", m.at(0.4));
+        assert!(near(m.at(0.8), (2.0, 5.5)), "{:?}", m.at(0.8));
+        assert!(ErrorModel::from_rows(&[[0.5, 1.0, 1.0], [0.5, 1.0, 1.0]]).is_none());
+        assert!(ErrorModel::from_rows(&[[0.0, 0.0, 1.0]]).is_none());
+        assert!(ErrorModel::from_rows(&[]).is_none());
         // A body lying to the right of the nadir: the head at the right end, one radius in.
         let nadir = Vector2::new(100.0, 100.0);
         let h = head_from_box(&[300.0, 90.0, 60.0, 20.0], &nadir, 10.0);

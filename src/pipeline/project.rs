@@ -203,9 +203,15 @@ pub struct DetectSection {
     #[serde(default = "DetectSection::default_body_radius")]
     pub body_radius_m: f64,
     /// Detection error `[vertical, horizontal at the centre, horizontal at the left and right
-    /// edges]`, px² (the paper's section 4.1.3), for `boxes` and `background`.
-    #[serde(default = "DetectSection::default_error")]
-    pub error_px2: [f64; 3],
+    /// edges]`, px² (the paper's section 4.1.3), for `boxes` and `background`
+    /// [default: `[10, 10, 20]`].
+    #[serde(default)]
+    pub error_px2: Option<[f64; 3]>,
+    /// Detection error as rows `[t, vertical, horizontal]` (px²) at places `t` across the image
+    /// (0 the vertical centre line, 1 the left and right edges), linear between them: what
+    /// `geostride fit-error` writes. Instead of `error_px2`.
+    #[serde(default)]
+    pub error_profile_px2: Option<Vec<[f64; 3]>>,
     // `background`: background subtraction for a stationary camera.
     /// `mog2` or `knn`.
     #[serde(default = "DetectSection::default_method")]
@@ -221,6 +227,15 @@ pub struct DetectSection {
 }
 
 impl DetectSection {
+    /// The detection error model these settings give (checked when the project is read).
+    pub fn error_model(&self) -> crate::detect::ErrorModel {
+        use crate::detect::ErrorModel;
+        match (&self.error_profile_px2, self.error_px2) {
+            (Some(rows), _) => ErrorModel::from_rows(rows).unwrap_or_default(),
+            (None, Some([v, hc, he])) => ErrorModel::paper(v, hc, he),
+            (None, None) => ErrorModel::default(),
+        }
+    }
     fn default_min_score() -> f64 {
         0.3
     }
@@ -244,9 +259,6 @@ impl DetectSection {
         // Half a runner's length along the box (swinging arms and legs), from the simulator's
         // bodies: 0.3 m left the head 0.25 m too far out at the image's sides.
         0.55
-    }
-    fn default_error() -> [f64; 3] {
-        [10.0, 10.0, 20.0]
     }
     fn default_method() -> String {
         "mog2".into()
@@ -435,14 +447,14 @@ pub struct ExportSection {
     /// Output CRS [default: the GCP file's].
     #[serde(default)]
     pub crs: Option<String>,
-    /// Any of `csv`, `geojson`, `gpkg`, `petrack`, `mot`.
+    /// Any of `csv`, `geojson`, `gpkg`, `petrack`, `mot`, `detections`.
     #[serde(default = "ExportSection::default_formats")]
     pub formats: Vec<String>,
 }
 
 impl ExportSection {
     fn default_formats() -> Vec<String> {
-        ["csv", "geojson", "gpkg", "petrack", "mot"]
+        ["csv", "geojson", "gpkg", "petrack", "mot", "detections"]
             .map(String::from)
             .to_vec()
     }
@@ -731,12 +743,32 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if !["mog2", "knn"].contains(&p.detect.method.as_str()) {
         return Err(l.error("detect", "method", "expected 'mog2' or 'knn'"));
     }
-    if p.detect.error_px2.iter().any(|v| !(*v > 0.0)) {
+    if p.detect
+        .error_px2
+        .is_some_and(|e| e.iter().any(|v| !(v.is_finite() && *v > 0.0)))
+    {
         return Err(l.error(
             "detect",
             "error_px2",
             "expected three positive variances, px²",
         ));
+    }
+    if let Some(rows) = &p.detect.error_profile_px2 {
+        if p.detect.error_px2.is_some() {
+            return Err(l.error(
+                "detect",
+                "error_profile_px2",
+                "give error_px2 or error_profile_px2, not both",
+            ));
+        }
+        if crate::detect::ErrorModel::from_rows(rows).is_none() {
+            return Err(l.error(
+                "detect",
+                "error_profile_px2",
+                "expected rows [t, vertical, horizontal]: t rising within 0 to 1, positive \
+                 variances in px² (as geostride fit-error writes them)",
+            ));
+        }
     }
     if !(2..=64).contains(&p.detect.clusters) {
         return Err(l.error("detect", "clusters", "expected 2 to 64"));
@@ -837,11 +869,13 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         ));
     }
     for f in &p.export.formats {
-        if !["csv", "geojson", "gpkg", "petrack", "mot"].contains(&f.as_str()) {
+        if !["csv", "geojson", "gpkg", "petrack", "mot", "detections"].contains(&f.as_str()) {
             return Err(l.error(
                 "export",
                 "formats",
-                format!("unknown format '{f}': expected csv, geojson, gpkg, petrack or mot"),
+                format!(
+                    "unknown format '{f}': expected csv, geojson, gpkg, petrack, mot or detections"
+                ),
             ));
         }
     }

@@ -708,6 +708,8 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([
             ("frames".into(), scan_data.frames as f64),
+            ("width_px".into(), scan_data.width as f64),
+            ("height_px".into(), scan_data.height as f64),
             ("detections".into(), n_det as f64),
             (
                 "key_frames".into(),
@@ -1167,6 +1169,11 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                     outputs,
                 )?,
                 "mot" => put("tracks_mot.txt", &mot_txt(&tracks), outputs)?,
+                "detections" => put(
+                    "detections.csv",
+                    &crate::detect::error_fit::detections_csv(&scan_data.detections),
+                    outputs,
+                )?,
                 "gpkg" => {
                     write_trajectories(
                         &out.join("trajectories.gpkg"),
@@ -1337,7 +1344,6 @@ fn body_detector(
     px_per_m: f64,
     frames: Option<usize>,
 ) -> Result<Box<dyn crate::detect::Detector>, RunError> {
-    use crate::detect::ErrorModel;
     use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
     use crate::detect::person::{BoxesDetector, HeadsFromBodies};
     use opencv::prelude::*;
@@ -1443,16 +1449,11 @@ fn body_detector(
     let nadir = camera
         .project(&first_pose.apply(&below))
         .unwrap_or_else(|_| Vector2::new(camera.cx, camera.cy));
-    let [v, hc, he] = d.error_px2;
     Ok(Box::new(HeadsFromBodies::new(
         inner,
         nadir,
         d.body_radius_m * px_per_m,
-        ErrorModel {
-            vertical_px2: v,
-            horizontal_centre_px2: hc,
-            horizontal_edge_px2: he,
-        },
+        d.error_model(),
     )))
 }
 

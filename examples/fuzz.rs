@@ -446,6 +446,22 @@ fn big(mb: usize) -> bool {
             "evaluate --truth @ --tracks @ --tracks-columns frame,person,e_m,n_m",
         ),
         big(
+            "fit-error: one frame",
+            "heads.csv",
+            "frame,x_px,y_px\n",
+            "0,{k}.5,10\n",
+            "",
+            "fit-error --detections @ --annotations @ --annotation-columns frame,x_px,y_px --width 1920",
+        ),
+        big(
+            "fit-error: rows",
+            "heads.csv",
+            "frame,u_px,v_px\n",
+            "{k},1.5,2.5\n",
+            "",
+            "fit-error --detections @ --annotations @ --annotation-columns frame,u_px,v_px --width 1920",
+        ),
+        big(
             "heights: rows",
             "heights.csv",
             "id,height_m\n",

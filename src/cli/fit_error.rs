@@ -7,7 +7,7 @@ use anyhow::anyhow;
 
 use super::bad_input;
 use crate::detect::error_fit::{
-    ErrorFit, Form, Pairing, fit_error_model, pair_annotations, read_frame_points,
+    ErrorFit, Form, MAX_ANNOTATIONS, Pairing, fit_error_model, pair_annotations, read_frame_points,
 };
 
 #[derive(clap::Args)]
@@ -77,14 +77,24 @@ pub fn fit(args: &Args) -> anyhow::Result<(Pairing, ErrorFit, f64)> {
         Some(w) => w,
         None => width_from_report(&args.detections)?,
     };
+    let annotations = read_frame_points(
+        &args.annotations,
+        cols,
+        "a CSV of annotated heads",
+        None,
+        MAX_ANNOTATIONS,
+    )
+    .map_err(bad_input)?;
+    // Only the annotated frames' detections: a run's file may hold hours of them.
+    let frames: std::collections::BTreeSet<usize> = annotations.keys().copied().collect();
     let detections = read_frame_points(
         &args.detections,
         ["frame", "u_px", "v_px"],
         "a run's detections.csv",
+        Some(&frames),
+        usize::MAX,
     )
     .map_err(bad_input)?;
-    let annotations = read_frame_points(&args.annotations, cols, "a CSV of annotated heads")
-        .map_err(bad_input)?;
     let pairing = pair_annotations(&detections, &annotations, args.gate);
     let form = if args.profile {
         Form::Profile

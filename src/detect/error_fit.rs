@@ -375,15 +375,24 @@ pub fn detections_csv(detections: &[Vec<Detection>]) -> String {
     s
 }
 
+/// The most heads in one frame (a 4K frame of a dense crowd holds a few hundred): pairing is
+/// quadratic in them.
+pub const MAX_HEADS_PER_FRAME: usize = 2000;
+/// The most annotated heads in all.
+pub const MAX_ANNOTATIONS: usize = 1_000_000;
+
 /// Head positions per frame from a CSV with a header naming `columns` (frame, x, y); other
-/// columns are ignored. `what` says what the file should be, for messages.
+/// columns are ignored. Only the frames in `keep` are kept when it is given; at most
+/// `max_rows` rows are read. `what` says what the file should be, for messages.
 pub fn read_frame_points(
     path: &Path,
     columns: [&str; 3],
     what: &str,
+    keep: Option<&std::collections::BTreeSet<usize>>,
+    max_rows: usize,
 ) -> Result<BTreeMap<usize, Vec<Vector2<f64>>>, FileError> {
     let text = FileCtx { path }.read_text(what)?;
-    parse_frame_points(path, &text, columns)
+    parse_frame_points(path, &text, columns, keep, max_rows)
 }
 
 /// [`read_frame_points`] on text; `path` names the file in messages.
@@ -391,16 +400,36 @@ pub fn parse_frame_points(
     path: &Path,
     text: &str,
     columns: [&str; 3],
+    keep: Option<&std::collections::BTreeSet<usize>>,
+    max_rows: usize,
 ) -> Result<BTreeMap<usize, Vec<Vector2<f64>>>, FileError> {
     let ctx = FileCtx { path };
     let mut out: BTreeMap<usize, Vec<Vector2<f64>>> = BTreeMap::new();
+    let mut count = 0usize;
     let rows = crate::evaluate::csv_rows(ctx, text, &columns, |line, f, idx, _| {
+        count += 1;
+        if count > max_rows {
+            return Err(ctx.at(
+                line,
+                format!("more than {max_rows} rows; is it the right file?"),
+            ));
+        }
         let frame = ctx.whole(f[idx[0]], line, columns[0])? as usize;
         let uv = Vector2::new(
             ctx.number(f[idx[1]], line, columns[1])?,
             ctx.number(f[idx[2]], line, columns[2])?,
         );
-        out.entry(frame).or_default().push(uv);
+        if keep.is_some_and(|k| !k.contains(&frame)) {
+            return Ok(());
+        }
+        let heads = out.entry(frame).or_default();
+        if heads.len() == MAX_HEADS_PER_FRAME {
+            return Err(ctx.at(
+                line,
+                format!("more than {MAX_HEADS_PER_FRAME} heads in frame {frame}"),
+            ));
+        }
+        heads.push(uv);
         Ok(())
     })?;
     if rows == 0 {
@@ -566,7 +595,14 @@ mod tests {
             score: 1.0,
         };
         let text = detections_csv(&[vec![d.clone()], vec![], vec![d.clone(), d]]);
-        let pts = parse_frame_points(Path::new("d.csv"), &text, ["frame", "u_px", "v_px"]).unwrap();
+        let pts = parse_frame_points(
+            Path::new("d.csv"),
+            &text,
+            ["frame", "u_px", "v_px"],
+            None,
+            10,
+        )
+        .unwrap();
         assert_eq!(pts[&0], vec![Vector2::new(10.25, 20.5)]);
         assert_eq!(pts[&2].len(), 2);
         assert!(!pts.contains_key(&1));
@@ -574,6 +610,8 @@ mod tests {
             Path::new("a.csv"),
             "frame,x_px\n1,2\n",
             ["frame", "x_px", "y_px"],
+            None,
+            10,
         )
         .unwrap_err()
         .to_string();
@@ -582,9 +620,49 @@ mod tests {
             Path::new("a.csv"),
             "frame,x_px,y_px\n1.5,2,3\n",
             ["frame", "x_px", "y_px"],
+            None,
+            10,
         )
         .unwrap_err()
         .to_string();
         assert!(e.contains("a.csv:2"), "{e}");
+        // Only the frames asked for; bounded rows and heads per frame.
+        let keep = std::collections::BTreeSet::from([2]);
+        let only = parse_frame_points(
+            Path::new("d.csv"),
+            &text,
+            ["frame", "u_px", "v_px"],
+            Some(&keep),
+            10,
+        )
+        .unwrap();
+        assert_eq!(only.keys().collect::<Vec<_>>(), [&2]);
+        let e = parse_frame_points(
+            Path::new("d.csv"),
+            &text,
+            ["frame", "u_px", "v_px"],
+            None,
+            2,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("d.csv:4") && e.contains("more than 2 rows"),
+            "{e}"
+        );
+        let crowded = format!(
+            "frame,x_px,y_px\n{}",
+            "0,1,1\n".repeat(MAX_HEADS_PER_FRAME + 1)
+        );
+        let e = parse_frame_points(
+            Path::new("a.csv"),
+            &crowded,
+            ["frame", "x_px", "y_px"],
+            None,
+            1 << 20,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("heads in frame 0"), "{e}");
     }
 }

@@ -128,6 +128,7 @@ const COCO: &str = r#"{"images": [{"id": 1, "file_name": "frame_0001.jpg"}, {"id
 const BAL: &str = "2 2 4\n0 0 -1.0 2.0\n1 0 -1.5 2.5\n0 1 3.0 -1.0\n1 1 2.5 -0.5\n0.01 0.02 0.03 0.1 0.2 -5.0 500 0 0\n-0.01 0.02 0.0 0.3 0.1 -5.0 500 0 0\n0.5 0.2 1.0\n-0.3 0.4 0.8\n";
 const HEIGHTS: &str = "id,height_m,sd_m\n1,1.75,0.02\n2,1.62\n3,1.8,0\n";
 const SAMPLES: &str = "frame,id,e_m,n_m,in_view\n0,1,1.5,2.5,1\n0,2,3.25,-4,0\n1,1,1.6,2.5,1\n";
+const DETECTIONS: &str = "frame,u_px,v_px,var_u_px2,cov_uv_px2,var_v_px2,score,box_x_px,box_y_px,box_w_px,box_h_px\n0,941.217,475.116,10.000,0.000,10.000,1.000,920.00,460.00,40.00,30.00\n0,1879.622,643.743,19.800,0.000,10.000,0.900,1860.00,630.00,38.00,28.00\n3,12.5,7.25,9,0,9,1,0,0,20,20\n";
 const POSES: &str = "frame,time_s,centre_e_m,centre_n_m,centre_u_m,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n0,0.0,0,0.25,36.58,3.1409,0.0004,-0.0029,0.0686,0.2745,36.5816\n1,0.04,0.0019,0.253,36.58,3.1411,0.0003,-0.0027,0.0606,0.2707,36.5814\n";
 const GCPS_TRUTH: &str = "name,e_m,n_m,u_m,x,y,ellipsoidal_height_m\nGCP1,-18.0,-1.9,6.39875,654482.002377,695998.082162,58.398776\nGCP2,-18.0,1.9,6.39875,654481.9986,696001.882059,58.398776\n";
 const TRUTH_BOXES: &str = "frame,person,kind,x,y,w,h\n0,7,body,1471.64,568.05,81.12,50.45\n0,7,shadow,1443.71,512.73,62.48,88.02\n";
@@ -300,6 +301,15 @@ pub fn targets() -> Vec<Target> {
         }),
         target!("samples", "tracks.csv", [SAMPLES], |p, t| {
             geostride::evaluate::parse_samples(p, t, ["frame", "id", "e_m", "n_m"])
+        }),
+        target!("frame-points", "detections.csv", [DETECTIONS], |p, t| {
+            geostride::detect::error_fit::parse_frame_points(
+                p,
+                t,
+                ["frame", "u_px", "v_px"],
+                None,
+                geostride::detect::error_fit::MAX_ANNOTATIONS,
+            )
         }),
         target!("truth-poses", "camera.csv", [POSES], |p, t| {
             geostride::simulate::truth::parse_poses(p, t)

@@ -3,20 +3,17 @@
 //! outliers.
 
 use geostride::camera::Camera;
-use geostride::geom::Pose;
+use geostride::geom::Rigid3;
 use geostride::pose::oracle::OpenCvPnpInput;
 use geostride::pose::{PoseSettings, solve_pose};
 use geostride::simulate::gcp_view::{GcpView, GcpViewSpec, drone_camera_4k, gcp_view};
 
 /// RMS pixel residual of `pose` over the flagged observations, on geostride's camera model
 /// (the same formula as OpenCV's projectPoints).
-fn rms(view: &GcpView, pose: &Pose, subset: &[bool]) -> f64 {
+fn rms(view: &GcpView, pose: &Rigid3, subset: &[bool]) -> f64 {
     let (mut sum, mut n) = (0.0, 0);
     for (o, _) in view.observations.iter().zip(subset).filter(|(_, s)| **s) {
-        let uv = view
-            .camera
-            .project(&(pose * nalgebra::Point3::from(o.world)).coords)
-            .unwrap();
+        let uv = view.camera.project(&pose.apply(&o.world)).unwrap();
         sum += (uv - o.uv).norm_squared();
         n += 1;
     }

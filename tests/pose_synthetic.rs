@@ -2,7 +2,6 @@
 //! empirical spread, gross outliers are flagged, degenerate inputs are errors.
 
 use geostride::camera::Camera;
-use geostride::estimate::p3p::RigidPose;
 use geostride::pose::{GcpObservation, PoseError, PoseSettings, solve_pose};
 use geostride::simulate::gcp_view::{GcpView, GcpViewSpec, drone_camera_4k, gcp_view};
 use nalgebra::{Matrix3, Vector2, Vector3};
@@ -54,7 +53,7 @@ fn covariance_matches_the_spread_and_outliers_are_flagged() {
             }
         }
         // Error in (rotation about the world axes, centre).
-        let est = RigidPose::from(&sol.cam_from_world);
+        let est = sol.cam_from_world;
         // world_from_cam_est = exp(δφ) world_from_cam_true.
         let dphi = (est.rotation.inverse() * c.cam_from_world.rotation).scaled_axis();
         let dc = est.centre() - c.cam_from_world.centre();
@@ -127,7 +126,7 @@ fn survey_uncertainty_enters_the_covariance() {
                 sol.inliers
             );
         }
-        let dc = RigidPose::from(&sol.cam_from_world).centre() - c.cam_from_world.centre();
+        let dc = sol.cam_from_world.centre() - c.cam_from_world.centre();
         for k in 0..3 {
             z2.push((dc[k] / sol.centre_sigma_m[k]).powi(2));
         }

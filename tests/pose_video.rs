@@ -9,9 +9,9 @@ use std::path::Path;
 
 use common::geostride;
 use geostride::camera::Camera;
-use geostride::geom::{Pose, pose_from_rvec_tvec};
+use geostride::geom::Rigid3;
 use geostride::survey::crs::Crs;
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
 
 /// Rows of a CSV as maps from header to field.
 fn read_csv(path: &Path) -> Vec<HashMap<String, String>> {
@@ -40,8 +40,8 @@ fn num(row: &HashMap<String, String>, key: &str) -> f64 {
         .unwrap_or_else(|_| panic!("{key}: '{}'", row[key]))
 }
 
-fn pose_of(row: &HashMap<String, String>) -> Pose {
-    pose_from_rvec_tvec(
+fn pose_of(row: &HashMap<String, String>) -> Rigid3 {
+    Rigid3::from_rvec_tvec(
         &Vector3::new(num(row, "rvec_x"), num(row, "rvec_y"), num(row, "rvec_z")),
         &Vector3::new(num(row, "tvec_x"), num(row, "tvec_y"), num(row, "tvec_z")),
     )
@@ -130,8 +130,8 @@ fn every_frame_of_a_drifting_hover_is_within_a_pixel_of_the_truth() {
         let mean = gcps
             .iter()
             .map(|g| {
-                let a = camera.project(&(pt * Point3::from(*g)).coords).unwrap();
-                let b = camera.project(&(pe * Point3::from(*g)).coords).unwrap();
+                let a = camera.project(&pt.apply(g)).unwrap();
+                let b = camera.project(&pe.apply(g)).unwrap();
                 (a - b).norm()
             })
             .sum::<f64>()

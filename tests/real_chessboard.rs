@@ -138,10 +138,7 @@ fn compare_with_opencv(fix_aspect: bool) {
     let mut sq = 0.0;
     for (v, pose) in views.iter().zip(&cv.cam_from_board) {
         for (x, c) in object.iter().zip(&v.corners) {
-            let uv = cv
-                .camera
-                .project(&(pose * nalgebra::Point3::from(*x)).coords)
-                .unwrap();
+            let uv = cv.camera.project(&pose.apply(x)).unwrap();
             sq += (uv - c).norm_squared();
         }
     }

@@ -21,7 +21,7 @@ use crate::camera::{
     BoardSpec, Calibration, CalibrationSummary, Camera, ImageSize, N_PARAMS, PARAM_NAMES,
     ParamCovariance, ViewSummary, param,
 };
-use crate::geom::{Pose, rvec_of};
+use crate::geom::Rigid3;
 use crate::optim::{LmSettings, Termination};
 
 pub use coverage::Coverage;
@@ -130,7 +130,7 @@ pub struct CalibrationResult {
 #[derive(Clone, Debug)]
 pub struct ViewResult {
     pub name: String,
-    pub cam_from_board: Pose,
+    pub cam_from_board: Rigid3,
     pub rms_px: f64,
     pub max_px: f64,
     pub outlier: bool,
@@ -156,8 +156,8 @@ impl CalibrationResult {
                     .map(|v| ViewSummary {
                         name: v.name.clone(),
                         rms_px: v.rms_px,
-                        rvec: rvec_of(&v.cam_from_board).into(),
-                        tvec: v.cam_from_board.translation.vector.into(),
+                        rvec: v.cam_from_board.rvec().into(),
+                        tvec: v.cam_from_board.translation.into(),
                         outlier: v.outlier,
                     })
                     .collect(),
@@ -426,8 +426,8 @@ impl CalibrationResult {
                     rms_px: v.rms_px,
                     max_px: v.max_px,
                     outlier: v.outlier,
-                    rvec: rvec_of(&v.cam_from_board).into(),
-                    tvec_m: v.cam_from_board.translation.vector.into(),
+                    rvec: v.cam_from_board.rvec().into(),
+                    tvec_m: v.cam_from_board.translation.into(),
                 })
                 .collect(),
             dropped_views: self.dropped.clone(),

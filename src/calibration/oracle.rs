@@ -7,7 +7,7 @@ use opencv::prelude::*;
 
 use super::{Options, View, board_points};
 use crate::camera::{BoardSpec, Camera, ImageSize, N_PARAMS};
-use crate::geom::{Pose, pose_from_rvec_tvec};
+use crate::geom::Rigid3;
 
 /// Corners and board points in OpenCV's containers, built once so timings exclude conversion.
 pub struct OpenCvInput {
@@ -75,7 +75,7 @@ pub fn opencv_flags(opts: &Options) -> i32 {
 /// geostride's parameter order (skew, which OpenCV does not estimate, is 0).
 pub struct OpenCvResult {
     pub camera: Camera,
-    pub cam_from_board: Vec<Pose>,
+    pub cam_from_board: Vec<Rigid3>,
     pub rms_px: f64,
     pub std_devs: [f64; N_PARAMS],
 }
@@ -158,7 +158,7 @@ pub fn calibrate_camera(
     let cam_from_board = rvecs
         .iter()
         .zip(tvecs.iter())
-        .map(|(r, t)| Ok(pose_from_rvec_tvec(&vec3(&r)?, &vec3(&t)?)))
+        .map(|(r, t)| Ok(Rigid3::from_rvec_tvec(&vec3(&r)?, &vec3(&t)?)))
         .collect::<opencv::Result<Vec<_>>>()?;
     Ok(OpenCvResult {
         camera,

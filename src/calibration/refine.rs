@@ -6,17 +6,17 @@
 //! back-substitutes, so a step costs O(views) instead of O(views³). The covariance of the
 //! intrinsics at the optimum is `σ² S⁻¹` with `σ²` the residual variance.
 
-use nalgebra::{DMatrix, DVector, Matrix6, Point3, SMatrix, Vector2, Vector3, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix6, SMatrix, Vector2, Vector3, Vector6};
 
 use super::{CalibrationError, Parametrization};
 use crate::camera::{Camera, ParamCovariance};
-use crate::geom::{Pose, pose_plus, skew};
+use crate::geom::{Rigid3, skew};
 use crate::optim::{Damping, LmSettings, Termination};
 
 /// The optimum and what is known about it.
 pub struct Solved {
     pub camera: Camera,
-    pub cam_from_board: Vec<Pose>,
+    pub cam_from_board: Vec<Rigid3>,
     /// Residuals (projected − observed, pixels) per view and corner.
     pub residuals: Vec<Vec<Vector2<f64>>>,
     /// `½ Σ ‖r‖²`.
@@ -41,14 +41,14 @@ fn residuals_and_cost(
     cam: &Camera,
     object: &[Vector3<f64>],
     views: &[&[Vector2<f64>]],
-    poses: &[Pose],
+    poses: &[Rigid3],
 ) -> Option<(Vec<Vec<Vector2<f64>>>, f64)> {
     let mut cost = 0.0;
     let mut all = Vec::with_capacity(views.len());
     for (obs, pose) in views.iter().zip(poses) {
         let mut res = Vec::with_capacity(obs.len());
         for (x, o) in object.iter().zip(obs.iter()) {
-            let p = (pose * Point3::from(*x)).coords;
+            let p = pose.apply(x);
             let r = cam.project(&p).ok()? - o;
             cost += 0.5 * r.norm_squared();
             res.push(r);
@@ -59,27 +59,26 @@ fn residuals_and_cost(
 }
 
 /// Residuals (2 per corner) of one view with their Jacobians with respect to the free intrinsics
-/// and to the pose increment `(δrot, δt)` of [`pose_plus`].
+/// and to the pose increment `(δθ, δt)` of [`Rigid3::plus`].
 fn view_jacobians(
     cam: &Camera,
     pm: &DMatrix<f64>,
     object: &[Vector3<f64>],
     obs: &[Vector2<f64>],
-    pose: &Pose,
+    pose: &Rigid3,
 ) -> Option<(DVector<f64>, DMatrix<f64>, DMatrix<f64>)> {
     let m = 2 * obs.len();
     let mut jt = DMatrix::<f64>::zeros(m, pm.ncols());
     let mut jp = DMatrix::<f64>::zeros(m, 6);
     let mut r = DVector::<f64>::zeros(m);
     for (k, (x, o)) in object.iter().zip(obs.iter()).enumerate() {
-        let rx = pose.rotation * x;
-        let p = rx + pose.translation.vector;
+        let p = pose.apply(x);
         let (uv, j_point, j_params) = cam.project_with_jacobians(&p).ok()?;
         let res = uv - o;
         r[2 * k] = res.x;
         r[2 * k + 1] = res.y;
-        // Left-multiplicative rotation increment: d(R x + t)/dδ = −[R x]×.
-        let j_rot = j_point * (-skew(&rx));
+        // Rigid3::plus: d(R x + t)/dδθ = −[R x + t]×.
+        let j_rot = j_point * (-skew(&p));
         let mut j_pose = SMatrix::<f64, 2, 6>::zeros();
         j_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&j_rot);
         j_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&j_point);
@@ -94,7 +93,7 @@ fn linearise(
     param: &Parametrization,
     object: &[Vector3<f64>],
     views: &[&[Vector2<f64>]],
-    poses: &[Pose],
+    poses: &[Rigid3],
 ) -> Option<Normal> {
     let n = param.len();
     let pm = param.matrix();
@@ -173,7 +172,7 @@ pub fn refine(
     object: &[Vector3<f64>],
     views: &[&[Vector2<f64>]],
     camera: Camera,
-    poses: Vec<Pose>,
+    poses: Vec<Rigid3>,
     param: &Parametrization,
     settings: &LmSettings,
 ) -> Result<Solved, CalibrationError> {
@@ -215,9 +214,7 @@ pub fn refine(
         let x_norm = (theta.iter().map(|t| t * t).sum::<f64>()
             + poses
                 .iter()
-                .map(|p| {
-                    p.translation.vector.norm_squared() + p.rotation.scaled_axis().norm_squared()
-                })
+                .map(|p| p.translation.norm_squared() + p.rotation.scaled_axis().norm_squared())
                 .sum::<f64>())
         .sqrt();
         if step_norm <= settings.parameter_tolerance * (x_norm + settings.parameter_tolerance) {
@@ -231,16 +228,10 @@ pub fn refine(
             .collect();
         let mut new_cam = cam.clone();
         param.set(&mut new_cam, &new_theta);
-        let new_poses: Vec<Pose> = poses
+        let new_poses: Vec<Rigid3> = poses
             .iter()
             .zip(&dposes)
-            .map(|(p, d)| {
-                pose_plus(
-                    p,
-                    &d.fixed_rows::<3>(0).into(),
-                    &d.fixed_rows::<3>(3).into(),
-                )
-            })
+            .map(|(p, d)| p.plus(&Vector6::from_column_slice(d.as_slice())))
             .collect();
         let new_cost = residuals_and_cost(&new_cam, object, views, &new_poses).map(|(_, c)| c);
         let rho = match new_cost {
@@ -328,7 +319,6 @@ mod tests {
     use super::*;
     use crate::calibration::{Options, board_points};
     use crate::camera::BoardSpec;
-    use crate::geom::pose_from_rvec_tvec;
 
     /// The calibration Jacobians (intrinsics through the parametrization, and the pose
     /// increment) agree with central differences of the residuals.
@@ -343,7 +333,7 @@ mod tests {
         let cam = Camera::pinhole(800.0, 790.0, 330.0, 250.0)
             .with_distortion(&[-0.2, 0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.003])
             .with_image_size(640, 480);
-        let pose = pose_from_rvec_tvec(
+        let pose = Rigid3::from_rvec_tvec(
             &Vector3::new(0.3, -0.2, 0.1),
             &Vector3::new(-0.1, -0.05, 0.6),
         );
@@ -365,7 +355,8 @@ mod tests {
             let theta = param.get(&base);
             param.set(&mut base, &theta);
             let (_, jt, jp) = view_jacobians(&base, &pm, &object, &obs, &pose).unwrap();
-            let resid = |c: &Camera, p: &Pose| view_jacobians(c, &pm, &object, &obs, p).unwrap().0;
+            let resid =
+                |c: &Camera, p: &Rigid3| view_jacobians(c, &pm, &object, &obs, p).unwrap().0;
             for k in 0..theta.len() {
                 let h = 1e-6 * (1.0 + theta[k].abs());
                 let (mut a, mut b) = (base.clone(), base.clone());
@@ -386,13 +377,7 @@ mod tests {
                 let h = 1e-7;
                 let mut d = Vector6::zeros();
                 d[k] = h;
-                let step = |d: &Vector6<f64>| {
-                    pose_plus(
-                        &pose,
-                        &d.fixed_rows::<3>(0).into(),
-                        &d.fixed_rows::<3>(3).into(),
-                    )
-                };
+                let step = |d: &Vector6<f64>| pose.plus(d);
                 let fd = (resid(&base, &step(&d)) - resid(&base, &step(&-d))) / (2.0 * h);
                 let err = (&fd - jp.column(k)).amax();
                 assert!(err < 1e-4 * (1.0 + fd.amax()), "pose {k}: {err}");

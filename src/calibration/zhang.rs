@@ -10,12 +10,12 @@ use nalgebra::{DMatrix, Matrix3, Vector2, Vector3, Vector6};
 use super::{CalibrationError, Options};
 use crate::camera::{Camera, ImageSize};
 use crate::estimate::homography::homography_refined;
-use crate::geom::{Pose, nearest_rotation};
+use crate::geom::{Rigid3, nearest_rotation};
 
 /// Initial intrinsics (no distortion) and board poses.
 pub struct Initial {
     pub camera: Camera,
-    pub cam_from_board: Vec<Pose>,
+    pub cam_from_board: Vec<Rigid3>,
 }
 
 /// `v_ij` of Zhang's paper, so that `h_iᵀ B h_j = v_ijᵀ b` with
@@ -146,7 +146,7 @@ fn solve(
 
 /// The board pose from its homography and `K` (Zhang, section 3.1), with the rotation projected
 /// onto SO(3) and the board in front of the camera.
-pub fn pose_from_homography(k: &Matrix3<f64>, h: &Matrix3<f64>) -> Option<Pose> {
+pub fn pose_from_homography(k: &Matrix3<f64>, h: &Matrix3<f64>) -> Option<Rigid3> {
     let kinv = k.try_inverse()?;
     let a = kinv * h;
     let (a1, a2, a3) = (a.column(0), a.column(1), a.column(2));
@@ -159,7 +159,7 @@ pub fn pose_from_homography(k: &Matrix3<f64>, h: &Matrix3<f64>) -> Option<Pose> 
     let r3 = r1.cross(&r2);
     let r = nearest_rotation(&Matrix3::from_columns(&[r1, r2, r3]));
     let tvec: Vector3<f64> = a3 * lambda;
-    Some(Pose::from_parts(tvec.into(), r.into()))
+    Some(Rigid3::new(r, tvec))
 }
 
 /// Initial camera and board poses for the views.
@@ -203,7 +203,6 @@ mod tests {
     use super::*;
     use crate::calibration::board_points;
     use crate::camera::BoardSpec;
-    use crate::geom::pose_from_rvec_tvec;
 
     #[test]
     fn recovers_exact_intrinsics_and_poses_without_noise() {
@@ -215,19 +214,19 @@ mod tests {
         };
         let object = board_points(&board);
         let poses = [
-            pose_from_rvec_tvec(
+            Rigid3::from_rvec_tvec(
                 &Vector3::new(0.3, 0.1, 0.05),
                 &Vector3::new(-0.1, -0.05, 0.6),
             ),
-            pose_from_rvec_tvec(
+            Rigid3::from_rvec_tvec(
                 &Vector3::new(-0.2, 0.35, -0.1),
                 &Vector3::new(-0.15, -0.1, 0.7),
             ),
-            pose_from_rvec_tvec(
+            Rigid3::from_rvec_tvec(
                 &Vector3::new(0.1, -0.3, 0.4),
                 &Vector3::new(-0.05, -0.08, 0.55),
             ),
-            pose_from_rvec_tvec(
+            Rigid3::from_rvec_tvec(
                 &Vector3::new(0.4, 0.3, -0.2),
                 &Vector3::new(-0.12, -0.02, 0.8),
             ),
@@ -237,11 +236,7 @@ mod tests {
             .map(|p| {
                 object
                     .iter()
-                    .map(|x| {
-                        truth
-                            .project(&(p * nalgebra::Point3::from(*x)).coords)
-                            .unwrap()
-                    })
+                    .map(|x| truth.project(&p.apply(x)).unwrap())
                     .collect()
             })
             .collect();
@@ -258,8 +253,8 @@ mod tests {
             assert!((a - b).abs() < 1e-6, "{a} vs {b}");
         }
         for (est, p) in init.cam_from_board.iter().zip(&poses) {
-            assert!((est.translation.vector - p.translation.vector).norm() < 1e-9);
-            assert!(est.rotation.angle_to(&p.rotation) < 1e-9);
+            assert!((est.translation - p.translation).norm() < 1e-9);
+            assert!((est.rotation.matrix() - p.rotation.matrix()).norm() < 1e-9);
         }
         let fixed = Options {
             fix_aspect: Some(1.0),

@@ -12,7 +12,6 @@ use crate::calibration::inputs::{CollectSettings, InputError, InputLog, collect}
 use crate::calibration::{CalibrationError, CalibrationResult, Options, calibrate};
 use crate::camera::formats::{self, Format};
 use crate::camera::{BoardSpec, PARAM_NAMES};
-use crate::geom::rvec_of;
 use crate::optim::LmSettings;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -322,8 +321,8 @@ pub(crate) fn summary(r: &CalibrationResult, log: &InputLog) -> String {
         "\n  view                              RMS px   max px   rvec (rad)                tvec (m)"
     );
     for v in &r.views {
-        let rv = rvec_of(&v.cam_from_board);
-        let t = v.cam_from_board.translation.vector;
+        let rv = v.cam_from_board.rvec();
+        let t = v.cam_from_board.translation;
         let _ = writeln!(
             s,
             "  {:<32} {:>7.3} {:>8.3}   [{:+.3} {:+.3} {:+.3}]  [{:+.3} {:+.3} {:+.3}]{}",

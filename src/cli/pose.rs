@@ -13,8 +13,6 @@ use super::survey::{Framed, ReadArgs, read_framed};
 use super::{bad_input, check_output_file, load_camera, parse_positive, scale_to};
 use crate::camera::Camera;
 use crate::draw::Canvas;
-use crate::estimate::p3p::RigidPose;
-use crate::geom::rvec_of;
 use crate::optim::RobustLoss;
 use crate::pose::attitude::attitude_sigma_deg;
 use crate::pose::solve::gcp_residual;
@@ -312,12 +310,7 @@ impl Report<'_> {
     }
 
     fn world_from_cam(&self) -> Matrix3<f64> {
-        self.solution
-            .cam_from_world
-            .rotation
-            .to_rotation_matrix()
-            .matrix()
-            .transpose()
+        self.solution.cam_from_world.rotation.matrix().transpose()
     }
 
     /// The azimuth of grid north from true north at the camera, degrees; `None` without a
@@ -375,8 +368,8 @@ impl Report<'_> {
         let cov_phi: Matrix3<f64> = s.covariance.fixed_view::<3, 3>(0, 0).into();
         let sig = attitude_sigma_deg(&self.world_from_cam(), &cov_phi);
         let (check_rms_px, check_ground_rms_m) = self.check_rms();
-        let rvec = rvec_of(&s.cam_from_world);
-        let t = s.cam_from_world.translation.vector;
+        let rvec = s.cam_from_world.rvec();
+        let t = s.cam_from_world.translation;
         let j = JsonPose {
             image: self.image,
             camera: self.camera_source,
@@ -663,7 +656,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &format!("{}: the picks of image '{image}'", files.join(", ")),
         )
     })?;
-    let pose = RigidPose::from(&solution.cam_from_world);
+    let pose = solution.cam_from_world;
     let checks = seen
         .check
         .iter()

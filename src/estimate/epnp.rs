@@ -10,14 +10,14 @@
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector2, Vector3};
 
 use super::EstimateError;
-use super::p3p::RigidPose;
+use crate::geom::Rigid3;
 use crate::geom::nearest_rotation;
 
 /// Relative size of the smallest principal axis below which the points count as coplanar.
 const PLANAR_RATIO: f64 = 1e-6;
 
 /// The rigid transform `p_cam = R p_world + t` that best maps `world` onto `cam` (Kabsch).
-pub fn absolute_orientation(world: &[Vector3<f64>], cam: &[Vector3<f64>]) -> RigidPose {
+pub fn absolute_orientation(world: &[Vector3<f64>], cam: &[Vector3<f64>]) -> Rigid3 {
     let n = world.len() as f64;
     let cw = world.iter().sum::<Vector3<f64>>() / n;
     let cc = cam.iter().sum::<Vector3<f64>>() / n;
@@ -25,14 +25,14 @@ pub fn absolute_orientation(world: &[Vector3<f64>], cam: &[Vector3<f64>]) -> Rig
         h + (c - cc) * (w - cw).transpose()
     });
     let rotation = nearest_rotation(&h);
-    RigidPose {
+    Rigid3 {
         rotation,
         translation: cc - rotation * cw,
     }
 }
 
 /// Squared reprojection error in normalised coordinates, summed; infinite with a point behind.
-fn reprojection_sq(pose: &RigidPose, world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> f64 {
+fn reprojection_sq(pose: &Rigid3, world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> f64 {
     let mut sum = 0.0;
     for (w, m) in world.iter().zip(xy) {
         let p = pose.apply(w);
@@ -45,7 +45,7 @@ fn reprojection_sq(pose: &RigidPose, world: &[Vector3<f64>], xy: &[Vector2<f64>]
 }
 
 /// Pose from n ≥ 4 world points and their undistorted normalised image coordinates `(x/z, y/z)`.
-pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<RigidPose, EstimateError> {
+pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<Rigid3, EstimateError> {
     assert_eq!(world.len(), xy.len(), "world and image points must pair up");
     let n = world.len();
     if n < 4 {
@@ -195,7 +195,7 @@ pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<RigidPose, Es
         candidates.push(betas);
     }
 
-    let mut best: Option<(f64, RigidPose)> = None;
+    let mut best: Option<(f64, Rigid3)> = None;
     for betas in candidates {
         let mut b = vec![0.0; k];
         b[..betas.len()].copy_from_slice(&betas);
@@ -231,8 +231,8 @@ pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<RigidPose, Es
 }
 
 /// The P3P solution of any triple that best reprojects all four points.
-fn four_point_p3p(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<RigidPose, EstimateError> {
-    let mut best: Option<(f64, RigidPose)> = None;
+fn four_point_p3p(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<Rigid3, EstimateError> {
+    let mut best: Option<(f64, Rigid3)> = None;
     for skip in 0..4 {
         let idx: Vec<usize> = (0..4).filter(|&i| i != skip).collect();
         let w = [world[idx[0]], world[idx[1]], world[idx[2]]];
@@ -308,13 +308,13 @@ mod tests {
         rng: &mut impl rand::Rng,
         n: usize,
         planar: bool,
-    ) -> (Vec<Vector3<f64>>, Vec<Vector2<f64>>, RigidPose) {
+    ) -> (Vec<Vector3<f64>>, Vec<Vector2<f64>>, Rigid3) {
         let rotation = Rotation3::from_scaled_axis(Vector3::new(
             rng.random_range(-0.5..0.5),
             rng.random_range(-0.5..0.5),
             rng.random_range(-3.0..3.0),
         ));
-        let pose = RigidPose {
+        let pose = Rigid3 {
             rotation,
             translation: Vector3::new(
                 rng.random_range(-1.0..1.0),

@@ -8,45 +8,9 @@
 //! quadric gives a quadratic in τ = λ₂/λ₃, and λ₃ follows from a third. The depths are polished
 //! by Gauss–Newton; the pose comes from the three camera-frame points.
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Vector3};
 
-use crate::geom::nearest_rotation;
-
-/// A pose `p_cam = R·p_world + t`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RigidPose {
-    pub rotation: Rotation3<f64>,
-    pub translation: Vector3<f64>,
-}
-
-impl RigidPose {
-    pub fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
-        self.rotation * p + self.translation
-    }
-
-    /// The camera centre in world coordinates.
-    pub fn centre(&self) -> Vector3<f64> {
-        -(self.rotation.inverse() * self.translation)
-    }
-}
-
-impl From<RigidPose> for crate::geom::Pose {
-    fn from(p: RigidPose) -> Self {
-        crate::geom::Pose::from_parts(
-            p.translation.into(),
-            nalgebra::UnitQuaternion::from_rotation_matrix(&p.rotation),
-        )
-    }
-}
-
-impl From<&crate::geom::Pose> for RigidPose {
-    fn from(p: &crate::geom::Pose) -> Self {
-        RigidPose {
-            rotation: p.rotation.to_rotation_matrix(),
-            translation: p.translation.vector,
-        }
-    }
-}
+use crate::geom::{Rigid3, nearest_rotation};
 
 /// Real roots of `a x² + b x + c`, stable against cancellation.
 fn quadratic_roots(a: f64, b: f64, c: f64) -> Vec<f64> {
@@ -146,7 +110,7 @@ fn refine_depths(l: &mut Vector3<f64>, b12: f64, b13: f64, b23: f64, a12: f64, a
 }
 
 /// Up to four poses from three world points and their unit bearing vectors in the camera frame.
-pub fn p3p(world: &[Vector3<f64>; 3], bearings: &[Vector3<f64>; 3]) -> Vec<RigidPose> {
+pub fn p3p(world: &[Vector3<f64>; 3], bearings: &[Vector3<f64>; 3]) -> Vec<Rigid3> {
     let (x1, x2, x3) = (world[0], world[1], world[2]);
     let (y1, y2, y3) = (
         bearings[0].normalize(),
@@ -251,11 +215,11 @@ pub fn p3p(world: &[Vector3<f64>; 3], bearings: &[Vector3<f64>; 3]) -> Vec<Rigid
             let yc = Matrix3::from_columns(&[p1 - p2, p1 - p3, (p1 - p2).cross(&(p1 - p3))]);
             let r = nearest_rotation(&(yc * wx_inv));
             let t = p1 - r * x1;
-            let pose = RigidPose {
+            let pose = Rigid3 {
                 rotation: r,
                 translation: t,
             };
-            if !poses.iter().any(|o: &RigidPose| {
+            if !poses.iter().any(|o: &Rigid3| {
                 (o.rotation.matrix() - r.matrix()).norm() < 1e-9
                     && (o.translation - t).norm() < 1e-9 * (1.0 + t.norm())
             }) {
@@ -271,8 +235,8 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
 
-    fn random_case(rng: &mut impl rand::Rng) -> ([Vector3<f64>; 3], RigidPose) {
-        let rotation = Rotation3::from_scaled_axis(Vector3::new(
+    fn random_case(rng: &mut impl rand::Rng) -> ([Vector3<f64>; 3], Rigid3) {
+        let rotation = nalgebra::Rotation3::from_scaled_axis(Vector3::new(
             rng.random_range(-1.0..1.0),
             rng.random_range(-1.0..1.0),
             rng.random_range(-3.0..3.0),
@@ -282,7 +246,7 @@ mod tests {
             rng.random_range(-2.0..2.0),
             rng.random_range(4.0..12.0),
         );
-        let pose = RigidPose {
+        let pose = Rigid3 {
             rotation,
             translation,
         };

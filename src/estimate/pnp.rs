@@ -7,8 +7,9 @@
 
 use nalgebra::{Matrix6, Vector2, Vector3, Vector6};
 
-use super::p3p::{RigidPose, p3p};
+use super::p3p::p3p;
 use super::ransac::Estimator;
+use crate::geom::Rigid3;
 use crate::geom::skew;
 
 /// Gauss–Newton on `Σ wᵢ |π(R Xᵢ + t) − xyᵢ|²` in normalised coordinates, with left increments
@@ -18,9 +19,9 @@ pub fn gauss_newton_pose(
     world: &[Vector3<f64>],
     xy: &[Vector2<f64>],
     subset: &[usize],
-    start: &RigidPose,
+    start: &Rigid3,
     iterations: usize,
-) -> RigidPose {
+) -> Rigid3 {
     let mut pose = *start;
     for _ in 0..iterations {
         let mut jtj = Matrix6::<f64>::zeros();
@@ -44,7 +45,7 @@ pub fn gauss_newton_pose(
         let delta = -chol.solve(&jtr);
         let dr = Vector3::new(delta[0], delta[1], delta[2]);
         let rot = nalgebra::Rotation3::from_scaled_axis(dr);
-        pose = RigidPose {
+        pose = Rigid3 {
             rotation: rot * pose.rotation,
             translation: rot * pose.translation + Vector3::new(delta[3], delta[4], delta[5]),
         };
@@ -92,7 +93,7 @@ pub fn collinear(a: &Vector3<f64>, b: &Vector3<f64>, c: &Vector3<f64>) -> bool {
 }
 
 impl Estimator for PnpEstimator<'_> {
-    type Model = RigidPose;
+    type Model = Rigid3;
 
     fn sample_size(&self) -> usize {
         3
@@ -111,7 +112,7 @@ impl Estimator for PnpEstimator<'_> {
             || (y(1) - y(2)).norm() < 1e-9
     }
 
-    fn fit_minimal(&self, s: &[usize]) -> Vec<RigidPose> {
+    fn fit_minimal(&self, s: &[usize]) -> Vec<Rigid3> {
         p3p(
             &[self.world[s[0]], self.world[s[1]], self.world[s[2]]],
             &[
@@ -122,11 +123,11 @@ impl Estimator for PnpEstimator<'_> {
         )
     }
 
-    fn fit_nonminimal(&self, data: &[usize], start: &RigidPose) -> Option<RigidPose> {
+    fn fit_nonminimal(&self, data: &[usize], start: &Rigid3) -> Option<Rigid3> {
         (data.len() >= 4).then(|| gauss_newton_pose(self.world, self.xy, data, start, 5))
     }
 
-    fn residual_sq(&self, pose: &RigidPose, i: usize) -> f64 {
+    fn residual_sq(&self, pose: &Rigid3, i: usize) -> f64 {
         let p = pose.apply(&self.world[i]);
         if p.z <= 0.0 {
             return f64::INFINITY;
@@ -148,7 +149,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let f = 1500.0;
         for _ in 0..20 {
-            let truth = RigidPose {
+            let truth = Rigid3 {
                 rotation: Rotation3::from_scaled_axis(Vector3::new(
                     3.1,
                     0.02,
@@ -201,7 +202,7 @@ mod tests {
 
     #[test]
     fn gauss_newton_converges_from_a_nearby_pose() {
-        let truth = RigidPose {
+        let truth = Rigid3 {
             rotation: Rotation3::from_scaled_axis(Vector3::new(3.0, 0.1, 0.4)),
             translation: Vector3::new(1.0, 2.0, 25.0),
         };
@@ -219,7 +220,7 @@ mod tests {
             .map(|w| truth.apply(w))
             .map(|p| Vector2::new(p.x / p.z, p.y / p.z))
             .collect();
-        let start = RigidPose {
+        let start = Rigid3 {
             rotation: Rotation3::from_scaled_axis(Vector3::new(0.02, -0.03, 0.05)) * truth.rotation,
             translation: truth.translation + Vector3::new(0.5, -0.4, 1.0),
         };

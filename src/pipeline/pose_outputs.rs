@@ -9,8 +9,7 @@ use nalgebra::Matrix3;
 
 use crate::camera::Camera;
 use crate::draw::{Chart, Series, Style, line_chart};
-use crate::estimate::p3p::RigidPose;
-use crate::geom::{Pose, rvec_of};
+use crate::geom::Rigid3;
 use crate::io::write_atomic;
 use crate::pose::hover::HoverResult;
 use crate::pose::stabilise::FrameTrack;
@@ -69,8 +68,7 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
             .source_from_local(&c)
             .map_err(|e| anyhow!("camera position to the GCP file's CRS: {e}"))?;
         let att = Attitude::from_world_from_cam(&f.cam_from_world.rotation.inverse().into_inner());
-        let pose: Pose = f.cam_from_world.into();
-        let rv = rvec_of(&pose);
+        let rv = f.cam_from_world.rvec();
         let tv = f.cam_from_world.translation;
         let sg = f.centre_sigma_m;
         writeln!(
@@ -242,7 +240,7 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
 /// The pixel error the GCPs' survey σ alone explains: the mean over GCPs of the horizontal σ
 /// seen at its depth in the first solved key frame.
 fn survey_level_px(r: &HoverResult, control: &[GcpObservation], camera: &Camera) -> Option<f64> {
-    let pose: RigidPose = *r.joint.poses.first()?;
+    let pose: Rigid3 = *r.joint.poses.first()?;
     let focal = 0.5 * (camera.fx + camera.fy);
     let mut sum = 0.0;
     for o in control {

@@ -23,11 +23,11 @@ use super::scan::{ScanError, ScanJob, ScanTimes, scan};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
 use crate::detect::colour::ColourSettings;
-use crate::estimate::p3p::RigidPose;
 use crate::export::gis::{Layers, write_trajectories};
 use crate::export::{
     PointCov, Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv,
 };
+use crate::geom::Rigid3;
 use crate::gis::GisFormat;
 use crate::io::write_atomic;
 use crate::pose::hover::solve_with_checks;
@@ -262,8 +262,8 @@ struct FramePoseData {
 }
 
 impl FramePoseData {
-    fn pose(&self) -> RigidPose {
-        RigidPose {
+    fn pose(&self) -> Rigid3 {
+        Rigid3 {
             rotation: nalgebra::Rotation3::from_matrix_unchecked(self.rotation),
             translation: self.translation,
         }
@@ -576,7 +576,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     // The scale of a head in the image, from a pose of the picked frame.
     let first = solve_pose(&camera, &control, &PoseSettings::default())
         .map_err(|e| RunError::Input(format!("the picks of frame {pick_frame}: {e}")))?;
-    let first_pose = RigidPose::from(&first.cam_from_world);
+    let first_pose = first.cam_from_world;
     let centre = first_pose.centre();
     let head_z = surface.height(&centre.xy()).ok_or_else(|| {
         RunError::Input(
@@ -822,7 +822,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         seconds: t0.elapsed().as_secs_f64(),
         counts,
     });
-    let poses: Vec<RigidPose> = pose_data.frames.iter().map(FramePoseData::pose).collect();
+    let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
 
     // Stage 3: track.
     let track_key = stage_key("track", &[&scan_key, &pose_key], &p.track);
@@ -1340,7 +1340,7 @@ fn body_detector(
     l: &Loaded,
     video: &Path,
     camera: &Camera,
-    first_pose: &RigidPose,
+    first_pose: &Rigid3,
     px_per_m: f64,
     frames: Option<usize>,
 ) -> Result<Box<dyn crate::detect::Detector>, RunError> {

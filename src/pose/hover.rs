@@ -13,7 +13,7 @@ use super::refine::{PointObs, project_pose, refine_pose, world_covariance};
 use super::solve::{CHI2_2DOF_999, GcpObservation, PoseSettings, PoseSolution, solve_pose};
 use super::stabilise::{FrameTrack, KeyReason};
 use crate::camera::Camera;
-use crate::estimate::p3p::RigidPose;
+use crate::geom::Rigid3;
 use crate::optim::{LmSettings, RobustLoss};
 use crate::progress::Progress;
 
@@ -42,7 +42,7 @@ pub struct KeyFrame {
 pub struct FramePose {
     pub index: usize,
     pub key: bool,
-    pub cam_from_world: RigidPose,
+    pub cam_from_world: Rigid3,
     /// σ of the camera centre (east, north, up), metres; `None` when interpolated.
     pub centre_sigma_m: Option<Vector3<f64>>,
     /// Covariance of the pose's increment (`refine` convention); `None` when interpolated.
@@ -67,7 +67,7 @@ pub struct HoverResult {
 /// Pixel covariance of a carried pick: its σ, plus the adjusted GCP's covariance projected.
 fn obs_info(
     camera: &Camera,
-    pose: &RigidPose,
+    pose: &Rigid3,
     world: &Vector3<f64>,
     cov: &Matrix3<f64>,
     sigma_px: f64,
@@ -78,7 +78,7 @@ fn obs_info(
 
 /// One frame's refined pose, its centre σ and increment covariance, and the picks it used.
 struct FrameSolve {
-    pose: RigidPose,
+    pose: Rigid3,
     sigma: Vector3<f64>,
     covariance: nalgebra::Matrix6<f64>,
     used: Vec<bool>,
@@ -89,13 +89,13 @@ struct FrameSolve {
 /// the picks used.
 fn frame_pose(
     camera: &Camera,
-    start: &RigidPose,
+    start: &Rigid3,
     gcps: &[HoverGcp],
     points: &[Vector3<f64>],
     point_cov: &[Matrix3<f64>],
     picks: &[Option<Vector2<f64>>],
 ) -> Option<FrameSolve> {
-    let info = |pose: &RigidPose, j: usize| {
+    let info = |pose: &Rigid3, j: usize| {
         obs_info(camera, pose, &points[j], &point_cov[j], gcps[j].sigma_px)
     };
     let lm = LmSettings {
@@ -148,13 +148,13 @@ fn frame_pose(
 }
 
 /// Interpolates between two poses at fraction `t` (rotation by slerp, centre linearly).
-fn interpolate(a: &RigidPose, b: &RigidPose, t: f64) -> RigidPose {
+fn interpolate(a: &Rigid3, b: &Rigid3, t: f64) -> Rigid3 {
     let qa = UnitQuaternion::from_rotation_matrix(&a.rotation);
     let qb = UnitQuaternion::from_rotation_matrix(&b.rotation);
     let q = qa.try_slerp(&qb, t, 1e-9).unwrap_or(qa);
     let c = a.centre() * (1.0 - t) + b.centre() * t;
     let rotation = q.to_rotation_matrix();
-    RigidPose {
+    Rigid3 {
         rotation,
         translation: -(rotation * c),
     }
@@ -209,7 +209,7 @@ pub fn solve_hover(
     for (k, obs) in key_frames.iter().zip(&key_obs) {
         let Ok(sol) = &k.solution else { continue };
         let pose_index = poses.len();
-        poses.push(RigidPose::from(&sol.cam_from_world));
+        poses.push(sol.cam_from_world);
         for ((j, o), r) in obs.iter().zip(&sol.residuals) {
             if !r.outlier {
                 jobs.push(JointObs {
@@ -260,7 +260,7 @@ pub fn solve_hover(
     }
     progress.set_length(tracks.len() as u64);
     let mut frames: Vec<Option<FramePose>> = Vec::with_capacity(tracks.len());
-    let mut last: Option<RigidPose> = None;
+    let mut last: Option<Rigid3> = None;
     let first_key = joint.poses[0];
     for t in tracks {
         let start = key_pose
@@ -413,12 +413,12 @@ mod tests {
 
     #[test]
     fn interpolation_is_exact_at_the_ends_and_halfway() {
-        let a = RigidPose {
+        let a = Rigid3 {
             rotation: Rotation3::from_scaled_axis(Vector3::new(3.1, 0.0, 0.0)),
             translation: Vector3::new(0.0, 0.0, 30.0),
         };
         let rb = Rotation3::from_scaled_axis(Vector3::new(3.1, 0.02, 0.0));
-        let b = RigidPose {
+        let b = Rigid3 {
             rotation: rb,
             translation: -(rb * Vector3::new(1.0, 0.0, -30.0)),
         };

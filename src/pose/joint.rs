@@ -7,9 +7,9 @@
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
 
 use super::PoseError;
-use super::refine::{pose_step, project_pose, whitener};
+use super::refine::{project_pose, whitener};
 use crate::camera::Camera;
-use crate::estimate::p3p::RigidPose;
+use crate::geom::Rigid3;
 use crate::optim::{Damping, LmSettings, RobustLoss, Termination};
 
 /// A pick of GCP `point` in the image of pose `pose`.
@@ -24,7 +24,7 @@ pub struct JointObs {
 /// The refined poses and GCPs with their covariances.
 #[derive(Clone, Debug)]
 pub struct JointResult {
-    pub poses: Vec<RigidPose>,
+    pub poses: Vec<Rigid3>,
     pub points: Vec<Vector3<f64>>,
     /// Covariance of each pose's increment `(δθ, δt)` (see `refine`).
     pub pose_cov: Vec<Matrix6<f64>>,
@@ -58,7 +58,7 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
-    fn build(&self, poses: &[RigidPose], points: &[Vector3<f64>]) -> Option<System> {
+    fn build(&self, poses: &[Rigid3], points: &[Vector3<f64>]) -> Option<System> {
         let np = points.len();
         let mut s = System {
             cost: 0.0,
@@ -154,7 +154,7 @@ impl Problem<'_> {
 /// Refines `poses` and `points` on `obs`, with `points` held to `prior` by `prior_cov`.
 pub fn refine_jointly(
     camera: &Camera,
-    poses: &[RigidPose],
+    poses: &[Rigid3],
     prior: &[Vector3<f64>],
     prior_cov: &[Matrix3<f64>],
     obs: &[JointObs],
@@ -212,11 +212,7 @@ pub fn refine_jointly(
         for ((d, b), v) in dx.iter().zip(&sys.bx).zip(&sys.v) {
             predicted -= 2.0 * d.dot(b) + d.dot(&(v * d));
         }
-        let cand_poses: Vec<RigidPose> = poses
-            .iter()
-            .zip(&dp)
-            .map(|(p, d)| pose_step(p, d))
-            .collect();
+        let cand_poses: Vec<Rigid3> = poses.iter().zip(&dp).map(|(p, d)| p.plus(d)).collect();
         let cand_points: Vec<Vector3<f64>> = points.iter().zip(&dx).map(|(p, d)| p + d).collect();
         let next = problem.build(&cand_poses, &cand_points);
         let rho = match &next {
@@ -316,7 +312,7 @@ mod tests {
                 )
             })
             .collect();
-        let truth_poses: Vec<RigidPose> = (0..5)
+        let truth_poses: Vec<Rigid3> = (0..5)
             .map(|k| {
                 let rotation = Rotation3::from_scaled_axis(Vector3::new(
                     std::f64::consts::PI + 0.01 * k as f64,
@@ -324,7 +320,7 @@ mod tests {
                     0.1,
                 ));
                 let centre = Vector3::new(0.3 * k as f64, -0.2, 30.0);
-                RigidPose {
+                Rigid3 {
                     rotation,
                     translation: -(rotation * centre),
                 }
@@ -357,9 +353,9 @@ mod tests {
             })
             .collect();
         let cov = vec![Matrix3::identity() * 0.0009; prior.len()];
-        let start: Vec<RigidPose> = truth_poses
+        let start: Vec<Rigid3> = truth_poses
             .iter()
-            .map(|p| pose_step(p, &Vector6::new(0.003, -0.002, 0.004, 0.2, -0.1, 0.3)))
+            .map(|p| p.plus(&Vector6::new(0.003, -0.002, 0.004, 0.2, -0.1, 0.3)))
             .collect();
         let r = refine_jointly(
             &camera,

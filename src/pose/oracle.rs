@@ -8,7 +8,7 @@ use opencv::core::{CV_64F, Mat, Point2d, Point3d, Vector};
 use opencv::prelude::*;
 
 use crate::camera::Camera;
-use crate::geom::{Pose, pose_from_rvec_tvec};
+use crate::geom::Rigid3;
 
 /// Correspondences and camera in OpenCV's containers, built once so timings exclude conversion.
 pub struct OpenCvPnpInput {
@@ -53,7 +53,7 @@ impl OpenCvPnpInput {
         threshold_px: f32,
         confidence: f64,
         iterations: i32,
-    ) -> opencv::Result<Option<(Pose, Vec<bool>)>> {
+    ) -> opencv::Result<Option<(Rigid3, Vec<bool>)>> {
         let mut rvec = Mat::zeros(3, 1, CV_64F)?.to_mat()?;
         let mut tvec = Mat::zeros(3, 1, CV_64F)?.to_mat()?;
         let mut inliers = Mat::default();
@@ -79,13 +79,13 @@ impl OpenCvPnpInput {
             flags[*inliers.at::<i32>(i)? as usize] = true;
         }
         Ok(Some((
-            pose_from_rvec_tvec(&vec3(&rvec)?, &vec3(&tvec)?),
+            Rigid3::from_rvec_tvec(&vec3(&rvec)?, &vec3(&tvec)?),
             flags,
         )))
     }
 
     /// `cv::solvePnP` (iterative) on the points flagged in `subset`.
-    pub fn solve(&self, subset: &[bool]) -> opencv::Result<Option<Pose>> {
+    pub fn solve(&self, subset: &[bool]) -> opencv::Result<Option<Rigid3>> {
         let object: Vector<Point3d> = self
             .object
             .iter()
@@ -114,6 +114,6 @@ impl OpenCvPnpInput {
         )? {
             return Ok(None);
         }
-        Ok(Some(pose_from_rvec_tvec(&vec3(&rvec)?, &vec3(&tvec)?)))
+        Ok(Some(Rigid3::from_rvec_tvec(&vec3(&rvec)?, &vec3(&tvec)?)))
     }
 }

@@ -4,13 +4,11 @@
 //! The increment is `p_cam ← exp(δθ) p_cam + δt`: a rotation about the camera centre, then a
 //! shift in the camera frame, so `∂C/∂δθ = 0` and `∂C/∂δt = −Rᵀ` for the centre `C = −Rᵀt`.
 
-use nalgebra::{
-    Matrix2, Matrix2x3, Matrix2x6, Matrix3, Matrix6, Rotation3, Vector2, Vector3, Vector6,
-};
+use nalgebra::{Matrix2, Matrix2x3, Matrix2x6, Matrix3, Matrix6, Vector2, Vector3, Vector6};
 
 use super::PoseError;
 use crate::camera::Camera;
-use crate::estimate::p3p::RigidPose;
+use crate::geom::Rigid3;
 use crate::geom::skew;
 use crate::optim::{Damping, LmSettings, RobustLoss, Termination};
 
@@ -25,8 +23,8 @@ pub struct PointObs {
 /// A refined pose.
 #[derive(Clone, Debug)]
 pub struct RefinedPose {
-    pub cam_from_world: RigidPose,
-    /// Covariance of the increment `(δθ, δt)` (radians, metres, camera frame).
+    pub cam_from_world: Rigid3,
+    /// Covariance of the increment `(δθ, δt)` of [`Rigid3::plus`] (radians, metres).
     pub covariance: Matrix6<f64>,
     /// `Σ |rᵢ|²` of the whitened residuals (χ² when the weights are right).
     pub chi2: f64,
@@ -34,19 +32,10 @@ pub struct RefinedPose {
     pub termination: Termination,
 }
 
-/// Applies the increment `(δθ, δt)`.
-pub fn pose_step(pose: &RigidPose, delta: &Vector6<f64>) -> RigidPose {
-    let rot = Rotation3::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
-    RigidPose {
-        rotation: rot * pose.rotation,
-        translation: rot * pose.translation + Vector3::new(delta[3], delta[4], delta[5]),
-    }
-}
-
-/// Pixel and its Jacobian with respect to `(δθ, δt)`; also `∂uv/∂X_world`.
+/// Pixel and its Jacobian with respect to [`Rigid3::plus`]'s `(δθ, δt)`; also `∂uv/∂X_world`.
 pub fn project_pose(
     camera: &Camera,
-    pose: &RigidPose,
+    pose: &Rigid3,
     world: &Vector3<f64>,
 ) -> Option<(Vector2<f64>, Matrix2x6<f64>, Matrix2x3<f64>)> {
     let p = pose.apply(world);
@@ -75,7 +64,7 @@ struct Eval {
 
 fn evaluate(
     camera: &Camera,
-    pose: &RigidPose,
+    pose: &Rigid3,
     obs: &[PointObs],
     white: &[Matrix2<f64>],
     loss: RobustLoss,
@@ -104,7 +93,7 @@ fn evaluate(
 /// normal equations are singular (fewer than three well-spread points).
 pub fn refine_pose(
     camera: &Camera,
-    start: &RigidPose,
+    start: &Rigid3,
     obs: &[PointObs],
     loss: RobustLoss,
     settings: &LmSettings,
@@ -136,7 +125,7 @@ pub fn refine_pose(
         };
         let delta = -chol.solve(&cur.jtr);
         let predicted = -(delta.dot(&cur.jtr) * 2.0 + delta.dot(&(cur.jtj * delta)));
-        let cand = pose_step(&pose, &delta);
+        let cand = pose.plus(&delta);
         let next = evaluate(camera, &cand, obs, &white, loss);
         let rho = match &next {
             Ok(n) if predicted > 0.0 => (cur.cost - n.cost) / predicted,
@@ -183,7 +172,7 @@ pub fn refine_pose(
 
 /// Covariance of `(δφ_world, C)`: the rotation error about the world axes (radians) and the
 /// camera centre (metres), from the covariance of the increment `(δθ, δt)`.
-pub fn world_covariance(pose: &RigidPose, cov: &Matrix6<f64>) -> Matrix6<f64> {
+pub fn world_covariance(pose: &Rigid3, cov: &Matrix6<f64>) -> Matrix6<f64> {
     // R' = exp(δθ) R, so Rᵀ' = exp(−Rᵀδθ) Rᵀ: δφ_world = −Rᵀ δθ; C' = C − Rᵀ δt.
     let rt: Matrix3<f64> = pose.rotation.matrix().transpose();
     let mut j = Matrix6::zeros();
@@ -200,8 +189,8 @@ mod tests {
     fn pose_jacobian_matches_finite_differences() {
         let camera = Camera::pinhole(1400.0, 1390.0, 960.0, 540.0)
             .with_distortion(&[-0.1, 0.05, 0.001, -0.002, 0.01]);
-        let pose = RigidPose {
-            rotation: Rotation3::from_scaled_axis(Vector3::new(3.1, 0.05, 0.3)),
+        let pose = Rigid3 {
+            rotation: nalgebra::Rotation3::from_scaled_axis(Vector3::new(3.1, 0.05, 0.3)),
             translation: Vector3::new(0.4, -0.2, 30.0),
         };
         let x = Vector3::new(5.0, -3.0, 0.4);
@@ -209,9 +198,9 @@ mod tests {
         for k in 0..6 {
             let mut d = Vector6::zeros();
             d[k] = 1e-6;
-            let up = project_pose(&camera, &pose_step(&pose, &d), &x).unwrap().0;
+            let up = project_pose(&camera, &pose.plus(&d), &x).unwrap().0;
             d[k] = -1e-6;
-            let um = project_pose(&camera, &pose_step(&pose, &d), &x).unwrap().0;
+            let um = project_pose(&camera, &pose.plus(&d), &x).unwrap().0;
             let fd = (up - um) / 2e-6;
             assert!(
                 (fd - j.column(k)).norm() < 1e-4 * (1.0 + fd.norm()),
@@ -229,9 +218,9 @@ mod tests {
         }
         // The centre does not move under δθ, and moves by −Rᵀδt.
         let d = Vector6::new(0.01, -0.02, 0.03, 0.0, 0.0, 0.0);
-        assert!((pose_step(&pose, &d).centre() - pose.centre()).norm() < 1e-12);
+        assert!((pose.plus(&d).centre() - pose.centre()).norm() < 1e-12);
         let dt = Vector6::new(0.0, 0.0, 0.0, 1e-3, 2e-3, -1e-3);
         let expect = pose.centre() - pose.rotation.inverse() * Vector3::new(1e-3, 2e-3, -1e-3);
-        assert!((pose_step(&pose, &dt).centre() - expect).norm() < 1e-9);
+        assert!((pose.plus(&dt).centre() - expect).norm() < 1e-9);
     }
 }

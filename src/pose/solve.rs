@@ -8,10 +8,9 @@ use super::PoseError;
 use super::refine::{PointObs, RefinedPose, project_pose, refine_pose, world_covariance};
 use crate::camera::Camera;
 use crate::estimate::epnp::epnp;
-use crate::estimate::p3p::RigidPose;
 use crate::estimate::pnp::PnpEstimator;
 use crate::estimate::ransac::{RansacSettings, msac};
-use crate::geom::Pose;
+use crate::geom::Rigid3;
 use crate::optim::{LmSettings, RobustLoss, Termination};
 
 /// χ² with 2 degrees of freedom at 99.9 %: the outlier test on a normalised pixel residual.
@@ -82,7 +81,7 @@ pub struct GcpResidual {
 /// A solved pose.
 #[derive(Clone, Debug)]
 pub struct PoseSolution {
-    pub cam_from_world: Pose,
+    pub cam_from_world: Rigid3,
     /// Covariance of `(δφ_e, δφ_n, δφ_u, C_e, C_n, C_u)`: rotation errors about the world axes
     /// (radians) and the camera centre (metres).
     pub covariance: Matrix6<f64>,
@@ -174,7 +173,7 @@ pub fn residual_covariance(jx: &nalgebra::Matrix2x3<f64>, o: &GcpObservation) ->
 
 fn point_obs(
     camera: &Camera,
-    pose: &RigidPose,
+    pose: &Rigid3,
     o: &GcpObservation,
 ) -> Option<(PointObs, Matrix2<f64>)> {
     let (_, _, jx) = project_pose(camera, pose, &o.world)?;
@@ -228,7 +227,7 @@ fn default_threshold(obs: &[GcpObservation], xy: &[Vector2<f64>], focal: f64) ->
 }
 
 /// Squared normalised residual of one GCP under `pose`; `None` behind the camera.
-fn normalised_sq(camera: &Camera, pose: &RigidPose, o: &GcpObservation) -> Option<f64> {
+fn normalised_sq(camera: &Camera, pose: &Rigid3, o: &GcpObservation) -> Option<f64> {
     let (uv, _, jx) = project_pose(camera, pose, &o.world)?;
     let r = o.uv - uv;
     let info = residual_covariance(&jx, o).try_inverse()?;
@@ -237,7 +236,7 @@ fn normalised_sq(camera: &Camera, pose: &RigidPose, o: &GcpObservation) -> Optio
 
 fn refine_on(
     camera: &Camera,
-    start: &RigidPose,
+    start: &Rigid3,
     obs: &[GcpObservation],
     inliers: &[bool],
     loss: RobustLoss,
@@ -278,7 +277,7 @@ fn refine_on(
 /// the horizontal plane through the GCP.
 pub fn gcp_residual(
     camera: &Camera,
-    pose: &RigidPose,
+    pose: &Rigid3,
     o: &GcpObservation,
     outlier: bool,
 ) -> GcpResidual {
@@ -415,7 +414,7 @@ pub fn solve_pose(
         .sum();
     let dof = (2 * count).saturating_sub(6).max(1) as f64;
     Ok(PoseSolution {
-        cam_from_world: pose.into(),
+        cam_from_world: pose,
         centre,
         centre_sigma_m: Vector3::new(
             covariance[(3, 3)].sqrt(),

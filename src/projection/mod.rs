@@ -11,8 +11,7 @@
 use nalgebra::{Matrix2, Matrix6, Vector2, Vector3, Vector6};
 
 use crate::camera::Camera;
-use crate::estimate::p3p::RigidPose;
-use crate::pose::refine::pose_step;
+use crate::geom::Rigid3;
 use crate::terrain::HeightSurface;
 
 /// A projected detection.
@@ -39,7 +38,7 @@ impl WorldPoint {
 /// points up, misses the surface, or the pixel cannot be undistorted.
 pub fn intersect(
     camera: &Camera,
-    cam_from_world: &RigidPose,
+    cam_from_world: &Rigid3,
     surface: &dyn HeightSurface,
     height_m: f64,
     uv: &Vector2<f64>,
@@ -74,7 +73,7 @@ pub fn intersect(
 #[allow(clippy::too_many_arguments)]
 pub fn project(
     camera: &Camera,
-    cam_from_world: &RigidPose,
+    cam_from_world: &Rigid3,
     pose_cov: Option<&Matrix6<f64>>,
     surface: &dyn HeightSurface,
     uv: &Vector2<f64>,
@@ -83,7 +82,7 @@ pub fn project(
     height_sd_m: f64,
 ) -> Option<WorldPoint> {
     let position = intersect(camera, cam_from_world, surface, height_m, uv)?;
-    let at = |pose: &RigidPose, h: f64, p: &Vector2<f64>| {
+    let at = |pose: &Rigid3, h: f64, p: &Vector2<f64>| {
         intersect(camera, pose, surface, h, p).map(|x| x.xy())
     };
     // d(e, n)/d(u, v) by central differences of half a pixel.
@@ -112,8 +111,8 @@ pub fn project(
             for k in 0..6 {
                 let mut d = Vector6::zeros();
                 d[k] = if k < 3 { 1e-6 } else { 1e-4 };
-                let a = at(&pose_step(cam_from_world, &d), height_m, uv)?;
-                let b = at(&pose_step(cam_from_world, &-d), height_m, uv)?;
+                let a = at(&cam_from_world.plus(&d), height_m, uv)?;
+                let b = at(&cam_from_world.plus(&-d), height_m, uv)?;
                 j.set_column(k, &((a - b) / (2.0 * d[k])));
             }
             j * pc * j.transpose()
@@ -134,11 +133,11 @@ mod tests {
     use crate::terrain::Plane;
     use nalgebra::Rotation3;
 
-    fn nadir(centre: Vector3<f64>) -> RigidPose {
+    fn nadir(centre: Vector3<f64>) -> Rigid3 {
         let rotation = Rotation3::from_matrix_unchecked(nalgebra::Matrix3::new(
             1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0,
         ));
-        RigidPose {
+        Rigid3 {
             rotation,
             translation: -(rotation * centre),
         }
@@ -194,7 +193,7 @@ mod tests {
             }
         }
         // Upward rays miss.
-        let up = RigidPose {
+        let up = Rigid3 {
             rotation: Rotation3::identity(),
             translation: Vector3::zeros(),
         };
@@ -211,17 +210,15 @@ mod tests {
     }
 
     /// The stated covariances against a Monte Carlo of the projection: the pose drawn from its
-    /// covariance (correlated rotation and translation, through the `pose_step` increment), the
+    /// covariance (correlated rotation and translation, through the `Rigid3::plus` increment), the
     /// pixel from its covariance and the height from its σ; 20 000 draws.
     #[test]
     fn covariances_agree_with_a_monte_carlo_of_pose_pixel_and_height() {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
         let camera = Camera::pinhole(1400.0, 1400.0, 960.0, 540.0).with_distortion(&[-0.1, 0.03]);
-        let pose = pose_step(
-            &nadir(Vector3::new(1.0, 2.0, 30.0)),
-            &Vector6::new(0.05, -0.03, 0.2, 0.0, 0.0, 0.0),
-        );
+        let pose = nadir(Vector3::new(1.0, 2.0, 30.0))
+            .plus(&Vector6::new(0.05, -0.03, 0.2, 0.0, 0.0, 0.0));
         // A pose covariance as a GCP solve gives it: tilt and position correlated.
         let sd = Vector6::new(4e-4, 6e-4, 3e-4, 0.01, 0.02, 0.008);
         let mut corr = Matrix6::identity();
@@ -254,7 +251,7 @@ mod tests {
             for _ in 0..n {
                 let z6 = Vector6::from_fn(|_, _| normal.sample(&mut rng));
                 let z2 = Vector2::from_fn(|_, _| normal.sample(&mut rng));
-                let p = pose_step(&pose, &(chol * z6));
+                let p = pose.plus(&(chol * z6));
                 let h = height + height_sd * normal.sample(&mut rng);
                 let x = intersect(&camera, &p, &surface, h, &(uv + uv_chol * z2)).unwrap();
                 draws.push(x.xy() - w.position.xy());

@@ -1,13 +1,13 @@
 //! Synthetic checkerboard views with exact ground truth: random board poses that keep the whole
 //! board in the image, exact corner projections, and rendered greyscale images (pure).
 
-use nalgebra::{Point3, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use rand::{Rng, RngExt};
 use rand_distr::{Distribution, Normal};
 
 use crate::calibration::board_points;
 use crate::camera::{BoardSpec, Camera, ImageSize};
-use crate::geom::Pose;
+use crate::geom::Rigid3;
 
 /// Random board poses (`cam_from_board`) for calibration: the board fills 35-65 % of the image
 /// width, is tilted 10-45° about a random axis in its plane, turned up to ±30° in plane, and every
@@ -17,7 +17,7 @@ pub fn random_board_poses(
     board: &BoardSpec,
     n: usize,
     rng: &mut impl Rng,
-) -> Vec<Pose> {
+) -> Vec<Rigid3> {
     let size = camera.image_size.expect("the camera needs an image size");
     let (w, h) = (f64::from(size.width), f64::from(size.height));
     let margin_px = 0.04 * w;
@@ -59,16 +59,14 @@ pub fn random_board_poses(
             1.0,
         );
         let translation = ray * depth - rotation * centre;
-        let pose = Pose::from_parts(translation.into(), rotation);
+        let pose = Rigid3::new(rotation.to_rotation_matrix(), translation);
         let inside = |x: &Vector3<f64>| {
-            camera
-                .project(&(pose * Point3::from(*x)).coords)
-                .is_ok_and(|uv| {
-                    uv.x > margin_px
-                        && uv.y > margin_px
-                        && uv.x < w - 1.0 - margin_px
-                        && uv.y < h - 1.0 - margin_px
-                })
+            camera.project(&pose.apply(x)).is_ok_and(|uv| {
+                uv.x > margin_px
+                    && uv.y > margin_px
+                    && uv.x < w - 1.0 - margin_px
+                    && uv.y < h - 1.0 - margin_px
+            })
         };
         if object.iter().all(inside) && outline.iter().all(inside) {
             poses.push(pose);
@@ -81,13 +79,13 @@ pub fn random_board_poses(
 pub fn project_corners(
     camera: &Camera,
     board: &BoardSpec,
-    cam_from_board: &Pose,
+    cam_from_board: &Rigid3,
 ) -> Vec<Vector2<f64>> {
     board_points(board)
         .iter()
         .map(|x| {
             camera
-                .project(&(cam_from_board * Point3::from(*x)).coords)
+                .project(&cam_from_board.apply(x))
                 .expect("board corner in front of the camera")
         })
         .collect()
@@ -144,14 +142,14 @@ impl BoardRenderer {
     pub fn render(
         &self,
         board: &BoardSpec,
-        cam_from_board: &Pose,
+        cam_from_board: &Rigid3,
         noise: f64,
         rng: &mut impl Rng,
     ) -> GrayImage {
         let (w, h, ss) = (self.size.width as usize, self.size.height as usize, self.ss);
         let board_from_cam = cam_from_board.inverse();
-        let rot = board_from_cam.rotation.to_rotation_matrix();
-        let origin = board_from_cam.translation.vector;
+        let rot = board_from_cam.rotation;
+        let origin = board_from_cam.translation;
         let s = board.square_m;
         let (cols, rows) = (f64::from(board.cols), f64::from(board.rows));
         let normal = Normal::new(0.0, noise.max(1e-12)).expect("noise");

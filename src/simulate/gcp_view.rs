@@ -6,7 +6,7 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
 use crate::camera::Camera;
-use crate::estimate::p3p::RigidPose;
+use crate::geom::Rigid3;
 use crate::pose::{Attitude, GcpObservation};
 
 /// What to simulate.
@@ -44,7 +44,7 @@ impl Default for GcpViewSpec {
 #[derive(Clone, Debug)]
 pub struct GcpView {
     pub camera: Camera,
-    pub cam_from_world: RigidPose,
+    pub cam_from_world: Rigid3,
     pub observations: Vec<GcpObservation>,
     pub outlier: Vec<bool>,
 }
@@ -71,7 +71,7 @@ pub fn gcp_view(camera: &Camera, spec: &GcpViewSpec, seed: u64) -> GcpView {
         rng.random_range(-2.0..2.0),
         spec.altitude_m,
     );
-    let truth = RigidPose {
+    let truth = Rigid3 {
         rotation,
         translation: -(rotation * centre),
     };

@@ -5,10 +5,10 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
 
 use crate::camera::Camera;
-use crate::geom::{Pose, pose_from_rvec_tvec};
+use crate::geom::Rigid3;
 use crate::io::{FileCtx, FileError};
 
 /// A data row: its line number and its fields by column name.
@@ -48,13 +48,13 @@ fn rows(path: &Path, text: &str, needed: &[&str]) -> Result<Vec<Row>, FileError>
 
 /// `cam_from_world` of every frame, by frame number, from a CSV with `frame`, `rvec_x..z` and
 /// `tvec_x..z` columns.
-pub fn read_poses(path: &Path) -> Result<Vec<(usize, Pose)>, FileError> {
+pub fn read_poses(path: &Path) -> Result<Vec<(usize, Rigid3)>, FileError> {
     let text = FileCtx { path }.read_text("a CSV of camera poses")?;
     parse_poses(path, &text)
 }
 
 /// [`read_poses`] on text; `path` names the file in messages.
-pub fn parse_poses(path: &Path, text: &str) -> Result<Vec<(usize, Pose)>, FileError> {
+pub fn parse_poses(path: &Path, text: &str) -> Result<Vec<(usize, Rigid3)>, FileError> {
     let cols = [
         "frame", "rvec_x", "rvec_y", "rvec_z", "tvec_x", "tvec_y", "tvec_z",
     ];
@@ -68,7 +68,7 @@ pub fn parse_poses(path: &Path, text: &str) -> Result<Vec<(usize, Pose)>, FileEr
                 .collect::<Result<_, _>>()?;
             Ok((
                 ctx.whole(&r["frame"], line, "frame")? as usize,
-                pose_from_rvec_tvec(
+                Rigid3::from_rvec_tvec(
                     &Vector3::new(v[0], v[1], v[2]),
                     &Vector3::new(v[3], v[4], v[5]),
                 ),
@@ -105,14 +105,14 @@ pub fn parse_gcps(path: &Path, text: &str) -> Result<Vec<(String, Vector3<f64>)>
 /// is behind either camera.
 pub fn mean_reprojection_px(
     camera: &Camera,
-    a: &Pose,
-    b: &Pose,
+    a: &Rigid3,
+    b: &Rigid3,
     points: &[Vector3<f64>],
 ) -> Option<f64> {
     let mut sum = 0.0;
     for p in points {
-        let pa = camera.project(&(a * Point3::from(*p)).coords).ok()?;
-        let pb = camera.project(&(b * Point3::from(*p)).coords).ok()?;
+        let pa = camera.project(&a.apply(p)).ok()?;
+        let pb = camera.project(&b.apply(p)).ok()?;
         sum += (pa - pb).norm();
     }
     Some(sum / points.len().max(1) as f64)

@@ -23,8 +23,7 @@ use crate::evaluate::{
     read_covariances, read_samples,
 };
 use crate::pipeline::project::load;
-use crate::pipeline::run::{RunReport, StageProgress, run as run_project};
-use crate::progress::Progress;
+use crate::pipeline::run::{RunReport, run as run_project};
 use crate::simulate::run::Overrides;
 use crate::simulate::scene::{Motion, Scene};
 use crate::simulate::truth::{mean_reprojection_px, read_gcps, read_poses};
@@ -70,20 +69,6 @@ pub struct Args {
     /// No progress bars
     #[arg(short, long)]
     quiet: bool,
-}
-
-struct Bars {
-    quiet: bool,
-}
-
-impl StageProgress for Bars {
-    fn stage(&self, name: &str) -> Box<dyn Progress> {
-        Box::new(super::progress_bar(
-            self.quiet,
-            0,
-            &format!("{name:>7} {{bar:40}} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}]"),
-        ))
-    }
 }
 
 #[derive(Serialize)]
@@ -538,7 +523,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         project.display(),
         dir.join("run").display()
     );
-    let bars = Bars { quiet: args.quiet };
+    let bars = super::StageBars { quiet: args.quiet };
     let loaded = load(&project).map_err(|e| anyhow!(e))?;
     let report = run_project(&loaded, &dir.join("run"), &bars).map_err(|e| anyhow!("{e}"))?;
     print_stages(json, &report);
@@ -907,7 +892,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     let text = crowd_project_for_scene(&scene, &scene.camera.calibration, "boxes.txt", &samples)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
     crate::io::write_atomic(&project, text.as_bytes())?;
-    let bars = Bars { quiet: args.quiet };
+    let bars = super::StageBars { quiet: args.quiet };
     let paper_dir = dir.join("run-paper-model");
     say!(
         json,

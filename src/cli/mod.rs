@@ -196,6 +196,29 @@ pub(crate) fn progress_bar(quiet: bool, len: u64, template: &str) -> indicatif::
     b
 }
 
+/// A progress bar per stage of a run (`run`, `demo`).
+pub(crate) struct StageBars {
+    pub quiet: bool,
+}
+
+impl crate::pipeline::run::StageProgress for StageBars {
+    fn stage(&self, name: &str) -> Box<dyn crate::progress::Progress> {
+        Box::new(progress_bar(
+            self.quiet,
+            0,
+            &format!("{name:>7} {{bar:40}} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}]"),
+        ))
+    }
+
+    /// For the tests of interrupted runs: `GEOSTRIDE_TEST_KILL_AFTER=STAGE` dies like a killed
+    /// process right after that stage is stored.
+    fn stored(&self, stage: &str) {
+        if std::env::var("GEOSTRIDE_TEST_KILL_AFTER").is_ok_and(|s| s == stage) {
+            std::process::abort();
+        }
+    }
+}
+
 /// A preset by name or a calibration file.
 pub(crate) fn load_camera(spec: &str) -> anyhow::Result<(Camera, String)> {
     if let Some(cal) = presets::preset(spec) {

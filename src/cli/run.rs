@@ -6,8 +6,7 @@ use anyhow::anyhow;
 
 use super::bad_input;
 use crate::pipeline::project::load;
-use crate::pipeline::run::{RunError, StageProgress, run as run_project};
-use crate::progress::Progress;
+use crate::pipeline::run::{RunError, run as run_project};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -21,27 +20,15 @@ pub struct Args {
     quiet: bool,
 }
 
-struct Bars {
-    quiet: bool,
-}
-
-impl StageProgress for Bars {
-    fn stage(&self, name: &str) -> Box<dyn Progress> {
-        Box::new(super::progress_bar(
-            self.quiet,
-            0,
-            &format!("{name:>7} {{bar:40}} {{pos}}/{{len}} [{{elapsed_precise}}<{{eta_precise}}]"),
-        ))
-    }
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     let loaded = load(&args.project).map_err(bad_input)?;
     let out = args.out.clone().unwrap_or_else(|| loaded.resolve("out"));
-    let report = run_project(&loaded, &out, &Bars { quiet: args.quiet }).map_err(|e| match e {
-        RunError::Input(m) => bad_input(anyhow!(m)),
-        RunError::Failed(m) => anyhow!(m),
-    })?;
+    let report = run_project(&loaded, &out, &super::StageBars { quiet: args.quiet }).map_err(
+        |e| match e {
+            RunError::Input(m) => bad_input(anyhow!(m)),
+            RunError::Failed(m) => anyhow!(m),
+        },
+    )?;
     println!("Project: {} -> {}", report.project, out.display());
     println!(
         "  site frame: {}; output CRS: {}",

@@ -57,6 +57,9 @@ pub enum RunError {
 /// Shows progress per stage.
 pub trait StageProgress {
     fn stage(&self, name: &str) -> Box<dyn Progress>;
+    /// Called once a stage's result is stored in the run's cache (a run killed from now on
+    /// resumes after this stage).
+    fn stored(&self, _stage: &str) {}
 }
 
 /// Shows nothing.
@@ -183,10 +186,6 @@ impl Cache {
         .map_err(|e| RunError::Failed(e.to_string()))?;
         write_atomic(&self.path(stage), text.as_bytes())
             .map_err(|e| RunError::Failed(format!("{}: {e}", self.path(stage).display())))?;
-        // For the tests of interrupted runs: die like a killed process right after this stage.
-        if std::env::var("GEOSTRIDE_TEST_KILL_AFTER").is_ok_and(|s| s == stage) {
-            std::process::abort();
-        }
         Ok(())
     }
 }
@@ -698,6 +697,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 times: s.times,
             };
             cache.store("scan", &scan_key, &d)?;
+            progress.stored("scan");
             (d, "computed")
         }
     };
@@ -789,6 +789,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                     .then(|| checks.iter().sum::<f64>() / checks.len() as f64),
             };
             cache.store("pose", &pose_key, &d)?;
+            progress.stored("pose");
             (d, "computed")
         }
     };
@@ -889,6 +890,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 })
                 .collect();
             cache.store("track", &track_key, &tracks)?;
+            progress.stored("track");
             (tracks, "computed")
         }
     };
@@ -965,6 +967,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 ));
             }
             cache.store("project", &project_key, &world)?;
+            progress.stored("project");
             (world, "computed")
         }
     };
@@ -1092,6 +1095,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 persistent_share: persistent,
             };
             cache.store("smooth", &smooth_key, &d)?;
+            progress.stored("smooth");
             (d, "computed")
         }
     };

@@ -638,8 +638,140 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     let cache = Cache {
         dir: out.join(".stages"),
     };
+    let ctx = Ctx {
+        l,
+        out,
+        progress,
+        guard,
+        cache,
+        video,
+        fps,
+        max_frames,
+        camera,
+        framed,
+        pick_frame,
+        control,
+        check,
+        surface,
+        px_per_m,
+        heights,
+        out_crs,
+        transform,
+        sums: sums.iter().map(|s| s.to_string()).collect(),
+    };
 
-    // Stage 1: scan.
+    let (scan_data, scan_key, record) = scan_stage(&ctx, detector)?;
+    stages.push(record);
+    let (pose_data, pose_key, record) = pose_stage(&ctx, &scan_key, &scan_data, &mut warnings)?;
+    stages.push(record);
+    let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
+    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &pose_key, &scan_data, &poses)?;
+    stages.push(record);
+    let (world, project_key, record) = project_stage(
+        &ctx,
+        [&track_key, &pose_key],
+        &tracks,
+        &pose_data,
+        &poses,
+        &mut warnings,
+    )?;
+    stages.push(record);
+    let (smoothed, record) = smooth_stage(&ctx, &project_key, &world, &mut warnings)?;
+    stages.push(record);
+    let (outputs, transformations, record) =
+        export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;
+    stages.push(record);
+
+    let framed = &ctx.framed;
+    let out_crs_label = ctx
+        .out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map_or("the GCP file's local frame".to_string(), |c| c.label());
+    let report = RunReport {
+        project: if p.name.is_empty() {
+            l.path.display().to_string()
+        } else {
+            p.name.clone()
+        },
+        geostride_version: build_id().into(),
+        inputs,
+        parameters: p.clone(),
+        site_frame: framed.frame.origin_note.clone(),
+        output_crs: out_crs_label,
+        wgs84_transformations: transformations,
+        stages,
+        outputs,
+        warnings,
+    };
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| RunError::Failed(e.to_string()))?;
+    write_atomic(&out.join("report.json"), json.as_bytes())
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+    write_atomic(&out.join("report.md"), report_markdown(&report).as_bytes())
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+    Ok(report)
+}
+
+/// What every stage reads: the project, its checked inputs and where the results go.
+struct Ctx<'a> {
+    l: &'a Loaded,
+    out: &'a Path,
+    progress: &'a dyn StageProgress,
+    guard: crate::io::Inputs,
+    cache: Cache,
+    video: PathBuf,
+    fps: f64,
+    max_frames: Option<usize>,
+    camera: Camera,
+    framed: Framed,
+    pick_frame: usize,
+    control: Vec<GcpObservation>,
+    check: Vec<GcpObservation>,
+    surface: Box<dyn HeightSurface>,
+    px_per_m: f64,
+    heights: BTreeMap<usize, (f64, f64)>,
+    out_crs: Option<Crs>,
+    transform: Option<Transform>,
+    /// The inputs' SHA-256: part of every stage's key.
+    sums: Vec<String>,
+}
+
+/// A stage's result: the one cached under `key` when there is one (and `valid`), else
+/// `compute`d and cached. Says which.
+fn cached<T: Serialize + DeserializeOwned>(
+    cache: &Cache,
+    progress: &dyn StageProgress,
+    stage: &str,
+    key: &str,
+    valid: bool,
+    compute: impl FnOnce() -> Result<T, RunError>,
+) -> Result<(T, &'static str), RunError> {
+    if valid && let Some(d) = cache.load::<T>(stage, key) {
+        return Ok((d, "reused"));
+    }
+    let d = compute()?;
+    cache.store(stage, key, &d)?;
+    progress.stored(stage);
+    Ok((d, "computed"))
+}
+
+/// Stage 1: one decode pass, stabilisation and detection.
+fn scan_stage(
+    ctx: &Ctx,
+    detector: Box<dyn crate::detect::Detector>,
+) -> Result<(ScanData, String, StageRecord), RunError> {
+    let l = ctx.l;
+    let progress = ctx.progress;
+    let video = &ctx.video;
+    let fps = ctx.fps;
+    let max_frames = ctx.max_frames;
+    let pick_frame = ctx.pick_frame;
+    let control = &ctx.control;
+    let check = &ctx.check;
+    let px_per_m = ctx.px_per_m;
+    let sums: Vec<&str> = ctx.sums.iter().map(String::as_str).collect();
+    let p = &ctx.l.project;
     let scan_key = stage_key(
         "scan",
         &sums,
@@ -654,55 +786,50 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         ),
     );
     let t0 = Instant::now();
-    let (scan_data, status) = match cache.load::<ScanData>("scan", &scan_key) {
-        Some(d) => (d, "reused"),
-        None => {
-            let detector = detector;
-            let stabilise = StabiliseSettings {
-                min_features: p.pose.min_features,
-                min_fraction: p.pose.key_fraction,
-                max_interval: p
-                    .pose
-                    .key_every_s
-                    .map(|s| (s * fps).round().max(1.0) as usize),
-                ..StabiliseSettings::default()
-            };
-            let picks = control.iter().chain(&check).map(|o| o.uv).collect();
-            let bar = progress.stage("scan");
-            let s = scan(
-                ScanJob {
-                    video: &video,
-                    max_frames,
-                    stabilise: Some((stabilise, pick_frame, picks)),
-                    detector: Some(detector),
-                },
-                bar.as_ref(),
-            )
-            .map_err(|e| match e {
-                ScanError::Detector(e) => RunError::Input(
-                    l.error("detect", detector_key(&p.detect.kind), e)
-                        .to_string(),
-                ),
-                ScanError::Other(e) => RunError::Failed(e),
-            })?;
-            let d = ScanData {
-                fps: s.fps,
-                width: s.width,
-                height: s.height,
-                frames: s.frames,
-                px_per_m,
-                detector_summary: s.detector_summary,
-                tracks: s.tracks,
-                detections: s.detections,
-                times: s.times,
-            };
-            cache.store("scan", &scan_key, &d)?;
-            progress.stored("scan");
-            (d, "computed")
-        }
-    };
+    let (scan_data, status) = cached(&ctx.cache, ctx.progress, "scan", &scan_key, true, || {
+        let detector = detector;
+        let stabilise = StabiliseSettings {
+            min_features: p.pose.min_features,
+            min_fraction: p.pose.key_fraction,
+            max_interval: p
+                .pose
+                .key_every_s
+                .map(|s| (s * fps).round().max(1.0) as usize),
+            ..StabiliseSettings::default()
+        };
+        let picks = control.iter().chain(check).map(|o| o.uv).collect();
+        let bar = progress.stage("scan");
+        let s = scan(
+            ScanJob {
+                video,
+                max_frames,
+                stabilise: Some((stabilise, pick_frame, picks)),
+                detector: Some(detector),
+            },
+            bar.as_ref(),
+        )
+        .map_err(|e| match e {
+            ScanError::Detector(e) => RunError::Input(
+                l.error("detect", detector_key(&p.detect.kind), e)
+                    .to_string(),
+            ),
+            ScanError::Other(e) => RunError::Failed(e),
+        })?;
+        let d = ScanData {
+            fps: s.fps,
+            width: s.width,
+            height: s.height,
+            frames: s.frames,
+            px_per_m,
+            detector_summary: s.detector_summary,
+            tracks: s.tracks,
+            detections: s.detections,
+            times: s.times,
+        };
+        Ok(d)
+    })?;
     let n_det: usize = scan_data.detections.iter().map(Vec::len).sum();
-    stages.push(StageRecord {
+    let record = StageRecord {
         name: "scan".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
@@ -722,22 +849,42 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         .into_iter()
         .chain(scan_data.detector_summary.iter().cloned())
         .collect(),
-    });
+    };
 
-    // Stage 2: pose.
-    let pose_key = stage_key("pose", &[&scan_key], &(&p.survey, &p.pose));
+    Ok((scan_data, scan_key, record))
+}
+
+/// Stage 2: a pose for every frame, and the `pose/` files.
+fn pose_stage(
+    ctx: &Ctx,
+    scan_key: &str,
+    scan_data: &ScanData,
+    warnings: &mut Vec<String>,
+) -> Result<(PoseData, String, StageRecord), RunError> {
+    let out = ctx.out;
+    let progress = ctx.progress;
+    let guard = &ctx.guard;
+    let video = &ctx.video;
+    let fps = ctx.fps;
+    let camera = &ctx.camera;
+    let framed = &ctx.framed;
+    let control = &ctx.control;
+    let check = &ctx.check;
+    let p = &ctx.l.project;
+    let pose_key = stage_key("pose", &[scan_key], &(&p.survey, &p.pose));
     let t0 = Instant::now();
     let pose_dir = out.join("pose");
-    let (pose_data, status) = match cache
-        .load::<PoseData>("pose", &pose_key)
-        .filter(|_| pose_dir.join("poses.csv").is_file())
-    {
-        Some(d) => (d, "reused"),
-        None => {
+    let (pose_data, status) = cached(
+        &ctx.cache,
+        ctx.progress,
+        "pose",
+        &pose_key,
+        pose_dir.join("poses.csv").is_file(),
+        || {
             let (result, check_mean) = solve_with_checks(
-                &camera,
-                &control,
-                &check,
+                camera,
+                control,
+                check,
                 &scan_data.tracks,
                 &PoseSettings::default(),
                 progress.stage("pose").as_ref(),
@@ -747,13 +894,13 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
             write_pose_outputs(
                 &pose_dir,
                 &PoseRun {
-                    camera: &camera,
+                    camera,
                     result: &result,
                     tracks: &scan_data.tracks,
                     check_mean: &check_mean,
                     fps,
-                    framed: &framed,
-                    control: &control,
+                    framed,
+                    control,
                 },
             )
             .map_err(|e| RunError::Failed(format!("{e:#}")))?;
@@ -788,11 +935,9 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 check_mean_reprojection_px: (!checks.is_empty())
                     .then(|| checks.iter().sum::<f64>() / checks.len() as f64),
             };
-            cache.store("pose", &pose_key, &d)?;
-            progress.stored("pose");
-            (d, "computed")
-        }
-    };
+            Ok(d)
+        },
+    )?;
     if !pose_data.key_frames_failed.is_empty() {
         warnings.push(format!(
             "key frames not solved (too few carried picks): {:?}",
@@ -817,85 +962,97 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     if let Some(c) = pose_data.check_mean_reprojection_px {
         counts.insert("check_mean_reprojection_px".into(), c);
     }
-    stages.push(StageRecord {
+    let record = StageRecord {
         name: "pose".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
         counts,
-    });
-    let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
+    };
 
-    // Stage 3: track.
-    let track_key = stage_key("track", &[&scan_key, &pose_key], &p.track);
+    Ok((pose_data, pose_key, record))
+}
+
+/// Stage 3: image tracks.
+fn track_stage(
+    ctx: &Ctx,
+    scan_key: &str,
+    pose_key: &str,
+    scan_data: &ScanData,
+    poses: &[Rigid3],
+) -> Result<(Vec<ImageTrack>, String, StageRecord), RunError> {
+    let l = ctx.l;
+    let progress = ctx.progress;
+    let video = &ctx.video;
+    let fps = ctx.fps;
+    let camera = &ctx.camera;
+    let surface = &ctx.surface;
+    let px_per_m = ctx.px_per_m;
+    let p = &ctx.l.project;
+    let track_key = stage_key("track", &[scan_key, pose_key], &p.track);
     let t0 = Instant::now();
     let head = p.projection.head_height_m;
-    let (tracks, status) = match cache.load::<Vec<ImageTrack>>("track", &track_key) {
-        Some(d) => (d, "reused"),
-        None => {
-            // Camera motion: where a head-height point of the previous frame is now.
-            let motion_at = |f: usize, uv: &Vector2<f64>| -> Vector2<f64> {
-                if f == 0 {
-                    return *uv;
-                }
-                crate::projection::intersect(&camera, &poses[f - 1], surface.as_ref(), head, uv)
-                    .and_then(|x| camera.project(&poses[f].apply(&x)).ok())
-                    .unwrap_or(*uv)
+    let (tracks, status) = cached(&ctx.cache, ctx.progress, "track", &track_key, true, || {
+        // Camera motion: where a head-height point of the previous frame is now.
+        let motion_at = |f: usize, uv: &Vector2<f64>| -> Vector2<f64> {
+            if f == 0 {
+                return *uv;
+            }
+            crate::projection::intersect(camera, &poses[f - 1], surface.as_ref(), head, uv)
+                .and_then(|x| camera.project(&poses[f].apply(&x)).ok())
+                .unwrap_or(*uv)
+        };
+        let bar = progress.stage("track");
+        bar.set_length(scan_data.detections.len() as u64);
+        let tracks = if p.track.kind == "klt" {
+            super::klt_pass::klt_over_video(
+                &KltPass {
+                    video,
+                    detections: &scan_data.detections,
+                    size: (scan_data.width, scan_data.height),
+                    fps: scan_data.fps,
+                    track: &p.track,
+                    person_m: p.detect.person_m,
+                    px_per_m,
+                },
+                &motion_at,
+                bar.as_ref(),
+            )
+            .map_err(RunError::Failed)?
+        } else {
+            let settings = AssociationSettings {
+                gate_px: p.track.gate_m * px_per_m,
+                confirm_hits: p.track.confirm_frames,
+                max_misses: (p.track.max_gap_s * fps).round() as usize,
+                duplicate_px: p.detect.hat_diameter_m * px_per_m,
+                ..AssociationSettings::default()
             };
-            let bar = progress.stage("track");
-            bar.set_length(scan_data.detections.len() as u64);
-            let tracks = if p.track.kind == "klt" {
-                super::klt_pass::klt_over_video(
-                    &KltPass {
-                        video: &video,
-                        detections: &scan_data.detections,
-                        size: (scan_data.width, scan_data.height),
-                        fps: scan_data.fps,
-                        track: &p.track,
-                        person_m: p.detect.person_m,
-                        px_per_m,
-                    },
-                    &motion_at,
-                    bar.as_ref(),
-                )
-                .map_err(RunError::Failed)?
-            } else {
-                let settings = AssociationSettings {
-                    gate_px: p.track.gate_m * px_per_m,
-                    confirm_hits: p.track.confirm_frames,
-                    max_misses: (p.track.max_gap_s * fps).round() as usize,
-                    duplicate_px: p.detect.hat_diameter_m * px_per_m,
-                    ..AssociationSettings::default()
-                };
-                let mut tracker =
-                    super::registry::tracker(&p.track.kind, settings).ok_or_else(|| {
-                        RunError::Input(l.error("track", "kind", "unknown tracker").to_string())
-                    })?;
-                for (f, dets) in scan_data.detections.iter().enumerate() {
-                    tracker.update(f, dets, &|uv: &Vector2<f64>| motion_at(f, uv));
-                    bar.inc(1);
-                }
-                tracker.finish()
-            };
-            // Short tracks are mostly false alarms, unless the video's start or end cut them.
-            let min_frames = (p.track.min_length_s * fps).round() as usize;
-            let last = scan_data.detections.len().saturating_sub(1);
-            let tracks: Vec<ImageTrack> = tracks
-                .into_iter()
-                .filter(|t| {
-                    let (a, b) = (
-                        t.points.first().map_or(0, |q| q.frame),
-                        t.points.last().map_or(0, |q| q.frame),
-                    );
-                    b - a + 1 >= min_frames || a == 0 || b == last
-                })
-                .collect();
-            cache.store("track", &track_key, &tracks)?;
-            progress.stored("track");
-            (tracks, "computed")
-        }
-    };
+            let mut tracker =
+                super::registry::tracker(&p.track.kind, settings).ok_or_else(|| {
+                    RunError::Input(l.error("track", "kind", "unknown tracker").to_string())
+                })?;
+            for (f, dets) in scan_data.detections.iter().enumerate() {
+                tracker.update(f, dets, &|uv: &Vector2<f64>| motion_at(f, uv));
+                bar.inc(1);
+            }
+            tracker.finish()
+        };
+        // Short tracks are mostly false alarms, unless the video's start or end cut them.
+        let min_frames = (p.track.min_length_s * fps).round() as usize;
+        let last = scan_data.detections.len().saturating_sub(1);
+        let tracks: Vec<ImageTrack> = tracks
+            .into_iter()
+            .filter(|t| {
+                let (a, b) = (
+                    t.points.first().map_or(0, |q| q.frame),
+                    t.points.last().map_or(0, |q| q.frame),
+                );
+                b - a + 1 >= min_frames || a == 0 || b == last
+            })
+            .collect();
+        Ok(tracks)
+    })?;
     let lengths: Vec<f64> = tracks.iter().map(|t| t.points.len() as f64 / fps).collect();
-    stages.push(StageRecord {
+    let record = StageRecord {
         name: "track".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
@@ -910,12 +1067,27 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 lengths.iter().sum::<f64>() / lengths.len().max(1) as f64,
             ),
         ]),
-    });
+    };
 
-    // Stage 4: project.
+    Ok((tracks, track_key, record))
+}
+
+/// Stage 4: image tracks to the head-height surface.
+fn project_stage(
+    ctx: &Ctx,
+    keys: [&str; 2],
+    tracks: &[ImageTrack],
+    pose_data: &PoseData,
+    poses: &[Rigid3],
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<WorldTrack>, String, StageRecord), RunError> {
+    let camera = &ctx.camera;
+    let surface = &ctx.surface;
+    let heights = &ctx.heights;
+    let p = &ctx.l.project;
     let project_key = stage_key(
         "project",
-        &[&track_key, &pose_key],
+        &[keys[0], keys[1]],
         &(
             &p.projection,
             &p.ground,
@@ -926,21 +1098,29 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         ),
     );
     let t0 = Instant::now();
-    let (world, status) = match cache.load::<Vec<WorldTrack>>("project", &project_key) {
-        Some(d) => (d, "reused"),
-        None => {
+    let (world, status) = cached(
+        &ctx.cache,
+        ctx.progress,
+        "project",
+        &project_key,
+        true,
+        || {
             let mut world = Vec::new();
             let mut dropped = 0;
-            for t in &tracks {
+            for t in tracks {
                 let (h, sd, source) = match heights.get(&t.id) {
                     Some((h, sd)) => (*h, *sd, "given"),
-                    None => (head, p.projection.head_height_sd_m, "default"),
+                    None => (
+                        p.projection.head_height_m,
+                        p.projection.head_height_sd_m,
+                        "default",
+                    ),
                 };
                 let mut points = Vec::new();
                 for q in &t.points {
                     let fp = &pose_data.frames[q.frame];
                     match project(
-                        &camera,
+                        camera,
                         &poses[q.frame],
                         fp.covariance.as_ref(),
                         surface.as_ref(),
@@ -966,12 +1146,10 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                     "{dropped} detection(s) could not be projected (off the ground surface)"
                 ));
             }
-            cache.store("project", &project_key, &world)?;
-            progress.stored("project");
-            (world, "computed")
-        }
-    };
-    stages.push(StageRecord {
+            Ok(world)
+        },
+    )?;
+    let record = StageRecord {
         name: "project".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
@@ -985,10 +1163,25 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 world.iter().filter(|t| t.height_source == "given").count() as f64,
             ),
         ]),
-    });
+    };
 
-    // Stage 5: smooth.
-    let smooth_key = stage_key("smooth", &[&project_key], &p.smooth);
+    Ok((world, project_key, record))
+}
+
+/// Stage 5: smoothing, and each point's covariance by source.
+fn smooth_stage(
+    ctx: &Ctx,
+    project_key: &str,
+    world: &[WorldTrack],
+    warnings: &mut Vec<String>,
+) -> Result<(SmoothData, StageRecord), RunError> {
+    let l = ctx.l;
+    let fps = ctx.fps;
+    let framed = &ctx.framed;
+    let surface = &ctx.surface;
+    let transform = &ctx.transform;
+    let p = &ctx.l.project;
+    let smooth_key = stage_key("smooth", &[project_key], &p.smooth);
     let t0 = Instant::now();
     let to_out = |local: &Vector3<f64>| -> Result<Vector3<f64>, RunError> {
         let src = framed
@@ -1005,9 +1198,13 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
             None => Ok(src),
         }
     };
-    let (smoothed, status) = match cache.load::<SmoothData>("smooth", &smooth_key) {
-        Some(d) => (d, "reused"),
-        None => {
+    let (smoothed, status) = cached(
+        &ctx.cache,
+        ctx.progress,
+        "smooth",
+        &smooth_key,
+        true,
+        || {
             let obs: Vec<Vec<Observation>> = world
                 .iter()
                 .map(|t| {
@@ -1094,11 +1291,9 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                 q,
                 persistent_share: persistent,
             };
-            cache.store("smooth", &smooth_key, &d)?;
-            progress.stored("smooth");
-            (d, "computed")
-        }
-    };
+            Ok(d)
+        },
+    )?;
     if !smoothed.em_converged {
         warnings.push(format!(
             "EM did not converge in {} iterations",
@@ -1124,20 +1319,32 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         s.sort_by(f64::total_cmp);
         counts.insert("median_sigma_m".into(), s[s.len() / 2]);
     }
-    stages.push(StageRecord {
+    let record = StageRecord {
         name: "smooth".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
         counts,
-    });
+    };
 
-    // Stage 6: export (always written: cheap, and the files must be there).
+    Ok((smoothed, record))
+}
+
+/// Stage 6: the output files (always written: cheap, and the files must be there). Returns
+/// the files written and the WGS 84 transformations used.
+fn export_stage(
+    ctx: &Ctx,
+    smoothed: &SmoothData,
+    tracks: &[ImageTrack],
+    scan_data: &ScanData,
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
+    let out = ctx.out;
+    let p = &ctx.l.project;
+    let fps = ctx.fps;
+    let framed = &ctx.framed;
+    let out_crs = &ctx.out_crs;
     let t0 = Instant::now();
     let mut outputs = Vec::new();
-    let out_crs_label = out_crs
-        .as_ref()
-        .or(framed.frame.crs.as_ref())
-        .map_or("the GCP file's local frame".to_string(), |c| c.label());
     let crs_wkt = out_crs
         .as_ref()
         .or(framed.frame.crs.as_ref())
@@ -1158,6 +1365,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         .as_ref()
         .or(framed.frame.crs.as_ref())
         .map(|c| c.spec.clone());
+    let height_kind = &framed.frame.height;
     let written: Vec<Result<Written, RunError>> = p
         .export
         .formats
@@ -1172,7 +1380,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                     &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
                     outputs,
                 )?,
-                "mot" => put("tracks_mot.txt", &mot_txt(&tracks), outputs)?,
+                "mot" => put("tracks_mot.txt", &mot_txt(tracks), outputs)?,
                 "detections" => put(
                     "detections.csv",
                     &crate::detect::error_fit::detections_csv(&scan_data.detections),
@@ -1200,7 +1408,7 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
                     };
                     // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
                     // (its own handles: this runs on a worker thread).
-                    let wgs = wgs84_trajectories(spec, &framed.frame.height, trajs)?;
+                    let wgs = wgs84_trajectories(spec, height_kind, trajs)?;
                     for (name, layers) in [
                         ("trajectories.geojson", Layers::Lines),
                         ("positions.geojson", Layers::Points),
@@ -1231,36 +1439,14 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         warnings.extend(w.warnings);
         transformations.extend(w.transformations);
     }
-    stages.push(StageRecord {
+    let record = StageRecord {
         name: "export".into(),
         status: "computed".into(),
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([("files".into(), outputs.len() as f64)]),
-    });
-
-    let report = RunReport {
-        project: if p.name.is_empty() {
-            l.path.display().to_string()
-        } else {
-            p.name.clone()
-        },
-        geostride_version: build_id().into(),
-        inputs,
-        parameters: p.clone(),
-        site_frame: framed.frame.origin_note.clone(),
-        output_crs: out_crs_label,
-        wgs84_transformations: transformations,
-        stages,
-        outputs,
-        warnings,
     };
-    let json =
-        serde_json::to_string_pretty(&report).map_err(|e| RunError::Failed(e.to_string()))?;
-    write_atomic(&out.join("report.json"), json.as_bytes())
-        .map_err(|e| RunError::Failed(e.to_string()))?;
-    write_atomic(&out.join("report.md"), report_markdown(&report).as_bytes())
-        .map_err(|e| RunError::Failed(e.to_string()))?;
-    Ok(report)
+
+    Ok((outputs, transformations, record))
 }
 
 /// Trajectories in WGS 84 for GeoJSON, and what the report should say about them.

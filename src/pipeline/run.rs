@@ -525,6 +525,76 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
 /// Runs a project into `out`. Every input is read and checked before anything is written, so
 /// a bad project leaves nothing behind.
 pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunReport, RunError> {
+    let Prepared {
+        ctx,
+        detector,
+        inputs,
+        mut warnings,
+    } = prepare(l, out, progress)?;
+    let p = &l.project;
+    let mut stages = Vec::new();
+
+    let (scan_data, scan_key, record) = scan_stage(&ctx, detector)?;
+    stages.push(record);
+    let (pose_data, pose_key, record) = pose_stage(&ctx, &scan_key, &scan_data, &mut warnings)?;
+    stages.push(record);
+    let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
+    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &pose_key, &scan_data, &poses)?;
+    stages.push(record);
+    let (world, project_key, record) = project_stage(
+        &ctx,
+        [&track_key, &pose_key],
+        &tracks,
+        &pose_data,
+        &poses,
+        &mut warnings,
+    )?;
+    stages.push(record);
+    let (smoothed, record) = smooth_stage(&ctx, &project_key, &world, &mut warnings)?;
+    stages.push(record);
+    let (outputs, transformations, record) =
+        export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;
+    stages.push(record);
+
+    let framed = &ctx.framed;
+    let out_crs_label = ctx
+        .out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map_or("the GCP file's local frame".to_string(), |c| c.label());
+    let report = RunReport {
+        project: if p.name.is_empty() {
+            l.path.display().to_string()
+        } else {
+            p.name.clone()
+        },
+        geostride_version: build_id().into(),
+        inputs,
+        parameters: p.clone(),
+        site_frame: framed.frame.origin_note.clone(),
+        output_crs: out_crs_label,
+        wgs84_transformations: transformations,
+        stages,
+        outputs,
+        warnings,
+    };
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| RunError::Failed(e.to_string()))?;
+    write_atomic(&out.join("report.json"), json.as_bytes())
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+    write_atomic(&out.join("report.md"), report_markdown(&report).as_bytes())
+        .map_err(|e| RunError::Failed(e.to_string()))?;
+    Ok(report)
+}
+
+/// Reads and checks everything the stages need before any work (a bad input is found now, not
+/// after hours of scanning), and makes the output folder. Also gives the detector, the inputs'
+/// records and the warnings so far.
+fn prepare<'a>(
+    l: &'a Loaded,
+    out: &'a Path,
+    progress: &'a dyn StageProgress,
+) -> Result<Prepared<'a>, RunError> {
     let p = &l.project;
     let files = l.input_files();
     let mut guard = crate::io::Inputs::new(files.iter().map(|(_, f)| f));
@@ -532,7 +602,6 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     guard.check_dir(out).map_err(output_error)?;
 
     let mut warnings = Vec::new();
-    let mut stages = Vec::new();
 
     // Inputs and their checksums: every one is part of every stage's key.
     let inputs = files
@@ -659,59 +728,24 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
         transform,
         sums: sums.iter().map(|s| s.to_string()).collect(),
     };
-
-    let (scan_data, scan_key, record) = scan_stage(&ctx, detector)?;
-    stages.push(record);
-    let (pose_data, pose_key, record) = pose_stage(&ctx, &scan_key, &scan_data, &mut warnings)?;
-    stages.push(record);
-    let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
-    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &pose_key, &scan_data, &poses)?;
-    stages.push(record);
-    let (world, project_key, record) = project_stage(
-        &ctx,
-        [&track_key, &pose_key],
-        &tracks,
-        &pose_data,
-        &poses,
-        &mut warnings,
-    )?;
-    stages.push(record);
-    let (smoothed, record) = smooth_stage(&ctx, &project_key, &world, &mut warnings)?;
-    stages.push(record);
-    let (outputs, transformations, record) =
-        export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;
-    stages.push(record);
-
-    let framed = &ctx.framed;
-    let out_crs_label = ctx
-        .out_crs
-        .as_ref()
-        .or(framed.frame.crs.as_ref())
-        .map_or("the GCP file's local frame".to_string(), |c| c.label());
-    let report = RunReport {
-        project: if p.name.is_empty() {
-            l.path.display().to_string()
-        } else {
-            p.name.clone()
-        },
-        geostride_version: build_id().into(),
+    Ok(Prepared {
+        ctx,
+        detector,
         inputs,
-        parameters: p.clone(),
-        site_frame: framed.frame.origin_note.clone(),
-        output_crs: out_crs_label,
-        wgs84_transformations: transformations,
-        stages,
-        outputs,
         warnings,
-    };
-    let json =
-        serde_json::to_string_pretty(&report).map_err(|e| RunError::Failed(e.to_string()))?;
-    write_atomic(&out.join("report.json"), json.as_bytes())
-        .map_err(|e| RunError::Failed(e.to_string()))?;
-    write_atomic(&out.join("report.md"), report_markdown(&report).as_bytes())
-        .map_err(|e| RunError::Failed(e.to_string()))?;
-    Ok(report)
+    })
 }
+
+/// What [`prepare`] gives.
+struct Prepared<'a> {
+    ctx: Ctx<'a>,
+    detector: Box<dyn crate::detect::Detector>,
+    inputs: Vec<InputRecord>,
+    warnings: Vec<String>,
+}
+
+/// A point's site-frame coordinates to the output CRS.
+type ToOut<'a> = dyn Fn(&Vector3<f64>) -> Result<Vector3<f64>, RunError> + 'a;
 
 /// What every stage reads: the project, its checked inputs and where the results go.
 struct Ctx<'a> {
@@ -1178,7 +1212,6 @@ fn smooth_stage(
     let l = ctx.l;
     let fps = ctx.fps;
     let framed = &ctx.framed;
-    let surface = &ctx.surface;
     let transform = &ctx.transform;
     let p = &ctx.l.project;
     let smooth_key = stage_key("smooth", &[project_key], &p.smooth);
@@ -1242,48 +1275,7 @@ fn smooth_stage(
             } else {
                 r.q.iter().copied().collect()
             };
-            let mut trajectories = Vec::new();
-            for (k, t) in world.iter().enumerate() {
-                let by_frame: BTreeMap<usize, &WorldPoint> =
-                    t.points.iter().map(|(f, w)| (*f, w)).collect();
-                let mut points = Vec::new();
-                for st in &states[k] {
-                    let (frame, en, vel, observed) =
-                        (st.frame, st.position, st.velocity, st.observed);
-                    let cov_random: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();
-                    // Systematic parts: the height's and the pose's, from the nearest observation.
-                    let near = by_frame
-                        .range(..=frame)
-                        .next_back()
-                        .or_else(|| by_frame.range(frame..).next())
-                        .map(|(_, w)| *w);
-                    let cov = PointCov {
-                        random: cov_random
-                            + near.map_or(Matrix2::zeros(), |w| w.cov_pixel * persistent),
-                        height: near.map_or(Matrix2::zeros(), |w| w.cov_height),
-                        pose: near.map_or(Matrix2::zeros(), |w| w.cov_pose),
-                    };
-                    let total = cov.total();
-                    let u = surface.height(&en).map_or(f64::NAN, |z| z + t.height_m);
-                    let local = Vector3::new(en.x, en.y, u);
-                    points.push(TrajectoryPoint {
-                        frame,
-                        time_s: frame as f64 / fps,
-                        local,
-                        crs: to_out(&local)?,
-                        velocity: vel,
-                        sigma_m: Vector2::new(total[(0, 0)].sqrt(), total[(1, 1)].sqrt()),
-                        cov,
-                        observed,
-                    });
-                }
-                trajectories.push(Trajectory {
-                    id: t.id,
-                    height_m: t.height_m,
-                    height_source: t.height_source.clone(),
-                    points,
-                });
-            }
+            let trajectories = trajectory_points(ctx, world, &states, persistent, &to_out)?;
             let d = SmoothData {
                 trajectories,
                 em_iterations: iterations,
@@ -1327,6 +1319,60 @@ fn smooth_stage(
     };
 
     Ok((smoothed, record))
+}
+
+/// Each smoothed state as a trajectory point: its covariance by source (the random part with
+/// the detections' persistent share added back; the height's and the pose's from the nearest
+/// observation) and its coordinates in the output CRS.
+fn trajectory_points(
+    ctx: &Ctx,
+    world: &[WorldTrack],
+    states: &[Vec<crate::smooth::State>],
+    persistent: f64,
+    to_out: &ToOut,
+) -> Result<Vec<Trajectory>, RunError> {
+    let (fps, surface) = (ctx.fps, &ctx.surface);
+    let mut trajectories = Vec::new();
+    for (k, t) in world.iter().enumerate() {
+        let by_frame: BTreeMap<usize, &WorldPoint> =
+            t.points.iter().map(|(f, w)| (*f, w)).collect();
+        let mut points = Vec::new();
+        for st in &states[k] {
+            let (frame, en, vel, observed) = (st.frame, st.position, st.velocity, st.observed);
+            let cov_random: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();
+            // Systematic parts: the height's and the pose's, from the nearest observation.
+            let near = by_frame
+                .range(..=frame)
+                .next_back()
+                .or_else(|| by_frame.range(frame..).next())
+                .map(|(_, w)| *w);
+            let cov = PointCov {
+                random: cov_random + near.map_or(Matrix2::zeros(), |w| w.cov_pixel * persistent),
+                height: near.map_or(Matrix2::zeros(), |w| w.cov_height),
+                pose: near.map_or(Matrix2::zeros(), |w| w.cov_pose),
+            };
+            let total = cov.total();
+            let u = surface.height(&en).map_or(f64::NAN, |z| z + t.height_m);
+            let local = Vector3::new(en.x, en.y, u);
+            points.push(TrajectoryPoint {
+                frame,
+                time_s: frame as f64 / fps,
+                local,
+                crs: to_out(&local)?,
+                velocity: vel,
+                sigma_m: Vector2::new(total[(0, 0)].sqrt(), total[(1, 1)].sqrt()),
+                cov,
+                observed,
+            });
+        }
+        trajectories.push(Trajectory {
+            id: t.id,
+            height_m: t.height_m,
+            height_source: t.height_source.clone(),
+            points,
+        });
+    }
+    Ok(trajectories)
 }
 
 /// Stage 6: the output files (always written: cheap, and the files must be there). Returns

@@ -1582,7 +1582,6 @@ fn body_detector(
 ) -> Result<Box<dyn crate::detect::Detector>, RunError> {
     use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
     use crate::detect::person::{BoxesDetector, HeadsFromBodies};
-    use opencv::prelude::*;
     let d = &l.project.detect;
     let input = |key: &str, e: String| RunError::Input(l.error("detect", key, e).to_string());
     let inner: Box<dyn crate::detect::Detector> = if d.kind == "boxes" {
@@ -1622,26 +1621,19 @@ fn body_detector(
                         format!("frame {frame} is beyond the frames processed"),
                     ));
                 }
-                let bgr = crate::video::source::FrameReader::frame_bgr(video, frame)
+                let bgr = crate::video::source::FrameReader::frame_bgr_bytes(video, frame)
                     .map_err(|e| input("shadow_samples", e))?;
                 patches.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v as usize)));
             }
-            let frames = patches;
-            let bytes: Vec<&[u8]> = frames
+            let views: Vec<(crate::detect::FrameView, [usize; 4])> = patches
                 .iter()
-                .map(|(m, _)| m.data_bytes())
-                .collect::<Result<_, _>>()
-                .map_err(|e| RunError::Failed(e.to_string()))?;
-            let views: Vec<(crate::detect::FrameView, [usize; 4])> = frames
-                .iter()
-                .zip(&bytes)
-                .map(|((m, r), b)| {
+                .map(|((bgr, width, height), r)| {
                     (
                         crate::detect::FrameView {
                             index: 0,
-                            width: m.cols() as usize,
-                            height: m.rows() as usize,
-                            bgr: b,
+                            width: *width,
+                            height: *height,
+                            bgr,
                         },
                         *r,
                     )

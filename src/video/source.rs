@@ -164,4 +164,17 @@ impl FrameReader {
         }
         Ok(frame)
     }
+
+    /// [`frame_bgr`](Self::frame_bgr) as plain data for pure code: tightly packed BGR bytes,
+    /// width and height.
+    pub fn frame_bgr_bytes(path: &Path, index: usize) -> Result<(Vec<u8>, usize, usize), String> {
+        let m = Self::frame_bgr(path, index)?;
+        let m = if m.is_continuous() {
+            m
+        } else {
+            m.try_clone().map_err(|e| e.to_string())?
+        };
+        let bytes = m.data_bytes().map_err(|e| e.to_string())?.to_vec();
+        Ok((bytes, m.cols() as usize, m.rows() as usize))
+    }
 }

@@ -53,7 +53,7 @@ fn main() {
         let mb: usize = arg(&args, "--mb")
             .and_then(|v| v.parse().ok())
             .unwrap_or(200);
-        big(mb)
+        big(mb, arg(&args, "--case").as_deref())
     } else {
         let inputs: u64 = arg(&args, "--inputs")
             .and_then(|v| v.parse().ok())
@@ -259,7 +259,7 @@ fn bulk(path: &Path, head: &str, line: &str, bytes: usize) {
     }
 }
 
-fn big(mb: usize) -> bool {
+fn big(mb: usize, only: Option<&str>) -> bool {
     let bytes = mb << 20;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let exe = root.join("target/release/geostride");
@@ -522,7 +522,7 @@ fn big(mb: usize) -> bool {
         "case", "file MB", "exit", "peak MB"
     );
     let mut ok = true;
-    for case in &cases {
+    for case in cases.iter().filter(|c| only.is_none_or(|o| c.name.starts_with(o))) {
         let name = case.name;
         let f = d.join(name.replace([' ', ':'], "_"));
         std::fs::create_dir_all(&f).unwrap();

@@ -272,7 +272,7 @@ pub fn evaluate(
     ignored: &[Sample],
     threshold_m: f64,
 ) -> Evaluation {
-    evaluate_matches(truth, estimated, ignored, threshold_m).0
+    evaluate_inner(truth, estimated, ignored, threshold_m, false).0
 }
 
 /// [`evaluate`], and the matched pairs (truth, estimate) of every frame, in frame order.
@@ -281,6 +281,17 @@ pub fn evaluate_matches(
     estimated: &[Sample],
     ignored: &[Sample],
     threshold_m: f64,
+) -> (Evaluation, Vec<(Sample, Sample)>) {
+    evaluate_inner(truth, estimated, ignored, threshold_m, true)
+}
+
+/// The pairs are kept only when asked for: 64 bytes each, a gigabyte for a 200 MB table.
+fn evaluate_inner(
+    truth: &[Sample],
+    estimated: &[Sample],
+    ignored: &[Sample],
+    threshold_m: f64,
+    keep_matches: bool,
 ) -> (Evaluation, Vec<(Sample, Sample)>) {
     let mut matched = Vec::new();
     let ig = by_frame(ignored);
@@ -368,7 +379,9 @@ pub fn evaluate_matches(
             }
             last_match.insert(a.id, b.id);
             errors.push((a.position - b.position).norm());
-            matched.push((*a, *b));
+            if keep_matches {
+                matched.push((*a, *b));
+            }
             *matched_frames.entry(a.id).or_default() += 1;
         }
         for (i, a) in t.iter().enumerate() {

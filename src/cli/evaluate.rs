@@ -6,7 +6,8 @@ use anyhow::anyhow;
 
 use super::bad_input;
 use crate::evaluate::{
-    SampleTable, consistency, evaluate_matches, ignore_brief, read_covariances, read_samples,
+    SampleTable, consistency, evaluate, evaluate_matches, ignore_brief, read_covariances,
+    read_samples,
 };
 
 #[derive(clap::Args)]
@@ -70,17 +71,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let brief = ignore_brief(&mut truth, &mut ignored, args.min_frames);
     let est = read(&args.tracks, &tracks_cols)?.samples;
-    let (e, matches) = evaluate_matches(&truth, &est, &ignored, args.threshold);
     // The stated uncertainties against the errors, when the tracks carry them (geostride's
-    // trajectories.csv, read by its own frame and id columns).
-    let uncertainty = if tracks_cols[..2] == ["frame", "id"] {
+    // trajectories.csv, read by its own frame and id columns); the matches are kept only then.
+    let covariances = if tracks_cols[..2] == ["frame", "id"] {
         match read_covariances(&args.tracks) {
-            Ok(c) => Some(consistency(&matches, &c).0).filter(|c| c.points > 0),
+            Ok(c) => Some(c),
             Err(err) if err.message.starts_with("no column") => None,
             Err(err) => return Err(bad_input(anyhow!(err))),
         }
     } else {
         None
+    };
+    let (e, uncertainty) = match &covariances {
+        Some(c) => {
+            let (e, matches) = evaluate_matches(&truth, &est, &ignored, args.threshold);
+            (e, Some(consistency(&matches, c).0).filter(|c| c.points > 0))
+        }
+        None => (evaluate(&truth, &est, &ignored, args.threshold), None),
     };
     if args.json {
         let mut v = serde_json::to_value(&e)?;

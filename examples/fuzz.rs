@@ -522,7 +522,10 @@ fn big(mb: usize, only: Option<&str>) -> bool {
         "case", "file MB", "exit", "peak MB"
     );
     let mut ok = true;
-    for case in cases.iter().filter(|c| only.is_none_or(|o| c.name.starts_with(o))) {
+    for case in cases
+        .iter()
+        .filter(|c| only.is_none_or(|o| c.name.starts_with(o)))
+    {
         let name = case.name;
         let f = d.join(name.replace([' ', ':'], "_"));
         std::fs::create_dir_all(&f).unwrap();

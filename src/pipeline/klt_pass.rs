@@ -69,22 +69,17 @@ pub fn klt_over_video(
     );
     let video = job.video.display();
     let mut reader = crate::video::source::FrameReader::open(job.video)?;
-    let mut bgr = opencv::core::Mat::default();
-    let mut gray = opencv::core::Mat::default();
     for (f, dets) in job.detections.iter().enumerate() {
-        if reader
-            .read_bgr_into(&mut bgr)
+        let Some((_, gray)) = reader
+            .next_gray_reusing()
             .map_err(|e| format!("{video}: frame {f}: {e}"))?
-            .is_none()
-        {
+        else {
             return Err(format!(
                 "{video}: ended at frame {f}, before the {} frames scanned",
                 job.detections.len()
             ));
-        }
-        opencv::imgproc::cvt_color_def(&bgr, &mut gray, opencv::imgproc::COLOR_BGR2GRAY)
-            .map_err(|e| e.to_string())?;
-        let frame = frames.frame(f, std::mem::take(&mut gray))?;
+        };
+        let frame = frames.frame(f, gray)?;
         tracker
             .update(f, frame, dets, motion_at)
             .map_err(|e| format!("{video}: frame {f}: {e}"))?;

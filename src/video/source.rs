@@ -16,6 +16,9 @@ pub struct FrameReader {
     pub width: u32,
     pub height: u32,
     next: usize,
+    /// The colour frame [`next_gray_reusing`](Self::next_gray_reusing) decodes into, kept so
+    /// that its memory is reused.
+    bgr: Mat,
 }
 
 impl FrameReader {
@@ -68,6 +71,7 @@ impl FrameReader {
             width: width as u32,
             height: height as u32,
             next: 0,
+            bgr: Mat::default(),
         })
     }
 
@@ -88,6 +92,25 @@ impl FrameReader {
         let i = self.next;
         self.next += 1;
         Ok(Some((i, gray)))
+    }
+
+    /// [`next_gray`](Self::next_gray), decoding into one colour frame kept between calls (no
+    /// fresh pages to fault in for every 4K frame); the greyscale image is new each time.
+    pub fn next_gray_reusing(&mut self) -> Result<Option<(usize, Mat)>, String> {
+        let mut bgr = std::mem::take(&mut self.bgr);
+        let read = self.read_bgr_into(&mut bgr);
+        let gray = match read {
+            Ok(Some(i)) => {
+                let mut g = Mat::default();
+                imgproc::cvt_color_def(&bgr, &mut g, imgproc::COLOR_BGR2GRAY)
+                    .map_err(|e| e.to_string())
+                    .map(|()| Some((i, g)))
+            }
+            Ok(None) => Ok(None),
+            Err(e) => Err(e),
+        };
+        self.bgr = bgr;
+        gray
     }
 
     /// Reads the next frame into `frame` (BGR, continuous), reusing its memory when it already

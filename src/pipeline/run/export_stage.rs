@@ -1,0 +1,123 @@
+//! Stage 6, `export`.
+
+use super::*;
+
+/// Stage 6: the output files (always written: cheap, and the files must be there). Returns
+/// the files written and the WGS 84 transformations used.
+pub(super) fn export_stage(
+    ctx: &Ctx,
+    smoothed: &SmoothData,
+    tracks: &[ImageTrack],
+    scan_data: &ScanData,
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
+    let out = ctx.out;
+    let p = &ctx.l.project;
+    let fps = ctx.fps;
+    let framed = &ctx.framed;
+    let out_crs = &ctx.out_crs;
+    let t0 = Instant::now();
+    let mut outputs = Vec::new();
+    let crs_wkt = out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map(|c| c.wkt.clone())
+        .unwrap_or_default();
+    let put = |name: &str, text: &str, outputs: &mut Vec<String>| -> Result<(), RunError> {
+        let path = out.join(name);
+        write_atomic(&path, text.as_bytes())
+            .map_err(|e| RunError::Failed(format!("{}: {e}", path.display())))?;
+        outputs.push(name.to_string());
+        Ok(())
+    };
+    let trajs = &smoothed.trajectories;
+    // The formats are independent files: written side by side.
+    use rayon::prelude::*;
+    let origin_note = &framed.frame.origin_note;
+    let out_crs_spec = out_crs
+        .as_ref()
+        .or(framed.frame.crs.as_ref())
+        .map(|c| c.spec.clone());
+    let height_kind = &framed.frame.height;
+    let written: Vec<Result<Written, RunError>> = p
+        .export
+        .formats
+        .par_iter()
+        .map(|f| -> Result<Written, RunError> {
+            let mut w = Written::default();
+            let outputs = &mut w.outputs;
+            match f.as_str() {
+                "csv" => put("trajectories.csv", &trajectories_csv(trajs), outputs)?,
+                "petrack" => put(
+                    "trajectories.txt",
+                    &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
+                    outputs,
+                )?,
+                "mot" => put("tracks_mot.txt", &mot_txt(tracks), outputs)?,
+                "detections" => put(
+                    "detections.csv",
+                    &crate::detect::error_fit::detections_csv(&scan_data.detections),
+                    outputs,
+                )?,
+                "gpkg" => {
+                    write_trajectories(
+                        &out.join("trajectories.gpkg"),
+                        GisFormat::GeoPackage,
+                        &crs_wkt,
+                        Layers::Both,
+                        trajs,
+                        &|q| q.crs,
+                    )
+                    .map_err(RunError::Failed)?;
+                    outputs.push("trajectories.gpkg".into());
+                }
+                "geojson" => {
+                    let Some(spec) = &out_crs_spec else {
+                        w.warnings.push(
+                            "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
+                                .into(),
+                        );
+                        return Ok(w);
+                    };
+                    // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
+                    // (its own handles: this runs on a worker thread).
+                    let wgs = wgs84_trajectories(spec, height_kind, trajs)?;
+                    for (name, layers) in [
+                        ("trajectories.geojson", Layers::Lines),
+                        ("positions.geojson", Layers::Points),
+                    ] {
+                        write_trajectories(
+                            &out.join(name),
+                            GisFormat::GeoJson,
+                            "",
+                            layers,
+                            &wgs.trajectories,
+                            &|q| q.crs,
+                        )
+                        .map_err(RunError::Failed)?;
+                        outputs.push(name.into());
+                    }
+                    w.warnings.extend(wgs.notes);
+                    w.transformations = wgs.operations;
+                }
+                _ => unreachable!("checked when the project was read"),
+            }
+            Ok(w)
+        })
+        .collect();
+    let mut transformations = Vec::new();
+    for w in written {
+        let w = w?;
+        outputs.extend(w.outputs);
+        warnings.extend(w.warnings);
+        transformations.extend(w.transformations);
+    }
+    let record = StageRecord {
+        name: "export".into(),
+        status: "computed".into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts: BTreeMap::from([("files".into(), outputs.len() as f64)]),
+    };
+
+    Ok((outputs, transformations, record))
+}

@@ -1,0 +1,177 @@
+//! Stage 5, `smooth`.
+
+use super::*;
+
+/// Stage 5: smoothing, and each point's covariance by source.
+pub(super) fn smooth_stage(
+    ctx: &Ctx,
+    project_key: &str,
+    world: &[WorldTrack],
+    warnings: &mut Vec<String>,
+) -> Result<(SmoothData, StageRecord), RunError> {
+    let l = ctx.l;
+    let fps = ctx.fps;
+    let framed = &ctx.framed;
+    let transform = &ctx.transform;
+    let p = &ctx.l.project;
+    let smooth_key = stage_key("smooth", &[project_key], &p.smooth);
+    let t0 = Instant::now();
+    let to_out = |local: &Vector3<f64>| -> Result<Vector3<f64>, RunError> {
+        let src = framed
+            .frame
+            .source_from_local(local)
+            .map_err(|e| RunError::Failed(e.to_string()))?;
+        match &transform {
+            Some(t) => {
+                let (x, y) = t
+                    .apply(src.x, src.y)
+                    .map_err(|e| RunError::Failed(e.to_string()))?;
+                Ok(Vector3::new(x, y, src.z))
+            }
+            None => Ok(src),
+        }
+    };
+    let (smoothed, status) = cached(
+        &ctx.cache,
+        ctx.progress,
+        "smooth",
+        &smooth_key,
+        true,
+        || {
+            let obs: Vec<Vec<Observation>> = world
+                .iter()
+                .map(|t| {
+                    t.points
+                        .iter()
+                        .map(|(f, w)| Observation {
+                            frame: *f,
+                            position: w.position.xy(),
+                            cov: w.cov_pixel,
+                        })
+                        .collect()
+                })
+                .collect();
+            let s = SmoothSettings {
+                dt: 1.0 / fps,
+                q_position_m: p.smooth.q_position_m,
+                q_velocity_m_s: p.smooth.q_velocity_m_s,
+                em: p.smooth.em,
+                model: p.smooth.model.parse().map_err(RunError::Input)?,
+                ..SmoothSettings::default()
+            };
+            let smoother =
+                crate::pipeline::registry::smoother(&p.smooth.kind, s).ok_or_else(|| {
+                    RunError::Input(l.error("smooth", "kind", "unknown smoother").to_string())
+                })?;
+            let r = smoother.smooth(&obs);
+            // What smoothing cannot average away: detection errors that persist over frames.
+            let persistent = if p.smooth.kind == "none" {
+                0.0
+            } else {
+                crate::smooth::persistent_share(&obs, &r.tracks).unwrap_or(0.0)
+            };
+            let (states, iterations, converged) = (r.tracks, r.em_iterations, r.converged);
+            let q: Vec<f64> = if p.smooth.kind == "none" {
+                Vec::new()
+            } else {
+                r.q.iter().copied().collect()
+            };
+            let trajectories = trajectory_points(ctx, world, &states, persistent, &to_out)?;
+            let d = SmoothData {
+                trajectories,
+                em_iterations: iterations,
+                em_converged: converged,
+                q,
+                persistent_share: persistent,
+            };
+            Ok(d)
+        },
+    )?;
+    if !smoothed.em_converged {
+        warnings.push(format!(
+            "EM did not converge in {} iterations",
+            smoothed.em_iterations
+        ));
+    }
+    let mut counts = BTreeMap::from([
+        ("trajectories".into(), smoothed.trajectories.len() as f64),
+        ("em_iterations".into(), smoothed.em_iterations as f64),
+        ("persistent_share".into(), smoothed.persistent_share),
+    ]);
+    if smoothed.q.len() == 16 {
+        counts.insert("q_velocity_e_m2_s2".into(), smoothed.q[10]);
+        counts.insert("q_velocity_n_m2_s2".into(), smoothed.q[15]);
+    }
+    let sig: Vec<f64> = smoothed
+        .trajectories
+        .iter()
+        .flat_map(|t| t.points.iter().map(|q| q.sigma_m.norm()))
+        .collect();
+    if !sig.is_empty() {
+        let mut s = sig.clone();
+        s.sort_by(f64::total_cmp);
+        counts.insert("median_sigma_m".into(), s[s.len() / 2]);
+    }
+    let record = StageRecord {
+        name: "smooth".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts,
+    };
+
+    Ok((smoothed, record))
+}
+
+/// Each smoothed state as a trajectory point: its covariance by source (the random part with
+/// the detections' persistent share added back; the height's and the pose's from the nearest
+/// observation) and its coordinates in the output CRS.
+fn trajectory_points(
+    ctx: &Ctx,
+    world: &[WorldTrack],
+    states: &[Vec<crate::smooth::State>],
+    persistent: f64,
+    to_out: &ToOut,
+) -> Result<Vec<Trajectory>, RunError> {
+    let (fps, surface) = (ctx.fps, &ctx.surface);
+    let mut trajectories = Vec::new();
+    for (k, t) in world.iter().enumerate() {
+        let by_frame: BTreeMap<usize, &WorldPoint> =
+            t.points.iter().map(|(f, w)| (*f, w)).collect();
+        let mut points = Vec::new();
+        for st in &states[k] {
+            let (frame, en, vel, observed) = (st.frame, st.position, st.velocity, st.observed);
+            let cov_random: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();
+            // Systematic parts: the height's and the pose's, from the nearest observation.
+            let near = by_frame
+                .range(..=frame)
+                .next_back()
+                .or_else(|| by_frame.range(frame..).next())
+                .map(|(_, w)| *w);
+            let cov = PointCov {
+                random: cov_random + near.map_or(Matrix2::zeros(), |w| w.cov_pixel * persistent),
+                height: near.map_or(Matrix2::zeros(), |w| w.cov_height),
+                pose: near.map_or(Matrix2::zeros(), |w| w.cov_pose),
+            };
+            let total = cov.total();
+            let u = surface.height(&en).map_or(f64::NAN, |z| z + t.height_m);
+            let local = Vector3::new(en.x, en.y, u);
+            points.push(TrajectoryPoint {
+                frame,
+                time_s: frame as f64 / fps,
+                local,
+                crs: to_out(&local)?,
+                velocity: vel,
+                sigma_m: Vector2::new(total[(0, 0)].sqrt(), total[(1, 1)].sqrt()),
+                cov,
+                observed,
+            });
+        }
+        trajectories.push(Trajectory {
+            id: t.id,
+            height_m: t.height_m,
+            height_source: t.height_source.clone(),
+            points,
+        });
+    }
+    Ok(trajectories)
+}

@@ -21,6 +21,7 @@ pub mod draw;
 pub mod estimate;
 pub mod evaluate;
 pub mod export;
+pub mod features;
 pub mod geom;
 pub mod gis;
 pub mod imageio;

@@ -17,32 +17,7 @@ use nalgebra::{Matrix3, Vector2};
 use crate::estimate::homography::{homography_robust, transfer};
 use crate::estimate::ransac::RansacSettings;
 
-/// Finds and tracks image features (an adapter: OpenCV's corners and pyramidal Lucas–Kanade).
-pub trait FeatureTracker {
-    type Frame;
-
-    /// Well-textured points of a frame.
-    fn detect(&mut self, frame: &Self::Frame) -> Result<Vec<Vector2<f64>>, String>;
-
-    /// Where `pts` of `from` are in `to` (`None` when lost), searching widely.
-    fn track(
-        &mut self,
-        from: &Self::Frame,
-        to: &Self::Frame,
-        pts: &[Vector2<f64>],
-        guess: Option<&[Vector2<f64>]>,
-    ) -> Result<Vec<Option<Vector2<f64>>>, String>;
-
-    /// Where `pts` of `from` are in `to`, searching only near `guess` (a good prediction):
-    /// a coarse search could slide along the long edges of railings and lane lines.
-    fn refine(
-        &mut self,
-        from: &Self::Frame,
-        to: &Self::Frame,
-        pts: &[Vector2<f64>],
-        guess: &[Vector2<f64>],
-    ) -> Result<Vec<Option<Vector2<f64>>>, String>;
-}
+pub use crate::features::FeatureTracker;
 
 /// When to renew the reference, and how strictly to accept tracks.
 #[derive(Clone, Debug)]
@@ -394,6 +369,22 @@ mod tests {
             guess: &[Vector2<f64>],
         ) -> Result<Vec<Option<Vector2<f64>>>, String> {
             self.track(from, to, pts, Some(guess))
+        }
+        fn detect_in(
+            &mut self,
+            f: &Frame,
+            b: [f64; 4],
+            max: usize,
+        ) -> Result<Vec<Vector2<f64>>, String> {
+            let inside = |p: &Vector2<f64>| {
+                p.x >= b[0] && p.y >= b[1] && p.x <= b[0] + b[2] && p.y <= b[1] + b[3]
+            };
+            Ok(self
+                .detect(f)?
+                .into_iter()
+                .filter(inside)
+                .take(max)
+                .collect())
         }
     }
 

@@ -1,4 +1,4 @@
-//! Feature tracking of people (pure logic; the pixels go through the [`Features`] adapter),
+//! Feature tracking of people (pure logic; the pixels go through a [`FeatureTracker`]),
 //! after the paper's section 3.2.2, made better:
 //!
 //! - a detection that no track explains starts a track, with corner features inside its box
@@ -27,28 +27,8 @@ use std::collections::VecDeque;
 
 use super::{ImageTrack, TrackPoint};
 use crate::detect::Detection;
+use crate::features::FeatureTracker;
 use crate::optim::assignment::assign;
-
-/// Finds and follows corner features (an adapter: OpenCV's corners and Lucas–Kanade).
-pub trait Features {
-    type Frame;
-    /// Up to `max` corners inside `bbox` (`[x, y, w, h]`, pixels).
-    fn features_in(
-        &mut self,
-        frame: &Self::Frame,
-        bbox: [f64; 4],
-        max: usize,
-    ) -> Result<Vec<Vector2<f64>>, String>;
-    /// Where each point of `from` is in `to`, starting from `guess`; `None` for a point lost
-    /// or failing the forward–backward check.
-    fn follow(
-        &mut self,
-        from: &Self::Frame,
-        to: &Self::Frame,
-        pts: &[Vector2<f64>],
-        guess: &[Vector2<f64>],
-    ) -> Result<Vec<Option<Vector2<f64>>>, String>;
-}
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct KltTrackSettings {
@@ -165,7 +145,7 @@ impl Live {
 }
 
 /// Tracks people by their features; frames come in order with their detections.
-pub struct KltTracker<F: Features> {
+pub struct KltTracker<F: FeatureTracker> {
     pub settings: KltTrackSettings,
     features: F,
     size: (f64, f64),
@@ -219,7 +199,7 @@ fn largest_eigenvalue(m: &Matrix2<f64>) -> f64 {
     0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt()
 }
 
-impl<F: Features> KltTracker<F> {
+impl<F: FeatureTracker> KltTracker<F> {
     pub fn new(settings: KltTrackSettings, features: F, size: (f64, f64)) -> Self {
         KltTracker {
             settings,
@@ -260,7 +240,7 @@ impl<F: Features> KltTracker<F> {
             // The camera's motion from fb to fa, undone to first order (it is small).
             let back = |x: &Vector2<f64>| 2.0 * x - motion_at(*fa, x);
             let guess: Vec<Vector2<f64>> = pts.iter().map(|x| back(x) - v).collect();
-            let next = self.features.follow(a, b, &pts, &guess)?;
+            let next = self.features.track(a, b, &pts, Some(&guess))?;
             let (mut to, mut flow) = (Vec::new(), Vec::new());
             for (x, y) in pts.iter().zip(&next) {
                 if let Some(y) = y {
@@ -322,7 +302,9 @@ impl<F: Features> KltTracker<F> {
             if let (Some((_, prev)), false) = (self.frames.back(), t.features.is_empty()) {
                 let guess: Vec<Vector2<f64>> =
                     t.features.iter().map(|f| motion(f) + t.velocity).collect();
-                let next = self.features.follow(prev, &frame, &t.features, &guess)?;
+                let next = self
+                    .features
+                    .track(prev, &frame, &t.features, Some(&guess))?;
                 let (mut to, mut flow) = (Vec::new(), Vec::new());
                 for (a, b) in t.features.iter().zip(&next) {
                     if let Some(b) = b {
@@ -507,7 +489,7 @@ impl<F: Features> KltTracker<F> {
                 } else {
                     self.box_around(&est)
                 };
-                t.features = self.features.features_in(&frame, b, s.max_features)?;
+                t.features = self.features.detect_in(&frame, b, s.max_features)?;
                 self.reinitialised += 1;
             }
             keep.push(t);
@@ -523,7 +505,7 @@ impl<F: Features> KltTracker<F> {
             {
                 continue;
             }
-            let features = self.features.features_in(&frame, d.bbox, s.max_features)?;
+            let features = self.features.detect_in(&frame, d.bbox, s.max_features)?;
             self.started += 1;
             keep.push(Live {
                 features: features.clone(),
@@ -682,9 +664,21 @@ mod tests {
         truth: Vec<Vec<Vector2<f64>>>,
     }
 
-    impl Features for Synthetic {
+    impl FeatureTracker for Synthetic {
         type Frame = usize;
-        fn features_in(
+        fn detect(&mut self, frame: &usize) -> Result<Vec<Vector2<f64>>, String> {
+            Ok(self.truth[*frame].clone())
+        }
+        fn refine(
+            &mut self,
+            from: &usize,
+            to: &usize,
+            pts: &[Vector2<f64>],
+            guess: &[Vector2<f64>],
+        ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+            self.track(from, to, pts, Some(guess))
+        }
+        fn detect_in(
             &mut self,
             frame: &usize,
             bbox: [f64; 4],
@@ -706,12 +700,12 @@ mod tests {
                 _ => Vec::new(),
             })
         }
-        fn follow(
+        fn track(
             &mut self,
             from: &usize,
             to: &usize,
             pts: &[Vector2<f64>],
-            _guess: &[Vector2<f64>],
+            _guess: Option<&[Vector2<f64>]>,
         ) -> Result<Vec<Option<Vector2<f64>>>, String> {
             Ok(pts
                 .iter()

@@ -11,7 +11,7 @@ use opencv::core::{Mat, Point2f, Rect, Size, TermCriteria, TermCriteria_Type, Ve
 use opencv::prelude::*;
 use opencv::{core, imgproc, video};
 
-use crate::pose::stabilise::FeatureTracker;
+use crate::features::FeatureTracker;
 
 /// Tracker settings.
 #[derive(Clone, Debug)]
@@ -261,6 +261,52 @@ impl FeatureTracker for Klt {
         Ok(out)
     }
 
+    /// Corners inside a person's box.
+    fn detect_in(
+        &mut self,
+        frame: &GrayFrame,
+        bbox: [f64; 4],
+        max: usize,
+    ) -> Result<Vec<Vector2<f64>>, String> {
+        let work = frame.pyramid.get(0).map_err(e)?;
+        let inv = 1.0 / frame.scale;
+        let a = rescale(&Vector2::new(bbox[0], bbox[1]), inv);
+        let b = rescale(&Vector2::new(bbox[0] + bbox[2], bbox[1] + bbox[3]), inv);
+        let x0 = (a.x.floor() as i32).clamp(0, work.cols() - 1);
+        let y0 = (a.y.floor() as i32).clamp(0, work.rows() - 1);
+        let x1 = (b.x.ceil() as i32).clamp(0, work.cols());
+        let y1 = (b.y.ceil() as i32).clamp(0, work.rows());
+        if x1 - x0 < 4 || y1 - y0 < 4 || max == 0 {
+            return Ok(Vec::new());
+        }
+        let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
+        let mut corners = Vector::<Point2f>::new();
+        imgproc::good_features_to_track(
+            &cell,
+            &mut corners,
+            max as i32,
+            self.settings.quality,
+            self.settings.min_distance,
+            &core::no_array(),
+            3,
+            false,
+            0.04,
+        )
+        .map_err(e)?;
+        Ok(corners
+            .iter()
+            .map(|p| {
+                rescale(
+                    &Vector2::new(
+                        f64::from(p.x) + f64::from(x0),
+                        f64::from(p.y) + f64::from(y0),
+                    ),
+                    frame.scale,
+                )
+            })
+            .collect())
+    }
+
     fn track(
         &mut self,
         from: &GrayFrame,
@@ -369,67 +415,6 @@ impl FeatureTracker for Klt {
             );
         }
         Ok(out)
-    }
-}
-
-/// People tracking: corners inside a person's box, and Lucas–Kanade with the
-/// forward–backward check from a prediction.
-impl crate::track::klt::Features for Klt {
-    type Frame = GrayFrame;
-
-    fn features_in(
-        &mut self,
-        frame: &GrayFrame,
-        bbox: [f64; 4],
-        max: usize,
-    ) -> Result<Vec<Vector2<f64>>, String> {
-        let work = frame.pyramid.get(0).map_err(e)?;
-        let inv = 1.0 / frame.scale;
-        let a = rescale(&Vector2::new(bbox[0], bbox[1]), inv);
-        let b = rescale(&Vector2::new(bbox[0] + bbox[2], bbox[1] + bbox[3]), inv);
-        let x0 = (a.x.floor() as i32).clamp(0, work.cols() - 1);
-        let y0 = (a.y.floor() as i32).clamp(0, work.rows() - 1);
-        let x1 = (b.x.ceil() as i32).clamp(0, work.cols());
-        let y1 = (b.y.ceil() as i32).clamp(0, work.rows());
-        if x1 - x0 < 4 || y1 - y0 < 4 || max == 0 {
-            return Ok(Vec::new());
-        }
-        let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
-        let mut corners = Vector::<Point2f>::new();
-        imgproc::good_features_to_track(
-            &cell,
-            &mut corners,
-            max as i32,
-            self.settings.quality,
-            self.settings.min_distance,
-            &core::no_array(),
-            3,
-            false,
-            0.04,
-        )
-        .map_err(e)?;
-        Ok(corners
-            .iter()
-            .map(|p| {
-                rescale(
-                    &Vector2::new(
-                        f64::from(p.x) + f64::from(x0),
-                        f64::from(p.y) + f64::from(y0),
-                    ),
-                    frame.scale,
-                )
-            })
-            .collect())
-    }
-
-    fn follow(
-        &mut self,
-        from: &GrayFrame,
-        to: &GrayFrame,
-        pts: &[Vector2<f64>],
-        guess: &[Vector2<f64>],
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
-        FeatureTracker::track(self, from, to, pts, Some(guess))
     }
 }
 

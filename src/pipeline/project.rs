@@ -592,32 +592,14 @@ fn check_finite(l: &Loaded) -> Result<(), FileError> {
 
 fn check(l: &Loaded) -> Result<(), FileError> {
     let p = &l.project;
-    let exists = |section: &str, key: &str, path: &str| -> Result<(), FileError> {
-        let resolved = l.resolve(path);
-        if resolved.is_file() {
-            Ok(())
-        } else if resolved.is_dir() {
-            Err(l.error(
-                section,
-                key,
-                format!("'{path}' is a folder; expected a file"),
-            ))
-        } else {
-            Err(l.error(
-                section,
-                key,
-                format!("'{path}': no such file (relative to the project file's folder)"),
-            ))
-        }
-    };
     if crate::camera::presets::preset(&p.camera.calibration).is_none() {
-        exists("camera", "calibration", &p.camera.calibration)?;
+        exists(l, "camera", "calibration", &p.camera.calibration)?;
     }
-    exists("survey", "gcps", &p.survey.gcps)?;
+    exists(l, "survey", "gcps", &p.survey.gcps)?;
     for pk in &p.survey.picks {
-        exists("survey", "picks", pk)?;
+        exists(l, "survey", "picks", pk)?;
     }
-    exists("video", "path", &p.video.path)?;
+    exists(l, "video", "path", &p.video.path)?;
     if let Some(h) = &p.survey.height
         && h != "ellipsoidal"
         && h != "orthometric"
@@ -705,9 +687,16 @@ fn check(l: &Loaded) -> Result<(), FileError> {
                 ));
             }
         }
-        GroundSection::Dem { path } => exists("ground", "path", path)?,
+        GroundSection::Dem { path } => exists(l, "ground", "path", path)?,
         GroundSection::Plane { .. } => {}
     }
+    check_detect(l)?;
+    check_later_stages(l)
+}
+
+/// The `[detect]` section's checks.
+fn check_detect(l: &Loaded) -> Result<(), FileError> {
+    let p = &l.project;
     if !super::registry::DETECTORS.contains(&p.detect.kind.as_str()) {
         return Err(l.error(
             "detect",
@@ -721,7 +710,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     }
     if p.detect.kind == "boxes" {
         match &p.detect.boxes {
-            Some(b) => exists("detect", "boxes", b)?,
+            Some(b) => exists(l, "detect", "boxes", b)?,
             None => {
                 return Err(l.error(
                     "detect",
@@ -798,6 +787,12 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if p.detect.person_m.is_some_and(|m| !(m > 0.0)) {
         return Err(l.error("detect", "person_m", "must be positive"));
     }
+    Ok(())
+}
+
+/// The checks of `[track]`, `[projection]`, `[smooth]` and `[export]`.
+fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
+    let p = &l.project;
     if !super::registry::TRACKERS.contains(&p.track.kind.as_str()) {
         return Err(l.error(
             "track",
@@ -843,7 +838,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         ));
     }
     if let Some(h) = &p.projection.heights {
-        exists("projection", "heights", h)?;
+        exists(l, "projection", "heights", h)?;
     }
     if !super::registry::SMOOTHERS.contains(&p.smooth.kind.as_str()) {
         return Err(l.error(
@@ -880,6 +875,26 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         }
     }
     Ok(())
+}
+
+/// An error unless `path` (relative to the project file) is a file.
+fn exists(l: &Loaded, section: &str, key: &str, path: &str) -> Result<(), FileError> {
+    let resolved = l.resolve(path);
+    if resolved.is_file() {
+        Ok(())
+    } else if resolved.is_dir() {
+        Err(l.error(
+            section,
+            key,
+            format!("'{path}' is a folder; expected a file"),
+        ))
+    } else {
+        Err(l.error(
+            section,
+            key,
+            format!("'{path}': no such file (relative to the project file's folder)"),
+        ))
+    }
 }
 
 #[cfg(test)]

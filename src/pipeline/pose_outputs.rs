@@ -117,67 +117,9 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
     put("poses.csv", poses)?;
     put("reprojection.csv", reproj)?;
 
-    let mut keys =
-        String::from("frame,time_s,reason,features,picks,inliers,outliers,rms_px,sigma0,error\n");
-    for k in &r.key_frames {
-        let t = tracks.iter().find(|t| t.index == k.index);
-        match &k.solution {
-            Ok(s) => writeln!(
-                keys,
-                "{},{:.6},{},{},{},{},{},{:.4},{:.3},",
-                k.index,
-                k.index as f64 / fps,
-                k.reason.as_str(),
-                t.map_or(0, |t| t.features),
-                k.picks,
-                s.inliers,
-                k.picks - s.inliers,
-                s.rms_px,
-                s.sigma0
-            )?,
-            Err(e) => writeln!(
-                keys,
-                "{},{:.6},{},{},{},,,,,\"{}\"",
-                k.index,
-                k.index as f64 / fps,
-                k.reason.as_str(),
-                t.map_or(0, |t| t.features),
-                k.picks,
-                e.to_string().replace('"', "'")
-            )?,
-        }
-    }
-    put("key_frames.csv", keys)?;
+    put("key_frames.csv", key_frames_csv(run)?)?;
 
-    let mut g = String::from(
-        "name,e_m,n_m,u_m,shift_e_m,shift_n_m,shift_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z\n",
-    );
-    for ((o, p), c) in control.iter().zip(&r.joint.points).zip(&r.joint.point_cov) {
-        let d = p - o.world;
-        let src = framed
-            .frame
-            .source_from_local(p)
-            .map_err(|e| anyhow!("GCP {} to the file's CRS: {e}", o.name))?;
-        let sd = |m: &Matrix3<f64>, k: usize| m[(k, k)].max(0.0).sqrt();
-        writeln!(
-            g,
-            "{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
-            o.name,
-            p.x,
-            p.y,
-            p.z,
-            d.x,
-            d.y,
-            d.z,
-            sd(c, 0),
-            sd(c, 1),
-            sd(c, 2),
-            src.x,
-            src.y,
-            src.z
-        )?;
-    }
-    put("gcps_adjusted.csv", g)?;
+    put("gcps_adjusted.csv", gcps_adjusted_csv(run)?)?;
 
     // The paper's Fig. 13: mean reprojection error per frame, and the level the survey's
     // uncertainty alone explains.
@@ -235,6 +177,76 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
         .map_err(|e| anyhow!(e))?;
     written.push(png);
     Ok(written)
+}
+
+/// `key_frames.csv`: each key frame, why it is one, and its PnP solution or error.
+fn key_frames_csv(run: &PoseRun) -> anyhow::Result<String> {
+    let (r, tracks, fps) = (run.result, run.tracks, run.fps);
+    let mut keys =
+        String::from("frame,time_s,reason,features,picks,inliers,outliers,rms_px,sigma0,error\n");
+    for k in &r.key_frames {
+        let t = tracks.iter().find(|t| t.index == k.index);
+        match &k.solution {
+            Ok(s) => writeln!(
+                keys,
+                "{},{:.6},{},{},{},{},{},{:.4},{:.3},",
+                k.index,
+                k.index as f64 / fps,
+                k.reason.as_str(),
+                t.map_or(0, |t| t.features),
+                k.picks,
+                s.inliers,
+                k.picks - s.inliers,
+                s.rms_px,
+                s.sigma0
+            )?,
+            Err(e) => writeln!(
+                keys,
+                "{},{:.6},{},{},{},,,,,\"{}\"",
+                k.index,
+                k.index as f64 / fps,
+                k.reason.as_str(),
+                t.map_or(0, |t| t.features),
+                k.picks,
+                e.to_string().replace('"', "'")
+            )?,
+        }
+    }
+    Ok(keys)
+}
+
+/// `gcps_adjusted.csv`: the control points after the joint adjustment, with their shift and σ.
+fn gcps_adjusted_csv(run: &PoseRun) -> anyhow::Result<String> {
+    let (r, control, framed) = (run.result, run.control, run.framed);
+    let mut g = String::from(
+        "name,e_m,n_m,u_m,shift_e_m,shift_n_m,shift_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z\n",
+    );
+    for ((o, p), c) in control.iter().zip(&r.joint.points).zip(&r.joint.point_cov) {
+        let d = p - o.world;
+        let src = framed
+            .frame
+            .source_from_local(p)
+            .map_err(|e| anyhow!("GCP {} to the file's CRS: {e}", o.name))?;
+        let sd = |m: &Matrix3<f64>, k: usize| m[(k, k)].max(0.0).sqrt();
+        writeln!(
+            g,
+            "{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+            o.name,
+            p.x,
+            p.y,
+            p.z,
+            d.x,
+            d.y,
+            d.z,
+            sd(c, 0),
+            sd(c, 1),
+            sd(c, 2),
+            src.x,
+            src.y,
+            src.z
+        )?;
+    }
+    Ok(g)
 }
 
 /// The pixel error the GCPs' survey σ alone explains: the mean over GCPs of the horizontal σ

@@ -817,7 +817,7 @@ fn cases() -> Vec<Case> {
             category: "nonsense accepted",
             files: vec![(
                 "project.toml",
-                replace("project.toml", "[export]", "[detect]\nerror_profile_px2 = [[0.5, 4, 9], [0.2, 4, 9]]\n[export]"),
+                replace("project.toml", "[export]", "[detect]\nkind = \"background\"\nerror_profile_px2 = [[0.5, 4, 9], [0.2, 4, 9]]\n[export]"),
             )],
             args: args(&["run", "project.toml", "--out", "out"]),
             expect: "t rising within 0 to 1",

@@ -272,7 +272,7 @@ fn a_bad_project_file_names_the_key_and_its_line() {
         ),
         (
             &|t| format!("{t}[track]\nkind = \"greedy\"\n"),
-            "track.kind",
+            "unknown variant `greedy`",
             "project.toml:15:",
         ),
         (

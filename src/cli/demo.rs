@@ -967,7 +967,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     let (mut truth, mut ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
     // People in view for less than the shortest track the pipeline keeps (cut off by the
     // video's start or end) count neither way.
-    let min_frames = (loaded.project.track.min_length_s * scene.fps).round() as usize;
+    let min_frames = (loaded.project.track.min_length_s() * scene.fps).round() as usize;
     let brief = ignore_brief(&mut truth, &mut ignored, min_frames);
     let (pe, pcons) = check_run(
         &paper_dir,

@@ -16,8 +16,8 @@ use crate::detect::background::{BackgroundDetector, BackgroundSettings, Subtract
 use crate::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
 use crate::detect::person::BoxesDetector;
 use crate::pipeline::klt_pass::{KltPass, klt_over_video};
-use crate::pipeline::project::TrackSection;
 use crate::pipeline::scan::{ScanError, ScanJob, scan};
+use crate::pipeline::settings::KltSection;
 use crate::track::ImageTrack;
 
 #[derive(clap::Args)]
@@ -160,10 +160,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "  track {bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}]",
     );
     let t0 = Instant::now();
-    let track = TrackSection {
-        kind: "klt".into(),
-        ..TrackSection::default()
-    };
+    let track = KltSection::default();
     let tracks = klt_over_video(
         &KltPass {
             video: &args.video,

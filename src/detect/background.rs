@@ -21,7 +21,8 @@ use opencv::{imgproc, video};
 use super::{Detection, Detector, FrameDetections, FrameView};
 
 /// OpenCV's background models.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Subtractor {
     /// Gaussian mixture per pixel (`createBackgroundSubtractorMOG2`).
     #[default]

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use nalgebra::Vector2;
 
-use super::project::TrackSection;
+use super::settings::KltSection;
 use crate::detect::Detection;
 use crate::progress::Progress;
 use crate::track::ImageTrack;
@@ -19,7 +19,7 @@ pub struct KltPass<'a> {
     /// The frames' size, pixels.
     pub size: (u32, u32),
     pub fps: f64,
-    pub track: &'a TrackSection,
+    pub track: &'a KltSection,
     /// A person's length in the image, metres (the box of a track without a detection).
     pub person_m: Option<f64>,
     /// Image scale at head height, pixels per metre.

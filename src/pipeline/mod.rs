@@ -1,8 +1,10 @@
 //! The whole job, from video to trajectories (orchestration over the stages; adapters for I/O).
 
+pub mod detectors;
 pub mod klt_pass;
 pub mod pose_outputs;
 pub mod project;
 pub mod registry;
 pub mod run;
 pub mod scan;
+pub mod settings;

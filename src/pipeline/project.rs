@@ -7,9 +7,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::io::{FileCtx, FileError};
 
-fn default_true() -> bool {
-    true
-}
+use super::settings::with_default_kind;
+pub use super::settings::{
+    AssociationSection, BackgroundSection, BodySettings, BoxesSection, ColourSection,
+    DetectSection, HoverSettings, KalmanRtsSection, KltSection, NoSmoothing, PoseSection,
+    SmoothSection, TrackSection,
+};
 
 /// The whole project.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -20,16 +23,16 @@ pub struct Project {
     pub camera: CameraSection,
     pub survey: SurveySection,
     pub video: VideoSection,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "with_default_kind")]
     pub pose: PoseSection,
     pub ground: GroundSection,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "with_default_kind")]
     pub detect: DetectSection,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "with_default_kind")]
     pub track: TrackSection,
     #[serde(default)]
     pub projection: ProjectionSection,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "with_default_kind")]
     pub smooth: SmoothSection,
     #[serde(default)]
     pub export: ExportSection,
@@ -90,41 +93,6 @@ pub struct VideoSection {
     pub duration_s: Option<f64>,
 }
 
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct PoseSection {
-    /// `hover`: a pose for every frame of a hovering camera (key frames, carried picks).
-    #[serde(default = "PoseSection::default_kind")]
-    pub kind: String,
-    /// The frame the picks were made on [default: from the picks' image name].
-    #[serde(default)]
-    pub picks_frame: Option<usize>,
-    #[serde(default = "PoseSection::default_min_features")]
-    pub min_features: usize,
-    #[serde(default = "PoseSection::default_key_fraction")]
-    pub key_fraction: f64,
-    #[serde(default)]
-    pub key_every_s: Option<f64>,
-}
-
-impl PoseSection {
-    fn default_kind() -> String {
-        "hover".into()
-    }
-    fn default_min_features() -> usize {
-        40
-    }
-    fn default_key_fraction() -> f64 {
-        0.5
-    }
-}
-
-impl Default for PoseSection {
-    fn default() -> Self {
-        toml::from_str("").expect("every field has a default")
-    }
-}
-
 /// The ground under the people.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
@@ -155,228 +123,6 @@ fn default_degree() -> usize {
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct DetectSection {
-    /// `colour`: coloured hats.
-    #[serde(default = "DetectSection::default_kind")]
-    pub kind: String,
-    #[serde(default = "DetectSection::default_colour")]
-    pub colour: [u8; 3],
-    #[serde(default = "DetectSection::default_clusters")]
-    pub clusters: usize,
-    #[serde(default = "DetectSection::default_sample_frames")]
-    pub sample_frames: usize,
-    #[serde(default = "DetectSection::default_hat")]
-    pub hat_diameter_m: f64,
-    #[serde(default = "DetectSection::default_hue")]
-    pub max_hue_difference_deg: f64,
-    #[serde(default = "DetectSection::default_sigma")]
-    pub centroid_sigma_px: f64,
-    #[serde(default)]
-    pub seed: u64,
-    // `boxes`: an external detector's boxes.
-    /// The box file (MOTChallenge txt, JSON Lines or COCO JSON).
-    pub boxes: Option<String>,
-    /// `mot`, `jsonl` or `coco`; guessed from the file when absent.
-    pub boxes_format: Option<String>,
-    #[serde(default = "DetectSection::default_min_score")]
-    pub min_score: f64,
-    /// Boxes are kept where their centre is inside `[x0, y0, x1, y1]`, pixels.
-    pub roi: Option<[f64; 4]>,
-    #[serde(default = "DetectSection::default_nms")]
-    pub nms_iou: f64,
-    #[serde(default = "DetectSection::default_merge")]
-    pub merge_iou: f64,
-    #[serde(default = "DetectSection::default_aspect")]
-    pub aspect: [f64; 2],
-    /// Limits on a box's longer side, metres at head height.
-    #[serde(default = "DetectSection::default_size")]
-    pub size_m: [f64; 2],
-    /// One person's length along a box, metres: boxes of two or more such lengths are split
-    /// (off unless given: seen obliquely, one person's box is long too).
-    pub person_m: Option<f64>,
-    /// Shadow samples `[frame, x, y, w, h]`, pixels: boxes mostly of that colour are dropped.
-    #[serde(default)]
-    pub shadow_samples: Vec<[f64; 5]>,
-    #[serde(default = "DetectSection::default_shadow_fraction")]
-    pub max_shadow_fraction: f64,
-    /// A body's radius seen from above, metres: the head is this far in from the box's end.
-    #[serde(default = "DetectSection::default_body_radius")]
-    pub body_radius_m: f64,
-    /// Detection error `[vertical, horizontal at the centre, horizontal at the left and right
-    /// edges]`, px² (the paper's section 4.1.3), for `boxes` and `background`
-    /// [default: `[10, 10, 20]`].
-    #[serde(default)]
-    pub error_px2: Option<[f64; 3]>,
-    /// Detection error as rows `[t, vertical, horizontal]` (px²) at places `t` across the image
-    /// (0 the vertical centre line, 1 the left and right edges), linear between them: what
-    /// `geostride fit-error` writes. Instead of `error_px2`.
-    #[serde(default)]
-    pub error_profile_px2: Option<Vec<[f64; 3]>>,
-    // `background`: background subtraction for a stationary camera.
-    /// `mog2` or `knn`.
-    #[serde(default = "DetectSection::default_method")]
-    pub method: String,
-    #[serde(default = "DetectSection::default_history")]
-    pub history: i32,
-    #[serde(default = "DetectSection::default_warmup")]
-    pub warmup_frames: usize,
-    #[serde(default = "DetectSection::default_min_area")]
-    pub min_area_m2: f64,
-    #[serde(default = "DetectSection::default_max_area")]
-    pub max_area_m2: f64,
-}
-
-impl DetectSection {
-    /// The detection error model these settings give (checked when the project is read).
-    pub fn error_model(&self) -> crate::detect::ErrorModel {
-        use crate::detect::ErrorModel;
-        match (&self.error_profile_px2, self.error_px2) {
-            (Some(rows), _) => ErrorModel::from_rows(rows).unwrap_or_default(),
-            (None, Some([v, hc, he])) => ErrorModel::paper(v, hc, he),
-            (None, None) => ErrorModel::default(),
-        }
-    }
-    fn default_min_score() -> f64 {
-        0.3
-    }
-    fn default_nms() -> f64 {
-        0.5
-    }
-    fn default_merge() -> f64 {
-        0.85
-    }
-    fn default_aspect() -> [f64; 2] {
-        [0.25, 4.0]
-    }
-    fn default_size() -> [f64; 2] {
-        // Seen obliquely, a whole body's box is long: up to about 2.5 m at a 4K frame's edge.
-        [0.25, 3.0]
-    }
-    fn default_shadow_fraction() -> f64 {
-        0.6
-    }
-    fn default_body_radius() -> f64 {
-        // Half a runner's length along the box (swinging arms and legs), from the simulator's
-        // bodies: 0.3 m left the head 0.25 m too far out at the image's sides.
-        0.55
-    }
-    fn default_method() -> String {
-        "mog2".into()
-    }
-    fn default_history() -> i32 {
-        300
-    }
-    fn default_warmup() -> usize {
-        25
-    }
-    fn default_min_area() -> f64 {
-        0.08
-    }
-    fn default_max_area() -> f64 {
-        4.0
-    }
-    fn default_kind() -> String {
-        "colour".into()
-    }
-    fn default_colour() -> [u8; 3] {
-        [255, 0, 255]
-    }
-    fn default_clusters() -> usize {
-        15
-    }
-    fn default_sample_frames() -> usize {
-        50
-    }
-    fn default_hat() -> f64 {
-        0.24
-    }
-    fn default_hue() -> f64 {
-        30.0
-    }
-    fn default_sigma() -> f64 {
-        0.5
-    }
-}
-
-impl Default for DetectSection {
-    fn default() -> Self {
-        toml::from_str("").expect("every field has a default")
-    }
-}
-
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct TrackSection {
-    /// `association`: global assignment with camera-motion-compensated prediction.
-    #[serde(default = "TrackSection::default_kind")]
-    pub kind: String,
-    /// Gate between prediction and detection, metres at head height.
-    #[serde(default = "TrackSection::default_gate")]
-    pub gate_m: f64,
-    #[serde(default = "TrackSection::default_confirm")]
-    pub confirm_frames: usize,
-    /// Longest gap a track survives, seconds.
-    #[serde(default = "TrackSection::default_gap")]
-    pub max_gap_s: f64,
-    /// Tracks shorter than this are dropped, seconds.
-    #[serde(default = "TrackSection::default_min")]
-    pub min_length_s: f64,
-    // `klt`: feature tracking.
-    /// Lucas–Kanade window side, full-resolution pixels.
-    #[serde(default = "TrackSection::default_window")]
-    pub window_px: f64,
-    #[serde(default = "TrackSection::default_levels")]
-    pub levels: i32,
-    #[serde(default = "TrackSection::default_min_features")]
-    pub min_features: usize,
-    #[serde(default = "TrackSection::default_max_features")]
-    pub max_features: usize,
-    /// Tracks with fewer detections than this are dropped.
-    #[serde(default = "TrackSection::default_min_hits")]
-    pub min_hits: usize,
-}
-
-impl TrackSection {
-    fn default_kind() -> String {
-        "association".into()
-    }
-    fn default_gate() -> f64 {
-        0.35
-    }
-    fn default_confirm() -> usize {
-        3
-    }
-    fn default_gap() -> f64 {
-        0.5
-    }
-    fn default_min() -> f64 {
-        0.5
-    }
-    fn default_window() -> f64 {
-        50.0
-    }
-    fn default_levels() -> i32 {
-        3
-    }
-    fn default_min_features() -> usize {
-        5
-    }
-    fn default_max_features() -> usize {
-        40
-    }
-    fn default_min_hits() -> usize {
-        5
-    }
-}
-
-impl Default for TrackSection {
-    fn default() -> Self {
-        toml::from_str("").expect("every field has a default")
-    }
-}
-
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
 pub struct ProjectionSection {
     /// Head height above the ground when a person's is not known, metres, and its σ.
     #[serde(default = "ProjectionSection::default_height")]
@@ -398,44 +144,6 @@ impl ProjectionSection {
 }
 
 impl Default for ProjectionSection {
-    fn default() -> Self {
-        toml::from_str("").expect("every field has a default")
-    }
-}
-
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct SmoothSection {
-    /// `kalman_rts`, or `none` to keep the projected points.
-    #[serde(default = "SmoothSection::default_kind")]
-    pub kind: String,
-    #[serde(default = "default_true")]
-    pub em: bool,
-    /// `white_acceleration`, `full` or `diagonal`.
-    #[serde(default = "SmoothSection::default_model")]
-    pub model: String,
-    #[serde(default = "SmoothSection::default_qp")]
-    pub q_position_m: f64,
-    #[serde(default = "SmoothSection::default_qv")]
-    pub q_velocity_m_s: f64,
-}
-
-impl SmoothSection {
-    fn default_kind() -> String {
-        "kalman_rts".into()
-    }
-    fn default_model() -> String {
-        "white_acceleration".into()
-    }
-    fn default_qp() -> f64 {
-        0.5
-    }
-    fn default_qv() -> f64 {
-        0.25
-    }
-}
-
-impl Default for SmoothSection {
     fn default() -> Self {
         toml::from_str("").expect("every field has a default")
     }
@@ -488,6 +196,50 @@ pub fn key_line(text: &str, section: &str, key: &str) -> Option<usize> {
     None
 }
 
+/// The line of a stage section's error: serde reports a tagged section's errors at its
+/// `[section]` line; an unknown key or kind is found on its own line below it.
+fn within_section(text: &str, line: usize, message: &str) -> usize {
+    let Some(header) = text.lines().nth(line - 1) else {
+        return line;
+    };
+    let Some(section) = header
+        .trim()
+        .strip_prefix('[')
+        .and_then(|h| h.strip_suffix(']'))
+    else {
+        return line;
+    };
+    let quoted = |after: &str| {
+        message
+            .split_once(after)
+            .and_then(|(_, rest)| rest.split('`').next())
+            .map(str::to_string)
+    };
+    if let Some(key) = quoted("unknown field `") {
+        return key_line(text, section.trim(), &key).unwrap_or(line);
+    }
+    if let Some(value) = quoted("unknown variant `") {
+        let mut in_section = false;
+        for (i, l) in text.lines().enumerate().skip(line - 1) {
+            let l = l.trim();
+            if l.starts_with('[') {
+                if in_section {
+                    break;
+                }
+                in_section = true;
+                continue;
+            }
+            let v = l
+                .split_once('=')
+                .map(|(_, v)| v.split('#').next().unwrap_or("").trim());
+            if v.is_some_and(|v| v.trim_matches(|c| c == '"' || c == '\'') == value) {
+                return i + 1;
+            }
+        }
+    }
+    line
+}
+
 /// A project read from its file, with the folder its paths are relative to.
 #[derive(Clone, Debug)]
 pub struct Loaded {
@@ -524,9 +276,7 @@ impl Loaded {
         if let Some(h) = &p.projection.heights {
             files.push(("projection.heights", self.resolve(h)));
         }
-        if p.detect.kind == "boxes"
-            && let Some(b) = &p.detect.boxes
-        {
+        if let Some(b) = p.detect.boxes_file() {
             files.push(("detect.boxes", self.resolve(b)));
         }
         if let GroundSection::Dem { path } = &p.ground {
@@ -567,7 +317,8 @@ pub fn parse(path: &Path, text: String) -> Result<Loaded, FileError> {
     let project: Project = toml::from_str(&text).map_err(|e| {
         let line = e
             .span()
-            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+            .map(|l| within_section(&text, l, e.message()));
         ctx.err(line, None, format!("not a valid project: {}", e.message()))
     })?;
     let l = Loaded {
@@ -629,25 +380,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if p.video.duration_s.is_some_and(|d| !(d > 0.0)) {
         return Err(l.error("video", "duration_s", "must be positive"));
     }
-    if p.pose.kind != "hover" {
-        return Err(l.error(
-            "pose",
-            "kind",
-            format!(
-                "expected 'hover' (a hovering camera), got '{}'",
-                p.pose.kind
-            ),
-        ));
-    }
-    if !(0.0..=1.0).contains(&p.pose.key_fraction) {
-        return Err(l.error("pose", "key_fraction", "expected a fraction from 0 to 1"));
-    }
-    if p.pose.key_every_s.is_some_and(|s| !(s > 0.0)) {
-        return Err(l.error("pose", "key_every_s", "must be positive"));
-    }
-    if p.pose.min_features < 4 {
-        return Err(l.error("pose", "min_features", "must be at least 4"));
-    }
+    p.pose.check().map_err(|(key, m)| l.error("pose", key, m))?;
     match &p.ground {
         GroundSection::Deck {
             centre_line,
@@ -696,138 +429,20 @@ fn check(l: &Loaded) -> Result<(), FileError> {
 
 /// The `[detect]` section's checks.
 fn check_detect(l: &Loaded) -> Result<(), FileError> {
-    let p = &l.project;
-    if !super::registry::DETECTORS.contains(&p.detect.kind.as_str()) {
-        return Err(l.error(
-            "detect",
-            "kind",
-            format!(
-                "expected one of {:?}, got '{}'",
-                super::registry::DETECTORS,
-                p.detect.kind
-            ),
-        ));
+    let d = &l.project.detect;
+    d.check().map_err(|(key, m)| l.error("detect", key, m))?;
+    match d.boxes_file() {
+        Some(b) => exists(l, "detect", "boxes", b),
+        None => Ok(()),
     }
-    if p.detect.kind == "boxes" {
-        match &p.detect.boxes {
-            Some(b) => exists(l, "detect", "boxes", b)?,
-            None => {
-                return Err(l.error(
-                    "detect",
-                    "boxes",
-                    "the 'boxes' detector needs a box file: boxes = \"detections.txt\"",
-                ));
-            }
-        }
-    }
-    if let Some(f) = &p.detect.boxes_format
-        && crate::detect::boxes::BoxFormat::parse(f).is_none()
-    {
-        return Err(l.error(
-            "detect",
-            "boxes_format",
-            "expected 'mot', 'jsonl' or 'coco'",
-        ));
-    }
-    if !["mog2", "knn"].contains(&p.detect.method.as_str()) {
-        return Err(l.error("detect", "method", "expected 'mog2' or 'knn'"));
-    }
-    if p.detect
-        .error_px2
-        .is_some_and(|e| e.iter().any(|v| !(v.is_finite() && *v > 0.0)))
-    {
-        return Err(l.error(
-            "detect",
-            "error_px2",
-            "expected three positive variances, px²",
-        ));
-    }
-    if let Some(rows) = &p.detect.error_profile_px2 {
-        if p.detect.error_px2.is_some() {
-            return Err(l.error(
-                "detect",
-                "error_profile_px2",
-                "give error_px2 or error_profile_px2, not both",
-            ));
-        }
-        if crate::detect::ErrorModel::from_rows(rows).is_none() {
-            return Err(l.error(
-                "detect",
-                "error_profile_px2",
-                "expected rows [t, vertical, horizontal]: t rising within 0 to 1, positive \
-                 variances in px² (as geostride fit-error writes them)",
-            ));
-        }
-    }
-    if !(2..=64).contains(&p.detect.clusters) {
-        return Err(l.error("detect", "clusters", "expected 2 to 64"));
-    }
-    if p.detect.sample_frames == 0 {
-        return Err(l.error("detect", "sample_frames", "must be at least 1"));
-    }
-    if !(p.detect.hat_diameter_m > 0.0) {
-        return Err(l.error("detect", "hat_diameter_m", "must be positive"));
-    }
-    if p.detect.sample_frames > 10_000 {
-        return Err(l.error("detect", "sample_frames", "at most 10000"));
-    }
-    if !(p.detect.max_hue_difference_deg > 0.0 && p.detect.max_hue_difference_deg <= 180.0) {
-        return Err(l.error(
-            "detect",
-            "max_hue_difference_deg",
-            "expected an angle from 0 to 180°",
-        ));
-    }
-    if !(p.detect.centroid_sigma_px > 0.0) {
-        return Err(l.error("detect", "centroid_sigma_px", "must be positive"));
-    }
-    if !(p.detect.body_radius_m >= 0.0) {
-        return Err(l.error("detect", "body_radius_m", "must not be negative"));
-    }
-    if p.detect.person_m.is_some_and(|m| !(m > 0.0)) {
-        return Err(l.error("detect", "person_m", "must be positive"));
-    }
-    Ok(())
 }
 
 /// The checks of `[track]`, `[projection]`, `[smooth]` and `[export]`.
 fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
     let p = &l.project;
-    if !super::registry::TRACKERS.contains(&p.track.kind.as_str()) {
-        return Err(l.error(
-            "track",
-            "kind",
-            format!(
-                "expected one of {:?}, got '{}'",
-                super::registry::TRACKERS,
-                p.track.kind
-            ),
-        ));
-    }
-    if !(p.track.gate_m > 0.0) || p.track.confirm_frames == 0 || !(p.track.max_gap_s >= 0.0) {
-        return Err(l.error(
-            "track",
-            "gate_m",
-            "gate_m must be positive, confirm_frames at least 1, max_gap_s not negative",
-        ));
-    }
-    if !(p.track.window_px >= 5.0) || !(0..=6).contains(&p.track.levels) {
-        return Err(l.error(
-            "track",
-            "window_px",
-            "window_px must be at least 5 and levels 0 to 6",
-        ));
-    }
-    if !(p.track.min_length_s >= 0.0) {
-        return Err(l.error("track", "min_length_s", "must not be negative"));
-    }
-    if p.track.min_features == 0 || p.track.max_features < p.track.min_features {
-        return Err(l.error(
-            "track",
-            "min_features",
-            "min_features must be at least 1 and no more than max_features",
-        ));
-    }
+    p.track
+        .check()
+        .map_err(|(key, m)| l.error("track", key, m))?;
     let height_ok = p.projection.head_height_m > 0.0 && p.projection.head_height_m < 3.0;
     let sd_ok = p.projection.head_height_sd_m >= 0.0;
     if !(height_ok && sd_ok) {
@@ -840,29 +455,9 @@ fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
     if let Some(h) = &p.projection.heights {
         exists(l, "projection", "heights", h)?;
     }
-    if !super::registry::SMOOTHERS.contains(&p.smooth.kind.as_str()) {
-        return Err(l.error(
-            "smooth",
-            "kind",
-            format!("expected 'kalman_rts' or 'none', got '{}'", p.smooth.kind),
-        ));
-    }
-    if !(p.smooth.q_position_m > 0.0) {
-        return Err(l.error("smooth", "q_position_m", "must be positive"));
-    }
-    if !(p.smooth.q_velocity_m_s > 0.0) {
-        return Err(l.error("smooth", "q_velocity_m_s", "must be positive"));
-    }
-    if p.smooth.model.parse::<crate::smooth::NoiseModel>().is_err() {
-        return Err(l.error(
-            "smooth",
-            "model",
-            format!(
-                "expected 'white_acceleration', 'full' or 'diagonal', got '{}'",
-                p.smooth.model
-            ),
-        ));
-    }
+    p.smooth
+        .check()
+        .map_err(|(key, m)| l.error("smooth", key, m))?;
     for f in &p.export.formats {
         if !["csv", "geojson", "gpkg", "petrack", "mot", "detections"].contains(&f.as_str()) {
             return Err(l.error(
@@ -907,5 +502,49 @@ mod tests {
         assert_eq!(key_line(text, "detect", "clusters"), Some(7));
         assert_eq!(key_line(text, "camera", ""), Some(2));
         assert_eq!(key_line(text, "detect", "colour"), None);
+    }
+
+    const BASE: &str = "name = \"x\"\n[camera]\ncalibration = \"mini3pro\"\n[survey]\ngcps = \"g.csv\"\n[video]\npath = \"v.mp4\"\n[ground]\nkind = \"plane\"\n";
+
+    fn error_of(extra: &str) -> FileError {
+        parse(Path::new("p.toml"), format!("{BASE}{extra}")).unwrap_err()
+    }
+
+    #[test]
+    fn a_section_without_kind_takes_the_default_kind() {
+        let p: Project = toml::from_str(&format!(
+            "{BASE}[detect]\nclusters = 9\n[smooth]\nem = false\n"
+        ))
+        .unwrap();
+        match &p.detect {
+            DetectSection::Colour(c) => assert_eq!(c.clusters, 9),
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(&p.smooth, SmoothSection::KalmanRts(k) if !k.em));
+        assert_eq!(p.track, TrackSection::default());
+        assert_eq!(p.pose, PoseSection::default());
+    }
+
+    #[test]
+    fn a_key_of_another_kind_is_refused_with_its_line() {
+        let e = error_of("[detect]\nkind = \"boxes\"\nboxes = \"b.txt\"\nclusters = 15\n");
+        assert!(e.message.contains("unknown field `clusters`"), "{e}");
+        assert_eq!(e.line, Some(13), "{e}");
+        let e = error_of("[smooth]\nkind = \"none\"\n\nem = true\n");
+        assert!(e.message.contains("unknown field `em`"), "{e}");
+        assert_eq!(e.line, Some(13), "{e}");
+    }
+
+    #[test]
+    fn an_unknown_kind_lists_the_kinds() {
+        let e = error_of("[detect]\nkind = \"yolo\"\n");
+        assert!(
+            e.message.contains("colour") && e.message.contains("background"),
+            "{e}"
+        );
+        assert_eq!(e.line, Some(11), "{e}");
+        let e = error_of("[smooth]\nmodel = \"fancy\"\n");
+        assert!(e.message.contains("white_acceleration"), "{e}");
+        assert_eq!(e.line, Some(11), "{e}");
     }
 }

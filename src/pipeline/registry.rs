@@ -1,51 +1,65 @@
-//! The stages' implementations by the names a project file uses: adding a detector, a tracker or
-//! a smoother is adding a line here (and its settings to the project file).
+//! The one place where a project's stage settings choose an implementation: adding a detector,
+//! a tracker or a smoother is a variant in `settings`, its module, and an arm here (the matches
+//! are exhaustive, so the compiler lists every place a new kind must be handled).
 
+use super::detectors::{self, DetectorInputs};
+use super::run::RunError;
+use super::settings::{DetectSection, KltSection, SmoothSection, TrackSection};
 use crate::detect::Detector;
-use crate::detect::colour::{ColourSettings, LearningColourDetector};
 use crate::smooth::{KalmanRts, SmoothSettings, Smoother, Unsmoothed};
 use crate::track::Tracker;
 use crate::track::association::{AssociationSettings, AssociationTracker};
 
-/// The detectors, by name.
-pub const DETECTORS: [&str; 3] = ["colour", "boxes", "background"];
-/// The trackers, by name.
-pub const TRACKERS: [&str; 2] = ["association", "klt"];
-/// The smoothers, by name.
-pub const SMOOTHERS: [&str; 2] = ["kalman_rts", "none"];
-
-/// Memory the colour detector may fill with frames held back while it learns its palette.
-pub const COLOUR_BUDGET_BYTES: usize = 1 << 30;
-
-/// A colour detector that learns its palette from `sample_frames` frames drawn from the
-/// `frames` of the video as it goes by (every 97th pixel of each).
-pub fn colour_detector(
-    settings: ColourSettings,
-    frames: Option<usize>,
-    sample_frames: usize,
-) -> Box<dyn Detector> {
-    Box::new(LearningColourDetector::new(
-        settings,
-        frames,
-        sample_frames,
-        97,
-        COLOUR_BUDGET_BYTES,
-    ))
-}
-
-/// A tracker by name.
-pub fn tracker(name: &str, settings: AssociationSettings) -> Option<Box<dyn Tracker>> {
-    match name {
-        "association" => Some(Box::new(AssociationTracker::new(settings))),
-        _ => None,
+/// The detector of a project's `[detect]`.
+pub fn detector(d: &DetectSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
+    match d {
+        DetectSection::Colour(c) => Ok(detectors::colour(c, x.px_per_m, x.frames)),
+        DetectSection::Boxes(b) => detectors::boxes(b, x),
+        DetectSection::Background(b) => detectors::background(b, x),
     }
 }
 
-/// A smoother by name.
-pub fn smoother(name: &str, settings: SmoothSettings) -> Option<Box<dyn Smoother>> {
-    match name {
-        "kalman_rts" => Some(Box::new(KalmanRts(settings))),
-        "none" => Some(Box::new(Unsmoothed { dt: settings.dt })),
-        _ => None,
+/// A tracker: one fed frame by frame, or the KLT pass over the video.
+pub enum TrackerChoice<'a> {
+    Frames(Box<dyn Tracker>),
+    Klt(&'a KltSection),
+}
+
+/// The image scale and frame rate a tracker's settings are converted with.
+pub struct TrackScale {
+    pub px_per_m: f64,
+    pub fps: f64,
+    /// Detections closer than this are one person, pixels.
+    pub duplicate_px: f64,
+}
+
+/// The tracker of a project's `[track]`.
+pub fn tracker<'a>(t: &'a TrackSection, scale: &TrackScale) -> TrackerChoice<'a> {
+    match t {
+        TrackSection::Association(a) => {
+            TrackerChoice::Frames(Box::new(AssociationTracker::new(AssociationSettings {
+                gate_px: a.gate_m * scale.px_per_m,
+                confirm_hits: a.confirm_frames,
+                max_misses: (a.max_gap_s * scale.fps).round() as usize,
+                duplicate_px: scale.duplicate_px,
+                ..AssociationSettings::default()
+            })))
+        }
+        TrackSection::Klt(k) => TrackerChoice::Klt(k),
+    }
+}
+
+/// The smoother of a project's `[smooth]` for frames `dt` seconds apart.
+pub fn smoother(s: &SmoothSection, dt: f64) -> Box<dyn Smoother> {
+    match s {
+        SmoothSection::KalmanRts(k) => Box::new(KalmanRts(SmoothSettings {
+            dt,
+            q_position_m: k.q_position_m,
+            q_velocity_m_s: k.q_velocity_m_s,
+            em: k.em,
+            model: k.model,
+            ..SmoothSettings::default()
+        })),
+        SmoothSection::None(_) => Box::new(Unsmoothed { dt }),
     }
 }

@@ -34,7 +34,7 @@ pub struct State {
 }
 
 /// How `Q` is constrained in the M-step.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum NoiseModel {
     /// White acceleration noise per axis (continuous white-noise acceleration, spectral density

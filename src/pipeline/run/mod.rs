@@ -22,7 +22,6 @@ use super::project::{GroundSection, Loaded};
 use super::scan::{ScanError, ScanJob, ScanTimes, scan};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
-use crate::detect::colour::ColourSettings;
 use crate::export::gis::{Layers, write_trajectories};
 use crate::export::{
     PointCov, Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv,
@@ -35,7 +34,7 @@ use crate::pose::stabilise::{FrameTrack, StabiliseSettings};
 use crate::pose::{GcpObservation, PoseSettings, solve_pose};
 use crate::progress::Progress;
 use crate::projection::{WorldPoint, project};
-use crate::smooth::{Observation, SmoothSettings};
+use crate::smooth::Observation;
 use crate::survey::Role;
 use crate::survey::crs::{Crs, HeightKind, OperationInfo, Transform};
 use crate::survey::frame::Origin;
@@ -43,7 +42,6 @@ use crate::survey::load::{Framed, LoadOptions, load_framed};
 use crate::survey::read::{HeightChoice, ReadOptions};
 use crate::terrain::{DeckProfile, HeightSurface, Plane};
 use crate::track::ImageTrack;
-use crate::track::association::AssociationSettings;
 
 mod export_stage;
 mod pose_stage;
@@ -401,7 +399,7 @@ fn picked(
                 ),
             )
         })?;
-    let frame = match (l.project.pose.picks_frame, image.rsplit_once('#')) {
+    let frame = match (l.project.pose.picks_frame(), image.rsplit_once('#')) {
         (Some(f), _) => f,
         (None, Some((_, n))) => n.parse().map_err(|_| {
             input(
@@ -417,7 +415,7 @@ fn picked(
     if let Some(n) = frames
         && frame >= n
     {
-        let key = if l.project.pose.picks_frame.is_some() {
+        let key = if l.project.pose.picks_frame().is_some() {
             RunError::Input(
                 l.error(
                     "pose",
@@ -692,23 +690,17 @@ fn prepare<'a>(
             }
             _ => None,
         };
-    let detector = match p.detect.kind.as_str() {
-        "colour" => super::registry::colour_detector(
-            ColourSettings {
-                target_rgb: p.detect.colour,
-                clusters: p.detect.clusters,
-                max_hue_difference_deg: p.detect.max_hue_difference_deg,
-                seed: p.detect.seed,
-                hat_diameter_m: p.detect.hat_diameter_m,
-                px_per_m,
-                centroid_sigma_px: p.detect.centroid_sigma_px,
-                ..ColourSettings::default()
-            },
-            frames_total,
-            p.detect.sample_frames,
-        ),
-        _ => body_detector(l, &video, &camera, &first_pose, px_per_m, frames_total)?,
-    };
+    let detector = super::registry::detector(
+        &p.detect,
+        &super::detectors::DetectorInputs {
+            l,
+            video: &video,
+            camera: &camera,
+            first_pose: &first_pose,
+            px_per_m,
+            frames: frames_total,
+        },
+    )?;
 
     guard.create_dir(out).map_err(output_error)?;
     guard
@@ -862,15 +854,6 @@ fn wgs84_trajectories(
     })
 }
 
-/// The key a detector's errors are about.
-fn detector_key(kind: &str) -> &'static str {
-    match kind {
-        "colour" => "colour",
-        "boxes" => "boxes",
-        _ => "method",
-    }
-}
-
 /// An output path that cannot be used is the project's to fix; an I/O failure is not.
 fn output_error(e: crate::io::OutputError) -> RunError {
     match e {
@@ -879,122 +862,7 @@ fn output_error(e: crate::io::OutputError) -> RunError {
     }
 }
 
-/// A whole-body detector (`boxes` or `background`), its boxes turned into heads.
-fn body_detector(
-    l: &Loaded,
-    video: &Path,
-    camera: &Camera,
-    first_pose: &Rigid3,
-    px_per_m: f64,
-    frames: Option<usize>,
-) -> Result<Box<dyn crate::detect::Detector>, RunError> {
-    use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
-    use crate::detect::person::{BoxesDetector, HeadsFromBodies};
-    let d = &l.project.detect;
-    let input = |key: &str, e: String| RunError::Input(l.error("detect", key, e).to_string());
-    let inner: Box<dyn crate::detect::Detector> = if d.kind == "boxes" {
-        let path = l.resolve(d.boxes.as_deref().unwrap_or_default());
-        let format = d.boxes_format.as_deref().and_then(BoxFormat::parse);
-        let boxes = read_boxes(&path, format).map_err(|e| RunError::Input(e.to_string()))?;
-        if let Some(n) = frames
-            && !boxes.iter().any(|b| b.frame < n)
-        {
-            let first = boxes.iter().map(|b| b.frame).min().unwrap_or(0);
-            return Err(input(
-                "boxes",
-                format!(
-                    "none of the {} boxes is on one of the {n} frames processed (the first is on frame {first}, counting from 0): is it the box file of another video?",
-                    boxes.len()
-                ),
-            ));
-        }
-        let shadow = if d.shadow_samples.is_empty() {
-            None
-        } else {
-            let mut patches = Vec::new();
-            for s in &d.shadow_samples {
-                let whole = |v: f64| v >= 0.0 && v.fract() == 0.0 && v < 1e9;
-                if !s.iter().all(|v| whole(*v)) || s[3] < 1.0 || s[4] < 1.0 {
-                    return Err(input(
-                        "shadow_samples",
-                        format!(
-                            "expected [frame, x, y, width, height] in whole pixels, found {s:?}"
-                        ),
-                    ));
-                }
-                let frame = s[0] as usize;
-                if frames.is_some_and(|n| frame >= n) {
-                    return Err(input(
-                        "shadow_samples",
-                        format!("frame {frame} is beyond the frames processed"),
-                    ));
-                }
-                let bgr = crate::video::source::FrameReader::frame_bgr_bytes(video, frame)
-                    .map_err(|e| input("shadow_samples", e))?;
-                patches.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v as usize)));
-            }
-            let views: Vec<(crate::detect::FrameView, [usize; 4])> = patches
-                .iter()
-                .map(|((bgr, width, height), r)| {
-                    (
-                        crate::detect::FrameView {
-                            index: 0,
-                            width: *width,
-                            height: *height,
-                            bgr,
-                        },
-                        *r,
-                    )
-                })
-                .collect();
-            Some(ShadowModel::from_patches(&views).map_err(|e| input("shadow_samples", e))?)
-        };
-        let filter = BoxFilter {
-            min_score: d.min_score,
-            roi: d.roi,
-            merge_iou: d.merge_iou,
-            nms_iou: d.nms_iou,
-            aspect: d.aspect,
-            size_m: d.size_m,
-            person_m: d.person_m.unwrap_or(1.0),
-            max_split: if d.person_m.is_some() { 4 } else { 1 },
-            shadow,
-            max_shadow_fraction: d.max_shadow_fraction,
-            ..BoxFilter::new(px_per_m)
-        };
-        Box::new(BoxesDetector::new(boxes, filter).map_err(|e| input(e.key, e.to_string()))?)
-    } else {
-        use crate::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
-        let settings = BackgroundSettings {
-            method: if d.method == "knn" {
-                Subtractor::Knn
-            } else {
-                Subtractor::Mog2
-            },
-            history: d.history,
-            px_per_m,
-            min_area_m2: d.min_area_m2,
-            max_area_m2: d.max_area_m2,
-            warmup_frames: d.warmup_frames,
-            ..BackgroundSettings::default()
-        };
-        Box::new(BackgroundDetector::new(settings).map_err(|e| input("method", e))?)
-    };
-    // Where vertical lines meet: the image of a point straight below the camera.
-    let below = first_pose.centre() - nalgebra::Vector3::new(0.0, 0.0, 100.0);
-    let nadir = camera
-        .project(&first_pose.apply(&below))
-        .unwrap_or_else(|_| Vector2::new(camera.cx, camera.cy));
-    Ok(Box::new(HeadsFromBodies::new(
-        inner,
-        nadir,
-        d.body_radius_m * px_per_m,
-        d.error_model(),
-    )))
-}
-
-/// The `klt` tracker: a second decoding pass, features followed through every frame with the
-/// scan's detections and the solved poses.
+/// Known head heights from a heights file (`parse_heights`).
 fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
     let text = crate::io::FileCtx { path }.read_text("a CSV of heights")?;
     parse_heights(path, &text)

@@ -34,11 +34,11 @@ pub(super) fn scan_stage(
     let t0 = Instant::now();
     let (scan_data, status) = cached(&ctx.cache, ctx.progress, "scan", &scan_key, true, || {
         let detector = detector;
+        let crate::pipeline::settings::PoseSection::Hover(hover) = &p.pose;
         let stabilise = StabiliseSettings {
-            min_features: p.pose.min_features,
-            min_fraction: p.pose.key_fraction,
-            max_interval: p
-                .pose
+            min_features: hover.min_features,
+            min_fraction: hover.key_fraction,
+            max_interval: hover
                 .key_every_s
                 .map(|s| (s * fps).round().max(1.0) as usize),
             ..StabiliseSettings::default()
@@ -55,10 +55,9 @@ pub(super) fn scan_stage(
             bar.as_ref(),
         )
         .map_err(|e| match e {
-            ScanError::Detector(e) => RunError::Input(
-                l.error("detect", detector_key(&p.detect.kind), e)
-                    .to_string(),
-            ),
+            ScanError::Detector(e) => {
+                RunError::Input(l.error("detect", p.detect.failure_key(), e).to_string())
+            }
             ScanError::Other(e) => RunError::Failed(e),
         })?;
         let d = ScanData {

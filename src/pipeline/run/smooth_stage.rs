@@ -1,6 +1,7 @@
 //! Stage 5, `smooth`.
 
 use super::*;
+use crate::pipeline::settings::SmoothSection;
 
 /// Stage 5: smoothing, and each point's covariance by source.
 pub(super) fn smooth_stage(
@@ -9,7 +10,6 @@ pub(super) fn smooth_stage(
     world: &[WorldTrack],
     warnings: &mut Vec<String>,
 ) -> Result<(SmoothData, StageRecord), RunError> {
-    let l = ctx.l;
     let fps = ctx.fps;
     let framed = &ctx.framed;
     let transform = &ctx.transform;
@@ -51,27 +51,16 @@ pub(super) fn smooth_stage(
                         .collect()
                 })
                 .collect();
-            let s = SmoothSettings {
-                dt: 1.0 / fps,
-                q_position_m: p.smooth.q_position_m,
-                q_velocity_m_s: p.smooth.q_velocity_m_s,
-                em: p.smooth.em,
-                model: p.smooth.model.parse().map_err(RunError::Input)?,
-                ..SmoothSettings::default()
-            };
-            let smoother =
-                crate::pipeline::registry::smoother(&p.smooth.kind, s).ok_or_else(|| {
-                    RunError::Input(l.error("smooth", "kind", "unknown smoother").to_string())
-                })?;
+            let smoother = crate::pipeline::registry::smoother(&p.smooth, 1.0 / fps);
             let r = smoother.smooth(&obs);
             // What smoothing cannot average away: detection errors that persist over frames.
-            let persistent = if p.smooth.kind == "none" {
+            let persistent = if matches!(p.smooth, SmoothSection::None(_)) {
                 0.0
             } else {
                 crate::smooth::persistent_share(&obs, &r.tracks).unwrap_or(0.0)
             };
             let (states, iterations, converged) = (r.tracks, r.em_iterations, r.converged);
-            let q: Vec<f64> = if p.smooth.kind == "none" {
+            let q: Vec<f64> = if matches!(p.smooth, SmoothSection::None(_)) {
                 Vec::new()
             } else {
                 r.q.iter().copied().collect()

@@ -1,6 +1,7 @@
 //! Stage 3, `track`.
 
 use super::*;
+use crate::pipeline::registry::{TrackScale, TrackerChoice};
 
 /// Stage 3: image tracks.
 pub(super) fn track_stage(
@@ -10,7 +11,6 @@ pub(super) fn track_stage(
     scan_data: &ScanData,
     poses: &[Rigid3],
 ) -> Result<(Vec<ImageTrack>, String, StageRecord), RunError> {
-    let l = ctx.l;
     let progress = ctx.progress;
     let video = &ctx.video;
     let fps = ctx.fps;
@@ -33,41 +33,36 @@ pub(super) fn track_stage(
         };
         let bar = progress.stage("track");
         bar.set_length(scan_data.detections.len() as u64);
-        let tracks = if p.track.kind == "klt" {
-            crate::pipeline::klt_pass::klt_over_video(
+        let scale = TrackScale {
+            px_per_m,
+            fps,
+            duplicate_px: p.detect.duplicate_m() * px_per_m,
+        };
+        let tracks = match crate::pipeline::registry::tracker(&p.track, &scale) {
+            TrackerChoice::Klt(k) => crate::pipeline::klt_pass::klt_over_video(
                 &KltPass {
                     video,
                     detections: &scan_data.detections,
                     size: (scan_data.width, scan_data.height),
                     fps: scan_data.fps,
-                    track: &p.track,
-                    person_m: p.detect.person_m,
+                    track: k,
+                    person_m: p.detect.person_m(),
                     px_per_m,
                 },
                 &motion_at,
                 bar.as_ref(),
             )
-            .map_err(RunError::Failed)?
-        } else {
-            let settings = AssociationSettings {
-                gate_px: p.track.gate_m * px_per_m,
-                confirm_hits: p.track.confirm_frames,
-                max_misses: (p.track.max_gap_s * fps).round() as usize,
-                duplicate_px: p.detect.hat_diameter_m * px_per_m,
-                ..AssociationSettings::default()
-            };
-            let mut tracker = crate::pipeline::registry::tracker(&p.track.kind, settings)
-                .ok_or_else(|| {
-                    RunError::Input(l.error("track", "kind", "unknown tracker").to_string())
-                })?;
-            for (f, dets) in scan_data.detections.iter().enumerate() {
-                tracker.update(f, dets, &|uv: &Vector2<f64>| motion_at(f, uv));
-                bar.inc(1);
+            .map_err(RunError::Failed)?,
+            TrackerChoice::Frames(mut tracker) => {
+                for (f, dets) in scan_data.detections.iter().enumerate() {
+                    tracker.update(f, dets, &|uv: &Vector2<f64>| motion_at(f, uv));
+                    bar.inc(1);
+                }
+                tracker.finish()
             }
-            tracker.finish()
         };
         // Short tracks are mostly false alarms, unless the video's start or end cut them.
-        let min_frames = (p.track.min_length_s * fps).round() as usize;
+        let min_frames = (p.track.min_length_s() * fps).round() as usize;
         let last = scan_data.detections.len().saturating_sub(1);
         let tracks: Vec<ImageTrack> = tracks
             .into_iter()

@@ -1,0 +1,186 @@
+//! Each detector built from its `[detect]` settings and what the run knows by then (the
+//! video, the camera and its first pose, the image scale). `registry::detector` picks one.
+
+use std::path::Path;
+
+use nalgebra::Vector2;
+
+use super::project::Loaded;
+use super::run::RunError;
+use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSection};
+use crate::camera::Camera;
+use crate::detect::Detector;
+use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
+use crate::detect::colour::{ColourSettings, LearningColourDetector};
+use crate::detect::person::{BoxesDetector, HeadsFromBodies};
+use crate::geom::Rigid3;
+
+/// Memory the colour detector may fill with frames held back while it learns its palette.
+pub const COLOUR_BUDGET_BYTES: usize = 1 << 30;
+
+/// What a detector may need beside its settings.
+pub struct DetectorInputs<'a> {
+    pub l: &'a Loaded,
+    pub video: &'a Path,
+    pub camera: &'a Camera,
+    /// The pose of the picked frame.
+    pub first_pose: &'a Rigid3,
+    /// Image scale at head height, pixels per metre.
+    pub px_per_m: f64,
+    /// The frames processed, when known.
+    pub frames: Option<usize>,
+}
+
+impl DetectorInputs<'_> {
+    fn input(&self, key: &str, e: impl Into<String>) -> RunError {
+        RunError::Input(self.l.error("detect", key, e).to_string())
+    }
+}
+
+/// A colour detector that learns its palette from `sample_frames` frames drawn from the
+/// `frames` of the video as it goes by (every 97th pixel of each).
+pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dyn Detector> {
+    let settings = ColourSettings {
+        target_rgb: c.colour,
+        clusters: c.clusters,
+        max_hue_difference_deg: c.max_hue_difference_deg,
+        seed: c.seed,
+        hat_diameter_m: c.hat_diameter_m,
+        px_per_m,
+        centroid_sigma_px: c.centroid_sigma_px,
+        ..ColourSettings::default()
+    };
+    Box::new(LearningColourDetector::new(
+        settings,
+        frames,
+        c.sample_frames,
+        97,
+        COLOUR_BUDGET_BYTES,
+    ))
+}
+
+/// An external detector's boxes, filtered, their heads found.
+pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
+    let path = x.l.resolve(&b.boxes);
+    let format = b.boxes_format.as_deref().and_then(BoxFormat::parse);
+    let boxes = read_boxes(&path, format).map_err(|e| RunError::Input(e.to_string()))?;
+    if let Some(n) = x.frames
+        && !boxes.iter().any(|b| b.frame < n)
+    {
+        let first = boxes.iter().map(|b| b.frame).min().unwrap_or(0);
+        return Err(x.input(
+            "boxes",
+            format!(
+                "none of the {} boxes is on one of the {n} frames processed (the first is on frame {first}, counting from 0): is it the box file of another video?",
+                boxes.len()
+            ),
+        ));
+    }
+    let shadow = if b.shadow_samples.is_empty() {
+        None
+    } else {
+        Some(shadow_model(&b.shadow_samples, x)?)
+    };
+    let filter = BoxFilter {
+        min_score: b.min_score,
+        roi: b.roi,
+        merge_iou: b.merge_iou,
+        nms_iou: b.nms_iou,
+        aspect: b.aspect,
+        size_m: b.size_m,
+        person_m: b.person_m.unwrap_or(1.0),
+        max_split: if b.person_m.is_some() { 4 } else { 1 },
+        shadow,
+        max_shadow_fraction: b.max_shadow_fraction,
+        ..BoxFilter::new(x.px_per_m)
+    };
+    let inner = BoxesDetector::new(boxes, filter).map_err(|e| x.input(e.key, e.to_string()))?;
+    Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
+}
+
+/// The shadows' colours from patches `[frame, x, y, w, h]` of the video.
+fn shadow_model(samples: &[[f64; 5]], x: &DetectorInputs) -> Result<ShadowModel, RunError> {
+    let mut patches = Vec::new();
+    for s in samples {
+        let whole = |v: f64| v >= 0.0 && v.fract() == 0.0 && v < 1e9;
+        if !s.iter().all(|v| whole(*v)) || s[3] < 1.0 || s[4] < 1.0 {
+            return Err(x.input(
+                "shadow_samples",
+                format!("expected [frame, x, y, width, height] in whole pixels, found {s:?}"),
+            ));
+        }
+        let frame = s[0] as usize;
+        if x.frames.is_some_and(|n| frame >= n) {
+            return Err(x.input(
+                "shadow_samples",
+                format!("frame {frame} is beyond the frames processed"),
+            ));
+        }
+        let bgr = crate::video::source::FrameReader::frame_bgr_bytes(x.video, frame)
+            .map_err(|e| x.input("shadow_samples", e))?;
+        patches.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v as usize)));
+    }
+    let views: Vec<(crate::detect::FrameView, [usize; 4])> = patches
+        .iter()
+        .map(|((bgr, width, height), r)| {
+            (
+                crate::detect::FrameView {
+                    index: 0,
+                    width: *width,
+                    height: *height,
+                    bgr,
+                },
+                *r,
+            )
+        })
+        .collect();
+    ShadowModel::from_patches(&views).map_err(|e| x.input("shadow_samples", e))
+}
+
+/// Background subtraction (a stationary camera), its blobs' heads found.
+pub fn background(
+    b: &BackgroundSection,
+    x: &DetectorInputs,
+) -> Result<Box<dyn Detector>, RunError> {
+    let inner =
+        crate::detect::background::BackgroundDetector::new(background_settings(b, x.px_per_m))
+            .map_err(|e| x.input("method", e))?;
+    Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
+}
+
+/// The background detector's settings for a project's `[detect]` and image scale.
+pub fn background_settings(
+    b: &BackgroundSection,
+    px_per_m: f64,
+) -> crate::detect::background::BackgroundSettings {
+    crate::detect::background::BackgroundSettings {
+        method: b.method,
+        history: b.history,
+        px_per_m,
+        min_area_m2: b.min_area_m2,
+        max_area_m2: b.max_area_m2,
+        warmup_frames: b.warmup_frames,
+        ..crate::detect::background::BackgroundSettings::default()
+    }
+}
+
+/// A whole-body detector's boxes turned into heads: each moved `body_radius_m` in from the
+/// box's end away from the nadir.
+fn heads_from_bodies(
+    inner: Box<dyn Detector>,
+    body: &BodySettings,
+    x: &DetectorInputs,
+) -> Box<dyn Detector> {
+    // Where vertical lines meet: the image of a point straight below the camera.
+    let below = x.first_pose.centre() - nalgebra::Vector3::new(0.0, 0.0, 100.0);
+    let nadir = x
+        .camera
+        .project(&x.first_pose.apply(&below))
+        .unwrap_or_else(|_| Vector2::new(x.camera.cx, x.camera.cy));
+    Box::new(HeadsFromBodies::new(
+        inner,
+        nadir,
+        body.body_radius_m * x.px_per_m,
+        body.error_model(),
+    ))
+}

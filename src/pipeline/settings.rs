@@ -1,0 +1,629 @@
+//! The stages' settings as a project file gives them: one tagged enum per stage (`kind = ...`),
+//! each variant its own struct whose every key has one default (its `Default`). A key that is
+//! not one of its kind's is refused with its line. `pipeline::registry` maps each variant to its
+//! implementation.
+
+use serde::de::{DeserializeOwned, Error as _};
+use serde::{Deserialize, Deserializer, Serialize};
+
+/// A stage section whose `kind` may be left out.
+pub trait DefaultKind {
+    /// The kind of a section without one.
+    const DEFAULT_KIND: &'static str;
+}
+
+/// Reads a `kind`-tagged section, taking [`DefaultKind::DEFAULT_KIND`] when `kind` is absent.
+pub fn with_default_kind<'de, D, T>(d: D) -> Result<T, D::Error>
+where
+    D: Deserializer<'de>,
+    T: DeserializeOwned + DefaultKind,
+{
+    let mut table = toml::Table::deserialize(d)?;
+    table
+        .entry("kind")
+        .or_insert_with(|| T::DEFAULT_KIND.into());
+    T::deserialize(toml::Value::Table(table)).map_err(|e| D::Error::custom(e.message()))
+}
+
+// ---- pose ----
+
+/// `[pose]`: where each frame's camera pose comes from.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum PoseSection {
+    /// A hovering camera: key frames from the picked GCPs, carried to every frame.
+    Hover(HoverSettings),
+}
+
+impl DefaultKind for PoseSection {
+    const DEFAULT_KIND: &'static str = "hover";
+}
+
+impl Default for PoseSection {
+    fn default() -> Self {
+        PoseSection::Hover(HoverSettings::default())
+    }
+}
+
+impl PoseSection {
+    /// The frame the picks were made on, when the project says.
+    pub fn picks_frame(&self) -> Option<usize> {
+        match self {
+            PoseSection::Hover(h) => h.picks_frame,
+        }
+    }
+}
+
+/// `[pose] kind = "hover"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct HoverSettings {
+    /// The frame the picks were made on [default: from the picks' image name].
+    pub picks_frame: Option<usize>,
+    /// A new key frame when fewer features than this are left.
+    pub min_features: usize,
+    /// ... or fewer than this fraction of the key frame's.
+    pub key_fraction: f64,
+    /// ... or this long after the last one, seconds.
+    pub key_every_s: Option<f64>,
+}
+
+impl Default for HoverSettings {
+    fn default() -> Self {
+        HoverSettings {
+            picks_frame: None,
+            min_features: 40,
+            key_fraction: 0.5,
+            key_every_s: None,
+        }
+    }
+}
+
+// ---- detect ----
+
+/// `[detect]`: the detector.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum DetectSection {
+    /// Coloured hats (the paper's 3.1.1).
+    Colour(ColourSection),
+    /// An external detector's boxes.
+    Boxes(BoxesSection),
+    /// Background subtraction for a stationary camera.
+    Background(BackgroundSection),
+}
+
+impl DefaultKind for DetectSection {
+    const DEFAULT_KIND: &'static str = "colour";
+}
+
+impl Default for DetectSection {
+    fn default() -> Self {
+        DetectSection::Colour(ColourSection::default())
+    }
+}
+
+/// Two detections closer than a hat's diameter are one, for detectors without a hat size.
+pub const DEFAULT_HAT_DIAMETER_M: f64 = 0.24;
+
+impl DetectSection {
+    /// The `kind` key's value.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            DetectSection::Colour(_) => "colour",
+            DetectSection::Boxes(_) => "boxes",
+            DetectSection::Background(_) => "background",
+        }
+    }
+
+    /// The key a detector's failure is reported against.
+    pub fn failure_key(&self) -> &'static str {
+        match self {
+            DetectSection::Colour(_) => "colour",
+            DetectSection::Boxes(_) => "boxes",
+            DetectSection::Background(_) => "method",
+        }
+    }
+
+    /// Detections closer than this are one person, metres at head height.
+    pub fn duplicate_m(&self) -> f64 {
+        match self {
+            DetectSection::Colour(c) => c.hat_diameter_m,
+            _ => DEFAULT_HAT_DIAMETER_M,
+        }
+    }
+
+    /// One person's length along a box, metres, where the detector gives bodies and says.
+    pub fn person_m(&self) -> Option<f64> {
+        match self {
+            DetectSection::Colour(_) => None,
+            DetectSection::Boxes(b) => b.person_m,
+            DetectSection::Background(b) => b.person_m,
+        }
+    }
+
+    /// The box file, for `boxes`.
+    pub fn boxes_file(&self) -> Option<&str> {
+        match self {
+            DetectSection::Boxes(b) => Some(&b.boxes),
+            _ => None,
+        }
+    }
+}
+
+/// `[detect] kind = "colour"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ColourSection {
+    /// The hats' colour, sRGB.
+    pub colour: [u8; 3],
+    /// k-means clusters of the palette.
+    pub clusters: usize,
+    /// Frames the palette is learnt from, drawn at random (seeded by `seed`).
+    pub sample_frames: usize,
+    pub hat_diameter_m: f64,
+    pub max_hue_difference_deg: f64,
+    /// σ of a hat's centre, pixels.
+    pub centroid_sigma_px: f64,
+    pub seed: u64,
+}
+
+impl Default for ColourSection {
+    fn default() -> Self {
+        ColourSection {
+            colour: [255, 0, 255],
+            clusters: 15,
+            sample_frames: 50,
+            hat_diameter_m: DEFAULT_HAT_DIAMETER_M,
+            max_hue_difference_deg: 30.0,
+            centroid_sigma_px: 0.5,
+            seed: 0,
+        }
+    }
+}
+
+/// What a whole-body detector's boxes become: a head, with an error model (the keys that
+/// `boxes` and `background` share).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BodySettings {
+    pub body_radius_m: f64,
+    pub person_m: Option<f64>,
+    pub error_px2: Option<[f64; 3]>,
+    pub error_profile_px2: Option<Vec<[f64; 3]>>,
+}
+
+/// Half a runner's length along the box (swinging arms and legs), from the simulator's bodies:
+/// 0.3 m left the head 0.25 m too far out at the image's sides.
+pub const DEFAULT_BODY_RADIUS_M: f64 = 0.55;
+
+impl BodySettings {
+    /// The detection error model these settings give (checked when the project is read).
+    pub fn error_model(&self) -> crate::detect::ErrorModel {
+        use crate::detect::ErrorModel;
+        match (&self.error_profile_px2, self.error_px2) {
+            (Some(rows), _) => ErrorModel::from_rows(rows).unwrap_or_default(),
+            (None, Some([v, hc, he])) => ErrorModel::paper(v, hc, he),
+            (None, None) => ErrorModel::default(),
+        }
+    }
+}
+
+/// `[detect] kind = "boxes"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct BoxesSection {
+    /// The box file (MOTChallenge txt, JSON Lines or COCO JSON); required.
+    pub boxes: String,
+    /// `mot`, `jsonl` or `coco`; guessed from the file when absent.
+    pub boxes_format: Option<String>,
+    pub min_score: f64,
+    /// Boxes are kept where their centre is inside `[x0, y0, x1, y1]`, pixels.
+    pub roi: Option<[f64; 4]>,
+    pub nms_iou: f64,
+    pub merge_iou: f64,
+    /// Limits on a box's aspect ratio.
+    pub aspect: [f64; 2],
+    /// Limits on a box's longer side, metres at head height.
+    pub size_m: [f64; 2],
+    /// Shadow samples `[frame, x, y, w, h]`, pixels: boxes mostly of that colour are dropped.
+    pub shadow_samples: Vec<[f64; 5]>,
+    pub max_shadow_fraction: f64,
+    /// A body's radius seen from above, metres: the head is this far in from the box's end.
+    pub body_radius_m: f64,
+    /// One person's length along a box, metres: boxes of two or more such lengths are split
+    /// (off unless given: seen obliquely, one person's box is long too).
+    pub person_m: Option<f64>,
+    /// Detection error `[vertical, horizontal at the centre, horizontal at the left and right
+    /// edges]`, px² (the paper's section 4.1.3) [default: `[10, 10, 20]`].
+    pub error_px2: Option<[f64; 3]>,
+    /// Detection error as rows `[t, vertical, horizontal]` (px²) at places `t` across the image
+    /// (0 the vertical centre line, 1 the left and right edges), linear between them: what
+    /// `geostride fit-error` writes. Instead of `error_px2`.
+    pub error_profile_px2: Option<Vec<[f64; 3]>>,
+}
+
+impl Default for BoxesSection {
+    fn default() -> Self {
+        BoxesSection {
+            boxes: String::new(),
+            boxes_format: None,
+            min_score: 0.3,
+            roi: None,
+            nms_iou: 0.5,
+            merge_iou: 0.85,
+            aspect: [0.25, 4.0],
+            // Seen obliquely, a whole body's box is long: up to about 2.5 m at a 4K frame's edge.
+            size_m: [0.25, 3.0],
+            shadow_samples: Vec::new(),
+            max_shadow_fraction: 0.6,
+            body_radius_m: DEFAULT_BODY_RADIUS_M,
+            person_m: None,
+            error_px2: None,
+            error_profile_px2: None,
+        }
+    }
+}
+
+/// `[detect] kind = "background"`: the body keys as for `boxes`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct BackgroundSection {
+    pub method: crate::detect::background::Subtractor,
+    /// Frames the background model remembers.
+    pub history: i32,
+    /// Frames before detections are trusted.
+    pub warmup_frames: usize,
+    /// Limits on a foreground blob's area, m² at head height.
+    pub min_area_m2: f64,
+    pub max_area_m2: f64,
+    pub body_radius_m: f64,
+    pub person_m: Option<f64>,
+    pub error_px2: Option<[f64; 3]>,
+    pub error_profile_px2: Option<Vec<[f64; 3]>>,
+}
+
+impl Default for BackgroundSection {
+    fn default() -> Self {
+        BackgroundSection {
+            method: crate::detect::background::Subtractor::Mog2,
+            history: 300,
+            warmup_frames: 25,
+            min_area_m2: 0.08,
+            max_area_m2: 4.0,
+            body_radius_m: DEFAULT_BODY_RADIUS_M,
+            person_m: None,
+            error_px2: None,
+            error_profile_px2: None,
+        }
+    }
+}
+
+/// The body keys of `boxes` and `background`, gathered.
+macro_rules! body_settings {
+    ($t:ty) => {
+        impl $t {
+            /// The keys about bodies.
+            pub fn body(&self) -> BodySettings {
+                BodySettings {
+                    body_radius_m: self.body_radius_m,
+                    person_m: self.person_m,
+                    error_px2: self.error_px2,
+                    error_profile_px2: self.error_profile_px2.clone(),
+                }
+            }
+        }
+    };
+}
+body_settings!(BoxesSection);
+body_settings!(BackgroundSection);
+
+// ---- track ----
+
+/// `[track]`: the tracker.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum TrackSection {
+    /// Global assignment with camera-motion-compensated prediction.
+    Association(AssociationSection),
+    /// Features followed through every frame (a second decoding pass).
+    Klt(KltSection),
+}
+
+impl DefaultKind for TrackSection {
+    const DEFAULT_KIND: &'static str = "association";
+}
+
+impl Default for TrackSection {
+    fn default() -> Self {
+        TrackSection::Association(AssociationSection::default())
+    }
+}
+
+impl TrackSection {
+    /// Tracks shorter than this are dropped, seconds.
+    pub fn min_length_s(&self) -> f64 {
+        match self {
+            TrackSection::Association(a) => a.min_length_s,
+            TrackSection::Klt(k) => k.min_length_s,
+        }
+    }
+}
+
+/// `[track] kind = "association"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct AssociationSection {
+    /// Gate between prediction and detection, metres at head height.
+    pub gate_m: f64,
+    /// Detections before a track is confirmed.
+    pub confirm_frames: usize,
+    /// Longest gap a track survives, seconds.
+    pub max_gap_s: f64,
+    /// Tracks shorter than this are dropped, seconds.
+    pub min_length_s: f64,
+}
+
+impl Default for AssociationSection {
+    fn default() -> Self {
+        AssociationSection {
+            gate_m: 0.35,
+            confirm_frames: 3,
+            max_gap_s: 0.5,
+            min_length_s: 0.5,
+        }
+    }
+}
+
+/// `[track] kind = "klt"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct KltSection {
+    /// Gate between a track's box and a detection, metres at head height.
+    pub gate_m: f64,
+    /// Longest gap a track survives, seconds.
+    pub max_gap_s: f64,
+    /// Tracks shorter than this are dropped, seconds.
+    pub min_length_s: f64,
+    /// Lucas–Kanade window side, full-resolution pixels.
+    pub window_px: f64,
+    /// Pyramid levels.
+    pub levels: i32,
+    /// Features per track: fewer and it is topped up, at most this many.
+    pub min_features: usize,
+    pub max_features: usize,
+    /// Tracks with fewer detections than this are dropped.
+    pub min_hits: usize,
+}
+
+impl Default for KltSection {
+    fn default() -> Self {
+        KltSection {
+            gate_m: 0.35,
+            max_gap_s: 0.5,
+            min_length_s: 0.5,
+            window_px: 50.0,
+            levels: 3,
+            min_features: 5,
+            max_features: 40,
+            min_hits: 5,
+        }
+    }
+}
+
+// ---- smooth ----
+
+/// `[smooth]`: the smoother.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum SmoothSection {
+    /// Kalman filter and RTS smoother per track, process noise by EM.
+    KalmanRts(KalmanRtsSection),
+    /// The projected points as they are.
+    None(NoSmoothing),
+}
+
+impl DefaultKind for SmoothSection {
+    const DEFAULT_KIND: &'static str = "kalman_rts";
+}
+
+impl Default for SmoothSection {
+    fn default() -> Self {
+        SmoothSection::KalmanRts(KalmanRtsSection::default())
+    }
+}
+
+/// `[smooth] kind = "kalman_rts"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct KalmanRtsSection {
+    /// Estimate the process noise by EM.
+    pub em: bool,
+    /// How the process noise is constrained.
+    pub model: crate::smooth::NoiseModel,
+    /// Initial process noise, σ per step.
+    pub q_position_m: f64,
+    pub q_velocity_m_s: f64,
+}
+
+impl Default for KalmanRtsSection {
+    fn default() -> Self {
+        KalmanRtsSection {
+            em: true,
+            model: crate::smooth::NoiseModel::WhiteAcceleration,
+            q_position_m: 0.5,
+            q_velocity_m_s: 0.25,
+        }
+    }
+}
+
+/// `[smooth] kind = "none"`: no keys.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NoSmoothing {}
+
+// ---- checks ----
+
+/// A bad value: its key and what was expected.
+pub type Bad = (&'static str, String);
+
+fn bad(key: &'static str, message: &str) -> Result<(), Bad> {
+    Err((key, message.to_string()))
+}
+
+impl PoseSection {
+    /// The values' checks (the types are serde's).
+    pub fn check(&self) -> Result<(), Bad> {
+        match self {
+            PoseSection::Hover(h) => {
+                if !(0.0..=1.0).contains(&h.key_fraction) {
+                    return bad("key_fraction", "expected a fraction from 0 to 1");
+                }
+                if h.key_every_s.is_some_and(|s| !(s > 0.0)) {
+                    return bad("key_every_s", "must be positive");
+                }
+                if h.min_features < 4 {
+                    return bad("min_features", "must be at least 4");
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+impl DetectSection {
+    /// The values' checks (that the box file exists is the project's).
+    pub fn check(&self) -> Result<(), Bad> {
+        match self {
+            DetectSection::Colour(c) => c.check(),
+            DetectSection::Boxes(b) => {
+                if b.boxes.is_empty() {
+                    return bad(
+                        "boxes",
+                        "the 'boxes' detector needs a box file: boxes = \"detections.txt\"",
+                    );
+                }
+                if let Some(f) = &b.boxes_format
+                    && crate::detect::boxes::BoxFormat::parse(f).is_none()
+                {
+                    return bad("boxes_format", "expected 'mot', 'jsonl' or 'coco'");
+                }
+                b.body().check()
+            }
+            DetectSection::Background(b) => b.body().check(),
+        }
+    }
+}
+
+impl ColourSection {
+    fn check(&self) -> Result<(), Bad> {
+        if !(2..=64).contains(&self.clusters) {
+            return bad("clusters", "expected 2 to 64");
+        }
+        if self.sample_frames == 0 {
+            return bad("sample_frames", "must be at least 1");
+        }
+        if !(self.hat_diameter_m > 0.0) {
+            return bad("hat_diameter_m", "must be positive");
+        }
+        if self.sample_frames > 10_000 {
+            return bad("sample_frames", "at most 10000");
+        }
+        if !(self.max_hue_difference_deg > 0.0 && self.max_hue_difference_deg <= 180.0) {
+            return bad("max_hue_difference_deg", "expected an angle from 0 to 180°");
+        }
+        if !(self.centroid_sigma_px > 0.0) {
+            return bad("centroid_sigma_px", "must be positive");
+        }
+        Ok(())
+    }
+}
+
+impl BodySettings {
+    fn check(&self) -> Result<(), Bad> {
+        if self
+            .error_px2
+            .is_some_and(|e| e.iter().any(|v| !(v.is_finite() && *v > 0.0)))
+        {
+            return bad("error_px2", "expected three positive variances, px²");
+        }
+        if let Some(rows) = &self.error_profile_px2 {
+            if self.error_px2.is_some() {
+                return bad(
+                    "error_profile_px2",
+                    "give error_px2 or error_profile_px2, not both",
+                );
+            }
+            if crate::detect::ErrorModel::from_rows(rows).is_none() {
+                return bad(
+                    "error_profile_px2",
+                    "expected rows [t, vertical, horizontal]: t rising within 0 to 1, positive \
+                     variances in px² (as geostride fit-error writes them)",
+                );
+            }
+        }
+        if !(self.body_radius_m >= 0.0) {
+            return bad("body_radius_m", "must not be negative");
+        }
+        if self.person_m.is_some_and(|m| !(m > 0.0)) {
+            return bad("person_m", "must be positive");
+        }
+        Ok(())
+    }
+}
+
+impl TrackSection {
+    /// The values' checks.
+    pub fn check(&self) -> Result<(), Bad> {
+        let (gate_m, max_gap_s, min_length_s) = match self {
+            TrackSection::Association(a) => {
+                if a.confirm_frames == 0 {
+                    return bad("confirm_frames", "must be at least 1");
+                }
+                (a.gate_m, a.max_gap_s, a.min_length_s)
+            }
+            TrackSection::Klt(k) => {
+                if !(k.window_px >= 5.0) || !(0..=6).contains(&k.levels) {
+                    return bad(
+                        "window_px",
+                        "window_px must be at least 5 and levels 0 to 6",
+                    );
+                }
+                if k.min_features == 0 || k.max_features < k.min_features {
+                    return bad(
+                        "min_features",
+                        "min_features must be at least 1 and no more than max_features",
+                    );
+                }
+                (k.gate_m, k.max_gap_s, k.min_length_s)
+            }
+        };
+        if !(gate_m > 0.0) || !(max_gap_s >= 0.0) {
+            return bad(
+                "gate_m",
+                "gate_m must be positive and max_gap_s not negative",
+            );
+        }
+        if !(min_length_s >= 0.0) {
+            return bad("min_length_s", "must not be negative");
+        }
+        Ok(())
+    }
+}
+
+impl SmoothSection {
+    /// The values' checks.
+    pub fn check(&self) -> Result<(), Bad> {
+        match self {
+            SmoothSection::KalmanRts(k) => {
+                if !(k.q_position_m > 0.0) {
+                    return bad("q_position_m", "must be positive");
+                }
+                if !(k.q_velocity_m_s > 0.0) {
+                    return bad("q_velocity_m_s", "must be positive");
+                }
+                Ok(())
+            }
+            SmoothSection::None(_) => Ok(()),
+        }
+    }
+}

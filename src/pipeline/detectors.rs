@@ -160,7 +160,8 @@ pub fn background_settings(
         min_area_m2: b.min_area_m2,
         max_area_m2: b.max_area_m2,
         warmup_frames: b.warmup_frames,
-        ..crate::detect::background::BackgroundSettings::default()
+        // The method's own threshold: MOG2's 16 would make nearly every pixel KNN foreground.
+        ..crate::detect::background::BackgroundSettings::for_method(b.method)
     }
 }
 
@@ -183,4 +184,27 @@ fn heads_from_bodies(
         body.body_radius_m * x.px_per_m,
         body.error_model(),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detect::background::{BackgroundSettings, Subtractor};
+
+    #[test]
+    fn each_background_method_gets_its_own_threshold() {
+        for method in [Subtractor::Mog2, Subtractor::Knn] {
+            let b = BackgroundSection {
+                method,
+                ..BackgroundSection::default()
+            };
+            let s = background_settings(&b, 40.0);
+            assert_eq!(s.method, method);
+            assert_eq!(
+                s.var_threshold,
+                BackgroundSettings::for_method(method).var_threshold
+            );
+            assert_eq!(s.px_per_m, 40.0);
+        }
+    }
 }

@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use geostride::camera::presets;
-use geostride::cli::demo::{crowd_project_for_scene, project_for_scene};
 use geostride::detect::simulated::{SimulatedDetector, mot_text, read_truth_boxes};
 use geostride::pipeline::project::load;
 use geostride::pipeline::run::RunReport;
 use geostride::pipeline::run::{Silent, run};
+use geostride::simulate::project::{crowd_project, hats_project, project_text};
 use geostride::simulate::run::{Overrides, simulate};
 use geostride::simulate::scene::Scene;
 use geostride::video::source::FrameReader;
@@ -89,7 +89,8 @@ fn main() {
     std::fs::create_dir_all(&dir).expect("bench folder");
     let scene = simulated(&scene_path, &dir);
     let project = dir.join("project.toml");
-    let text = project_for_scene(&scene, &scene.camera.calibration, None).expect("project");
+    let hats = hats_project(&scene, &scene.camera.calibration, None).expect("project");
+    let text = project_text(&hats, "the hats").expect("project text");
     std::fs::write(&project, text).expect("project file");
     let video = dir.join("video.mp4");
 
@@ -102,8 +103,9 @@ fn main() {
     .detect(&truth_boxes, (3840.0, 2160.0));
     std::fs::write(dir.join("boxes.txt"), mot_text(&boxes)).expect("boxes file");
     let crowd = dir.join("project-klt.toml");
-    let text = crowd_project_for_scene(&scene, &scene.camera.calibration, "boxes.txt", &[])
-        .expect("crowd project");
+    let klt =
+        crowd_project(&scene, &scene.camera.calibration, "boxes.txt", &[]).expect("crowd project");
+    let text = project_text(&klt, "the crowd").expect("project text");
     std::fs::write(&crowd, text).expect("crowd project file");
 
     // Warm the file cache, then decode alone, run each pipeline between two plain decodes.

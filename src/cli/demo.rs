@@ -22,8 +22,10 @@ use crate::evaluate::{
     CHI2_2D_95, Consistency, Evaluation, Sample, consistency, evaluate_matches, ignore_brief,
     read_covariances, read_samples,
 };
-use crate::pipeline::project::load;
+use crate::pipeline::project::{Project, load};
 use crate::pipeline::run::{RunReport, run as run_project};
+use crate::pipeline::settings::DetectSection;
+use crate::simulate::project::{crowd_project, hats_project, project_text};
 use crate::simulate::run::Overrides;
 use crate::simulate::scene::{Motion, Scene};
 use crate::simulate::truth::{mean_reprojection_px, read_gcps, read_poses};
@@ -259,125 +261,15 @@ fn identify(truth: &[Sample], est: &[Sample]) -> HashMap<usize, usize> {
     best.into_iter().map(|(t, (p, _))| (t, p)).collect()
 }
 
-/// The project file for a simulated hovering scene, with the simulated inputs beside it: the
-/// colour detector, association tracker and Kalman/RTS smoother; the site frame at the scene's
-/// origin, so that the results compare with the simulator's truth. `calibration` is a file or a
-/// preset name; `heights` an optional heights CSV.
-pub fn project_for_scene(
-    scene: &Scene,
-    calibration: &str,
-    heights: Option<&str>,
-) -> anyhow::Result<String> {
-    let crs =
-        crate::survey::crs::Crs::new(&scene.site.crs).map_err(|e| anyhow!("site.crs: {e}"))?;
-    let o = scene.site.origin;
-    let (lon, lat) = crs
-        .to_lon_lat(o[0], o[1])
-        .map_err(|e| anyhow!("site.origin: {e}"))?;
-    let origin = format!("{lat:.10},{lon:.10},{}", o[2]);
-    Ok(project_text(scene, calibration, &origin, heights, HATS))
-}
-
-/// The detector and tracker of the hat demo.
-const HATS: &str =
-    "[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n\n[track]\nkind = \"association\"\n";
-
-/// A project file for a simulated crowd without hats: an external detector's boxes (`boxes`,
-/// a MOTChallenge file beside the project) and KLT tracking; `shadow_samples` are
-/// `[frame, x, y, w, h]` patches of shadow for the shadow test.
-pub fn crowd_project_for_scene(
-    scene: &Scene,
-    calibration: &str,
-    boxes: &str,
-    shadow_samples: &[[f64; 5]],
-) -> anyhow::Result<String> {
-    let plain = project_for_scene(scene, calibration, None)?;
-    let samples: Vec<String> = shadow_samples
-        .iter()
-        .map(|s| {
-            format!(
-                "[{}, {:.0}, {:.0}, {:.0}, {:.0}]",
-                s[0], s[1], s[2], s[3], s[4]
-            )
-        })
-        .collect();
-    let crowd = format!(
-        "[detect]\nkind = \"boxes\"\nboxes = \"{boxes}\"          # an external detector's boxes (MOTChallenge)\nshadow_samples = [{}]   # [frame, x, y, w, h]: a few shadows, for the shadow test\n\n[track]\nkind = \"klt\"\n",
-        samples.join(", ")
+/// Writes a scene's project file, its header saying what it is.
+fn write_project(path: &Path, project: &Project, what: &str) -> anyhow::Result<()> {
+    let comment = format!(
+        "{}: the simulated inputs beside this file (written by geostride demo).\n{what}",
+        project.name
     );
-    Ok(plain.replace(HATS, &crowd))
-}
-
-fn project_text(
-    scene: &Scene,
-    calibration: &str,
-    origin: &str,
-    heights: Option<&str>,
-    detect_track: &str,
-) -> String {
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "# {}: the simulated inputs beside this file (written by geostride).",
-        scene.name
-    );
-    let _ = writeln!(s, "name = \"{}\"\n", scene.name);
-    let _ = writeln!(
-        s,
-        "[camera]\ncalibration = \"{calibration}\"        # a calibration file (the demo calibrates one) or a preset\n"
-    );
-    let _ = writeln!(
-        s,
-        "[survey]\ngcps = \"gcps.csv\"                  # Emlid CSV, {}\npicks = [\"picks.csv\"]              # picks on frame 0: image 'video.mp4#0'",
-        scene.site.crs
-    );
-    let _ = writeln!(
-        s,
-        "height = \"ellipsoidal\"\norigin = \"{origin}\"   # the simulator's site origin, to compare with its truth\n"
-    );
-    let _ = writeln!(s, "[video]\npath = \"video.mp4\"\n");
-    if let crate::simulate::scene::Ground::Deck {
-        heading_deg,
-        width_m,
-        length_m,
-        ..
-    } = &scene.ground
-    {
-        // The deck's centre line in the site CRS (the scene's origin is the deck's middle).
-        let o = scene.site.origin;
-        let (dx, dy) = (
-            heading_deg.to_radians().sin() * length_m / 2.0,
-            heading_deg.to_radians().cos() * length_m / 2.0,
-        );
-        let _ = writeln!(
-            s,
-            "[ground]\nkind = \"deck\"                       # profile fitted to the control GCPs on it"
-        );
-        let _ = writeln!(
-            s,
-            "centre_line = [[{:.3}, {:.3}], [{:.3}, {:.3}]]\nwidth_m = {width_m}\n",
-            o[0] - dx,
-            o[1] - dy,
-            o[0] + dx,
-            o[1] + dy
-        );
-    }
-    let _ = writeln!(s, "{detect_track}");
-    let _ = writeln!(
-        s,
-        "[projection]\nhead_height_m = 1.7\nhead_height_sd_m = 0.1"
-    );
-    if let Some(h) = heights {
-        let _ = writeln!(
-            s,
-            "heights = \"{h}\"                # every person's height, by track id"
-        );
-    }
-    let _ = writeln!(
-        s,
-        "\n[smooth]\nkind = \"kalman_rts\"\nem = true\n\n[export]\nformats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\", \"detections\"]"
-    );
-    s
+    let text = project_text(project, &comment)?;
+    crate::io::write_atomic(path, text.as_bytes())?;
+    Ok(())
 }
 
 /// Loads the demo's scene (a hovering camera): (scene, its scene.toml, output folder).
@@ -514,9 +406,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     // 3. Run the project: default head height.
     let project = dir.join("project.toml");
-    let text = project_for_scene(&scene, "camera.yaml", None)
+    let hats = hats_project(&scene, "camera.yaml", None)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
-    crate::io::write_atomic(&project, text.as_bytes())?;
+    write_project(
+        &project,
+        &hats,
+        "Hats: the colour detector, association tracking.",
+    )?;
     say!(
         json,
         "\n3. $ geostride run {} --out {}",
@@ -585,9 +481,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     crate::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
     let project_h = dir.join("project-heights.toml");
-    crate::io::write_atomic(
+    let hats_h = hats_project(&scene, "camera.yaml", Some("heights.csv"))?;
+    write_project(
         &project_h,
-        project_for_scene(&scene, "camera.yaml", Some("heights.csv"))?.as_bytes(),
+        &hats_h,
+        "Hats, with every person's height known (heights.csv, by track id).",
     )?;
     say!(
         json,
@@ -889,9 +787,13 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         })
         .collect();
     let project = dir.join("project.toml");
-    let text = crowd_project_for_scene(&scene, &scene.camera.calibration, "boxes.txt", &samples)
+    let crowd = crowd_project(&scene, &scene.camera.calibration, "boxes.txt", &samples)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
-    crate::io::write_atomic(&project, text.as_bytes())?;
+    write_project(
+        &project,
+        &crowd,
+        "A crowd without hats: an external detector's boxes (boxes.txt, MOTChallenge), KLT tracking.",
+    )?;
     let bars = super::StageBars { quiet: args.quiet };
     let paper_dir = dir.join("run-paper-model");
     say!(
@@ -944,15 +846,15 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         say!(json, "   {line}");
     }
     let fitted_project = dir.join("project-fitted.toml");
-    let text = std::fs::read_to_string(&project)?.replacen(
-        "[detect]\n",
-        &format!(
-            "[detect]\n{}   # fitted: geostride fit-error\n",
-            error_fit.toml_line()
-        ),
-        1,
-    );
-    crate::io::write_atomic(&fitted_project, text.as_bytes())?;
+    let mut fitted = crowd.clone();
+    if let DetectSection::Boxes(b) = &mut fitted.detect {
+        (b.error_px2, b.error_profile_px2) = error_fit.setting();
+    }
+    write_project(
+        &fitted_project,
+        &fitted,
+        "The crowd, with the detector's error model fitted by geostride fit-error.",
+    )?;
     let run_dir = dir.join("run");
     say!(
         json,

@@ -124,25 +124,34 @@ pub enum Form {
 }
 
 impl ErrorFit {
-    /// The project file's setting.
-    pub fn toml_line(&self) -> String {
+    /// The project file's setting: `(error_px2, error_profile_px2)`, one of them given, in px²
+    /// to two decimals (as the project file is written).
+    pub fn setting(&self) -> (Option<[f64; 3]>, Option<Vec<[f64; 3]>>) {
+        let r = |v: f64| format!("{v:.2}").parse::<f64>().unwrap_or(v);
         if self.form == Form::Paper {
             let (v, hc) = self.model.at(0.0);
             let (_, he) = self.model.at(1.0);
-            return format!("error_px2 = [{v:.2}, {hc:.2}, {he:.2}]");
+            return (Some([r(v), r(hc), r(he)]), None);
         }
-        let rows: Vec<String> = self
+        let rows = self
             .model
             .knots
             .iter()
-            .map(|k| {
-                format!(
-                    "[{:.2}, {:.2}, {:.2}]",
-                    k.t, k.vertical_px2, k.horizontal_px2
-                )
-            })
+            .map(|k| [r(k.t), r(k.vertical_px2), r(k.horizontal_px2)])
             .collect();
-        format!("error_profile_px2 = [{}]", rows.join(", "))
+        (None, Some(rows))
+    }
+
+    /// The project file's line for [`ErrorFit::setting`].
+    pub fn toml_line(&self) -> String {
+        let row = |k: &[f64; 3]| format!("[{:.2}, {:.2}, {:.2}]", k[0], k[1], k[2]);
+        match self.setting() {
+            (Some(p), _) => format!("error_px2 = {}", row(&p)),
+            (None, rows) => {
+                let rows: Vec<String> = rows.unwrap_or_default().iter().map(row).collect();
+                format!("error_profile_px2 = [{}]", rows.join(", "))
+            }
+        }
     }
 }
 

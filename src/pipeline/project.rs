@@ -46,41 +46,47 @@ pub struct CameraSection {
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct SurveySection {
-    /// The GCP file (any format `geostride survey` reads).
+    /// The GCP file (any format `geostride survey` reads); required.
     pub gcps: String,
     /// Pick files `name,image,u,v[,sigma]`; the image is `VIDEO#N` for frame N.
-    #[serde(default)]
     pub picks: Vec<String>,
     /// The GCP file's CRS when it does not say, or to override it.
-    #[serde(default)]
     pub crs: Option<String>,
     /// `ellipsoidal` or `orthometric`.
-    #[serde(default)]
     pub height: Option<String>,
     /// Site frame origin: `centroid`, `point:NAME` or `LAT,LON,H`.
-    #[serde(default)]
     pub origin: Option<String>,
-    #[serde(default)]
     pub check: Vec<String>,
-    #[serde(default = "SurveySection::default_check_prefix")]
     pub check_prefix: String,
-    #[serde(default = "SurveySection::default_pick_sigma")]
     pub pick_sigma_px: f64,
-    #[serde(default = "SurveySection::default_gcp_sigma")]
     pub gcp_sigma_m: f64,
 }
 
 impl SurveySection {
-    fn default_check_prefix() -> String {
-        "CHK-".into()
+    /// The GCP file `gcps` with every other key at its default.
+    pub fn new(gcps: &str) -> SurveySection {
+        SurveySection {
+            gcps: gcps.into(),
+            ..SurveySection::default()
+        }
     }
-    fn default_pick_sigma() -> f64 {
-        1.0
-    }
-    fn default_gcp_sigma() -> f64 {
-        0.02
+}
+
+impl Default for SurveySection {
+    fn default() -> Self {
+        SurveySection {
+            gcps: String::new(),
+            picks: Vec::new(),
+            crs: None,
+            height: None,
+            origin: None,
+            check: Vec::new(),
+            check_prefix: "CHK-".into(),
+            pick_sigma_px: 1.0,
+            gcp_sigma_m: 0.02,
+        }
     }
 }
 
@@ -122,55 +128,43 @@ fn default_degree() -> usize {
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct ProjectionSection {
     /// Head height above the ground when a person's is not known, metres, and its σ.
-    #[serde(default = "ProjectionSection::default_height")]
     pub head_height_m: f64,
-    #[serde(default = "ProjectionSection::default_height_sd")]
     pub head_height_sd_m: f64,
     /// CSV `id,height_m[,sd_m]` of known heights by track id.
-    #[serde(default)]
     pub heights: Option<String>,
-}
-
-impl ProjectionSection {
-    fn default_height() -> f64 {
-        1.7
-    }
-    fn default_height_sd() -> f64 {
-        0.1
-    }
 }
 
 impl Default for ProjectionSection {
     fn default() -> Self {
-        toml::from_str("").expect("every field has a default")
+        ProjectionSection {
+            head_height_m: 1.7,
+            head_height_sd_m: 0.1,
+            heights: None,
+        }
     }
 }
+
+/// The export formats, by name.
+pub const EXPORT_FORMATS: [&str; 6] = ["csv", "geojson", "gpkg", "petrack", "mot", "detections"];
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct ExportSection {
     /// Output CRS [default: the GCP file's].
-    #[serde(default)]
     pub crs: Option<String>,
-    /// Any of `csv`, `geojson`, `gpkg`, `petrack`, `mot`, `detections`.
-    #[serde(default = "ExportSection::default_formats")]
+    /// Any of [`EXPORT_FORMATS`].
     pub formats: Vec<String>,
-}
-
-impl ExportSection {
-    fn default_formats() -> Vec<String> {
-        ["csv", "geojson", "gpkg", "petrack", "mot", "detections"]
-            .map(String::from)
-            .to_vec()
-    }
 }
 
 impl Default for ExportSection {
     fn default() -> Self {
-        toml::from_str("").expect("every field has a default")
+        ExportSection {
+            crs: None,
+            formats: EXPORT_FORMATS.map(String::from).to_vec(),
+        }
     }
 }
 
@@ -346,6 +340,13 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if crate::camera::presets::preset(&p.camera.calibration).is_none() {
         exists(l, "camera", "calibration", &p.camera.calibration)?;
     }
+    if p.survey.gcps.is_empty() {
+        return Err(l.error(
+            "survey",
+            "gcps",
+            "the GCP file is required: gcps = \"gcps.csv\"",
+        ));
+    }
     exists(l, "survey", "gcps", &p.survey.gcps)?;
     for pk in &p.survey.picks {
         exists(l, "survey", "picks", pk)?;
@@ -459,7 +460,7 @@ fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
         .check()
         .map_err(|(key, m)| l.error("smooth", key, m))?;
     for f in &p.export.formats {
-        if !["csv", "geojson", "gpkg", "petrack", "mot", "detections"].contains(&f.as_str()) {
+        if !EXPORT_FORMATS.contains(&f.as_str()) {
             return Err(l.error(
                 "export",
                 "formats",

@@ -6,6 +6,7 @@ pub mod gcp_view;
 pub mod noise;
 pub mod people;
 pub mod plan;
+pub mod project;
 pub mod render;
 pub mod run;
 pub mod scene;

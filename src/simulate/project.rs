@@ -1,0 +1,148 @@
+//! The project of a simulated scene, as a typed [`Project`]: what `geostride demo` runs and
+//! the benchmarks time. The simulator writes its inputs beside the project file (`gcps.csv`,
+//! `picks.csv`, `video.mp4`); the site frame's origin is the scene's, so that the results
+//! compare with the simulator's truth.
+
+use crate::pipeline::project::{
+    CameraSection, ExportSection, GroundSection, Project, ProjectionSection, SurveySection,
+    VideoSection,
+};
+use crate::pipeline::settings::{
+    AssociationSection, BoxesSection, ColourSection, DetectSection, KalmanRtsSection, KltSection,
+    PoseSection, SmoothSection, TrackSection,
+};
+use crate::simulate::scene::{Ground, Scene};
+use crate::survey::crs::{Crs, CrsError};
+
+/// The hat scene's project: the colour detector (magenta hats), association tracking and the
+/// Kalman/RTS smoother. `calibration` is a file beside the project or a preset name; `heights`
+/// an optional heights CSV beside it.
+pub fn hats_project(
+    scene: &Scene,
+    calibration: &str,
+    heights: Option<&str>,
+) -> Result<Project, CrsError> {
+    let crs = Crs::new(&scene.site.crs)?;
+    let o = scene.site.origin;
+    let (lon, lat) = crs.to_lon_lat(o[0], o[1])?;
+    Ok(Project {
+        name: scene.name.clone(),
+        camera: CameraSection {
+            calibration: calibration.into(),
+        },
+        survey: SurveySection {
+            gcps: "gcps.csv".into(),
+            picks: vec!["picks.csv".into()],
+            height: Some("ellipsoidal".into()),
+            origin: Some(format!("{lat:.10},{lon:.10},{}", o[2])),
+            ..SurveySection::new("gcps.csv")
+        },
+        video: VideoSection {
+            path: "video.mp4".into(),
+            duration_s: None,
+        },
+        pose: PoseSection::default(),
+        ground: ground(scene),
+        detect: DetectSection::Colour(ColourSection {
+            colour: [255, 0, 255],
+            ..ColourSection::default()
+        }),
+        track: TrackSection::Association(AssociationSection::default()),
+        projection: ProjectionSection {
+            head_height_m: 1.7,
+            head_height_sd_m: 0.1,
+            heights: heights.map(str::to_string),
+        },
+        smooth: SmoothSection::KalmanRts(KalmanRtsSection::default()),
+        export: ExportSection::default(),
+    })
+}
+
+/// The crowd scene's project: an external detector's boxes (`boxes`, a MOTChallenge file beside
+/// the project; `shadow_samples` `[frame, x, y, w, h]` patches of shadow) and KLT tracking.
+pub fn crowd_project(
+    scene: &Scene,
+    calibration: &str,
+    boxes: &str,
+    shadow_samples: &[[f64; 5]],
+) -> Result<Project, CrsError> {
+    Ok(Project {
+        detect: DetectSection::Boxes(BoxesSection {
+            boxes: boxes.into(),
+            shadow_samples: shadow_samples.iter().map(|s| s.map(f64::round)).collect(),
+            ..BoxesSection::default()
+        }),
+        track: TrackSection::Klt(KltSection::default()),
+        ..hats_project(scene, calibration, None)?
+    })
+}
+
+/// A deck's centre line in the site CRS (the scene's origin is the deck's middle), with its
+/// profile fitted to the control GCPs on it; any other ground a plane fitted to them.
+fn ground(scene: &Scene) -> GroundSection {
+    match &scene.ground {
+        Ground::Deck {
+            heading_deg,
+            width_m,
+            length_m,
+            ..
+        } => {
+            let o = scene.site.origin;
+            let (dx, dy) = (
+                heading_deg.to_radians().sin() * length_m / 2.0,
+                heading_deg.to_radians().cos() * length_m / 2.0,
+            );
+            // Millimetres, as the project file has always given them.
+            let mm = |v: f64| (v * 1000.0).round() / 1000.0;
+            GroundSection::Deck {
+                centre_line: vec![
+                    [mm(o[0] - dx), mm(o[1] - dy)],
+                    [mm(o[0] + dx), mm(o[1] + dy)],
+                ],
+                width_m: *width_m,
+                stations: Vec::new(),
+                degree: 2,
+            }
+        }
+        _ => GroundSection::Plane { height_m: None },
+    }
+}
+
+/// The project file's text: a comment, then every key of every section (the defaults written
+/// out, so that the file shows what can be set).
+pub fn project_text(project: &Project, comment: &str) -> Result<String, toml::ser::Error> {
+    let mut text = String::new();
+    for line in comment.lines() {
+        text.push_str("# ");
+        text.push_str(line);
+        text.push('\n');
+    }
+    text.push('\n');
+    text.push_str(&toml::to_string(project)?);
+    Ok(text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scene_project_reads_back_as_written() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("surveys/bridge-stream/scene.toml");
+        let scene = Scene::load(&path).unwrap();
+        let p = crowd_project(
+            &scene,
+            "mini3pro",
+            "boxes.txt",
+            &[[0.0, 10.2, 20.0, 5.0, 6.0]],
+        )
+        .unwrap();
+        let text = project_text(&p, "a test\nof two lines").unwrap();
+        assert!(text.starts_with("# a test\n# of two lines\n"));
+        let back: Project = toml::from_str(&text).unwrap();
+        assert_eq!(back, p);
+        assert!(text.contains("kind = \"boxes\""));
+        assert!(text.contains("kind = \"klt\""));
+    }
+}

@@ -263,6 +263,38 @@ pub fn ignore_brief(
     brief.len()
 }
 
+/// Which person each estimated track follows: for every estimate, the nearest truth position of
+/// its frame within `max_m` votes for that person; a track is the person with most votes.
+/// (track id → person id; tracks that never came within `max_m` of anyone are left out.)
+pub fn identify_tracks(truth: &[Sample], est: &[Sample], max_m: f64) -> HashMap<usize, usize> {
+    let mut by_frame: HashMap<usize, Vec<&Sample>> = HashMap::new();
+    for t in truth {
+        by_frame.entry(t.frame).or_default().push(t);
+    }
+    let mut votes: HashMap<(usize, usize), usize> = HashMap::new();
+    for e in est {
+        if let Some(t) = by_frame.get(&e.frame).and_then(|v| {
+            v.iter().min_by(|a, b| {
+                (a.position - e.position)
+                    .norm()
+                    .total_cmp(&(b.position - e.position).norm())
+            })
+        }) && (t.position - e.position).norm() < max_m
+        {
+            *votes.entry((e.id, t.id)).or_default() += 1;
+        }
+    }
+    // Ties go to the lower person id, whatever the hash order.
+    let mut best: HashMap<usize, (usize, usize)> = HashMap::new();
+    for ((track, person), n) in votes {
+        let b = best.entry(track).or_insert((person, 0));
+        if n > b.1 || (n == b.1 && person < b.0) {
+            *b = (person, n);
+        }
+    }
+    best.into_iter().map(|(t, (p, _))| (t, p)).collect()
+}
+
 /// Evaluates `estimated` against `truth` with a match threshold in metres. Estimates within the
 /// threshold of an `ignored` truth position (someone the truth does not count in that frame: a
 /// head just outside the image, say) count neither way.
@@ -526,6 +558,30 @@ mod tests {
             (c.mean_normalised_e - 0.02 / 5e-4f64.sqrt()).abs() < 0.05,
             "{c:?}"
         );
+    }
+
+    #[test]
+    fn tracks_are_identified_by_their_nearest_person() {
+        // Track 7 follows person 1 for three frames and strays to person 2 for one; track 8 is
+        // nowhere near anyone.
+        let truth = vec![
+            s(0, 1, 0.0, 0.0),
+            s(0, 2, 5.0, 0.0),
+            s(1, 1, 0.1, 0.0),
+            s(1, 2, 5.1, 0.0),
+            s(2, 1, 0.2, 0.0),
+            s(2, 2, 0.6, 0.0),
+        ];
+        let est = vec![
+            s(0, 7, 0.05, 0.0),
+            s(1, 7, 0.15, 0.0),
+            s(2, 7, 0.25, 0.0),
+            s(2, 7, 0.6, 0.01),
+            s(0, 8, 20.0, 0.0),
+        ];
+        let ids = identify_tracks(&truth, &est, 0.5);
+        assert_eq!(ids.get(&7), Some(&1));
+        assert_eq!(ids.get(&8), None);
     }
 
     fn s(frame: usize, id: usize, x: f64, y: f64) -> Sample {

@@ -15,7 +15,6 @@
 
 pub mod calibration;
 pub mod camera;
-pub mod cli;
 pub mod detect;
 pub mod draw;
 pub mod estimate;

@@ -1,6 +1,8 @@
 use clap::Parser;
 
-use geostride::cli::{BadInput, Cli};
+mod cli;
+
+use cli::{BadInput, Cli};
 
 fn main() {
     // Die quietly on a closed pipe (`geostride ... | head`) instead of panicking on the write.

@@ -76,3 +76,41 @@ fn only_adapters_name_opencv_gdal_or_proj() {
         );
     }
 }
+
+/// The library exports no command-line machinery: clap and anyhow belong to the binary
+/// (`src/main.rs` and `src/cli/`).
+#[test]
+fn the_library_names_neither_clap_nor_anyhow() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let offenders: Vec<String> = files
+        .iter()
+        .filter_map(|f| {
+            let rel = f
+                .strip_prefix(&src)
+                .ok()?
+                .to_string_lossy()
+                .replace('\\', "/");
+            if rel == "main.rs" || rel.starts_with("cli/") {
+                return None;
+            }
+            let text = std::fs::read_to_string(f).ok()?;
+            ["anyhow", "clap::"]
+                .iter()
+                .any(|n| text.contains(n))
+                .then(|| format!("src/{rel}"))
+        })
+        .collect();
+    assert!(
+        offenders.is_empty(),
+        "library modules naming clap or anyhow (return a typed error; argument parsing goes in \
+         src/cli/):\n{}",
+        offenders.join("\n")
+    );
+    let lib = std::fs::read_to_string(src.join("lib.rs")).unwrap();
+    assert!(
+        !lib.contains("mod cli"),
+        "src/lib.rs must not declare the cli module"
+    );
+}

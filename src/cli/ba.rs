@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use anyhow::{Context, anyhow};
 
 use super::bad_input;
-use crate::optim::RobustLoss;
-use crate::optim::ba::{BaSettings, LinearSolver, bundle_adjust};
-use crate::optim::bal::{bal_text, read_bal};
+use geostride::optim::RobustLoss;
+use geostride::optim::ba::{BaSettings, LinearSolver, bundle_adjust};
+use geostride::optim::bal::{bal_text, read_bal};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -57,13 +57,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             },
             // What the process holds already (the problem read) counts against the budget.
             max_memory_bytes: ((args.max_memory_gb * 1e9) as u64)
-                .saturating_sub(crate::io::resident_bytes().unwrap_or(0)),
+                .saturating_sub(geostride::io::resident_bytes().unwrap_or(0)),
             ..BaSettings::default()
         },
     )
     .map_err(|e| bad_input(anyhow!("{}: {e}", args.bal.display())))?;
     if let Some(out) = &args.out {
-        crate::io::write_atomic(out, bal_text(&problem).as_bytes())
+        geostride::io::write_atomic(out, bal_text(&problem).as_bytes())
             .with_context(|| out.display().to_string())?;
     }
     if args.json {

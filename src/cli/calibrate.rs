@@ -7,12 +7,12 @@ use anyhow::{Context, anyhow};
 use clap::ValueEnum;
 
 use super::{bad_input, check_output_file, parse_board_size, parse_fraction, parse_positive};
-use crate::calibration::detect::{DetectSettings, Detector};
-use crate::calibration::inputs::{CollectSettings, InputError, InputLog, collect};
-use crate::calibration::{CalibrationError, CalibrationResult, Options, calibrate};
-use crate::camera::formats::{self, Format};
-use crate::camera::{BoardSpec, PARAM_NAMES};
-use crate::optim::LmSettings;
+use geostride::calibration::detect::{DetectSettings, Detector};
+use geostride::calibration::inputs::{CollectSettings, InputError, InputLog, collect};
+use geostride::calibration::{CalibrationError, CalibrationResult, Options, calibrate};
+use geostride::camera::formats::{self, Format};
+use geostride::camera::{BoardSpec, PARAM_NAMES};
+use geostride::optim::LmSettings;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum DetectorArg {

@@ -7,8 +7,8 @@ use anyhow::anyhow;
 
 use super::calibrate::FormatArg;
 use super::{bad_input, check_output_file};
-use crate::camera::formats::{self, Format};
-use crate::camera::{Calibration, ImageSize, PARAM_NAMES};
+use geostride::camera::formats::{self, Format};
+use geostride::camera::{Calibration, ImageSize, PARAM_NAMES};
 
 #[derive(clap::Subcommand)]
 pub enum Command {

@@ -6,7 +6,6 @@
 //! smoothing, exports), once with the default head height and once with every person's height
 //! known, and compares both with the truth.
 
-use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -14,21 +13,23 @@ use anyhow::{anyhow, bail};
 use serde::Serialize;
 
 use super::calibrate::{Job, run_job};
-use crate::calibration::Options;
-use crate::calibration::inputs::CollectSettings;
-use crate::camera::formats;
-use crate::camera::{BoardSpec, PARAM_NAMES};
-use crate::evaluate::{
-    CHI2_2D_95, Consistency, Evaluation, Sample, consistency, evaluate_matches, ignore_brief,
-    read_covariances, read_samples,
+use geostride::calibration::Options;
+use geostride::calibration::inputs::CollectSettings;
+use geostride::camera::formats;
+use geostride::camera::{BoardSpec, PARAM_NAMES};
+use geostride::evaluate::{
+    CHI2_2D_95, Consistency, Evaluation, Sample, consistency, evaluate_matches, identify_tracks,
+    ignore_brief, read_covariances, read_samples,
 };
-use crate::pipeline::project::{Project, load};
-use crate::pipeline::run::{RunReport, run as run_project};
-use crate::pipeline::settings::DetectSection;
-use crate::simulate::project::{crowd_project, hats_project, project_text};
-use crate::simulate::run::Overrides;
-use crate::simulate::scene::{Motion, Scene};
-use crate::simulate::truth::{mean_reprojection_px, read_gcps, read_poses};
+use geostride::pipeline::project::{Project, load};
+use geostride::pipeline::run::{RunReport, run as run_project};
+use geostride::pipeline::settings::DetectSection;
+use geostride::simulate::project::{crowd_project, hats_project, project_text};
+use geostride::simulate::run::Overrides;
+use geostride::simulate::scene::{Motion, Scene};
+use geostride::simulate::truth::{
+    mean_reprojection_px, read_gcps, read_people_heights, read_poses,
+};
 
 /// The checkerboard the simulator renders: 9x6 inner corners of 5 cm.
 const BOARD: BoardSpec = BoardSpec {
@@ -141,7 +142,7 @@ fn check_run(
     );
     for p in &points {
         let t = p.cov.total();
-        let rms = crate::export::rms_sigma;
+        let rms = geostride::export::rms_sigma;
         let _ = writeln!(
             text,
             "{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.4},{:.3},{}",
@@ -162,7 +163,7 @@ fn check_run(
             u8::from(p.d2 <= CHI2_2D_95)
         );
     }
-    crate::io::write_atomic(points_csv, text.as_bytes())?;
+    geostride::io::write_atomic(points_csv, text.as_bytes())?;
     Ok((e, c))
 }
 
@@ -170,15 +171,15 @@ fn check_run(
 const INSIDE_95: (f64, f64) = (0.92, 0.98);
 
 /// The table rows on the stated uncertainties: label, a value per run, target.
-fn uncertainty_rows(runs: &[&Consistency]) -> Vec<(&'static str, Vec<String>, &'static str)> {
-    let each = |f: &dyn Fn(&Consistency) -> String| runs.iter().map(|c| f(c)).collect();
+fn uncertainty_rows(a: &Consistency, b: &Consistency) -> Vec<Row> {
+    let each = |f: &dyn Fn(&Consistency) -> String| [f(a), f(b)];
     vec![
-        (
+        Row::new(
             "95 % ellipses holding the truth",
             each(&|c| format!("{:.1} %", 100.0 * c.inside_95)),
             "95 ± 3 %",
         ),
-        (
+        Row::new(
             "error / σ: median; mean of squares",
             each(&|c| {
                 format!(
@@ -188,12 +189,12 @@ fn uncertainty_rows(runs: &[&Consistency]) -> Vec<(&'static str, Vec<String>, &'
             }),
             "0.83; 1",
         ),
-        (
+        Row::new(
             "mean error / σ, east / north",
             each(&|c| format!("{:+.2} / {:+.2}", c.mean_normalised_e, c.mean_normalised_n)),
             "0 / 0",
         ),
-        (
+        Row::new(
             "median σ: random/height/pose",
             each(&|c| {
                 format!(
@@ -206,6 +207,42 @@ fn uncertainty_rows(runs: &[&Consistency]) -> Vec<(&'static str, Vec<String>, &'
             "",
         ),
     ]
+}
+
+/// A row of a demo's table: a label, a value for each of the two runs, the target.
+struct Row {
+    label: &'static str,
+    values: [String; 2],
+    target: &'static str,
+}
+
+impl Row {
+    fn new(label: &'static str, values: [String; 2], target: &'static str) -> Row {
+        Row {
+            label,
+            values,
+            target,
+        }
+    }
+}
+
+/// Prints a two-run table under a header row; `widths` of the label and target columns.
+fn print_table(json: bool, widths: (usize, usize), head: [&str; 3], rows: &[Row]) {
+    let (l, t) = widths;
+    if head.iter().any(|h| !h.is_empty()) {
+        say!(
+            json,
+            "   {:<l$} {:>14} {:>14} {:>t$}",
+            "",
+            head[0],
+            head[1],
+            head[2]
+        );
+    }
+    for r in rows {
+        let [a, b] = &r.values;
+        say!(json, "   {:<l$} {a:>14} {b:>14} {:>t$}", r.label, r.target);
+    }
 }
 
 /// The check that a run's 95 % ellipses hold the truth for 95 ± 3 % of its points. Made on the
@@ -233,34 +270,6 @@ fn coverage_scope_note(json: bool, args: &Args, scene: &Scene) {
     }
 }
 
-fn identify(truth: &[Sample], est: &[Sample]) -> HashMap<usize, usize> {
-    let mut by_frame: HashMap<usize, Vec<&Sample>> = HashMap::new();
-    for t in truth {
-        by_frame.entry(t.frame).or_default().push(t);
-    }
-    let mut votes: HashMap<(usize, usize), usize> = HashMap::new();
-    for e in est {
-        if let Some(t) = by_frame.get(&e.frame).and_then(|v| {
-            v.iter().min_by(|a, b| {
-                (a.position - e.position)
-                    .norm()
-                    .total_cmp(&(b.position - e.position).norm())
-            })
-        }) && (t.position - e.position).norm() < 0.5
-        {
-            *votes.entry((e.id, t.id)).or_default() += 1;
-        }
-    }
-    let mut best: HashMap<usize, (usize, usize)> = HashMap::new();
-    for ((track, person), n) in votes {
-        let b = best.entry(track).or_insert((person, 0));
-        if n > b.1 {
-            *b = (person, n);
-        }
-    }
-    best.into_iter().map(|(t, (p, _))| (t, p)).collect()
-}
-
 /// Writes a scene's project file, its header saying what it is.
 fn write_project(path: &Path, project: &Project, what: &str) -> anyhow::Result<()> {
     let comment = format!(
@@ -268,7 +277,7 @@ fn write_project(path: &Path, project: &Project, what: &str) -> anyhow::Result<(
         project.name
     );
     let text = project_text(project, &comment)?;
-    crate::io::write_atomic(path, text.as_bytes())?;
+    geostride::io::write_atomic(path, text.as_bytes())?;
     Ok(())
 }
 
@@ -285,7 +294,7 @@ fn demo_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, Pat
         ))
     })?;
     if let Some(crs) = &args.crs {
-        scene.site = crate::simulate::run::site_in_crs(&scene.site, crs)
+        scene.site = geostride::simulate::run::site_in_crs(&scene.site, crs)
             .map_err(|e| super::bad_input(anyhow!(e)))?;
     }
     if !matches!(scene.camera.motion, Motion::Hover { .. }) {
@@ -307,7 +316,7 @@ fn simulate_scene(
     args: &Args,
     scene_path: &Path,
     dir: &Path,
-) -> anyhow::Result<crate::simulate::run::Summary> {
+) -> anyhow::Result<geostride::simulate::run::Summary> {
     let overrides = Overrides {
         duration_s: args.duration,
         site_crs: args.crs.clone(),
@@ -368,7 +377,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     formats::write(&cal, &dir.join("camera.yaml"), None).map_err(|e| anyhow!(e))?;
     let truth_cam = {
         let spec = &scene.camera.calibration;
-        let c = match crate::camera::presets::preset(spec) {
+        let c = match geostride::camera::presets::preset(spec) {
             Some(c) => c.camera,
             None => {
                 formats::read(&scene.calibration_path(&scene_path), None)
@@ -462,15 +471,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     // 4. The same with every person's height known (as measured before an event): each track's
     // person identified against the truth, their height written to heights.csv.
-    let people: HashMap<usize, f64> = std::fs::read_to_string(dir.join("truth/people.csv"))?
-        .lines()
-        .skip(1)
-        .filter_map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            Some((f.first()?.parse().ok()?, f.get(1)?.parse().ok()?))
-        })
-        .collect();
-    let ids = identify(&truth, &track_samples(&dir.join("run/trajectories.csv"))?);
+    let people = read_people_heights(&dir.join("truth/people.csv")).map_err(|e| anyhow!(e))?;
+    let ids = identify_tracks(
+        &truth,
+        &track_samples(&dir.join("run/trajectories.csv"))?,
+        0.5,
+    );
     let mut heights = String::from("id,height_m,sd_m\n");
     let mut ids_sorted: Vec<_> = ids.iter().collect();
     ids_sorted.sort();
@@ -479,7 +485,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let _ = writeln!(heights, "{track},{h:.4},0.0");
         }
     }
-    crate::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
+    geostride::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
     let project_h = dir.join("project-heights.toml");
     let hats_h = hats_project(&scene, "camera.yaml", Some("heights.csv"))?;
     write_project(
@@ -545,75 +551,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         default_eval.truth_tracks,
         pose.frames
     );
-    say!(
-        json,
-        "   {:<38} {:>14} {:>14} {:>12}",
-        "",
-        "heights known",
-        "1.7 m default",
-        "target"
-    );
-    let row = |label: &str, a: String, b: String, t: &str| {
-        format!("   {label:<38} {a:>14} {b:>14} {t:>12}")
-    };
-    say!(
-        json,
-        "{}",
-        row(
-            "horizontal RMSE",
-            format!("{:.4} m", known_eval.rmse_m),
-            format!("{:.4} m", default_eval.rmse_m),
-            "0.05 / 0.12 m"
-        )
-    );
-    say!(
-        json,
-        "{}",
-        row(
-            "95th percentile",
-            format!("{:.4} m", known_eval.p95_error_m),
-            format!("{:.4} m", default_eval.p95_error_m),
-            ""
-        )
-    );
-    say!(
-        json,
-        "{}",
-        row(
-            "people tracked over ≥ 90 % of frames",
-            format!("{:.1} %", 100.0 * known_eval.tracked_90_fraction),
-            format!("{:.1} %", 100.0 * default_eval.tracked_90_fraction),
-            "≥ 98 %"
-        )
-    );
-    say!(
-        json,
-        "{}",
-        row(
-            "ID switches",
-            format!("{}", known_eval.id_switches),
-            format!(
-                "{} ({:.1} %)",
-                default_eval.id_switches,
-                100.0 * default_eval.id_switch_rate
-            ),
-            "≤ 1 %"
-        )
-    );
-    say!(
-        json,
-        "{}",
-        row(
-            "MOTA / IDF1",
-            format!("{:.3} / {:.3}", known_eval.mota, known_eval.idf1),
-            format!("{:.3} / {:.3}", default_eval.mota, default_eval.idf1),
-            ""
-        )
-    );
-    for (label, v, target) in uncertainty_rows(&[&known_cons, &default_cons]) {
-        say!(json, "{}", row(label, v[0].clone(), v[1].clone(), target));
-    }
-    coverage_scope_note(json, &args, &scene);
     // The default run's height part is one draw per person: how far these people's heights lie
     // from 1.7 m, against the σ stated for them.
     let tracked_heights: Vec<f64> = ids
@@ -627,36 +564,66 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .sum::<f64>()
         / tracked_heights.len().max(1) as f64)
         .sqrt();
-    say!(
-        json,
-        "{}",
-        row(
+    let both = |f: &dyn Fn(&Evaluation) -> String| [f(&known_eval), f(&default_eval)];
+    let mut rows = vec![
+        Row::new(
+            "horizontal RMSE",
+            both(&|e| format!("{:.4} m", e.rmse_m)),
+            "0.05 / 0.12 m",
+        ),
+        Row::new(
+            "95th percentile",
+            both(&|e| format!("{:.4} m", e.p95_error_m)),
+            "",
+        ),
+        Row::new(
+            "people tracked over ≥ 90 % of frames",
+            both(&|e| format!("{:.1} %", 100.0 * e.tracked_90_fraction)),
+            "≥ 98 %",
+        ),
+        Row::new(
+            "ID switches",
+            [
+                format!("{}", known_eval.id_switches),
+                format!(
+                    "{} ({:.1} %)",
+                    default_eval.id_switches,
+                    100.0 * default_eval.id_switch_rate
+                ),
+            ],
+            "≤ 1 %",
+        ),
+        Row::new(
+            "MOTA / IDF1",
+            both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
+            "",
+        ),
+    ];
+    rows.extend(uncertainty_rows(&known_cons, &default_cons));
+    let after = [
+        Row::new(
             "heights' RMS about 1.7 m (σ stated)",
-            String::new(),
-            format!("{height_rms:.3} m"),
-            "0.1 m"
-        )
-    );
-    say!(
-        json,
-        "{}",
-        row(
+            [String::new(), format!("{height_rms:.3} m")],
+            "0.1 m",
+        ),
+        Row::new(
             "camera pose vs truth (mean / worst)",
-            format!("{:.3} px", pose.mean_px),
-            format!("{:.3} px", pose.worst_px),
-            "≤ 1 px"
-        )
-    );
-    say!(
-        json,
-        "{}",
-        row(
+            [
+                format!("{:.3} px", pose.mean_px),
+                format!("{:.3} px", pose.worst_px),
+            ],
+            "≤ 1 px",
+        ),
+        Row::new(
             "calibration (worst |est − truth| / σ)",
-            format!("{:.2}", calibration.worst_sigmas),
-            String::new(),
-            "≤ 5"
-        )
-    );
+            [format!("{:.2}", calibration.worst_sigmas), String::new()],
+            "≤ 5",
+        ),
+    ];
+    let head = ["heights known", "1.7 m default", "target"];
+    print_table(json, (38, 12), head, &rows);
+    coverage_scope_note(json, &args, &scene);
+    print_table(json, (38, 12), ["", "", ""], &after);
     let failed: Vec<&String> = checks.iter().filter(|c| !c.0).map(|c| &c.1).collect();
     let report = DemoReport {
         rmse_m: default_eval.rmse_m,
@@ -684,7 +651,7 @@ fn finish(
     seconds: f64,
 ) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(report)?;
-    crate::io::write_atomic(&dir.join("demo.json"), text.as_bytes())?;
+    geostride::io::write_atomic(&dir.join("demo.json"), text.as_bytes())?;
     if json {
         println!("{text}");
     }
@@ -724,7 +691,7 @@ struct CrowdReport {
     /// People in view for fewer frames than the shortest track kept: not counted.
     brief_people_not_counted: usize,
     /// The detector's error model fitted to the annotated frames.
-    error_fit: crate::detect::error_fit::ErrorFit,
+    error_fit: geostride::detect::error_fit::ErrorFit,
     /// With the fitted error model (`run/`).
     evaluation: Evaluation,
     /// The stated covariances against the errors (`accuracy.csv` per point).
@@ -740,7 +707,7 @@ struct CrowdReport {
 /// `geostride demo --crowd`: runners without hats, an external detector's boxes (simulated from
 /// the truth with noise, misses and false alarms), KLT tracking, checked against the truth.
 fn run_crowd(args: Args) -> anyhow::Result<()> {
-    use crate::detect::simulated::{SimulatedDetector, mot_text, read_truth_boxes};
+    use geostride::detect::simulated::{SimulatedDetector, mot_text, read_truth_boxes};
     let started = std::time::Instant::now();
     let json = args.json;
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/marathon-stream")?;
@@ -759,7 +726,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     };
     let size = (f64::from(sim.image_size[0]), f64::from(sim.image_size[1]));
     let boxes = detector.detect(&truth_boxes, size);
-    crate::io::write_atomic(&dir.join("boxes.txt"), mot_text(&boxes).as_bytes())?;
+    geostride::io::write_atomic(&dir.join("boxes.txt"), mot_text(&boxes).as_bytes())?;
     say!(
         json,
         "   {} frames of {}x{}, {} people ({} seen); {} detector boxes (edge σ {} px, {:.0} % misses, {:.0} % false alarms, half of them shadows) in {}",
@@ -822,7 +789,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         annotated.insert(h.frame);
         let _ = writeln!(text, "{},{:.2},{:.2}", h.frame, h.position.x, h.position.y);
     }
-    crate::io::write_atomic(&annotations, text.as_bytes())?;
+    geostride::io::write_atomic(&annotations, text.as_bytes())?;
     let fit_args = super::fit_error::Args {
         detections: paper_dir.join("detections.csv"),
         annotations: annotations.clone(),
@@ -887,55 +854,46 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         min_frames,
         brief
     );
-    let row = |label: &str, a: String, b: String, t: &str| {
-        format!("   {label:<44} {a:>14} {b:>14} {t:>10}")
-    };
-    say!(
-        json,
-        "   {:<44} {:>14} {:>14} {:>10}",
-        "",
-        "paper's model",
-        "fitted model",
-        "target"
-    );
-    let both = |f: &dyn Fn(&Evaluation) -> String| (f(&pe), f(&e));
-    for (label, (a, b), target) in [
-        (
+    let both = |f: &dyn Fn(&Evaluation) -> String| [f(&pe), f(&e)];
+    let mut rows = vec![
+        Row::new(
             "horizontal RMSE",
             both(&|e| format!("{:.4} m", e.rmse_m)),
             "≤ 0.25 m",
         ),
-        (
+        Row::new(
             "95th percentile",
             both(&|e| format!("{:.4} m", e.p95_error_m)),
             "",
         ),
-        (
+        Row::new(
             "people tracked over ≥ 80 % of their time in view",
             both(&|e| format!("{:.1} %", 100.0 * mostly_of(e))),
             "≥ 97 %",
         ),
-        (
+        Row::new(
             "ID switches",
             both(&|e| format!("{} ({:.1} %)", e.id_switches, 100.0 * e.id_switch_rate)),
             "≤ 2 %",
         ),
-        (
+        Row::new(
             "MOTA / IDF1",
             both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
             "",
         ),
-        (
+        Row::new(
             "tracks (estimated / true)",
             both(&|e| format!("{} / {}", e.estimated_tracks, e.truth_tracks)),
             "",
         ),
-    ] {
-        say!(json, "{}", row(label, a, b, target));
-    }
-    for (label, v, target) in uncertainty_rows(&[&pcons, &cons]) {
-        say!(json, "{}", row(label, v[0].clone(), v[1].clone(), target));
-    }
+    ];
+    rows.extend(uncertainty_rows(&pcons, &cons));
+    print_table(
+        json,
+        (44, 10),
+        ["paper's model", "fitted model", "target"],
+        &rows,
+    );
     coverage_scope_note(json, &args, &scene);
     // The targets hold for the fitted model, the way a user would run it; the paper's model
     // is shown for comparison (its σ are larger than this detector's errors).

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 
 use super::bad_input;
-use crate::evaluate::{
+use geostride::evaluate::{
     SampleTable, consistency, evaluate, evaluate_matches, ignore_brief, read_covariances,
     read_samples,
 };

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 
 use super::bad_input;
-use crate::detect::error_fit::{
+use geostride::detect::error_fit::{
     ErrorFit, Form, MAX_ANNOTATIONS, Pairing, fit_error_model, pair_annotations, read_frame_points,
 };
 
@@ -52,7 +52,7 @@ fn width_from_report(detections: &Path) -> anyhow::Result<f64> {
             detections.display()
         ))
     };
-    let text = crate::io::FileCtx { path: &report }
+    let text = geostride::io::FileCtx { path: &report }
         .read_small_text("a run's report.json", 64 << 20)
         .map_err(|_| missing())?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|_| missing())?;

@@ -19,8 +19,8 @@ use std::path::Path;
 use anyhow::anyhow;
 use clap::{Parser, Subcommand};
 
-use crate::camera::{Camera, formats, presets};
-use crate::io::Inputs;
+use geostride::camera::{Camera, formats, presets};
+use geostride::io::Inputs;
 
 /// An error caused by the user's input or usage (exit code 2), as opposed to a failure while
 /// running (exit code 1).
@@ -132,9 +132,9 @@ pub(crate) fn parse_positive(s: &str) -> Result<f64, String> {
 }
 
 /// An unusable output path is the user's to fix (exit 2); an I/O failure on it is not (exit 1).
-pub(crate) fn output_error(e: crate::io::OutputError) -> anyhow::Error {
+pub(crate) fn output_error(e: geostride::io::OutputError) -> anyhow::Error {
     match e {
-        crate::io::OutputError::Io { .. } => anyhow::Error::new(e),
+        geostride::io::OutputError::Io { .. } => anyhow::Error::new(e),
         _ => bad_input(e),
     }
 }
@@ -171,12 +171,12 @@ pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let bad = || {
         format!(
             "expected WIDTHxHEIGHT in pixels from 1 to {}, e.g. 3840x2160; got '{}'",
-            crate::camera::MAX_IMAGE_SIDE,
-            crate::io::clip(s, 40)
+            geostride::camera::MAX_IMAGE_SIDE,
+            geostride::io::clip(s, 40)
         )
     };
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-    let side = 1..=crate::camera::MAX_IMAGE_SIDE;
+    let side = 1..=geostride::camera::MAX_IMAGE_SIDE;
     match (w.parse::<u32>(), h.parse::<u32>()) {
         (Ok(w), Ok(h)) if side.contains(&w) && side.contains(&h) => Ok((w, h)),
         _ => Err(bad()),
@@ -201,8 +201,8 @@ pub(crate) struct StageBars {
     pub quiet: bool,
 }
 
-impl crate::pipeline::run::StageProgress for StageBars {
-    fn stage(&self, name: &str) -> Box<dyn crate::progress::Progress> {
+impl geostride::pipeline::run::StageProgress for StageBars {
+    fn stage(&self, name: &str) -> Box<dyn geostride::progress::Progress> {
         Box::new(progress_bar(
             self.quiet,
             0,

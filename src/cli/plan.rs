@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::anyhow;
 
 use super::{bad_input, load_camera, parse_positive, scale_to};
-use crate::imageio::HeatMap;
-use crate::simulate::plan::{PixelNoise, PlanSettings, plan};
+use geostride::imageio::HeatMap;
+use geostride::simulate::plan::{PixelNoise, PlanSettings, plan};
 
 fn parse_detector(s: &str) -> Result<(f64, f64, f64), String> {
     let v: Vec<f64> = s
@@ -115,7 +115,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 unit: "cm",
                 scale: 100.0,
             };
-            crate::imageio::write_heatmap(&f, &map, 960).map_err(|e| anyhow!(e))?;
+            geostride::imageio::write_heatmap(&f, &map, 960).map_err(|e| anyhow!(e))?;
             written.push(f);
         }
     }

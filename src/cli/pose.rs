@@ -1,7 +1,6 @@
 //! `geostride pose`: the camera pose from GCP picks, for one image or every frame of a
 //! hovering video.
 
-use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -11,13 +10,12 @@ use serde::Serialize;
 
 use super::survey::{Framed, ReadArgs, read_framed};
 use super::{bad_input, check_output_file, load_camera, parse_positive, scale_to};
-use crate::camera::Camera;
-use crate::draw::Canvas;
-use crate::optim::RobustLoss;
-use crate::pose::attitude::attitude_sigma_deg;
-use crate::pose::solve::gcp_residual;
-use crate::pose::{Attitude, GcpResidual, PoseError, PoseSettings, PoseSolution, solve_pose};
-use crate::survey::Role;
+use geostride::camera::Camera;
+use geostride::draw::Canvas;
+use geostride::optim::RobustLoss;
+use geostride::pose::attitude::attitude_sigma_deg;
+use geostride::pose::solve::gcp_residual;
+use geostride::pose::{Attitude, GcpResidual, PoseError, PoseSettings, PoseSolution, solve_pose};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -93,23 +91,7 @@ pub struct Args {
 }
 
 /// The GCPs seen in one image, split by role.
-pub(crate) type Seen = crate::survey::load::ImageObservations;
-
-/// The names of the images that the survey's picks refer to, with their pick counts.
-fn picked_images(framed: &Framed) -> BTreeMap<String, usize> {
-    let mut m = BTreeMap::new();
-    for p in framed
-        .survey
-        .points
-        .iter()
-        .filter(|p| p.role != Role::Disabled)
-    {
-        for o in &p.observations {
-            *m.entry(o.image.clone()).or_insert(0) += 1;
-        }
-    }
-    m
-}
+pub(crate) type Seen = geostride::survey::load::ImageObservations;
 
 /// Which image's picks to use.
 pub(crate) fn choose_image(
@@ -117,7 +99,7 @@ pub(crate) fn choose_image(
     wanted: Option<&str>,
     photo: Option<&Path>,
 ) -> anyhow::Result<String> {
-    let images = picked_images(framed);
+    let images = framed.picked_images();
     let list = || {
         images
             .iter()
@@ -317,7 +299,7 @@ impl Report<'_> {
     /// projected CRS.
     fn grid_convergence_deg(&self, source: &Vector3<f64>) -> Option<f64> {
         let crs = self.framed.frame.crs.as_ref()?;
-        if crs.horizontal != crate::survey::crs::Horizontal::Projected {
+        if crs.horizontal != geostride::survey::crs::Horizontal::Projected {
             return None;
         }
         let step = 10.0 / crs.unit_m;
@@ -636,7 +618,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         inputs.extend(args.read.picks.iter().cloned());
         inputs.push(PathBuf::from(&args.camera));
         check_output_file(a, &inputs)?;
-        crate::imageio::check_writable(a).map_err(|e| bad_input(anyhow!(e)))?;
+        geostride::imageio::check_writable(a).map_err(|e| bad_input(anyhow!(e)))?;
     }
     let seen = seen_in(&framed, &image, args.pick_sigma, args.gcp_sigma, &camera)?;
     let settings = PoseSettings {

@@ -9,14 +9,14 @@ use serde::Serialize;
 use super::bad_input;
 use super::pose::{Args, camera_for, choose_image, seen_in};
 use super::survey::read_framed;
-use crate::io::write_atomic;
-use crate::pipeline::pose_outputs::{PoseRun, write_pose_outputs};
-use crate::pipeline::scan::{ScanJob, scan};
-use crate::pose::PoseSettings;
-use crate::pose::hover::solve_with_checks;
-use crate::pose::stabilise::StabiliseSettings;
-use crate::progress::NoProgress;
-use crate::video::source::FrameReader;
+use geostride::io::write_atomic;
+use geostride::pipeline::pose_outputs::{PoseRun, write_pose_outputs};
+use geostride::pipeline::scan::{ScanJob, scan};
+use geostride::pose::PoseSettings;
+use geostride::pose::hover::solve_with_checks;
+use geostride::pose::stabilise::StabiliseSettings;
+use geostride::progress::NoProgress;
+use geostride::video::source::FrameReader;
 
 /// The picked frame: `--picks-frame`, else the `#N` ending of the picks' image name, else 0.
 fn picks_frame(args: &Args, image: &str) -> (usize, Option<String>) {

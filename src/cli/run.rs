@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::anyhow;
 
 use super::bad_input;
-use crate::pipeline::project::load;
-use crate::pipeline::run::{RunError, run as run_project};
+use geostride::pipeline::project::load;
+use geostride::pipeline::run::{RunError, run as run_project};
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -6,8 +6,8 @@ use anyhow::{Context, anyhow};
 
 use super::bad_input;
 use super::{load_camera, scale_to};
-use crate::simulate::run::{Overrides, SimError, Summary, simulate, site_in_crs};
-use crate::simulate::scene::Scene;
+use geostride::simulate::run::{Overrides, SimError, Summary, simulate, site_in_crs};
+use geostride::simulate::scene::Scene;
 
 #[derive(clap::Args)]
 #[command(
@@ -45,13 +45,13 @@ pub struct Args {
 pub(crate) fn load(
     scene_path: &Path,
     site_crs: Option<&str>,
-) -> anyhow::Result<(Scene, crate::camera::Camera, String)> {
+) -> anyhow::Result<(Scene, geostride::camera::Camera, String)> {
     let mut scene = Scene::load(scene_path).map_err(bad_input)?;
     if let Some(crs) = site_crs {
         scene.site = site_in_crs(&scene.site, crs).map_err(|e| bad_input(anyhow!(e)))?;
     }
     let spec = &scene.camera.calibration;
-    let cam_spec = if crate::camera::presets::preset(spec).is_some() {
+    let cam_spec = if geostride::camera::presets::preset(spec).is_some() {
         spec.clone()
     } else {
         scene
@@ -83,7 +83,7 @@ pub(crate) fn run_scene(
         )));
     }
     let input = |m: String| bad_input(anyhow!("{}: {m}", scene_path.display()));
-    crate::simulate::run::check(&scene, &camera).map_err(|e| input(e.to_string()))?;
+    geostride::simulate::run::check(&scene, &camera).map_err(|e| input(e.to_string()))?;
     let calibration = scene.calibration_path(scene_path);
     super::create_output_dir(out, [scene_path, calibration.as_path()])?;
     let bar = super::progress_bar(

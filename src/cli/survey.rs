@@ -10,15 +10,15 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::{bad_input, check_output_file};
-use crate::geom::similarity::ScaleMode;
-use crate::survey::crs::{Crs, HeightKind, Horizontal, Transform};
-use crate::survey::fit::{FitPoint, FitReport, helmert};
-use crate::survey::frame::{Origin, SiteFrame};
-use crate::survey::gis::{GisFormat, write_points};
-use crate::survey::load::{LoadOptions, load_framed};
-use crate::survey::read::{ColumnMap, HeightChoice, ReadOptions, assign_roles, read};
-use crate::survey::write::{self, OutCrs, OutPoint};
-use crate::survey::{Role, Survey, SurveyFormat};
+use geostride::geom::similarity::ScaleMode;
+use geostride::survey::crs::{Crs, HeightKind, Horizontal, Transform};
+use geostride::survey::fit::{FitPoint, FitReport, helmert};
+use geostride::survey::frame::{Origin, SiteFrame};
+use geostride::survey::gis::{GisFormat, write_points};
+use geostride::survey::load::{LoadOptions, load_framed};
+use geostride::survey::read::{ColumnMap, HeightChoice, ReadOptions, assign_roles, read};
+use geostride::survey::write::{self, OutCrs, OutPoint};
+use geostride::survey::{Role, Survey, SurveyFormat};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum InFormat {
@@ -184,7 +184,7 @@ pub enum Command {
     },
 }
 
-pub(crate) use crate::survey::load::Framed;
+pub(crate) use geostride::survey::load::Framed;
 
 /// Reads a survey file (and its picks), assigns roles and sets up the site frame.
 pub(crate) fn read_framed(
@@ -484,7 +484,7 @@ struct JsonReport<'a> {
     frame: JsonFrame,
     points: Vec<JsonPoint<'a>>,
     counts: JsonCounts,
-    dropped: &'a [crate::survey::Dropped],
+    dropped: &'a [geostride::survey::Dropped],
     warnings: &'a [String],
     fit: Option<&'a FitReport>,
 }
@@ -500,7 +500,7 @@ struct JsonFrame {
 #[derive(Serialize)]
 struct JsonPoint<'a> {
     #[serde(flatten)]
-    gcp: &'a crate::survey::Gcp,
+    gcp: &'a geostride::survey::Gcp,
     local_enu_m: [f64; 3],
 }
 
@@ -641,7 +641,7 @@ fn convert(
     let out_crs = OutCrs {
         spec: target_crs.as_ref().map(|c| {
             c.id.clone()
-                .unwrap_or_else(|| crate::survey::crs::normalise_spec(&c.spec))
+                .unwrap_or_else(|| geostride::survey::crs::normalise_spec(&c.spec))
         }),
         name: target_crs
             .as_ref()
@@ -682,7 +682,7 @@ fn convert(
     match text {
         Some(t) => {
             let t = t.map_err(|e| bad_input(anyhow!("{}: {e}", output.display())))?;
-            crate::io::write_atomic(output, t.as_bytes())
+            geostride::io::write_atomic(output, t.as_bytes())
                 .map_err(|e| anyhow!("{}: {e}", output.display()))?;
         }
         None => {

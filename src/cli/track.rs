@@ -11,14 +11,14 @@ use anyhow::{Context, anyhow};
 use nalgebra::Vector2;
 
 use super::bad_input;
-use crate::detect::Detector;
-use crate::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
-use crate::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
-use crate::detect::person::BoxesDetector;
-use crate::pipeline::klt_pass::{KltPass, klt_over_video};
-use crate::pipeline::scan::{ScanError, ScanJob, scan};
-use crate::pipeline::settings::KltSection;
-use crate::track::ImageTrack;
+use geostride::detect::Detector;
+use geostride::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
+use geostride::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
+use geostride::detect::person::BoxesDetector;
+use geostride::pipeline::klt_pass::{KltPass, klt_over_video};
+use geostride::pipeline::scan::{ScanError, ScanJob, scan};
+use geostride::pipeline::settings::KltSection;
+use geostride::track::ImageTrack;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -130,7 +130,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     };
     // A video that cannot be opened is the user's to fix (exit 2).
-    crate::video::source::FrameReader::open(&args.video).map_err(|e| bad_input(anyhow!(e)))?;
+    geostride::video::source::FrameReader::open(&args.video).map_err(|e| bad_input(anyhow!(e)))?;
     super::create_output_dir(&args.out, std::iter::once(&args.video).chain(&args.boxes))?;
     let bar = super::progress_bar(
         args.quiet || args.json,
@@ -218,9 +218,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let write = |name: &str, text: &str| {
         let path = args.out.join(name);
-        crate::io::write_atomic(&path, text.as_bytes()).with_context(|| path.display().to_string())
+        geostride::io::write_atomic(&path, text.as_bytes())
+            .with_context(|| path.display().to_string())
     };
-    write("tracks_mot.txt", &crate::export::mot_txt(&tracks))?;
+    write("tracks_mot.txt", &geostride::export::mot_txt(&tracks))?;
     write("tracks.csv", &tracks_csv(&tracks))?;
     let json = serde_json::to_string_pretty(&report)?;
     write("report.json", &json)?;

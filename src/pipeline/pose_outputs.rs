@@ -4,7 +4,6 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, anyhow};
 use nalgebra::Matrix3;
 
 use crate::camera::Camera;
@@ -37,7 +36,25 @@ pub struct PoseRun<'a> {
 
 /// Writes `poses.csv`, `reprojection.csv` and `.png`, `key_frames.csv` and `gcps_adjusted.csv`
 /// into `out`; returns the paths.
-pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathBuf>> {
+/// Why `pose/` could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum PoseOutputError {
+    #[error("{}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A position could not be converted to the GCP file's CRS.
+    #[error("{0}")]
+    Crs(String),
+    #[error("{}: {message}", path.display())]
+    Chart { path: PathBuf, message: String },
+    #[error("formatting a table: {0}")]
+    Format(#[from] std::fmt::Error),
+}
+
+pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> Result<Vec<PathBuf>, PoseOutputError> {
     let PoseRun {
         camera,
         result: r,
@@ -48,9 +65,12 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
         control,
     } = *run;
     let mut written = Vec::new();
-    let mut put = |name: &str, text: String| -> anyhow::Result<()> {
+    let mut put = |name: &str, text: String| -> Result<(), PoseOutputError> {
         let p = out.join(name);
-        write_atomic(&p, text.as_bytes()).with_context(|| p.display().to_string())?;
+        write_atomic(&p, text.as_bytes()).map_err(|source| PoseOutputError::Write {
+            path: p.clone(),
+            source,
+        })?;
         written.push(p);
         Ok(())
     };
@@ -63,10 +83,9 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
     for ((f, t), chk) in r.frames.iter().zip(tracks).zip(check_mean) {
         let time = f.index as f64 / fps;
         let c = f.cam_from_world.centre();
-        let src = framed
-            .frame
-            .source_from_local(&c)
-            .map_err(|e| anyhow!("camera position to the GCP file's CRS: {e}"))?;
+        let src = framed.frame.source_from_local(&c).map_err(|e| {
+            PoseOutputError::Crs(format!("camera position to the GCP file's CRS: {e}"))
+        })?;
         let att = Attitude::from_world_from_cam(&f.cam_from_world.rotation.inverse().into_inner());
         let rv = f.cam_from_world.rvec();
         let tv = f.cam_from_world.translation;
@@ -174,13 +193,16 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> anyhow::Result<Vec<PathB
     let png = out.join("reprojection.png");
     line_chart(&chart, 1200, 500)
         .and_then(|c| c.save(&png))
-        .map_err(|e| anyhow!(e))?;
+        .map_err(|message| PoseOutputError::Chart {
+            path: png.clone(),
+            message,
+        })?;
     written.push(png);
     Ok(written)
 }
 
 /// `key_frames.csv`: each key frame, why it is one, and its PnP solution or error.
-fn key_frames_csv(run: &PoseRun) -> anyhow::Result<String> {
+fn key_frames_csv(run: &PoseRun) -> Result<String, PoseOutputError> {
     let (r, tracks, fps) = (run.result, run.tracks, run.fps);
     let mut keys =
         String::from("frame,time_s,reason,features,picks,inliers,outliers,rms_px,sigma0,error\n");
@@ -216,7 +238,7 @@ fn key_frames_csv(run: &PoseRun) -> anyhow::Result<String> {
 }
 
 /// `gcps_adjusted.csv`: the control points after the joint adjustment, with their shift and σ.
-fn gcps_adjusted_csv(run: &PoseRun) -> anyhow::Result<String> {
+fn gcps_adjusted_csv(run: &PoseRun) -> Result<String, PoseOutputError> {
     let (r, control, framed) = (run.result, run.control, run.framed);
     let mut g = String::from(
         "name,e_m,n_m,u_m,shift_e_m,shift_n_m,shift_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z\n",
@@ -226,7 +248,7 @@ fn gcps_adjusted_csv(run: &PoseRun) -> anyhow::Result<String> {
         let src = framed
             .frame
             .source_from_local(p)
-            .map_err(|e| anyhow!("GCP {} to the file's CRS: {e}", o.name))?;
+            .map_err(|e| PoseOutputError::Crs(format!("GCP {} to the file's CRS: {e}", o.name)))?;
         let sd = |m: &Matrix3<f64>, k: usize| m[(k, k)].max(0.0).sqrt();
         writeln!(
             g,

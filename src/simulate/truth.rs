@@ -101,6 +101,26 @@ pub fn parse_gcps(path: &Path, text: &str) -> Result<Vec<(String, Vector3<f64>)>
         .collect()
 }
 
+/// Every person's height from `truth/people.csv`: person id → height, metres.
+pub fn read_people_heights(path: &Path) -> Result<HashMap<usize, f64>, FileError> {
+    let text = FileCtx { path }.read_text("a CSV of people")?;
+    parse_people_heights(path, &text)
+}
+
+/// [`read_people_heights`] on text; `path` names the file in messages.
+pub fn parse_people_heights(path: &Path, text: &str) -> Result<HashMap<usize, f64>, FileError> {
+    let ctx = FileCtx { path };
+    rows(path, text, &["person", "height_m"])?
+        .into_iter()
+        .map(|(line, r)| {
+            Ok((
+                ctx.whole(&r["person"], line, "person")? as usize,
+                ctx.number(&r["height_m"], line, "height_m")?,
+            ))
+        })
+        .collect()
+}
+
 /// The mean distance in pixels between where `a` and `b` project `points`; `None` when a point
 /// is behind either camera.
 pub fn mean_reprojection_px(
@@ -116,4 +136,18 @@ pub fn mean_reprojection_px(
         sum += (pa - pb).norm();
     }
     Some(sum / points.len().max(1) as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn people_heights_read_with_their_line() {
+        let p = Path::new("people.csv");
+        let h = parse_people_heights(p, "person,height_m,speed_m_s\n1,1.72,3\n2,1.65,3\n").unwrap();
+        assert_eq!(h.get(&2), Some(&1.65));
+        let e = parse_people_heights(p, "person,height_m\n1,tall\n").unwrap_err();
+        assert_eq!(e.line, Some(2));
+    }
 }

@@ -66,6 +66,22 @@ pub struct ImageObservations {
 }
 
 impl Framed {
+    /// The images the enabled points are picked in, with the number of points picked in each.
+    pub fn picked_images(&self) -> std::collections::BTreeMap<String, usize> {
+        let mut images = std::collections::BTreeMap::new();
+        for p in self
+            .survey
+            .points
+            .iter()
+            .filter(|p| p.role != Role::Disabled)
+        {
+            for o in &p.observations {
+                *images.entry(o.image.clone()).or_insert(0) += 1;
+            }
+        }
+        images
+    }
+
     /// The observations of `image`: every enabled point picked there, once, with a height, and
     /// inside the image when its size `(width, height)` is known. σ of a pick from the picks
     /// file or `pick_sigma_px`; of a point from the survey or `gcp_sigma_m` on each axis.

@@ -370,17 +370,7 @@ fn picked(
 ) -> Result<(usize, Vec<GcpObservation>, Vec<GcpObservation>), RunError> {
     let s = &l.project.survey;
     let input = |key: &str, m: String| RunError::Input(l.error("survey", key, m).to_string());
-    let mut images: BTreeMap<String, usize> = BTreeMap::new();
-    for p in framed
-        .survey
-        .points
-        .iter()
-        .filter(|p| p.role != Role::Disabled)
-    {
-        for o in &p.observations {
-            *images.entry(o.image.clone()).or_default() += 1;
-        }
-    }
+    let images = framed.picked_images();
     let video_name = Path::new(&l.project.video.path)
         .file_name()
         .map(|f| f.to_string_lossy().into_owned())

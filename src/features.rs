@@ -10,7 +10,7 @@ pub trait FeatureTracker {
     type Frame;
 
     /// Well-textured points of a whole frame, spread over it.
-    fn detect(&mut self, frame: &Self::Frame) -> Result<Vec<Vector2<f64>>, String>;
+    fn detect(&mut self, frame: &Self::Frame) -> Result<Vec<Vector2<f64>>, crate::PluginError>;
 
     /// Up to `max` corners inside `bbox` (`[x, y, w, h]`, pixels).
     fn detect_in(
@@ -18,7 +18,7 @@ pub trait FeatureTracker {
         frame: &Self::Frame,
         bbox: [f64; 4],
         max: usize,
-    ) -> Result<Vec<Vector2<f64>>, String>;
+    ) -> Result<Vec<Vector2<f64>>, crate::PluginError>;
 
     /// Where `pts` of `from` are in `to`, starting from `guess` when given (else where they
     /// were), searching widely; `None` for a point lost or failing the forward–backward check.
@@ -28,7 +28,7 @@ pub trait FeatureTracker {
         to: &Self::Frame,
         pts: &[Vector2<f64>],
         guess: Option<&[Vector2<f64>]>,
-    ) -> Result<Vec<Option<Vector2<f64>>>, String>;
+    ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError>;
 
     /// Where `pts` of `from` are in `to`, searching only near `guess` (a good prediction): a
     /// coarse search could slide along the long edges of railings and lane lines.
@@ -38,5 +38,5 @@ pub trait FeatureTracker {
         to: &Self::Frame,
         pts: &[Vector2<f64>],
         guess: &[Vector2<f64>],
-    ) -> Result<Vec<Option<Vector2<f64>>>, String>;
+    ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError>;
 }

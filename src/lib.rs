@@ -13,6 +13,10 @@
 // `!(x > 0.0)` is used on purpose: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+/// What a plug-in (a `detect::Detector`, a `features::FeatureTracker`) reports when it cannot
+/// go on: any error, boxed, so that an implementation outside geostride keeps its own type.
+pub type PluginError = Box<dyn std::error::Error + Send + Sync>;
+
 pub mod calibration;
 pub mod camera;
 pub mod detect;

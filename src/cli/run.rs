@@ -24,9 +24,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let loaded = load(&args.project).map_err(bad_input)?;
     let out = args.out.clone().unwrap_or_else(|| loaded.resolve("out"));
     let report = run_project(&loaded, &out, &super::StageBars { quiet: args.quiet }).map_err(
-        |e| match e {
-            RunError::Input(m) => bad_input(anyhow!(m)),
-            RunError::Failed(m) => anyhow!(m),
+        |e: RunError| {
+            if e.is_input() {
+                bad_input(anyhow!(e))
+            } else {
+                anyhow!(e)
+            }
         },
     )?;
     println!("Project: {} -> {}", report.project, out.display());

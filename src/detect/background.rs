@@ -403,7 +403,7 @@ impl BackgroundDetector {
 }
 
 impl Detector for BackgroundDetector {
-    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String> {
+    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
         self.geometry(frame)?;
         self.subtract(frame)
             .map_err(|m| format!("frame {}: background model: {m}", frame.index))?;
@@ -582,10 +582,10 @@ mod tests {
             bgr: &bytes,
         };
         let err = det.push(&view(64, 40)).unwrap_err();
-        assert!(err.contains("bytes"), "{err}");
+        assert!(err.to_string().contains("bytes"), "{err}");
         det.push(&view(64, 48)).unwrap();
         let err = det.push(&view(48, 64)).unwrap_err();
-        assert!(err.contains("began at 64x48"), "{err}");
+        assert!(err.to_string().contains("began at 64x48"), "{err}");
     }
 
     #[test]

@@ -51,9 +51,9 @@ pub type FrameDetections = (usize, Vec<Detection>);
 /// return them later, so each call returns the frames it completed, in order.
 pub trait Detector: Send {
     /// Takes the next frame. Errors mean the video cannot be processed with these settings.
-    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String>;
+    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError>;
     /// After the last frame: the frames still held back.
-    fn finish(&mut self) -> Result<Vec<FrameDetections>, String> {
+    fn finish(&mut self) -> Result<Vec<FrameDetections>, crate::PluginError> {
         Ok(Vec::new())
     }
     /// Numbers for the run report (what was learnt, say).

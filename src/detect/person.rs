@@ -31,7 +31,7 @@ impl BoxesDetector {
 }
 
 impl Detector for BoxesDetector {
-    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String> {
+    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
         self.frames += 1;
         let from = self.boxes.partition_point(|b| b.frame < frame.index);
         let to = from + self.boxes[from..].partition_point(|b| b.frame == frame.index);
@@ -147,13 +147,13 @@ impl HeadsFromBodies {
 }
 
 impl Detector for HeadsFromBodies {
-    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String> {
+    fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
         self.width = frame.width as f64;
         self.height = frame.height as f64;
         let done = self.inner.push(frame)?;
         Ok(self.heads(done))
     }
-    fn finish(&mut self) -> Result<Vec<FrameDetections>, String> {
+    fn finish(&mut self) -> Result<Vec<FrameDetections>, crate::PluginError> {
         let done = self.inner.finish()?;
         Ok(self.heads(done))
     }
@@ -171,7 +171,7 @@ mod tests {
     struct Fixed(Vec<[f64; 4]>);
 
     impl Detector for Fixed {
-        fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, String> {
+        fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
             let dets = self
                 .0
                 .iter()

@@ -79,16 +79,33 @@ impl std::fmt::Display for Termination {
 /// The damping state of a Levenberg–Marquardt run.
 #[derive(Clone, Debug)]
 pub struct Damping {
+    /// `μ = 1/Δ`, Δ the trust region's radius.
     pub mu: f64,
     nu: f64,
+    /// μ never falls below this (Δ never above its largest radius).
+    min_mu: f64,
+    /// μ beyond this is a radius too small to move.
+    max_mu: f64,
 }
 
 impl Damping {
     pub fn new(settings: &LmSettings) -> Self {
+        Damping::with_limits(settings.initial_mu, 0.0, 1e32)
+    }
+
+    /// A trust region of radius `1/mu`, kept within `[1/max_mu, 1/min_mu]`.
+    pub fn with_limits(mu: f64, min_mu: f64, max_mu: f64) -> Self {
         Damping {
-            mu: settings.initial_mu,
+            mu,
             nu: 2.0,
+            min_mu,
+            max_mu,
         }
+    }
+
+    /// The trust region's radius `Δ = 1/μ`.
+    pub fn radius(&self) -> f64 {
+        1.0 / self.mu
     }
 
     /// The regularised diagonal entry `μ·clamp(d)` to add to a normal-matrix diagonal `d`.
@@ -99,20 +116,31 @@ impl Damping {
     /// Updates μ after a step with gain ratio `rho`; returns whether the step is accepted.
     pub fn update(&mut self, rho: f64, settings: &LmSettings) -> bool {
         if rho.is_finite() && rho > settings.min_relative_decrease {
-            let f = 1.0 - (2.0 * rho - 1.0).powi(3);
-            self.mu *= f.max(1.0 / 3.0);
-            self.nu = 2.0;
+            self.accept(rho);
             true
         } else {
-            self.mu *= self.nu;
-            self.nu *= 2.0;
+            self.reject();
             false
         }
     }
 
+    /// An accepted step of gain ratio `rho`: the region grows by up to 3×, shrinks for a poor
+    /// model (Nielsen's rule, as Ceres).
+    pub fn accept(&mut self, rho: f64) {
+        let f = 1.0 - (2.0 * rho - 1.0).powi(3);
+        self.mu = (self.mu * f.max(1.0 / 3.0)).max(self.min_mu);
+        self.nu = 2.0;
+    }
+
+    /// A rejected step: the region shrinks, twice as fast each time in a row.
+    pub fn reject(&mut self) {
+        self.mu *= self.nu;
+        self.nu *= 2.0;
+    }
+
     /// True when the damping is so large that steps are meaningless.
     pub fn exhausted(&self) -> bool {
-        self.mu > 1e32 || !self.mu.is_finite()
+        self.mu > self.max_mu || !self.mu.is_finite()
     }
 }
 

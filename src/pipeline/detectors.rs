@@ -33,7 +33,7 @@ pub struct DetectorInputs<'a> {
 
 impl DetectorInputs<'_> {
     fn input(&self, key: &str, e: impl Into<String>) -> RunError {
-        RunError::Input(self.l.error("detect", key, e).to_string())
+        RunError::Input(self.l.error("detect", key, e))
     }
 }
 
@@ -63,7 +63,7 @@ pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dy
 pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
     let path = x.l.resolve(&b.boxes);
     let format = b.boxes_format.as_deref().and_then(BoxFormat::parse);
-    let boxes = read_boxes(&path, format).map_err(|e| RunError::Input(e.to_string()))?;
+    let boxes = read_boxes(&path, format).map_err(|e| RunError::from_input(e))?;
     if let Some(n) = x.frames
         && !boxes.iter().any(|b| b.frame < n)
     {

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::sync::mpsc::sync_channel;
+use std::sync::mpsc::{Receiver, sync_channel};
 use std::time::Instant;
 
 use nalgebra::Vector2;
@@ -74,6 +74,84 @@ impl std::fmt::Display for ScanError {
 /// Detections by frame, busy seconds and the detector's summary.
 type Detected = (Vec<Vec<Detection>>, f64, Vec<(String, f64)>);
 
+/// The stabiliser's part of a pass.
+struct StabiliseJob<'a> {
+    video: &'a Path,
+    size: (u32, u32),
+    settings: StabiliseSettings,
+    pick_frame: usize,
+    picks: Vec<Vector2<f64>>,
+}
+
+/// The stabiliser, beside the decoder, in frame order: each frame's track, and busy seconds.
+fn stabilise_frames(
+    job: StabiliseJob,
+    frames: Receiver<Arc<Mat>>,
+) -> Result<(Vec<FrameTrack>, f64), String> {
+    let klt = Klt::new(KltSettings::default());
+    let mut tracks = Vec::new();
+    let mut spent = 0.0;
+    let mut stab = None;
+    for (i, bgr) in frames.iter().enumerate() {
+        let t = Instant::now();
+        if stab.is_none() {
+            // The picked frame is the template: the first frame, or read on its own (here,
+            // beside the decoder).
+            let template = if job.pick_frame == i {
+                to_gray(&bgr)?
+            } else {
+                to_gray(&FrameReader::frame_bgr(job.video, job.pick_frame)?)?
+            };
+            stab = Some(Stabiliser::new(
+                Klt::new(KltSettings::default()),
+                job.settings.clone(),
+                job.size,
+                klt.frame(job.pick_frame, template)?,
+                job.pick_frame,
+                job.picks.clone(),
+            ));
+        }
+        let stab = stab.as_mut().expect("made above");
+        let frame = klt.frame(i, to_gray(&bgr)?)?;
+        tracks.push(stab.push(i, frame).map_err(|e| format!("frame {i}: {e}"))?);
+        spent += t.elapsed().as_secs_f64();
+    }
+    Ok((tracks, spent))
+}
+
+/// The detector, beside the decoder, in frame order.
+fn detect_frames(
+    mut det: Box<dyn Detector>,
+    frames: Receiver<Arc<Mat>>,
+) -> Result<Detected, String> {
+    let mut out: Vec<Vec<Detection>> = Vec::new();
+    let mut spent = 0.0;
+    let mut put = |done: Vec<FrameDetections>| {
+        for (i, d) in done {
+            if out.len() <= i {
+                out.resize(i + 1, Vec::new());
+            }
+            out[i] = d;
+        }
+    };
+    for (i, bgr) in frames.iter().enumerate() {
+        let t = Instant::now();
+        let bytes = bgr.data_bytes().map_err(|e| e.to_string())?;
+        let view = FrameView {
+            index: i,
+            width: bgr.cols() as usize,
+            height: bgr.rows() as usize,
+            bgr: bytes,
+        };
+        put(det.push(&view).map_err(|e| format!("frame {i}: {e}"))?);
+        spent += t.elapsed().as_secs_f64();
+    }
+    let t = Instant::now();
+    put(det.finish().map_err(|e| e.to_string())?);
+    spent += t.elapsed().as_secs_f64();
+    Ok((out, spent, det.summary()))
+}
+
 fn to_gray(bgr: &Mat) -> Result<Mat, String> {
     let mut g = Mat::default();
     opencv::imgproc::cvt_color_def(bgr, &mut g, opencv::imgproc::COLOR_BGR2GRAY)
@@ -116,68 +194,18 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
     let scanned = std::thread::scope(|scope| -> Result<Scanned, ScanError> {
         // The stabiliser runs beside the decoder and the detector, in frame order.
         let stab_thread = stabiliser.map(|(settings, pick_frame, picks)| {
-            scope.spawn(move || -> Result<(Vec<FrameTrack>, f64), String> {
-                let klt = Klt::new(KltSettings::default());
-                let mut tracks = Vec::new();
-                let mut spent = 0.0;
-                let mut stab = None;
-                for (i, bgr) in from_decoder.iter().enumerate() {
-                    let t = Instant::now();
-                    if stab.is_none() {
-                        // The picked frame is the template: the first frame, or read on its own
-                        // (here, beside the decoder).
-                        let template = if pick_frame == i {
-                            to_gray(&bgr)?
-                        } else {
-                            to_gray(&FrameReader::frame_bgr(video, pick_frame)?)?
-                        };
-                        stab = Some(Stabiliser::new(
-                            Klt::new(KltSettings::default()),
-                            settings.clone(),
-                            (width, height),
-                            klt.frame(pick_frame, template)?,
-                            pick_frame,
-                            picks.clone(),
-                        ));
-                    }
-                    let stab = stab.as_mut().expect("made above");
-                    let frame = klt.frame(i, to_gray(&bgr)?)?;
-                    tracks.push(stab.push(i, frame).map_err(|e| format!("frame {i}: {e}"))?);
-                    spent += t.elapsed().as_secs_f64();
-                }
-                Ok((tracks, spent))
-            })
+            let job = StabiliseJob {
+                video,
+                size: (width, height),
+                settings,
+                pick_frame,
+                picks,
+            };
+            scope.spawn(move || stabilise_frames(job, from_decoder))
         });
-        let detect_thread = detector.take().map(|mut det| {
-            scope.spawn(move || -> Result<Detected, String> {
-                let mut out: Vec<Vec<Detection>> = Vec::new();
-                let mut spent = 0.0;
-                let mut put = |done: Vec<FrameDetections>| {
-                    for (i, d) in done {
-                        if out.len() <= i {
-                            out.resize(i + 1, Vec::new());
-                        }
-                        out[i] = d;
-                    }
-                };
-                for (i, bgr) in for_detector.iter().enumerate() {
-                    let t = Instant::now();
-                    let bytes = bgr.data_bytes().map_err(|e| e.to_string())?;
-                    let view = FrameView {
-                        index: i,
-                        width: bgr.cols() as usize,
-                        height: bgr.rows() as usize,
-                        bgr: bytes,
-                    };
-                    put(det.push(&view).map_err(|e| format!("frame {i}: {e}"))?);
-                    spent += t.elapsed().as_secs_f64();
-                }
-                let t = Instant::now();
-                put(det.finish()?);
-                spent += t.elapsed().as_secs_f64();
-                Ok((out, spent, det.summary()))
-            })
-        });
+        let detect_thread = detector
+            .take()
+            .map(|det| scope.spawn(move || detect_frames(det, for_detector)));
         let mut decode_s = 0.0;
         let mut frames = 0;
         let mut failure = None;

@@ -164,7 +164,7 @@ impl<T: FeatureTracker> Stabiliser<T> {
     }
 
     fn set_reference(&mut self, index: usize, frame: &T::Frame) -> Result<(), String> {
-        let pts = self.tracker.detect(frame)?;
+        let pts = self.tracker.detect(frame).map_err(|e| e.to_string())?;
         self.reference = Some(index);
         self.ref_count = pts.len();
         self.ref_pts = pts.clone();
@@ -187,7 +187,10 @@ impl<T: FeatureTracker> Stabiliser<T> {
         let frame_from_first;
         match (self.reference, &self.prev) {
             (Some(reference), Some(prev)) => {
-                let moved = self.tracker.track(prev, &frame, &self.prev_pts, None)?;
+                let moved = self
+                    .tracker
+                    .track(prev, &frame, &self.prev_pts, None)
+                    .map_err(|e| e.to_string())?;
                 let (mut src, mut dst) = (Vec::new(), Vec::new());
                 for (r, m) in self.ref_pts.iter().zip(&moved) {
                     if let Some(m) = m {
@@ -294,7 +297,8 @@ impl<T: FeatureTracker> Stabiliser<T> {
         let guess: Vec<Vector2<f64>> = predicted.iter().map(|p| p.0).collect();
         let tracked = self
             .tracker
-            .refine(&self.template, frame, &self.picks, &guess)?;
+            .refine(&self.template, frame, &self.picks, &guess)
+            .map_err(|e| e.to_string())?;
         let max = self.settings.max_pick_jump_px;
         let out: Vec<Option<Vector2<f64>>> = tracked
             .iter()
@@ -326,7 +330,7 @@ mod tests {
 
     impl FeatureTracker for Planar {
         type Frame = Frame;
-        fn detect(&mut self, f: &Frame) -> Result<Vec<Vector2<f64>>, String> {
+        fn detect(&mut self, f: &Frame) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
             Ok((0..100)
                 .map(|i| {
                     transfer(
@@ -346,7 +350,7 @@ mod tests {
             to: &Frame,
             pts: &[Vector2<f64>],
             _guess: Option<&[Vector2<f64>]>,
-        ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+        ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
             let m = to.from_plane * from.from_plane.try_inverse().unwrap();
             // Lose a feature now and then, and all of a far half after `lose_after`.
             Ok(pts
@@ -367,7 +371,7 @@ mod tests {
             to: &Frame,
             pts: &[Vector2<f64>],
             guess: &[Vector2<f64>],
-        ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+        ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
             self.track(from, to, pts, Some(guess))
         }
         fn detect_in(
@@ -375,7 +379,7 @@ mod tests {
             f: &Frame,
             b: [f64; 4],
             max: usize,
-        ) -> Result<Vec<Vector2<f64>>, String> {
+        ) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
             let inside = |p: &Vector2<f64>| {
                 p.x >= b[0] && p.y >= b[1] && p.x <= b[0] + b[2] && p.y <= b[1] + b[3]
             };

@@ -199,6 +199,10 @@ fn largest_eigenvalue(m: &Matrix2<f64>) -> f64 {
     0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt()
 }
 
+/// A live track carried into the next frame: where it is predicted, its covariance, where it
+/// would be had it stood still, whether its features measured its motion.
+type Prediction = (Vector2<f64>, Matrix2<f64>, Vector2<f64>, bool);
+
 impl<F: FeatureTracker> KltTracker<F> {
     pub fn new(settings: KltTrackSettings, features: F, size: (f64, f64)) -> Self {
         KltTracker {
@@ -240,7 +244,10 @@ impl<F: FeatureTracker> KltTracker<F> {
             // The camera's motion from fb to fa, undone to first order (it is small).
             let back = |x: &Vector2<f64>| 2.0 * x - motion_at(*fa, x);
             let guess: Vec<Vector2<f64>> = pts.iter().map(|x| back(x) - v).collect();
-            let next = self.features.track(a, b, &pts, Some(&guess))?;
+            let next = self
+                .features
+                .track(a, b, &pts, Some(&guess))
+                .map_err(|e| e.to_string())?;
             let (mut to, mut flow) = (Vec::new(), Vec::new());
             for (x, y) in pts.iter().zip(&next) {
                 if let Some(y) = y {
@@ -287,11 +294,34 @@ impl<F: FeatureTracker> KltTracker<F> {
         detections: &[Detection],
         motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
     ) -> Result<(), String> {
-        let s = self.settings.clone();
         let motion = |x: &Vector2<f64>| motion_at(index, x);
+        let predicted = self.predict(&frame, detections, &motion)?;
+        let matched = self.associate(&predicted, detections);
+        let (keep, taken) =
+            self.correct(index, &frame, detections, predicted, matched, motion_at)?;
+        // Detections no track explains start tracks.
+        let keep = self.start_tracks(index, &frame, detections, keep, &taken)?;
+        self.live = keep;
+        self.frames.push_back((index, frame));
+        while self.frames.len() > self.settings.backward_frames + 2 * CONFIRM_HITS + TENTATIVE_GAP {
+            self.frames.pop_front();
+        }
+        Ok(())
+    }
+
+    /// Each live track carried into this frame by its features (one mode of their motion net of
+    /// the camera's): where it is predicted, the prediction's covariance, where it would be had
+    /// it stood still, and whether its features measured its motion.
+    fn predict(
+        &mut self,
+        frame: &F::Frame,
+        detections: &[Detection],
+        motion: &dyn Fn(&Vector2<f64>) -> Vector2<f64>,
+    ) -> Result<Vec<Prediction>, String> {
         // Features into this frame. Inside a person's box some features are on the ground, so
         // each track moves with one mode of its features' motion net of the camera's: the one
         // that agrees with its velocity and the detections (ground features have none).
+        let s = self.settings.clone();
         let mut predicted = Vec::with_capacity(self.live.len());
         for t in &mut self.live {
             let p = t.position();
@@ -304,7 +334,8 @@ impl<F: FeatureTracker> KltTracker<F> {
                     t.features.iter().map(|f| motion(f) + t.velocity).collect();
                 let next = self
                     .features
-                    .track(prev, &frame, &t.features, Some(&guess))?;
+                    .track(prev, &frame, &t.features, Some(&guess))
+                    .map_err(|e| e.to_string())?;
                 let (mut to, mut flow) = (Vec::new(), Vec::new());
                 for (a, b) in t.features.iter().zip(&next) {
                     if let Some(b) = b {
@@ -367,11 +398,15 @@ impl<F: FeatureTracker> KltTracker<F> {
             let pred_cov = last.est_cov + Matrix2::identity() * var;
             predicted.push((pred, pred_cov, motion(&p), moved_by.is_some()));
         }
+        Ok(predicted)
+    }
 
+    /// The detection each live track takes, if any.
+    fn associate(&self, predicted: &[Prediction], detections: &[Detection]) -> Vec<Option<usize>> {
         // Detections to tracks: first the confirmed ones, then the tentative ones take what is
         // left (a false alarm's young track must not take a person's detection from its track).
-        let gated = |(p, cov, _, _): &(Vector2<f64>, Matrix2<f64>, Vector2<f64>, bool),
-                     d: &Detection| {
+        let s = &self.settings;
+        let gated = |(p, cov, _, _): &Prediction, d: &Detection| {
             // A track that lost its features is less sure where it is: a wider gate, up to
             // twice the base.
             let spread = largest_eigenvalue(&(cov + d.cov)).sqrt();
@@ -409,6 +444,21 @@ impl<F: FeatureTracker> KltTracker<F> {
                 }
             }
         }
+        matched
+    }
+
+    /// Each track's Kalman update, velocity and features; tracks that ended go to `done`. The
+    /// tracks kept, and which detections were taken.
+    fn correct(
+        &mut self,
+        index: usize,
+        frame: &F::Frame,
+        detections: &[Detection],
+        predicted: Vec<Prediction>,
+        matched: Vec<Option<usize>>,
+        motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
+    ) -> Result<(Vec<Live>, Vec<bool>), String> {
+        let s = self.settings.clone();
         let mut taken = vec![false; detections.len()];
         let mut keep = Vec::with_capacity(self.live.len());
         for ((mut t, (pred, pred_cov, still_at, measured)), m) in std::mem::take(&mut self.live)
@@ -489,12 +539,27 @@ impl<F: FeatureTracker> KltTracker<F> {
                 } else {
                     self.box_around(&est)
                 };
-                t.features = self.features.detect_in(&frame, b, s.max_features)?;
+                t.features = self
+                    .features
+                    .detect_in(&frame, b, s.max_features)
+                    .map_err(|e| e.to_string())?;
                 self.reinitialised += 1;
             }
             keep.push(t);
         }
-        // Detections no track explains start tracks.
+        Ok((keep, taken))
+    }
+
+    /// New tracks from the detections no track took.
+    fn start_tracks(
+        &mut self,
+        index: usize,
+        frame: &F::Frame,
+        detections: &[Detection],
+        mut keep: Vec<Live>,
+        taken: &[bool],
+    ) -> Result<Vec<Live>, String> {
+        let s = self.settings.clone();
         for (j, d) in detections.iter().enumerate() {
             if taken[j] || !self.inside(&d.uv) {
                 continue;
@@ -505,7 +570,10 @@ impl<F: FeatureTracker> KltTracker<F> {
             {
                 continue;
             }
-            let features = self.features.detect_in(&frame, d.bbox, s.max_features)?;
+            let features = self
+                .features
+                .detect_in(&frame, d.bbox, s.max_features)
+                .map_err(|e| e.to_string())?;
             self.started += 1;
             keep.push(Live {
                 features: features.clone(),
@@ -530,12 +598,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                 bbox: d.bbox,
             });
         }
-        self.live = keep;
-        self.frames.push_back((index, frame));
-        while self.frames.len() > s.backward_frames + 2 * CONFIRM_HITS + TENTATIVE_GAP {
-            self.frames.pop_front();
-        }
-        Ok(())
+        Ok(keep)
     }
 
     /// The tracks, smoothed back over their frames, cut to their first and last detection,
@@ -666,7 +729,7 @@ mod tests {
 
     impl FeatureTracker for Synthetic {
         type Frame = usize;
-        fn detect(&mut self, frame: &usize) -> Result<Vec<Vector2<f64>>, String> {
+        fn detect(&mut self, frame: &usize) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
             Ok(self.truth[*frame].clone())
         }
         fn refine(
@@ -675,7 +738,7 @@ mod tests {
             to: &usize,
             pts: &[Vector2<f64>],
             guess: &[Vector2<f64>],
-        ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+        ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
             self.track(from, to, pts, Some(guess))
         }
         fn detect_in(
@@ -683,7 +746,7 @@ mod tests {
             frame: &usize,
             bbox: [f64; 4],
             _max: usize,
-        ) -> Result<Vec<Vector2<f64>>, String> {
+        ) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
             let c = Vector2::new(bbox[0] + bbox[2] / 2.0, bbox[1] + bbox[3] / 2.0);
             // The person nearest the box, if any.
             let near = self.truth[*frame]
@@ -706,7 +769,7 @@ mod tests {
             to: &usize,
             pts: &[Vector2<f64>],
             _guess: Option<&[Vector2<f64>]>,
-        ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+        ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
             Ok(pts
                 .iter()
                 .map(|p| {

@@ -221,7 +221,7 @@ impl Klt {
 impl FeatureTracker for Klt {
     type Frame = GrayFrame;
 
-    fn detect(&mut self, frame: &GrayFrame) -> Result<Vec<Vector2<f64>>, String> {
+    fn detect(&mut self, frame: &GrayFrame) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
         let s = &self.settings;
         let work = frame.pyramid.get(0).map_err(e)?;
         let (w, h) = (work.cols(), work.rows());
@@ -267,7 +267,7 @@ impl FeatureTracker for Klt {
         frame: &GrayFrame,
         bbox: [f64; 4],
         max: usize,
-    ) -> Result<Vec<Vector2<f64>>, String> {
+    ) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
         let work = frame.pyramid.get(0).map_err(e)?;
         let inv = 1.0 / frame.scale;
         let a = rescale(&Vector2::new(bbox[0], bbox[1]), inv);
@@ -313,7 +313,7 @@ impl FeatureTracker for Klt {
         to: &GrayFrame,
         pts: &[Vector2<f64>],
         guess: Option<&[Vector2<f64>]>,
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+    ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
         if pts.is_empty() {
             return Ok(Vec::new());
         }
@@ -357,7 +357,7 @@ impl FeatureTracker for Klt {
         to: &GrayFrame,
         pts: &[Vector2<f64>],
         guess: &[Vector2<f64>],
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+    ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
         let s = &self.settings;
         // Windows wide enough for the search: the LK window, its pyramid, and slack.
         let half = (s.refine_window * (1 << s.refine_levels)) + 8;

@@ -25,8 +25,10 @@ pub(super) fn export_stage(
         .unwrap_or_default();
     let put = |name: &str, text: &str, outputs: &mut Vec<String>| -> Result<(), RunError> {
         let path = out.join(name);
-        write_atomic(&path, text.as_bytes())
-            .map_err(|e| RunError::Failed(format!("{}: {e}", path.display())))?;
+        write_atomic(&path, text.as_bytes()).map_err(|source| RunError::Io {
+            path: path.clone(),
+            source,
+        })?;
         outputs.push(name.to_string());
         Ok(())
     };

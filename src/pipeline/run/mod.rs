@@ -56,13 +56,50 @@ use project_stage::project_stage;
 use scan_stage::scan_stage;
 use smooth_stage::smooth_stage;
 use track_stage::track_stage;
-/// A failure of a run: bad input (the user's to fix) or a failure while running.
+/// A failure of a run: bad input (the user's to fix: [`RunError::is_input`]) or a failure while
+/// running.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
+    /// An input file, or a key of the project file, is wrong: the file, line and key named.
+    #[error(transparent)]
+    Input(#[from] crate::io::FileError),
+    /// The inputs cannot give a result (no pose from these picks, say), in words.
     #[error("{0}")]
-    Input(String),
+    Unusable(String),
+    /// An output path that cannot be used (it would overwrite an input, say).
+    #[error(transparent)]
+    OutputPath(crate::io::OutputError),
+    /// Reading or writing a file failed while running.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The pose stage's files could not be written.
+    #[error(transparent)]
+    PoseOutputs(#[from] super::pose_outputs::PoseOutputError),
+    /// A coordinate conversion failed while running.
+    #[error(transparent)]
+    Crs(#[from] crate::survey::crs::CrsError),
+    /// Anything else that failed while running.
     #[error("{0}")]
     Failed(String),
+}
+
+impl RunError {
+    /// Whether the inputs are at fault (exit status 2), rather than the run.
+    pub fn is_input(&self) -> bool {
+        matches!(
+            self,
+            RunError::Input(_) | RunError::Unusable(_) | RunError::OutputPath(_)
+        )
+    }
+
+    /// An input's error that names its own file.
+    pub fn from_input(e: impl std::fmt::Display) -> RunError {
+        RunError::Unusable(e.to_string())
+    }
 }
 
 /// Shows progress per stage.
@@ -145,14 +182,15 @@ fn sha256_hex(bytes: &[u8]) -> String {
 
 fn file_record(role: &str, path: &Path) -> Result<InputRecord, RunError> {
     let mut f = std::fs::File::open(path)
-        .map_err(|e| RunError::Input(format!("{}: {e}", path.display())))?;
+        .map_err(|e| RunError::Unusable(format!("{}: {e}", path.display())))?;
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 20];
     let mut bytes = 0u64;
     loop {
-        let n = f
-            .read(&mut buf)
-            .map_err(|e| RunError::Failed(format!("{}: {e}", path.display())))?;
+        let n = f.read(&mut buf).map_err(|source| RunError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
         if n == 0 {
             break;
         }
@@ -195,8 +233,10 @@ impl Cache {
             data,
         })
         .map_err(|e| RunError::Failed(e.to_string()))?;
-        write_atomic(&self.path(stage), text.as_bytes())
-            .map_err(|e| RunError::Failed(format!("{}: {e}", self.path(stage).display())))?;
+        write_atomic(&self.path(stage), text.as_bytes()).map_err(|source| RunError::Io {
+            path: self.path(stage),
+            source,
+        })?;
         Ok(())
     }
 }
@@ -316,15 +356,13 @@ fn project_camera(l: &Loaded, width: u32, height: u32) -> Result<Camera, RunErro
     let spec = &l.project.camera.calibration;
     let cal = match presets::preset(spec) {
         Some(c) => c,
-        None => {
-            formats::read(&l.resolve(spec), None).map_err(|e| RunError::Input(e.to_string()))?
-        }
+        None => formats::read(&l.resolve(spec), None).map_err(|e| RunError::from_input(e))?,
     };
     let cam = cal.camera;
     match cam.image_size {
         Some(s) if s.width == width && s.height == height => Ok(cam),
         Some(s) => cam.scaled_to(width, height).ok_or_else(|| {
-            RunError::Input(l.error("camera", "calibration", format!("the calibration is for {}x{}, the video is {width}x{height}: another aspect ratio", s.width, s.height)).to_string())
+            RunError::Input(l.error("camera", "calibration", format!("the calibration is for {}x{}, the video is {width}x{height}: another aspect ratio", s.width, s.height)))
         }),
         None => Ok(cam.with_image_size(width, height)),
     }
@@ -335,7 +373,7 @@ fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
     let origin = match &s.origin {
         Some(o) => Some(
             o.parse::<Origin>()
-                .map_err(|e| RunError::Input(l.error("survey", "origin", e).to_string()))?,
+                .map_err(|e| RunError::Input(l.error("survey", "origin", e)))?,
         ),
         None => None,
     };
@@ -357,7 +395,7 @@ fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
         disable: Vec::new(),
         origin,
     };
-    load_framed(&l.resolve(&s.gcps), &opts).map_err(|e| RunError::Input(e.to_string()))
+    load_framed(&l.resolve(&s.gcps), &opts).map_err(|e| RunError::from_input(e))
 }
 
 /// The picks of the picked frame: (frame, control, check), checked like `geostride pose` checks
@@ -369,7 +407,7 @@ fn picked(
     frames: Option<usize>,
 ) -> Result<(usize, Vec<GcpObservation>, Vec<GcpObservation>), RunError> {
     let s = &l.project.survey;
-    let input = |key: &str, m: String| RunError::Input(l.error("survey", key, m).to_string());
+    let input = |key: &str, m: String| RunError::Input(l.error("survey", key, m));
     let images = framed.picked_images();
     let video_name = Path::new(&l.project.video.path)
         .file_name()
@@ -406,14 +444,11 @@ fn picked(
         && frame >= n
     {
         let key = if l.project.pose.picks_frame().is_some() {
-            RunError::Input(
-                l.error(
-                    "pose",
-                    "picks_frame",
-                    format!("frame {frame} is beyond the {n} frame(s) processed"),
-                )
-                .to_string(),
-            )
+            RunError::Input(l.error(
+                "pose",
+                "picks_frame",
+                format!("frame {frame} is beyond the {n} frame(s) processed"),
+            ))
         } else {
             input(
                 "picks",
@@ -424,7 +459,7 @@ fn picked(
     }
     let seen = framed
         .observations(&image, s.pick_sigma_px, s.gcp_sigma_m, Some(size))
-        .map_err(|e| RunError::Input(e.to_string()))?;
+        .map_err(|e| RunError::from_input(e))?;
     if seen.control.len() < 4 {
         return Err(input(
             "picks",
@@ -447,7 +482,7 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
         .filter(|(p, _)| p.role == Role::Control)
         .map(|(_, x)| *x)
         .collect();
-    let err = |key: &str, m: String| RunError::Input(l.error("ground", key, m).to_string());
+    let err = |key: &str, m: String| RunError::Input(l.error("ground", key, m));
     match &l.project.ground {
         GroundSection::Plane { height_m: Some(h) } => {
             Ok(Box::new(Plane::from_gradient(0.0, 0.0, *h)))
@@ -613,15 +648,16 @@ fn prepare<'a>(
 
     let video = l.resolve(&p.video.path);
     let reader = crate::video::source::FrameReader::open(&video)
-        .map_err(|e| RunError::Input(l.error("video", "path", e).to_string()))?;
+        .map_err(|e| RunError::Input(l.error("video", "path", e)))?;
     let (fps, width, height, frame_count) =
         (reader.fps, reader.width, reader.height, reader.frame_count);
     drop(reader);
     if !(fps > 0.0) {
-        return Err(RunError::Input(
-            l.error("video", "path", "the video states no frame rate")
-                .to_string(),
-        ));
+        return Err(RunError::Input(l.error(
+            "video",
+            "path",
+            "the video states no frame rate",
+        )));
     }
     let max_frames = p.video.duration_s.map(|d| (d * fps).ceil() as usize);
     let frames_total = match (frame_count, max_frames) {
@@ -644,42 +680,39 @@ fn prepare<'a>(
 
     // The scale of a head in the image, from a pose of the picked frame.
     let first = solve_pose(&camera, &control, &PoseSettings::default())
-        .map_err(|e| RunError::Input(format!("the picks of frame {pick_frame}: {e}")))?;
+        .map_err(|e| RunError::Unusable(format!("the picks of frame {pick_frame}: {e}")))?;
     let first_pose = first.cam_from_world;
     let centre = first_pose.centre();
     let head_z = surface.height(&centre.xy()).ok_or_else(|| {
-        RunError::Input(
-            l.error("ground", "", "the ground is not defined below the camera")
-                .to_string(),
-        )
+        RunError::Input(l.error("ground", "", "the ground is not defined below the camera"))
     })? + p.projection.head_height_m;
     let px_per_m = 0.5 * (camera.fx + camera.fy) / (centre.z - head_z).max(1.0);
 
     // What the later stages read, checked now rather than after hours of scanning.
     let heights = match &p.projection.heights {
-        Some(h) => read_heights(&l.resolve(h)).map_err(|e| RunError::Input(e.to_string()))?,
+        Some(h) => read_heights(&l.resolve(h))?,
         None => BTreeMap::new(),
     };
-    let out_crs =
-        match &p.export.crs {
-            Some(c) => Some(Crs::new(c).map_err(|e| {
-                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
-            })?),
-            None => None,
-        };
-    let transform =
-        match (&out_crs, &framed.frame.crs) {
-            (Some(o), Some(s)) => Some(Transform::new(s, o).map_err(|e| {
-                RunError::Input(l.error("export", "crs", e.to_string()).to_string())
-            })?),
-            (Some(_), None) => {
-                return Err(RunError::Input(
-                    l.error("export", "crs", "the GCP file has no CRS to convert from")
-                        .to_string(),
-                ));
-            }
-            _ => None,
-        };
+    let out_crs = match &p.export.crs {
+        Some(c) => Some(
+            Crs::new(c).map_err(|e| RunError::Input(l.error("export", "crs", e.to_string())))?,
+        ),
+        None => None,
+    };
+    let transform = match (&out_crs, &framed.frame.crs) {
+        (Some(o), Some(s)) => Some(
+            Transform::new(s, o)
+                .map_err(|e| RunError::Input(l.error("export", "crs", e.to_string())))?,
+        ),
+        (Some(_), None) => {
+            return Err(RunError::Input(l.error(
+                "export",
+                "crs",
+                "the GCP file has no CRS to convert from",
+            )));
+        }
+        _ => None,
+    };
     let detector = super::registry::detector(
         &p.detect,
         &super::detectors::DetectorInputs {
@@ -697,8 +730,10 @@ fn prepare<'a>(
         .create_dir(&out.join(".stages"))
         .map_err(output_error)?;
     // pose/ is written only when the pose stage runs; a killed one's temporaries go now.
-    crate::io::remove_stale_temps(&out.join("pose"))
-        .map_err(|e| RunError::Failed(format!("{}: {e}", out.join("pose").display())))?;
+    crate::io::remove_stale_temps(&out.join("pose")).map_err(|source| RunError::Io {
+        path: out.join("pose"),
+        source,
+    })?;
     let cache = Cache {
         dir: out.join(".stages"),
     };
@@ -804,7 +839,7 @@ fn wgs84_trajectories(
     trajectories: &[Trajectory],
 ) -> Result<Wgs84Trajectories, RunError> {
     let heights_ellipsoidal = *heights == HeightKind::Ellipsoidal;
-    let failed = |e: crate::survey::crs::CrsError| RunError::Failed(e.to_string());
+    let failed = RunError::Crs;
     let crs = Crs::new(spec).map_err(failed)?;
     let to_wgs84 = Transform::new(&crs, &Crs::new("EPSG:4326").map_err(failed)?).map_err(failed)?;
     let mut used: Vec<OperationInfo> = Vec::new();
@@ -848,7 +883,7 @@ fn wgs84_trajectories(
 fn output_error(e: crate::io::OutputError) -> RunError {
     match e {
         crate::io::OutputError::Io { .. } => RunError::Failed(e.to_string()),
-        _ => RunError::Input(e.to_string()),
+        _ => RunError::from_input(e),
     }
 }
 

@@ -37,7 +37,7 @@ pub(super) fn pose_stage(
                 &PoseSettings::default(),
                 progress.stage("pose").as_ref(),
             )
-            .map_err(|e| RunError::Input(format!("{}: {e}", video.display())))?;
+            .map_err(|e| RunError::Unusable(format!("{}: {e}", video.display())))?;
             guard.create_dir(&pose_dir).map_err(output_error)?;
             write_pose_outputs(
                 &pose_dir,
@@ -50,8 +50,7 @@ pub(super) fn pose_stage(
                     framed,
                     control,
                 },
-            )
-            .map_err(|e| RunError::Failed(format!("{e:#}")))?;
+            )?;
             let means: Vec<f64> = result
                 .frames
                 .iter()

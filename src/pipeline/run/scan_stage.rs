@@ -55,9 +55,7 @@ pub(super) fn scan_stage(
             bar.as_ref(),
         )
         .map_err(|e| match e {
-            ScanError::Detector(e) => {
-                RunError::Input(l.error("detect", p.detect.failure_key(), e).to_string())
-            }
+            ScanError::Detector(e) => RunError::Input(l.error("detect", p.detect.failure_key(), e)),
             ScanError::Other(e) => RunError::Failed(e),
         })?;
         let d = ScanData {

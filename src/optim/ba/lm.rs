@@ -1,0 +1,303 @@
+//! The Levenberg–Marquardt trust-region loop (Ceres' strategy) and its checks.
+
+use super::*;
+use crate::optim::Damping;
+
+pub(super) fn projection_error<const M: usize>(p: &Problem<M>, k: usize) -> BaError {
+    let o = &p.observations[k];
+    BaError::Projection {
+        observation: k,
+        image: o.camera,
+        point: o.point,
+    }
+}
+
+/// The decrease of the linearised cost along a step `δ` (the problem's own variables):
+/// `−(Jδ)ᵀ(r + Jδ/2)` over the observations and the priors.
+pub(super) fn model_decrease<const M: usize>(
+    p: &Problem<M>,
+    priors: &Priors,
+    lay: &Layout,
+    e: &Evaluation<M>,
+    delta_cam: &DVector<f64>,
+    delta_point: &[Vector3<f64>],
+) -> f64 {
+    let obs = &p.observations;
+    let observed: f64 = (0..obs.len())
+        .into_par_iter()
+        .map(|k| {
+            let (pk, ik) = lay.of(p, obs[k].camera);
+            let jd = e.j_pose[k] * delta_cam.fixed_rows::<6>(pk)
+                + e.j_intr[k] * delta_cam.fixed_rows::<M>(ik)
+                + e.j_point[k] * delta_point[obs[k].point];
+            -jd.dot(&(e.residuals[k] + jd * 0.5))
+        })
+        .sum();
+    let centres: f64 = priors
+        .centres
+        .iter()
+        .map(|q| {
+            let (r, j) = centre_residual(p, q);
+            let jd = j * delta_cam.fixed_rows::<6>(lay.pose[q.camera]);
+            -jd.dot(&(r + jd * 0.5))
+        })
+        .sum();
+    let points: f64 = priors
+        .points
+        .iter()
+        .map(|q| {
+            let jd = delta_point[q.point].component_div(&Vector3::from(q.sigma));
+            -jd.dot(&(prior_residual(p, q) + jd * 0.5))
+        })
+        .sum();
+    observed + centres + points
+}
+
+/// The problem moved by a step.
+pub(super) fn stepped<const M: usize>(
+    p: &Problem<M>,
+    lay: &Layout,
+    delta_cam: &DVector<f64>,
+    delta_point: &[Vector3<f64>],
+) -> Problem<M> {
+    let mut q = p.clone();
+    for (pose, &o) in q.poses.iter_mut().zip(&lay.pose) {
+        for (c, v) in pose.iter_mut().enumerate() {
+            *v += delta_cam[o + c];
+        }
+    }
+    for (k, &o) in q.intrinsics.iter_mut().zip(&lay.intr) {
+        for (c, v) in k.iter_mut().enumerate() {
+            *v += delta_cam[o + c];
+        }
+    }
+    for (x, d) in q.points.iter_mut().zip(delta_point) {
+        for (v, dv) in x.iter_mut().zip(d.iter()) {
+            *v += dv;
+        }
+    }
+    q
+}
+
+/// Every prior names a point or image of the problem and has a finite position and σ > 0.
+pub(super) fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> Result<(), BaError> {
+    // One prior on `kind` number `index` (of `count`), `part` naming what of it ("'s centre").
+    let check = |(kind, part): (&str, &str),
+                 index: usize,
+                 count: usize,
+                 x: &[f64; 3],
+                 s: &[f64; 3]| {
+        if index >= count {
+            return Err(BaError::Invalid(format!(
+                "a prior names {kind} {index} of {count}"
+            )));
+        }
+        if !(x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)) {
+            return Err(BaError::Invalid(format!(
+                "the prior on {kind} {index}{part} needs a finite position and σ > 0, got {x:?} ± {s:?}"
+            )));
+        }
+        Ok(())
+    };
+    for q in &priors.points {
+        check(
+            ("point", ""),
+            q.point,
+            p.points.len(),
+            &q.position,
+            &q.sigma,
+        )?;
+    }
+    for q in &priors.centres {
+        check(
+            ("image", "'s centre"),
+            q.camera,
+            p.poses.len(),
+            &q.position,
+            &q.sigma,
+        )?;
+    }
+    Ok(())
+}
+
+/// Adjusts a BAL problem's cameras and points in place.
+pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> Result<BaSummary, BaError> {
+    let mut q = p.to_problem();
+    let summary = adjust(&mut q, &BalIntrinsics, &Priors::default(), settings)?;
+    p.update_from(&q);
+    Ok(summary)
+}
+
+/// Adjusts the problem's poses, intrinsics and points in place, with priors on some points
+/// and camera centres (which also fix the gauge: without them the solution is defined up to a
+/// similarity).
+pub fn adjust<const M: usize>(
+    p: &mut Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    settings: &BaSettings,
+) -> Result<BaSummary, BaError> {
+    let start = Instant::now();
+    p.check()?;
+    check_priors(p, priors)?;
+    let needed = p.memory_estimate(settings.linear_solver);
+    if needed > settings.max_memory_bytes {
+        return Err(BaError::TooLarge {
+            needed,
+            limit: settings.max_memory_bytes,
+        });
+    }
+    let s = settings;
+    let st = Structure::new(p);
+    let lay = Layout::new(p);
+    let mut e = evaluate(p, model, priors, s.loss).map_err(|k| projection_error(p, k))?;
+    let initial_cost = e.cost;
+    let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
+    let mut n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
+    let diag_of = |n: &Normal<M>| clamped_diagonals(&lay, n, s.min_diagonal, s.max_diagonal);
+    let (mut d_cam, mut d_point) = diag_of(&n);
+    // The gradient of the unscaled problem, Jᵀr: the scaled one divided by the scales.
+    let gradient_max = |n: &Normal<M>| -> f64 {
+        n.g_cam.component_div(&s_cam).amax().max(
+            n.g_point
+                .iter()
+                .zip(&s_point)
+                .map(|(g, sc)| g.component_div(sc).amax())
+                .fold(0.0, f64::max),
+        )
+    };
+    let x_norm = |p: &Problem<M>| -> f64 {
+        (p.poses.iter().flatten().map(|v| v * v).sum::<f64>()
+            + p.intrinsics.iter().flatten().map(|v| v * v).sum::<f64>()
+            + p.points.iter().flatten().map(|v| v * v).sum::<f64>())
+        .sqrt()
+    };
+    // The one trust-region controller of geostride's least-squares solvers.
+    let mut region = Damping::with_limits(
+        1.0 / s.initial_radius,
+        1.0 / s.max_radius,
+        1.0 / s.min_radius,
+    );
+    let mut iterations = Vec::new();
+    let mut accepted_steps = 0;
+    let mut invalid = 0;
+    let mut termination = BaTermination::MaxIterations;
+    if gradient_max(&n) <= s.gradient_tolerance {
+        termination = BaTermination::GradientTolerance;
+    }
+    while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
+        let t0 = Instant::now();
+        // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
+        let step = schur_step(
+            p,
+            &st,
+            &lay,
+            &n,
+            &d_cam,
+            &d_point,
+            region.radius(),
+            (s.linear_solver, s.iterative_tolerance),
+        )
+        .map(|(y_cam, y_point)| {
+            let delta_cam = y_cam.component_mul(&s_cam);
+            let delta_point: Vec<Vector3<f64>> = y_point
+                .iter()
+                .zip(&s_point)
+                .map(|(y, sp)| y.component_mul(sp))
+                .collect();
+            let model_change = model_decrease(p, priors, &lay, &e, &delta_cam, &delta_point);
+            (delta_cam, delta_point, model_change)
+        });
+        let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
+            (dc.norm_squared() + dp.iter().map(|d| d.norm_squared()).sum::<f64>()).sqrt()
+        });
+        // A step that could not be computed, or whose model does not decrease, is rejected;
+        // five in a row is a failure.
+        let Some((delta_cam, delta_point, model_change)) = step.filter(|st| st.2 > 0.0) else {
+            invalid += 1;
+            region.reject();
+            iterations.push(BaIteration {
+                iteration: iterations.len() + 1,
+                cost: e.cost,
+                cost_change: 0.0,
+                gradient_max_norm: gradient_max(&n),
+                step_norm,
+                rho: f64::NAN,
+                radius: region.radius(),
+                accepted: false,
+                seconds: t0.elapsed().as_secs_f64(),
+            });
+            if invalid >= 5 {
+                termination = BaTermination::Failure;
+            } else if region.exhausted() {
+                termination = BaTermination::MinRadius;
+            }
+            continue;
+        };
+        invalid = 0;
+        let candidate = stepped(p, &lay, &delta_cam, &delta_point);
+        let new_cost = cost_of(&candidate, model, priors, s.loss);
+        let xn = x_norm(p);
+        let mut record = BaIteration {
+            iteration: iterations.len() + 1,
+            cost: new_cost,
+            cost_change: e.cost - new_cost,
+            gradient_max_norm: gradient_max(&n),
+            step_norm,
+            rho: (e.cost - new_cost) / model_change,
+            radius: region.radius(),
+            accepted: false,
+            seconds: 0.0,
+        };
+        // Where the candidate's Jacobians cannot be evaluated, the step is rejected.
+        let accepted = if step_norm <= s.parameter_tolerance * (xn + s.parameter_tolerance) {
+            termination = BaTermination::ParameterTolerance;
+            None
+        } else if (e.cost - new_cost).abs() <= s.function_tolerance * e.cost {
+            termination = BaTermination::FunctionTolerance;
+            None
+        } else if record.rho > s.min_relative_decrease {
+            evaluate(&candidate, model, priors, s.loss)
+                .ok()
+                .map(|e_new| (candidate, e_new))
+        } else {
+            None
+        };
+        match accepted {
+            Some((candidate, e_new)) => {
+                *p = candidate;
+                e = e_new;
+                region.accept(record.rho);
+                accepted_steps += 1;
+                n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
+                (d_cam, d_point) = diag_of(&n);
+                record.accepted = true;
+                record.gradient_max_norm = gradient_max(&n);
+                if record.gradient_max_norm <= s.gradient_tolerance {
+                    termination = BaTermination::GradientTolerance;
+                }
+            }
+            None if termination == BaTermination::MaxIterations => {
+                region.reject();
+                if region.exhausted() {
+                    termination = BaTermination::MinRadius;
+                }
+            }
+            None => {}
+        }
+        record.radius = region.radius();
+        record.seconds = t0.elapsed().as_secs_f64();
+        iterations.push(record);
+    }
+    Ok(BaSummary {
+        cameras: p.poses.len(),
+        points: p.points.len(),
+        observations: p.observations.len(),
+        initial_cost,
+        final_cost: e.cost,
+        iterations,
+        accepted_steps,
+        termination,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}

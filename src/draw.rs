@@ -1,6 +1,7 @@
 //! Annotated images and simple charts (OpenCV adapter): a canvas to draw on in pixel
 //! coordinates (sub-pixel, (0, 0) the centre of the top-left pixel), and a line chart.
 
+use crate::imageio::{ImageError, file_error};
 use std::path::Path;
 
 use nalgebra::Vector2;
@@ -20,8 +21,8 @@ fn colour(rgb: [u8; 3]) -> Scalar {
     Scalar::new(f64::from(rgb[2]), f64::from(rgb[1]), f64::from(rgb[0]), 0.0)
 }
 
-fn err(e: opencv::Error) -> String {
-    e.to_string()
+fn err(e: opencv::Error) -> ImageError {
+    ImageError::OpenCv(e)
 }
 
 /// An 8-bit colour image to draw on.
@@ -31,14 +32,14 @@ pub struct Canvas {
 
 impl Canvas {
     /// Reads an image file (any format OpenCV decodes) in colour.
-    pub fn read(path: &Path) -> Result<Canvas, String> {
+    pub fn read(path: &Path) -> Result<Canvas, ImageError> {
         let name = path
             .to_str()
-            .ok_or_else(|| format!("{}: not a UTF-8 path", path.display()))?;
+            .ok_or_else(|| file_error(path, "not a UTF-8 path"))?;
         let mat = opencv::imgcodecs::imread(name, opencv::imgcodecs::IMREAD_COLOR)
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+            .map_err(|e| file_error(path, e))?;
         if mat.empty() {
-            return Err(format!("{}: not an image OpenCV can read", path.display()));
+            return Err(file_error(path, "not an image OpenCV can read"));
         }
         Ok(Canvas { mat })
     }
@@ -49,7 +50,7 @@ impl Canvas {
     }
 
     /// A plain canvas.
-    pub fn blank(width: u32, height: u32, rgb: [u8; 3]) -> Result<Canvas, String> {
+    pub fn blank(width: u32, height: u32, rgb: [u8; 3]) -> Result<Canvas, ImageError> {
         let mat =
             Mat::new_rows_cols_with_default(height as i32, width as i32, CV_8UC3, colour(rgb))
                 .map_err(err)?;
@@ -70,7 +71,7 @@ impl Canvas {
         b: &Vector2<f64>,
         rgb: [u8; 3],
         thickness: i32,
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         imgproc::line(
             &mut self.mat,
             pt(a),
@@ -91,7 +92,7 @@ impl Canvas {
         rgb: [u8; 3],
         thickness: i32,
         dash: f64,
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         let len = (b - a).norm();
         let steps = (len / dash).ceil().max(1.0) as usize;
         for k in (0..steps).step_by(2) {
@@ -108,7 +109,7 @@ impl Canvas {
         radius: f64,
         rgb: [u8; 3],
         thickness: i32,
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         let r = (radius * f64::from(1 << SHIFT)).round() as i32;
         imgproc::circle(
             &mut self.mat,
@@ -129,7 +130,7 @@ impl Canvas {
         half: f64,
         rgb: [u8; 3],
         thickness: i32,
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         self.line(
             &(c - Vector2::new(half, 0.0)),
             &(c + Vector2::new(half, 0.0)),
@@ -150,7 +151,7 @@ impl Canvas {
         to: &Vector2<f64>,
         rgb: [u8; 3],
         thickness: i32,
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         let len = (to - from).norm().max(1e-9);
         let tip = (12.0 / len).min(0.4);
         imgproc::arrowed_line(
@@ -175,7 +176,7 @@ impl Canvas {
         scale: f64,
         rgb: [u8; 3],
         thickness: i32,
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         let p = Point::new(at.x.round() as i32, at.y.round() as i32);
         if rgb != [0, 0, 0] {
             imgproc::put_text(
@@ -213,7 +214,7 @@ impl Canvas {
         w: i32,
         h: i32,
         rgb: [u8; 3],
-    ) -> Result<(), String> {
+    ) -> Result<(), ImageError> {
         imgproc::rectangle(
             &mut self.mat,
             Rect::new(x, y, w, h),
@@ -226,7 +227,7 @@ impl Canvas {
     }
 
     /// A darkened band over the rectangle, to put text on.
-    pub fn shade_rect(&mut self, x: i32, y: i32, w: i32, h: i32) -> Result<(), String> {
+    pub fn shade_rect(&mut self, x: i32, y: i32, w: i32, h: i32) -> Result<(), ImageError> {
         let r = Rect::new(
             x.max(0),
             y.max(0),
@@ -243,7 +244,7 @@ impl Canvas {
     }
 
     /// Writes the canvas; the format follows the extension; written atomically.
-    pub fn save(&self, path: &Path) -> Result<(), String> {
+    pub fn save(&self, path: &Path) -> Result<(), ImageError> {
         crate::imageio::encode_to(path, &self.mat)
     }
 
@@ -311,7 +312,7 @@ fn label(v: f64, step: f64) -> String {
 }
 
 /// Draws a chart on a white canvas of `width` × `height` pixels. The y axis starts at 0.
-pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, String> {
+pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, ImageError> {
     let mut c = Canvas::blank(width, height, [255, 255, 255])?;
     let (left, right, top, bottom) = (70.0, 20.0, 50.0, 55.0);
     let (w, h) = (

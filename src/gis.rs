@@ -1,11 +1,45 @@
 //! Vector files through GDAL (adapter): a GeoPackage or GeoJSON dataset written to a temporary
 //! file beside the target and renamed when complete, like every output.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use gdal::spatial_ref::{AxisMappingStrategy, SpatialRef};
 use gdal::vector::{Feature, OGRFieldType};
 use gdal::{Dataset, DriverManager};
+
+/// Why a vector file could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum GisError {
+    /// GDAL cannot use the output's CRS.
+    #[error("GDAL cannot use the CRS: {0}")]
+    Crs(#[source] gdal::errors::GdalError),
+    /// GDAL was built without the format's driver.
+    #[error("GDAL has no {driver} driver: {source}")]
+    NoDriver {
+        driver: &'static str,
+        #[source]
+        source: gdal::errors::GdalError,
+    },
+    /// Creating, writing or finishing the file failed.
+    #[error("cannot {what} {}: {reason}", path.display())]
+    File {
+        what: &'static str,
+        path: PathBuf,
+        reason: String,
+    },
+    /// A feature's field could not be set.
+    #[error(transparent)]
+    Gdal(#[from] gdal::errors::GdalError),
+    /// What the caller's layers reported.
+    #[error("{0}")]
+    Layers(String),
+}
+
+impl From<String> for GisError {
+    fn from(e: String) -> GisError {
+        GisError::Layers(e)
+    }
+}
 
 /// The GIS formats.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -28,14 +62,14 @@ impl GisFormat {
 
 /// The spatial reference for a layer: `crs_wkt` for a GeoPackage (none when empty), WGS 84 for
 /// GeoJSON; axes in GIS order (easting/longitude first).
-pub fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>, String> {
+pub fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>, GisError> {
     let srs = match format {
         GisFormat::GeoJson => Some(SpatialRef::from_epsg(4326)),
         GisFormat::GeoPackage if crs_wkt.is_empty() => None,
         GisFormat::GeoPackage => Some(SpatialRef::from_wkt(crs_wkt)),
     }
     .transpose()
-    .map_err(|e| format!("GDAL cannot use the CRS: {e}"))?;
+    .map_err(GisError::Crs)?;
     Ok(srs.map(|mut s| {
         s.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
         s
@@ -47,23 +81,29 @@ pub fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>,
 pub fn write_dataset(
     path: &Path,
     format: GisFormat,
-    fill: impl FnOnce(&mut Dataset) -> Result<(), String>,
-) -> Result<(), String> {
+    fill: impl FnOnce(&mut Dataset) -> Result<(), GisError>,
+) -> Result<(), GisError> {
     let driver_name = match format {
         GisFormat::GeoPackage => "GPKG",
         GisFormat::GeoJson => "GeoJSON",
     };
-    let driver = DriverManager::get_driver_by_name(driver_name)
-        .map_err(|e| format!("GDAL has no {driver_name} driver: {e}"))?;
+    let driver =
+        DriverManager::get_driver_by_name(driver_name).map_err(|source| GisError::NoDriver {
+            driver: driver_name,
+            source,
+        })?;
     let ext = path
         .extension()
         .map(|e| format!(".{}", e.to_string_lossy()))
         .unwrap_or_default();
     let tmp = crate::io::temp_path(path, &ext);
     let _ = std::fs::remove_file(&tmp);
-    let cannot =
-        |what: &str, e: &dyn std::fmt::Display| format!("cannot {what} {}: {e}", path.display());
-    let result = (|| -> Result<(), String> {
+    let cannot = |what: &'static str, e: &dyn std::fmt::Display| GisError::File {
+        what,
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let result = (|| -> Result<(), GisError> {
         if format == GisFormat::GeoPackage {
             // GeoPackage stamps its tables with the time of writing: a fixed one makes two
             // identical runs give identical files.
@@ -121,25 +161,25 @@ fn ends_with_json_close(path: &Path) -> bool {
 }
 
 /// Sets a string field by name.
-pub fn set_string(f: &mut Feature, name: &str, v: &str) -> Result<(), String> {
-    let i = f.field_index(name).map_err(|e| e.to_string())?;
-    f.set_field_string(i, v).map_err(|e| e.to_string())
+pub fn set_string(f: &mut Feature, name: &str, v: &str) -> Result<(), GisError> {
+    let i = f.field_index(name)?;
+    Ok(f.set_field_string(i, v)?)
 }
 
 /// Sets a real field by name; `None` or a non-finite value is null.
-pub fn set_real(f: &mut Feature, name: &str, v: Option<f64>) -> Result<(), String> {
-    let i = f.field_index(name).map_err(|e| e.to_string())?;
+pub fn set_real(f: &mut Feature, name: &str, v: Option<f64>) -> Result<(), GisError> {
+    let i = f.field_index(name)?;
     match v.filter(|x| x.is_finite()) {
-        Some(x) => f.set_field_double(i, x),
-        None => f.set_field_null(i),
+        Some(x) => f.set_field_double(i, x)?,
+        None => f.set_field_null(i)?,
     }
-    .map_err(|e| e.to_string())
+    Ok(())
 }
 
 /// Sets an integer field by name.
-pub fn set_integer(f: &mut Feature, name: &str, v: i32) -> Result<(), String> {
-    let i = f.field_index(name).map_err(|e| e.to_string())?;
-    f.set_field_integer(i, v).map_err(|e| e.to_string())
+pub fn set_integer(f: &mut Feature, name: &str, v: i32) -> Result<(), GisError> {
+    let i = f.field_index(name)?;
+    Ok(f.set_field_integer(i, v)?)
 }
 
 /// A field definition.

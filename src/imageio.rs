@@ -1,6 +1,6 @@
 //! Image file output (OpenCV adapter).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use opencv::core::{CV_8UC1, Mat, Vector};
 use opencv::imgcodecs;
@@ -8,8 +8,34 @@ use opencv::prelude::*;
 
 use crate::simulate::board::GrayImage;
 
+/// Why an image could not be read, made or written.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// The file, or its name, cannot be used as an image: the reason.
+    #[error("{}: {reason}", path.display())]
+    File { path: PathBuf, reason: String },
+    /// Writing the encoded image failed.
+    #[error("{}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// OpenCV failed while drawing or converting.
+    #[error(transparent)]
+    OpenCv(#[from] opencv::Error),
+}
+
+/// An error about the file `path`.
+pub fn file_error(path: &Path, reason: impl std::fmt::Display) -> ImageError {
+    ImageError::File {
+        path: path.to_path_buf(),
+        reason: reason.to_string(),
+    }
+}
+
 /// Whether OpenCV can write an image named `path` (its extension names a format it encodes).
-pub fn check_writable(path: &Path) -> Result<(), String> {
+pub fn check_writable(path: &Path) -> Result<(), ImageError> {
     let known = path
         .extension()
         .and_then(|e| e.to_str())
@@ -17,49 +43,49 @@ pub fn check_writable(path: &Path) -> Result<(), String> {
     if known {
         Ok(())
     } else {
-        Err(format!(
-            "{}: cannot tell the image format from the extension; use .jpg, .png or .tif",
-            path.display()
+        Err(file_error(
+            path,
+            "cannot tell the image format from the extension; use .jpg, .png or .tif",
         ))
     }
 }
 
 /// Encodes a Mat in the format of `path`'s extension and writes it atomically.
-pub(crate) fn encode_to(path: &Path, mat: &impl opencv::core::ToInputArray) -> Result<(), String> {
+pub(crate) fn encode_to(
+    path: &Path,
+    mat: &impl opencv::core::ToInputArray,
+) -> Result<(), ImageError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| format!(".{e}"))
-        .ok_or_else(|| {
-            format!(
-                "{}: no file extension to choose the image format",
-                path.display()
-            )
-        })?;
+        .ok_or_else(|| file_error(path, "no file extension to choose the image format"))?;
     let mut buf = Vector::<u8>::new();
     let ok = imgcodecs::imencode(&ext, mat, &mut buf, &Vector::new())
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+        .map_err(|e| file_error(path, e))?;
     if !ok {
-        return Err(format!(
-            "{}: OpenCV cannot encode '{ext}' images",
-            path.display()
+        return Err(file_error(
+            path,
+            format!("OpenCV cannot encode '{ext}' images"),
         ));
     }
-    crate::io::write_atomic(path, buf.as_slice()).map_err(|e| format!("{}: {e}", path.display()))
+    crate::io::write_atomic(path, buf.as_slice()).map_err(|source| ImageError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Writes a greyscale image; the format follows the extension. Written to a temporary name and
 /// renamed, like every output.
-pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), String> {
-    let mat = Mat::new_rows_cols_with_data(image.height as i32, image.width as i32, &image.pixels)
-        .map_err(|e| e.to_string())?;
+pub fn write_gray(path: &Path, image: &GrayImage) -> Result<(), ImageError> {
+    let mat = Mat::new_rows_cols_with_data(image.height as i32, image.width as i32, &image.pixels)?;
     debug_assert_eq!(mat.typ(), CV_8UC1);
     encode_to(path, &mat)
 }
 
 /// Writes an 8-bit RGB image (row-major); the format follows the extension.
-pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), String> {
-    let err = |e: opencv::Error| format!("{}: {e}", path.display());
+pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), ImageError> {
+    let err = |e: opencv::Error| file_error(path, e);
     let mat = Mat::new_rows_cols_with_data(height as i32, width as i32 * 3, rgb).map_err(err)?;
     let mat = mat.reshape(3, height as i32).map_err(err)?;
     let mut bgr = Mat::default();
@@ -80,7 +106,7 @@ pub struct HeatMap<'a> {
 
 /// Writes a scalar map as a PNG heat map (viridis) with a colour bar and a title. NaN cells are
 /// black. The map is scaled up to about `width_px` wide.
-pub fn write_heatmap(path: &Path, map: &HeatMap, width_px: i32) -> Result<(), String> {
+pub fn write_heatmap(path: &Path, map: &HeatMap, width_px: i32) -> Result<(), ImageError> {
     let HeatMap {
         cols,
         rows,
@@ -92,7 +118,7 @@ pub fn write_heatmap(path: &Path, map: &HeatMap, width_px: i32) -> Result<(), St
     let (cols, rows, scale) = (*cols, *rows, *scale);
     use opencv::core::{CV_8UC3, Point, Rect, Scalar, Size};
     use opencv::imgproc;
-    let err = |e: opencv::Error| format!("{}: {e}", path.display());
+    let err = |e: opencv::Error| file_error(path, e);
     let vmax = values
         .iter()
         .copied()

@@ -226,6 +226,23 @@ impl Row {
     }
 }
 
+/// The error rows of two runs' evaluations (`rmse_target` beside the RMSE).
+fn error_rows(a: &Evaluation, b: &Evaluation, rmse_target: &'static str) -> Vec<Row> {
+    let both = |f: &dyn Fn(&Evaluation) -> String| [f(a), f(b)];
+    vec![
+        Row::new(
+            "horizontal RMSE",
+            both(&|e| format!("{:.4} m", e.rmse_m)),
+            rmse_target,
+        ),
+        Row::new(
+            "95th percentile",
+            both(&|e| format!("{:.4} m", e.p95_error_m)),
+            "",
+        ),
+    ]
+}
+
 /// Prints a two-run table under a header row; `widths` of the label and target columns.
 fn print_table(json: bool, widths: (usize, usize), head: [&str; 3], rows: &[Row]) {
     let (l, t) = widths;
@@ -565,17 +582,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         / tracked_heights.len().max(1) as f64)
         .sqrt();
     let both = |f: &dyn Fn(&Evaluation) -> String| [f(&known_eval), f(&default_eval)];
-    let mut rows = vec![
-        Row::new(
-            "horizontal RMSE",
-            both(&|e| format!("{:.4} m", e.rmse_m)),
-            "0.05 / 0.12 m",
-        ),
-        Row::new(
-            "95th percentile",
-            both(&|e| format!("{:.4} m", e.p95_error_m)),
-            "",
-        ),
+    let mut rows = error_rows(&known_eval, &default_eval, "0.05 / 0.12 m");
+    rows.extend([
         Row::new(
             "people tracked over ≥ 90 % of frames",
             both(&|e| format!("{:.1} %", 100.0 * e.tracked_90_fraction)),
@@ -598,7 +606,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
             "",
         ),
-    ];
+    ]);
     rows.extend(uncertainty_rows(&known_cons, &default_cons));
     let after = [
         Row::new(
@@ -855,17 +863,8 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         brief
     );
     let both = |f: &dyn Fn(&Evaluation) -> String| [f(&pe), f(&e)];
-    let mut rows = vec![
-        Row::new(
-            "horizontal RMSE",
-            both(&|e| format!("{:.4} m", e.rmse_m)),
-            "≤ 0.25 m",
-        ),
-        Row::new(
-            "95th percentile",
-            both(&|e| format!("{:.4} m", e.p95_error_m)),
-            "",
-        ),
+    let mut rows = error_rows(&pe, &e, "≤ 0.25 m");
+    rows.extend([
         Row::new(
             "people tracked over ≥ 80 % of their time in view",
             both(&|e| format!("{:.1} %", 100.0 * mostly_of(e))),
@@ -886,7 +885,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
             both(&|e| format!("{} / {}", e.estimated_tracks, e.truth_tracks)),
             "",
         ),
-    ];
+    ]);
     rows.extend(uncertainty_rows(&pcons, &cons));
     print_table(
         json,

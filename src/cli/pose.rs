@@ -539,7 +539,7 @@ fn annotate(path_in: &Path, path_out: &Path, report: &Report) -> anyhow::Result<
     let scale = arrow_scale(&rows.iter().map(|(r, _)| *r).collect::<Vec<_>>(), width);
     let text_scale = (width / 2400.0).clamp(0.4, 1.6);
     let thick = (width / 1500.0).round().max(1.0) as i32;
-    let err = |e: String| anyhow!(e);
+    let err = |e: geostride::imageio::ImageError| anyhow!(e);
     for (r, role) in &rows {
         let rgb = if *role == "check" {
             [255, 170, 0]

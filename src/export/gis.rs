@@ -62,7 +62,7 @@ pub fn write_trajectories(
     layers: Layers,
     trajectories: &[Trajectory],
     coords: &dyn Fn(&TrajectoryPoint) -> Vector3<f64>,
-) -> Result<(), String> {
+) -> Result<(), crate::gis::GisError> {
     let srs = layer_srs(format, crs_wkt)?;
     write_dataset(path, format, |ds| {
         if layers != Layers::Points {

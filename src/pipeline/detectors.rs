@@ -117,7 +117,7 @@ fn shadow_model(samples: &[[f64; 5]], x: &DetectorInputs) -> Result<ShadowModel,
             ));
         }
         let bgr = crate::video::source::FrameReader::frame_bgr_bytes(x.video, frame)
-            .map_err(|e| x.input("shadow_samples", e))?;
+            .map_err(|e| x.input("shadow_samples", e.to_string()))?;
         patches.push((bgr, [s[1], s[2], s[3], s[4]].map(|v| v as usize)));
     }
     let views: Vec<(crate::detect::FrameView, [usize; 4])> = patches

@@ -68,7 +68,8 @@ pub fn klt_over_video(
         (f64::from(job.size.0), f64::from(job.size.1)),
     );
     let video = job.video.display();
-    let mut reader = crate::video::source::FrameReader::open(job.video)?;
+    let mut reader =
+        crate::video::source::FrameReader::open(job.video).map_err(|e| e.to_string())?;
     for (f, dets) in job.detections.iter().enumerate() {
         let Some((_, gray)) = reader
             .next_gray_reusing()

@@ -48,8 +48,8 @@ pub enum PoseOutputError {
     /// A position could not be converted to the GCP file's CRS.
     #[error("{0}")]
     Crs(String),
-    #[error("{}: {message}", path.display())]
-    Chart { path: PathBuf, message: String },
+    #[error(transparent)]
+    Chart(crate::imageio::ImageError),
     #[error("formatting a table: {0}")]
     Format(#[from] std::fmt::Error),
 }
@@ -193,10 +193,7 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> Result<Vec<PathBuf>, Pos
     let png = out.join("reprojection.png");
     line_chart(&chart, 1200, 500)
         .and_then(|c| c.save(&png))
-        .map_err(|message| PoseOutputError::Chart {
-            path: png.clone(),
-            message,
-        })?;
+        .map_err(PoseOutputError::Chart)?;
     written.push(png);
     Ok(written)
 }

@@ -57,6 +57,12 @@ pub enum ScanError {
     Other(String),
 }
 
+impl From<crate::video::source::VideoError> for ScanError {
+    fn from(e: crate::video::source::VideoError) -> ScanError {
+        ScanError::Other(e.to_string())
+    }
+}
+
 impl From<String> for ScanError {
     fn from(e: String) -> ScanError {
         ScanError::Other(e)
@@ -100,7 +106,10 @@ fn stabilise_frames(
             let template = if job.pick_frame == i {
                 to_gray(&bgr)?
             } else {
-                to_gray(&FrameReader::frame_bgr(job.video, job.pick_frame)?)?
+                to_gray(
+                    &FrameReader::frame_bgr(job.video, job.pick_frame)
+                        .map_err(|e| e.to_string())?,
+                )?
             };
             stab = Some(Stabiliser::new(
                 Klt::new(KltSettings::default()),
@@ -225,7 +234,7 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
                 Ok(Some(_)) => {}
                 Ok(None) => break,
                 Err(e) => {
-                    failure = Some(named(e));
+                    failure = Some(named(e.to_string()));
                     break;
                 }
             };

@@ -287,7 +287,7 @@ pub fn simulate(
         if frames_every > 0 && i % frames_every as usize == 0 {
             let p = out.join("frames").join(format!("frame-{i:05}.png"));
             crate::imageio::write_rgb(&p, size.width, size.height, &rgb)
-                .map_err(SimError::Output)?;
+                .map_err(|e| SimError::Output(e.to_string()))?;
         }
         // Truth: camera (cam_from_world as OpenCV's rvec, tvec) and heads.
         let r_cw = pose.world_from_cam.transpose();
@@ -594,7 +594,7 @@ fn write_checkerboards(
     for (i, p) in poses.iter().enumerate() {
         let img = renderer.render(&board, p, 2.0, &mut rng);
         let path = out.join("checkerboards").join(format!("board-{i:02}.png"));
-        crate::imageio::write_gray(&path, &img).map_err(SimError::Output)?;
+        crate::imageio::write_gray(&path, &img).map_err(|e| SimError::Output(e.to_string()))?;
         files.push(path);
     }
     Ok(files)

@@ -44,7 +44,7 @@ pub fn write_points(
     crs_wkt: &str,
     height_kind: &str,
     points: &[OutPoint],
-) -> Result<(), String> {
+) -> Result<(), crate::gis::GisError> {
     let srs = layer_srs(format, crs_wkt)?;
     write_dataset(path, format, |ds| {
         let with_res = points.iter().any(|p| p.residual.is_some());

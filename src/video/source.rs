@@ -1,10 +1,35 @@
 //! Reading video frames (OpenCV adapter).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use opencv::core::Mat;
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
+
+/// Why a video could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum VideoError {
+    /// Not a video geostride can read: a folder, a missing file, an image, an unknown codec.
+    #[error("{}: {reason}", path.display())]
+    Unreadable { path: PathBuf, reason: String },
+    /// The video ends before the frame asked for.
+    #[error("{}: the video ends before frame {index} (at {at})", path.display())]
+    Ended {
+        path: PathBuf,
+        index: usize,
+        at: usize,
+    },
+    /// OpenCV failed while decoding or converting a frame.
+    #[error(transparent)]
+    OpenCv(#[from] opencv::Error),
+}
+
+fn unreadable(path: &Path, reason: &str) -> VideoError {
+    VideoError::Unreadable {
+        path: path.to_path_buf(),
+        reason: reason.to_string(),
+    }
+}
 
 /// Frames of a video file, in order, as 8-bit greyscale.
 pub struct FrameReader {
@@ -22,29 +47,26 @@ pub struct FrameReader {
 }
 
 impl FrameReader {
-    pub fn open(path: &Path) -> Result<FrameReader, String> {
+    pub fn open(path: &Path) -> Result<FrameReader, VideoError> {
         if path.is_dir() {
-            return Err(format!(
-                "{}: is a folder; expected a video file",
-                path.display()
-            ));
+            return Err(unreadable(path, "is a folder; expected a video file"));
         }
         if !path.is_file() {
-            return Err(format!("{}: no such video file", path.display()));
+            return Err(unreadable(path, "no such video file"));
         }
         let name = path
             .to_str()
-            .ok_or_else(|| format!("{}: not a UTF-8 path", path.display()))?;
+            .ok_or_else(|| unreadable(path, "not a UTF-8 path"))?;
         // OpenCV opens a still image as a video of one frame.
         if opencv::imgcodecs::have_image_reader(name).unwrap_or(false) {
-            return Err(format!("{}: is an image; expected a video", path.display()));
+            return Err(unreadable(path, "is an image; expected a video"));
         }
         let cap = videoio::VideoCapture::from_file(name, videoio::CAP_ANY)
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+            .map_err(|e| unreadable(path, &e.to_string()))?;
         if !cap.is_opened().unwrap_or(false) {
-            return Err(format!(
-                "{}: OpenCV cannot open this video (unknown container or codec)",
-                path.display()
+            return Err(unreadable(
+                path,
+                "OpenCV cannot open this video (unknown container or codec)",
             ));
         }
         let get = |p: i32| cap.get(p).unwrap_or(0.0);
@@ -55,10 +77,7 @@ impl FrameReader {
             get(videoio::CAP_PROP_FRAME_HEIGHT),
         );
         if !(width >= 1.0 && height >= 1.0) {
-            return Err(format!(
-                "{}: the video states no frame size",
-                path.display()
-            ));
+            return Err(unreadable(path, "the video states no frame size"));
         }
         Ok(FrameReader {
             cap,
@@ -76,17 +95,16 @@ impl FrameReader {
     }
 
     /// The next frame's index and its greyscale image; `None` at the end.
-    pub fn next_gray(&mut self) -> Result<Option<(usize, Mat)>, String> {
+    pub fn next_gray(&mut self) -> Result<Option<(usize, Mat)>, VideoError> {
         let mut frame = Mat::default();
-        if !self.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
+        if !self.cap.read(&mut frame)? || frame.empty() {
             return Ok(None);
         }
         let gray = if frame.channels() == 1 {
             frame
         } else {
             let mut g = Mat::default();
-            imgproc::cvt_color_def(&frame, &mut g, imgproc::COLOR_BGR2GRAY)
-                .map_err(|e| e.to_string())?;
+            imgproc::cvt_color_def(&frame, &mut g, imgproc::COLOR_BGR2GRAY)?;
             g
         };
         let i = self.next;
@@ -96,14 +114,14 @@ impl FrameReader {
 
     /// [`next_gray`](Self::next_gray), decoding into one colour frame kept between calls (no
     /// fresh pages to fault in for every 4K frame); the greyscale image is new each time.
-    pub fn next_gray_reusing(&mut self) -> Result<Option<(usize, Mat)>, String> {
+    pub fn next_gray_reusing(&mut self) -> Result<Option<(usize, Mat)>, VideoError> {
         let mut bgr = std::mem::take(&mut self.bgr);
         let read = self.read_bgr_into(&mut bgr);
         let gray = match read {
             Ok(Some(i)) => {
                 let mut g = Mat::default();
                 imgproc::cvt_color_def(&bgr, &mut g, imgproc::COLOR_BGR2GRAY)
-                    .map_err(|e| e.to_string())
+                    .map_err(VideoError::from)
                     .map(|()| Some((i, g)))
             }
             Ok(None) => Ok(None),
@@ -116,8 +134,8 @@ impl FrameReader {
     /// Reads the next frame into `frame` (BGR, continuous), reusing its memory when it already
     /// has the frame's size (no fresh pages to fault in for every 4K frame); its index, or
     /// `None` at the end.
-    pub fn read_bgr_into(&mut self, frame: &mut Mat) -> Result<Option<usize>, String> {
-        if !self.cap.read(frame).map_err(|e| e.to_string())? || frame.empty() {
+    pub fn read_bgr_into(&mut self, frame: &mut Mat) -> Result<Option<usize>, VideoError> {
+        if !self.cap.read(frame)? || frame.empty() {
             return Ok(None);
         }
         if frame.channels() != 3 || !frame.is_continuous() {
@@ -133,28 +151,27 @@ impl FrameReader {
     }
 
     /// The next frame's index and its colour (BGR, continuous) image; `None` at the end.
-    pub fn next_bgr(&mut self) -> Result<Option<(usize, Mat)>, String> {
+    pub fn next_bgr(&mut self) -> Result<Option<(usize, Mat)>, VideoError> {
         let mut frame = Mat::default();
-        if !self.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
+        if !self.cap.read(&mut frame)? || frame.empty() {
             return Ok(None);
         }
         self.as_bgr(frame)
     }
 
     /// A frame just read, as BGR and continuous, with the next index.
-    fn as_bgr(&mut self, frame: Mat) -> Result<Option<(usize, Mat)>, String> {
+    fn as_bgr(&mut self, frame: Mat) -> Result<Option<(usize, Mat)>, VideoError> {
         let frame = if frame.channels() == 3 {
             frame
         } else {
             let mut c = Mat::default();
-            imgproc::cvt_color_def(&frame, &mut c, imgproc::COLOR_GRAY2BGR)
-                .map_err(|e| e.to_string())?;
+            imgproc::cvt_color_def(&frame, &mut c, imgproc::COLOR_GRAY2BGR)?;
             c
         };
         let frame = if frame.is_continuous() {
             frame
         } else {
-            frame.try_clone().map_err(|e| e.to_string())?
+            frame.try_clone()?
         };
         let i = self.next;
         self.next += 1;
@@ -174,15 +191,16 @@ impl FrameReader {
     }
 
     /// The colour (BGR) frame at `index`, read from the start.
-    pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, String> {
+    pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, VideoError> {
         let mut r = FrameReader::open(path)?;
         let mut frame = Mat::default();
         for i in 0..=index {
-            if !r.cap.read(&mut frame).map_err(|e| e.to_string())? || frame.empty() {
-                return Err(format!(
-                    "{}: the video ends before frame {index} (at {i})",
-                    path.display()
-                ));
+            if !r.cap.read(&mut frame)? || frame.empty() {
+                return Err(VideoError::Ended {
+                    path: path.to_path_buf(),
+                    index,
+                    at: i,
+                });
             }
         }
         Ok(frame)
@@ -190,14 +208,13 @@ impl FrameReader {
 
     /// [`frame_bgr`](Self::frame_bgr) as plain data for pure code: tightly packed BGR bytes,
     /// width and height.
-    pub fn frame_bgr_bytes(path: &Path, index: usize) -> Result<(Vec<u8>, usize, usize), String> {
+    pub fn frame_bgr_bytes(
+        path: &Path,
+        index: usize,
+    ) -> Result<(Vec<u8>, usize, usize), VideoError> {
         let m = Self::frame_bgr(path, index)?;
-        let m = if m.is_continuous() {
-            m
-        } else {
-            m.try_clone().map_err(|e| e.to_string())?
-        };
-        let bytes = m.data_bytes().map_err(|e| e.to_string())?.to_vec();
+        let m = if m.is_continuous() { m } else { m.try_clone()? };
+        let bytes = m.data_bytes()?.to_vec();
         Ok((bytes, m.cols() as usize, m.rows() as usize))
     }
 }

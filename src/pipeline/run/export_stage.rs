@@ -69,8 +69,7 @@ pub(super) fn export_stage(
                         Layers::Both,
                         trajs,
                         &|q| q.crs,
-                    )
-                    .map_err(RunError::Failed)?;
+                    )?;
                     outputs.push("trajectories.gpkg".into());
                 }
                 "geojson" => {
@@ -95,8 +94,7 @@ pub(super) fn export_stage(
                             layers,
                             &wgs.trajectories,
                             &|q| q.crs,
-                        )
-                        .map_err(RunError::Failed)?;
+                        )?;
                         outputs.push(name.into());
                     }
                     w.warnings.extend(wgs.notes);

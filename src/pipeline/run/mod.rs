@@ -79,6 +79,9 @@ pub enum RunError {
     /// The pose stage's files could not be written.
     #[error(transparent)]
     PoseOutputs(#[from] super::pose_outputs::PoseOutputError),
+    /// A GeoPackage or GeoJSON file could not be written.
+    #[error(transparent)]
+    Gis(#[from] crate::gis::GisError),
     /// A coordinate conversion failed while running.
     #[error(transparent)]
     Crs(#[from] crate::survey::crs::CrsError),
@@ -648,7 +651,7 @@ fn prepare<'a>(
 
     let video = l.resolve(&p.video.path);
     let reader = crate::video::source::FrameReader::open(&video)
-        .map_err(|e| RunError::Input(l.error("video", "path", e)))?;
+        .map_err(|e| RunError::Input(l.error("video", "path", e.to_string())))?;
     let (fps, width, height, frame_count) =
         (reader.fps, reader.width, reader.height, reader.frame_count);
     drop(reader);

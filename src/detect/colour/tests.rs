@@ -47,6 +47,16 @@ fn every_third_pixel(frame: &FrameView) -> Vec<[u8; 3]> {
         .collect()
 }
 
+/// A detector whose palette is learnt from every third pixel of `frame`.
+fn learned(frame: &FrameView, px_per_m: f64) -> ColourDetector {
+    let s = ColourSettings {
+        px_per_m,
+        ..ColourSettings::default()
+    };
+    let palette = Palette::learn(&every_third_pixel(frame), &s).unwrap();
+    ColourDetector::new(&palette, s)
+}
+
 #[test]
 fn finds_shaded_hats_and_ignores_a_line() {
     let (w, h) = (320, 200);
@@ -58,13 +68,7 @@ fn finds_shaded_hats_and_ignores_a_line() {
         height: h,
         bgr: &bgr,
     };
-    let pixels = every_third_pixel(&frame);
-    let s = ColourSettings {
-        px_per_m: 50.0,
-        ..ColourSettings::default()
-    };
-    let palette = Palette::learn(&pixels, &s).unwrap();
-    let det = ColourDetector::new(&palette, s);
+    let det = learned(&frame, 50.0);
     let found = det.detect(&frame);
     assert_eq!(found.len(), 3, "{found:?}");
     for (cx, cy) in hats {
@@ -87,13 +91,7 @@ fn the_coarse_scan_finds_the_same_hat_runs_as_a_full_scan() {
         height: h,
         bgr: &bgr,
     };
-    let pixels = every_third_pixel(&frame);
-    let s = ColourSettings {
-        px_per_m: 100.0,
-        ..ColourSettings::default()
-    };
-    let palette = Palette::learn(&pixels, &s).unwrap();
-    let det = ColourDetector::new(&palette, s);
+    let det = learned(&frame, 100.0);
     assert!(det.hat_radius_px() >= 6.0, "the coarse path is exercised");
     let key = |r: &Run| (r.y, r.x0, r.x1);
     let coarse: Vec<_> = det.runs(&frame).iter().map(key).collect();

@@ -12,6 +12,7 @@ pub(super) struct Evaluation<const M: usize> {
     pub(super) cost: f64,
 }
 
+#[inline]
 pub(super) fn robust(loss: RobustLoss, r: Vector2<f64>) -> (f64, f64) {
     let s = r.norm_squared();
     (0.5 * loss.rho(s), loss.weight(s).max(0.0).sqrt())

@@ -220,29 +220,32 @@ fn kernel(px: i32, factor: i32) -> Result<Option<Mat>, String> {
     .map_err(e)
 }
 
+/// Why a background detector could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum BackgroundError {
+    /// A setting out of its range: which, and what it must be.
+    #[error("background detector: {0}")]
+    Settings(String),
+    /// OpenCV could not create the model.
+    #[error(transparent)]
+    OpenCv(#[from] opencv::Error),
+}
+
 impl BackgroundDetector {
-    pub fn new(settings: BackgroundSettings) -> Result<BackgroundDetector, String> {
-        settings
-            .check()
-            .map_err(|m| format!("background detector: {m}"))?;
+    pub fn new(settings: BackgroundSettings) -> Result<BackgroundDetector, BackgroundError> {
+        settings.check().map_err(BackgroundError::Settings)?;
         let s = &settings;
         let model = match s.method {
-            Subtractor::Mog2 => Model::Mog2(
-                video::create_background_subtractor_mog2(
-                    s.history,
-                    s.var_threshold,
-                    s.detect_shadows,
-                )
-                .map_err(e)?,
-            ),
-            Subtractor::Knn => Model::Knn(
-                video::create_background_subtractor_knn(
-                    s.history,
-                    s.var_threshold,
-                    s.detect_shadows,
-                )
-                .map_err(e)?,
-            ),
+            Subtractor::Mog2 => Model::Mog2(video::create_background_subtractor_mog2(
+                s.history,
+                s.var_threshold,
+                s.detect_shadows,
+            )?),
+            Subtractor::Knn => Model::Knn(video::create_background_subtractor_knn(
+                s.history,
+                s.var_threshold,
+                s.detect_shadows,
+            )?),
         };
         Ok(BackgroundDetector {
             settings,
@@ -572,7 +575,7 @@ mod tests {
             px_per_m: 0.0,
             ..Default::default()
         });
-        assert!(bad.err().unwrap().contains("px_per_m"));
+        assert!(bad.err().unwrap().to_string().contains("px_per_m"));
         let mut det = BackgroundDetector::new(BackgroundSettings::default()).unwrap();
         let bytes = vec![0u8; 3 * 64 * 48];
         let view = |width, height| FrameView {

@@ -222,14 +222,27 @@ fn least_squares(rows: &[Vec<f64>], ys: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> 
     Some((x.iter().copied().collect(), se))
 }
 
+/// Why no error model could be fitted.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FitError {
+    #[error(
+        "{paired} annotated heads paired with a detection; at least {MIN_PAIRS} are needed \
+         (annotate more frames, or widen the gate if the detector is far off)"
+    )]
+    TooFewPairs { paired: usize },
+    #[error(
+        "only {agreeing} of the {paired} pairs agree with one error model; the annotations may \
+         not be of the detected heads"
+    )]
+    Inconsistent { agreeing: usize, paired: usize },
+}
+
 /// Fits the model to `pairs` in an image `width_px` wide.
-pub fn fit_error_model(pairs: &[Pair], width_px: f64, form: Form) -> Result<ErrorFit, String> {
+pub fn fit_error_model(pairs: &[Pair], width_px: f64, form: Form) -> Result<ErrorFit, FitError> {
     if pairs.len() < MIN_PAIRS {
-        return Err(format!(
-            "{} annotated heads paired with a detection; at least {MIN_PAIRS} are needed \
-             (annotate more frames, or widen the gate if the detector is far off)",
-            pairs.len()
-        ));
+        return Err(FitError::TooFewPairs {
+            paired: pairs.len(),
+        });
     }
     // 99.9 % of a two-dimensional Gaussian.
     const CHI2_2D_999: f64 = 13.815510557964274;
@@ -249,12 +262,10 @@ pub fn fit_error_model(pairs: &[Pair], width_px: f64, form: Form) -> Result<Erro
             break;
         }
         if keep.len() < MIN_PAIRS {
-            return Err(format!(
-                "only {} of the {} pairs agree with one error model; the annotations may not \
-                 be of the detected heads",
-                keep.len(),
-                pairs.len()
-            ));
+            return Err(FitError::Inconsistent {
+                agreeing: keep.len(),
+                paired: pairs.len(),
+            });
         }
         used = keep;
         fit = fit_once(&used, width_px, form);
@@ -559,7 +570,7 @@ mod tests {
         assert_near(&fit, &truth);
         // Too few pairs: a clear error, not a guess.
         let e = fit_error_model(&pairs[..5], w, Form::Paper).unwrap_err();
-        assert!(e.contains("at least 20"), "{e}");
+        assert!(e.to_string().contains("at least 20"), "{e}");
     }
 
     #[test]

@@ -134,7 +134,7 @@ fn shadow_model(samples: &[[f64; 5]], x: &DetectorInputs) -> Result<ShadowModel,
             )
         })
         .collect();
-    ShadowModel::from_patches(&views).map_err(|e| x.input("shadow_samples", e))
+    ShadowModel::from_patches(&views).map_err(|e| x.input("shadow_samples", e.to_string()))
 }
 
 /// Background subtraction (a stationary camera), its blobs' heads found.
@@ -144,7 +144,7 @@ pub fn background(
 ) -> Result<Box<dyn Detector>, RunError> {
     let inner =
         crate::detect::background::BackgroundDetector::new(background_settings(b, x.px_per_m))
-            .map_err(|e| x.input("method", e))?;
+            .map_err(|e| x.input("method", e.to_string()))?;
     Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
 }
 

@@ -80,7 +80,7 @@ pub fn klt_over_video(
                 job.detections.len()
             ));
         };
-        let frame = frames.frame(f, gray)?;
+        let frame = frames.frame(f, gray).map_err(|e| e.to_string())?;
         tracker
             .update(f, frame, dets, motion_at)
             .map_err(|e| format!("{video}: frame {f}: {e}"))?;

@@ -115,13 +115,14 @@ fn stabilise_frames(
                 Klt::new(KltSettings::default()),
                 job.settings.clone(),
                 job.size,
-                klt.frame(job.pick_frame, template)?,
+                klt.frame(job.pick_frame, template)
+                    .map_err(|e| e.to_string())?,
                 job.pick_frame,
                 job.picks.clone(),
             ));
         }
         let stab = stab.as_mut().expect("made above");
-        let frame = klt.frame(i, to_gray(&bgr)?)?;
+        let frame = klt.frame(i, to_gray(&bgr)?).map_err(|e| e.to_string())?;
         tracks.push(stab.push(i, frame).map_err(|e| format!("frame {i}: {e}"))?);
         spent += t.elapsed().as_secs_f64();
     }

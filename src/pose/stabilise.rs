@@ -163,8 +163,8 @@ impl<T: FeatureTracker> Stabiliser<T> {
         }
     }
 
-    fn set_reference(&mut self, index: usize, frame: &T::Frame) -> Result<(), String> {
-        let pts = self.tracker.detect(frame).map_err(|e| e.to_string())?;
+    fn set_reference(&mut self, index: usize, frame: &T::Frame) -> Result<(), crate::PluginError> {
+        let pts = self.tracker.detect(frame)?;
         self.reference = Some(index);
         self.ref_count = pts.len();
         self.ref_pts = pts.clone();
@@ -173,7 +173,11 @@ impl<T: FeatureTracker> Stabiliser<T> {
     }
 
     /// Registers the next frame (frames must come in order).
-    pub fn push(&mut self, index: usize, frame: T::Frame) -> Result<FrameTrack, String> {
+    pub fn push(
+        &mut self,
+        index: usize,
+        frame: T::Frame,
+    ) -> Result<FrameTrack, crate::PluginError> {
         let (w, h) = self.size;
         let mut track = FrameTrack {
             index,
@@ -187,10 +191,7 @@ impl<T: FeatureTracker> Stabiliser<T> {
         let frame_from_first;
         match (self.reference, &self.prev) {
             (Some(reference), Some(prev)) => {
-                let moved = self
-                    .tracker
-                    .track(prev, &frame, &self.prev_pts, None)
-                    .map_err(|e| e.to_string())?;
+                let moved = self.tracker.track(prev, &frame, &self.prev_pts, None)?;
                 let (mut src, mut dst) = (Vec::new(), Vec::new());
                 for (r, m) in self.ref_pts.iter().zip(&moved) {
                     if let Some(m) = m {
@@ -275,7 +276,7 @@ impl<T: FeatureTracker> Stabiliser<T> {
         index: usize,
         frame: &T::Frame,
         frame_from_prev: &Matrix3<f64>,
-    ) -> Result<Vec<Option<Vector2<f64>>>, String> {
+    ) -> Result<Vec<Option<Vector2<f64>>>, crate::PluginError> {
         if self.picks.is_empty() {
             return Ok(Vec::new());
         }
@@ -297,8 +298,7 @@ impl<T: FeatureTracker> Stabiliser<T> {
         let guess: Vec<Vector2<f64>> = predicted.iter().map(|p| p.0).collect();
         let tracked = self
             .tracker
-            .refine(&self.template, frame, &self.picks, &guess)
-            .map_err(|e| e.to_string())?;
+            .refine(&self.template, frame, &self.picks, &guess)?;
         let max = self.settings.max_pick_jump_px;
         let out: Vec<Option<Vector2<f64>>> = tracked
             .iter()

@@ -236,7 +236,7 @@ pub fn simulate(
                 scene.fps,
                 true,
             )
-            .map_err(SimError::Output)?,
+            .map_err(|e| SimError::Output(e.to_string()))?,
         )
     } else {
         None
@@ -282,7 +282,8 @@ pub fn simulate(
             light,
         });
         if let Some(s) = sink.as_mut() {
-            s.write_rgb(&rgb).map_err(SimError::Output)?;
+            s.write_rgb(&rgb)
+                .map_err(|e| SimError::Output(e.to_string()))?;
         }
         if frames_every > 0 && i % frames_every as usize == 0 {
             let p = out.join("frames").join(format!("frame-{i:05}.png"));
@@ -393,7 +394,10 @@ pub fn simulate(
     let (video, codec) = match sink {
         Some(s) => {
             let codec = s.codec.to_string();
-            (Some(s.finish().map_err(SimError::Output)?), Some(codec))
+            (
+                Some(s.finish().map_err(|e| SimError::Output(e.to_string()))?),
+                Some(codec),
+            )
         }
         None => (None, None),
     };

@@ -224,7 +224,7 @@ impl<F: FeatureTracker> KltTracker<F> {
         &mut self,
         t: &mut Live,
         motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
-    ) -> Result<(), String> {
+    ) -> Result<(), crate::PluginError> {
         let s = &self.settings;
         let Some(v) = t.detected_velocity() else {
             return Ok(());
@@ -244,10 +244,7 @@ impl<F: FeatureTracker> KltTracker<F> {
             // The camera's motion from fb to fa, undone to first order (it is small).
             let back = |x: &Vector2<f64>| 2.0 * x - motion_at(*fa, x);
             let guess: Vec<Vector2<f64>> = pts.iter().map(|x| back(x) - v).collect();
-            let next = self
-                .features
-                .track(a, b, &pts, Some(&guess))
-                .map_err(|e| e.to_string())?;
+            let next = self.features.track(a, b, &pts, Some(&guess))?;
             let (mut to, mut flow) = (Vec::new(), Vec::new());
             for (x, y) in pts.iter().zip(&next) {
                 if let Some(y) = y {
@@ -293,7 +290,7 @@ impl<F: FeatureTracker> KltTracker<F> {
         frame: F::Frame,
         detections: &[Detection],
         motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
-    ) -> Result<(), String> {
+    ) -> Result<(), crate::PluginError> {
         let motion = |x: &Vector2<f64>| motion_at(index, x);
         let predicted = self.predict(&frame, detections, &motion)?;
         let matched = self.associate(&predicted, detections);
@@ -317,7 +314,7 @@ impl<F: FeatureTracker> KltTracker<F> {
         frame: &F::Frame,
         detections: &[Detection],
         motion: &dyn Fn(&Vector2<f64>) -> Vector2<f64>,
-    ) -> Result<Vec<Prediction>, String> {
+    ) -> Result<Vec<Prediction>, crate::PluginError> {
         // Features into this frame. Inside a person's box some features are on the ground, so
         // each track moves with one mode of its features' motion net of the camera's: the one
         // that agrees with its velocity and the detections (ground features have none).
@@ -334,8 +331,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                     t.features.iter().map(|f| motion(f) + t.velocity).collect();
                 let next = self
                     .features
-                    .track(prev, &frame, &t.features, Some(&guess))
-                    .map_err(|e| e.to_string())?;
+                    .track(prev, &frame, &t.features, Some(&guess))?;
                 let (mut to, mut flow) = (Vec::new(), Vec::new());
                 for (a, b) in t.features.iter().zip(&next) {
                     if let Some(b) = b {
@@ -457,7 +453,7 @@ impl<F: FeatureTracker> KltTracker<F> {
         predicted: Vec<Prediction>,
         matched: Vec<Option<usize>>,
         motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
-    ) -> Result<(Vec<Live>, Vec<bool>), String> {
+    ) -> Result<(Vec<Live>, Vec<bool>), crate::PluginError> {
         let s = self.settings.clone();
         let mut taken = vec![false; detections.len()];
         let mut keep = Vec::with_capacity(self.live.len());
@@ -539,10 +535,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                 } else {
                     self.box_around(&est)
                 };
-                t.features = self
-                    .features
-                    .detect_in(&frame, b, s.max_features)
-                    .map_err(|e| e.to_string())?;
+                t.features = self.features.detect_in(&frame, b, s.max_features)?;
                 self.reinitialised += 1;
             }
             keep.push(t);
@@ -558,7 +551,7 @@ impl<F: FeatureTracker> KltTracker<F> {
         detections: &[Detection],
         mut keep: Vec<Live>,
         taken: &[bool],
-    ) -> Result<Vec<Live>, String> {
+    ) -> Result<Vec<Live>, crate::PluginError> {
         let s = self.settings.clone();
         for (j, d) in detections.iter().enumerate() {
             if taken[j] || !self.inside(&d.uv) {
@@ -570,10 +563,7 @@ impl<F: FeatureTracker> KltTracker<F> {
             {
                 continue;
             }
-            let features = self
-                .features
-                .detect_in(&frame, d.bbox, s.max_features)
-                .map_err(|e| e.to_string())?;
+            let features = self.features.detect_in(&frame, d.bbox, s.max_features)?;
             self.started += 1;
             keep.push(Live {
                 features: features.clone(),

@@ -74,10 +74,6 @@ pub struct GrayFrame {
     scale: f64,
 }
 
-fn e(e: opencv::Error) -> String {
-    e.to_string()
-}
-
 /// OpenCV's `goodFeaturesToTrack` and `calcOpticalFlowPyrLK` with a forward–backward check.
 pub struct Klt {
     pub settings: KltSettings,
@@ -95,13 +91,12 @@ fn to_cv(pts: &[Vector2<f64>]) -> Vector<Point2f> {
 }
 
 /// Iterations and the step (pixels) at which Lucas–Kanade stops.
-fn criteria(iterations: i32, eps_px: f64) -> Result<TermCriteria, String> {
+fn criteria(iterations: i32, eps_px: f64) -> Result<TermCriteria, opencv::Error> {
     TermCriteria::new(
         TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
         iterations,
         eps_px,
     )
-    .map_err(e)
 }
 
 /// The stabiliser's hundreds of features: a homography does not need each to a hundredth of a
@@ -120,7 +115,7 @@ fn forward_backward(
     (window, levels): (i32, i32),
     max_fb: f32,
     (iterations, eps_px): (i32, f64),
-) -> Result<(Vector<Point2f>, Vec<bool>), String> {
+) -> Result<(Vector<Point2f>, Vec<bool>), opencv::Error> {
     let size = Size::new(window, window);
     let mut fwd = guess.cloned().unwrap_or_else(|| start.clone());
     let (mut st_f, mut err) = (Vector::<u8>::new(), Vector::<f32>::new());
@@ -141,8 +136,7 @@ fn forward_backward(
         criteria(iterations, eps_px)?,
         flags,
         1e-4,
-    )
-    .map_err(e)?;
+    )?;
     let mut back = start.clone();
     let mut st_b = Vector::<u8>::new();
     video::calc_optical_flow_pyr_lk(
@@ -157,8 +151,7 @@ fn forward_backward(
         criteria(iterations, eps_px)?,
         video::OPTFLOW_USE_INITIAL_FLOW,
         1e-4,
-    )
-    .map_err(e)?;
+    )?;
     let ok = (0..start.len())
         .map(|i| {
             let (Ok(s), Ok(bk), Ok(sf), Ok(sb)) =
@@ -177,7 +170,7 @@ impl Klt {
         Klt { settings }
     }
 
-    pub fn frame(&self, index: usize, gray: Mat) -> Result<GrayFrame, String> {
+    pub fn frame(&self, index: usize, gray: Mat) -> Result<GrayFrame, opencv::Error> {
         let (w, h) = (gray.cols(), gray.rows());
         let factor =
             ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
@@ -190,8 +183,7 @@ impl Klt {
                 0.0,
                 0.0,
                 imgproc::INTER_AREA,
-            )
-            .map_err(e)?;
+            )?;
             small
         } else {
             gray.clone()
@@ -207,8 +199,7 @@ impl Klt {
             core::BORDER_REFLECT_101,
             core::BORDER_CONSTANT,
             true,
-        )
-        .map_err(e)?;
+        )?;
         Ok(GrayFrame {
             index,
             image: gray,
@@ -223,7 +214,7 @@ impl FeatureTracker for Klt {
 
     fn detect(&mut self, frame: &GrayFrame) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
         let s = &self.settings;
-        let work = frame.pyramid.get(0).map_err(e)?;
+        let work = frame.pyramid.get(0)?;
         let (w, h) = (work.cols(), work.rows());
         let cols = s.grid_cols.max(1);
         let rows = ((f64::from(cols) * f64::from(h) / f64::from(w)).round() as i32).max(1);
@@ -233,7 +224,7 @@ impl FeatureTracker for Klt {
             for c in 0..cols {
                 let (x0, y0) = (w * c / cols, h * r / rows);
                 let (x1, y1) = (w * (c + 1) / cols, h * (r + 1) / rows);
-                let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
+                let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0))?;
                 let mut corners = Vector::<Point2f>::new();
                 imgproc::good_features_to_track(
                     &cell,
@@ -245,8 +236,7 @@ impl FeatureTracker for Klt {
                     3,
                     false,
                     0.04,
-                )
-                .map_err(e)?;
+                )?;
                 out.extend(corners.iter().map(|p| {
                     rescale(
                         &Vector2::new(
@@ -268,7 +258,7 @@ impl FeatureTracker for Klt {
         bbox: [f64; 4],
         max: usize,
     ) -> Result<Vec<Vector2<f64>>, crate::PluginError> {
-        let work = frame.pyramid.get(0).map_err(e)?;
+        let work = frame.pyramid.get(0)?;
         let inv = 1.0 / frame.scale;
         let a = rescale(&Vector2::new(bbox[0], bbox[1]), inv);
         let b = rescale(&Vector2::new(bbox[0] + bbox[2], bbox[1] + bbox[3]), inv);
@@ -279,7 +269,7 @@ impl FeatureTracker for Klt {
         if x1 - x0 < 4 || y1 - y0 < 4 || max == 0 {
             return Ok(Vec::new());
         }
-        let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0)).map_err(e)?;
+        let cell = Mat::roi(&work, Rect::new(x0, y0, x1 - x0, y1 - y0))?;
         let mut corners = Vector::<Point2f>::new();
         imgproc::good_features_to_track(
             &cell,
@@ -291,8 +281,7 @@ impl FeatureTracker for Klt {
             3,
             false,
             0.04,
-        )
-        .map_err(e)?;
+        )?;
         Ok(corners
             .iter()
             .map(|p| {
@@ -340,7 +329,7 @@ impl FeatureTracker for Klt {
         {
             (fwd, ok) = run(s.levels)?;
         }
-        let work = to.pyramid.get(0).map_err(e)?;
+        let work = to.pyramid.get(0)?;
         let (w, h) = (work.cols() as f32, work.rows() as f32);
         Ok((0..pts.len())
             .map(|i| {
@@ -387,8 +376,8 @@ impl FeatureTracker for Klt {
                 out.push(None);
                 continue;
             };
-            let a = Mat::roi(&from.image, ra).map_err(e)?;
-            let b = Mat::roi(&to.image, rb).map_err(e)?;
+            let a = Mat::roi(&from.image, ra)?;
+            let b = Mat::roi(&to.image, rb)?;
             let start = to_cv(&[Vector2::new(p.x - f64::from(ra.x), p.y - f64::from(ra.y))]);
             let guess = to_cv(&[Vector2::new(g.x - f64::from(rb.x), g.y - f64::from(rb.y))]);
             let (fwd, ok) = forward_backward(
@@ -400,7 +389,7 @@ impl FeatureTracker for Klt {
                 s.max_fb_error_px as f32,
                 PICK_CRITERIA,
             )?;
-            let f = fwd.get(0).map_err(e)?;
+            let f = fwd.get(0)?;
             let q = Vector2::new(
                 f64::from(f.x) + f64::from(rb.x),
                 f64::from(f.y) + f64::from(rb.y),

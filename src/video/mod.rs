@@ -9,6 +9,8 @@ use opencv::core::{CV_8UC3, Mat, Size};
 use opencv::prelude::*;
 use opencv::{imgproc, videoio};
 
+pub use source::VideoError;
+
 /// Writes RGB frames to a video: H.264 in MP4 when OpenCV's backend can encode it, else MJPEG in
 /// AVI. Frames go to a temporary file renamed when finished, so an interrupted run leaves none.
 pub struct VideoSink {
@@ -29,7 +31,7 @@ impl VideoSink {
         height: u32,
         fps: f64,
         prefer_h264: bool,
-    ) -> Result<VideoSink, String> {
+    ) -> Result<VideoSink, VideoError> {
         let size = Size::new(width as i32, height as i32);
         let mut tried = Vec::new();
         let options: &[(&str, [char; 4], &str)] = if prefer_h264 {
@@ -43,8 +45,7 @@ impl VideoSink {
         for (codec, cc, ext) in options {
             let path = stem.with_extension(ext);
             let tmp = crate::io::temp_path(&path, &format!(".{ext}"));
-            let fourcc = videoio::VideoWriter::fourcc(cc[0], cc[1], cc[2], cc[3])
-                .map_err(|e| e.to_string())?;
+            let fourcc = videoio::VideoWriter::fourcc(cc[0], cc[1], cc[2], cc[3])?;
             // OpenCV may print warnings for codecs it lacks; the result decides.
             if let Ok(writer) =
                 videoio::VideoWriter::new(tmp.to_str().unwrap_or_default(), fourcc, fps, size, true)
@@ -63,29 +64,24 @@ impl VideoSink {
             let _ = std::fs::remove_file(&tmp);
             tried.push(*codec);
         }
-        Err(format!(
-            "OpenCV cannot write video here (tried {})",
-            tried.join(", ")
-        ))
+        Err(VideoError::NoWriter { tried })
     }
 
     /// Appends a frame of 8-bit RGB, row-major.
-    pub fn write_rgb(&mut self, rgb: &[u8]) -> Result<(), String> {
-        let mat = Mat::new_rows_cols_with_data(self.height, self.width * 3, rgb)
-            .map_err(|e| e.to_string())?;
-        let mat = mat.reshape(3, self.height).map_err(|e| e.to_string())?;
+    pub fn write_rgb(&mut self, rgb: &[u8]) -> Result<(), VideoError> {
+        let mat = Mat::new_rows_cols_with_data(self.height, self.width * 3, rgb)?;
+        let mat = mat.reshape(3, self.height)?;
         debug_assert_eq!(mat.typ(), CV_8UC3);
         let mut bgr = Mat::default();
-        imgproc::cvt_color_def(&mat, &mut bgr, imgproc::COLOR_RGB2BGR)
-            .map_err(|e| e.to_string())?;
-        self.writer.write(&bgr).map_err(|e| e.to_string())?;
+        imgproc::cvt_color_def(&mat, &mut bgr, imgproc::COLOR_RGB2BGR)?;
+        self.writer.write(&bgr)?;
         self.frames += 1;
         Ok(())
     }
 
     /// Finishes the file and moves it into place.
-    pub fn finish(mut self) -> Result<PathBuf, String> {
-        self.writer.release().map_err(|e| e.to_string())?;
+    pub fn finish(mut self) -> Result<PathBuf, VideoError> {
+        self.writer.release()?;
         // OpenCV reports no write errors (a full disk): the file must open with every frame.
         let frames = videoio::VideoCapture::from_file(
             self.tmp.to_str().unwrap_or_default(),
@@ -94,14 +90,16 @@ impl VideoSink {
         .and_then(|c| c.get(videoio::CAP_PROP_FRAME_COUNT))
         .unwrap_or(0.0);
         if frames < self.frames as f64 {
-            return Err(format!(
-                "{}: the video was cut short ({frames} of {} frames readable; is the disk full?)",
-                self.path.display(),
-                self.frames
-            ));
+            return Err(VideoError::CutShort {
+                path: self.path.clone(),
+                readable: frames,
+                written: self.frames,
+            });
         }
-        crate::io::commit_temp(&self.tmp, &self.path)
-            .map_err(|e| format!("{}: {e}", self.path.display()))?;
+        crate::io::commit_temp(&self.tmp, &self.path).map_err(|source| VideoError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
         Ok(self.path.clone())
     }
 }

@@ -19,7 +19,24 @@ pub enum VideoError {
         index: usize,
         at: usize,
     },
-    /// OpenCV failed while decoding or converting a frame.
+    /// No codec could write a video here.
+    #[error("OpenCV cannot write video here (tried {})", tried.join(", "))]
+    NoWriter { tried: Vec<&'static str> },
+    /// A written video reads back shorter than written (a full disk, say).
+    #[error("{}: the video was cut short ({readable} of {written} frames readable; is the disk full?)", path.display())]
+    CutShort {
+        path: PathBuf,
+        readable: f64,
+        written: usize,
+    },
+    /// Moving the finished video into place failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// OpenCV failed while decoding, encoding or converting a frame.
     #[error(transparent)]
     OpenCv(#[from] opencv::Error),
 }

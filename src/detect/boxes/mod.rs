@@ -30,7 +30,7 @@ mod tests;
 
 pub use filter::{BoxFilter, FilterCounts, FilterError, filter_frame};
 use read::*;
-pub use shadow::{MIN_SHADOW_PIXELS, SHADOW_COLOUR_FLOOR, ShadowModel};
+pub use shadow::{MIN_SHADOW_PIXELS, SHADOW_COLOUR_FLOOR, ShadowError, ShadowModel};
 
 /// One box as read.
 #[derive(Clone, Debug, PartialEq)]

@@ -25,11 +25,22 @@ pub const MIN_SHADOW_PIXELS: usize = 100;
 /// About how many pixels of a box are tested.
 pub(super) const SHADOW_SAMPLES: f64 = 1024.0;
 
+/// Why no shadow model could be learnt.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ShadowError {
+    #[error(
+        "the shadow patches hold {pixels} pixels inside their frames; at least {MIN_SHADOW_PIXELS} are needed (mark larger or more shadow patches)"
+    )]
+    TooFewPixels { pixels: usize },
+    #[error("the shadow colour covariance is not invertible")]
+    Singular,
+}
+
 impl ShadowModel {
     /// Learns from rectangles `[x, y, w, h]` (pixels, clipped to their frames).
     pub fn from_patches(
         frames_and_rects: &[(FrameView, [usize; 4])],
-    ) -> Result<ShadowModel, String> {
+    ) -> Result<ShadowModel, ShadowError> {
         let mut px = Vec::new();
         for (f, r) in frames_and_rects {
             let [x, y, w, h] = *r;
@@ -44,10 +55,7 @@ impl ShadowModel {
             }
         }
         if px.len() < MIN_SHADOW_PIXELS {
-            return Err(format!(
-                "the shadow patches hold {} pixels inside their frames; at least {MIN_SHADOW_PIXELS} are needed (mark larger or more shadow patches)",
-                px.len()
-            ));
+            return Err(ShadowError::TooFewPixels { pixels: px.len() });
         }
         let n = px.len() as f64;
         let mean = px.iter().sum::<Vector3<f64>>() / n;
@@ -60,12 +68,12 @@ impl ShadowModel {
     }
 
     /// From a mean and covariance in CIELAB; the floor is added to `cov`.
-    pub fn new(mean: Vector3<f64>, cov: Matrix3<f64>) -> Result<ShadowModel, String> {
+    pub fn new(mean: Vector3<f64>, cov: Matrix3<f64>) -> Result<ShadowModel, ShadowError> {
         let cov = cov + Matrix3::identity() * SHADOW_COLOUR_FLOOR;
         let inv = cov
             .try_inverse()
             .filter(|m| m.iter().all(|v| v.is_finite()))
-            .ok_or("the shadow colour covariance is not invertible")?;
+            .ok_or(ShadowError::Singular)?;
         Ok(ShadowModel { mean, cov, inv })
     }
 

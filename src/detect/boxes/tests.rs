@@ -436,5 +436,5 @@ fn boxes_on_shadow_are_rejected() {
     // Without the frame the shadow test cannot run.
     assert_eq!(run(&boxes, &f, None).1.shadows, 0);
     let e = ShadowModel::from_patches(&[(frame, [195, 95, 20, 20])]).unwrap_err();
-    assert!(e.contains("hold 25 pixels"), "{e}");
+    assert!(e.to_string().contains("hold 25 pixels"), "{e}");
 }

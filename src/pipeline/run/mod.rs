@@ -543,8 +543,8 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
             }
         }
         GroundSection::Dem { path } => {
-            let (grid, wkt) =
-                crate::terrain::raster::load(&l.resolve(path)).map_err(|e| err("path", e))?;
+            let (grid, wkt) = crate::terrain::raster::load(&l.resolve(path))
+                .map_err(|e| err("path", e.to_string()))?;
             // The DEM surface keeps its own handle on the site frame (PROJ handles are not shared).
             let origin = match &l.project.survey.origin {
                 Some(o) => o.parse::<Origin>().map_err(|e| err("path", e))?,

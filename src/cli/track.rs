@@ -3,7 +3,6 @@
 //! then KLT. Tracks in pixels; `geostride run` does the whole job with geolocation.
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -73,29 +72,6 @@ struct Report {
     scan_s: f64,
     track_s: f64,
     outputs: Vec<String>,
-}
-
-fn tracks_csv(tracks: &[ImageTrack]) -> String {
-    let mut s = String::from("id,frame,u_px,v_px,sigma_u_px,sigma_v_px,x,y,w,h\n");
-    for t in tracks {
-        for q in &t.points {
-            let _ = writeln!(
-                s,
-                "{},{},{:.2},{:.2},{:.2},{:.2},{:.1},{:.1},{:.1},{:.1}",
-                t.id,
-                q.frame,
-                q.uv.x,
-                q.uv.y,
-                q.cov[(0, 0)].max(0.0).sqrt(),
-                q.cov[(1, 1)].max(0.0).sqrt(),
-                q.bbox[0],
-                q.bbox[1],
-                q.bbox[2],
-                q.bbox[3]
-            );
-        }
-    }
-    s
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -222,7 +198,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| path.display().to_string())
     };
     write("tracks_mot.txt", &geostride::export::mot_txt(&tracks))?;
-    write("tracks.csv", &tracks_csv(&tracks))?;
+    write("tracks.csv", &geostride::export::image_tracks_csv(&tracks))?;
     let json = serde_json::to_string_pretty(&report)?;
     write("report.json", &json)?;
     if args.json {

@@ -77,6 +77,30 @@ impl Trajectory {
     }
 }
 
+/// Image tracks as CSV: one row per point, pixels (`geostride track`'s `tracks.csv`).
+pub fn image_tracks_csv(tracks: &[crate::track::ImageTrack]) -> String {
+    let mut s = String::from("id,frame,u_px,v_px,sigma_u_px,sigma_v_px,x,y,w,h\n");
+    for t in tracks {
+        for q in &t.points {
+            let _ = writeln!(
+                s,
+                "{},{},{:.2},{:.2},{:.2},{:.2},{:.1},{:.1},{:.1},{:.1}",
+                t.id,
+                q.frame,
+                q.uv.x,
+                q.uv.y,
+                q.cov[(0, 0)].max(0.0).sqrt(),
+                q.cov[(1, 1)].max(0.0).sqrt(),
+                q.bbox[0],
+                q.bbox[1],
+                q.bbox[2],
+                q.bbox[3]
+            );
+        }
+    }
+    s
+}
+
 /// The trajectories as CSV: one row per point.
 pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
     let mut s = String::from(

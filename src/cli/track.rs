@@ -11,7 +11,7 @@ use nalgebra::Vector2;
 
 use super::bad_input;
 use geostride::detect::Detector;
-use geostride::detect::background::{BackgroundDetector, BackgroundSettings, Subtractor};
+use geostride::detect::background::{BackgroundDetector, Subtractor};
 use geostride::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
 use geostride::detect::person::BoxesDetector;
 use geostride::pipeline::klt_pass::{KltPass, klt_over_video};
@@ -94,15 +94,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             } else {
                 Subtractor::Mog2
             };
-            Box::new(
-                BackgroundDetector::new(BackgroundSettings {
-                    px_per_m: args.px_per_m,
-                    min_area_m2: args.min_area_m2,
-                    max_area_m2: args.max_area_m2,
-                    ..BackgroundSettings::for_method(method)
-                })
-                .map_err(|e| bad_input(anyhow!(e)))?,
-            )
+            // The same settings a project's `[detect] kind = "background"` gives.
+            let section = geostride::pipeline::settings::BackgroundSection {
+                method,
+                min_area_m2: args.min_area_m2,
+                max_area_m2: args.max_area_m2,
+                ..Default::default()
+            };
+            let settings =
+                geostride::pipeline::detectors::background_settings(&section, args.px_per_m);
+            Box::new(BackgroundDetector::new(settings).map_err(|e| bad_input(anyhow!(e)))?)
         }
     };
     // A video that cannot be opened is the user's to fix (exit 2).

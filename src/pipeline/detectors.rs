@@ -63,7 +63,7 @@ pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dy
 pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
     let path = x.l.resolve(&b.boxes);
     let format = b.boxes_format.as_deref().and_then(BoxFormat::parse);
-    let boxes = read_boxes(&path, format).map_err(|e| RunError::from_input(e))?;
+    let boxes = read_boxes(&path, format)?;
     if let Some(n) = x.frames
         && !boxes.iter().any(|b| b.frame < n)
     {

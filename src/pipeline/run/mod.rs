@@ -885,8 +885,8 @@ fn wgs84_trajectories(
 /// An output path that cannot be used is the project's to fix; an I/O failure is not.
 fn output_error(e: crate::io::OutputError) -> RunError {
     match e {
-        crate::io::OutputError::Io { .. } => RunError::Failed(e.to_string()),
-        _ => RunError::from_input(e),
+        crate::io::OutputError::Io { path, source } => RunError::Io { path, source },
+        e => RunError::OutputPath(e),
     }
 }
 

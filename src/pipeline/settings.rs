@@ -107,15 +107,6 @@ impl Default for DetectSection {
 pub const DEFAULT_HAT_DIAMETER_M: f64 = 0.24;
 
 impl DetectSection {
-    /// The `kind` key's value.
-    pub fn kind(&self) -> &'static str {
-        match self {
-            DetectSection::Colour(_) => "colour",
-            DetectSection::Boxes(_) => "boxes",
-            DetectSection::Background(_) => "background",
-        }
-    }
-
     /// The key a detector's failure is reported against.
     pub fn failure_key(&self) -> &'static str {
         match self {

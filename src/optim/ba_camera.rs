@@ -276,10 +276,12 @@ mod tests {
         let normal = Normal::new(0.0, 1.0).unwrap();
         Priors {
             points: (0..8)
-                .map(|j| PointPrior {
-                    point: j * 50,
-                    position: truth.points[j * 50].map(|v| v + 0.02 * normal.sample(&mut rng)),
-                    sigma: [0.02; 3],
+                .map(|j| {
+                    PointPrior::new(
+                        j * 50,
+                        truth.points[j * 50].map(|v| v + 0.02 * normal.sample(&mut rng)),
+                        [0.02; 3],
+                    )
                 })
                 .collect(),
             centres: Vec::new(),

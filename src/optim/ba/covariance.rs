@@ -1,4 +1,5 @@
-//! Covariances of the adjusted cameras (the inverse of the reduced system at the solution).
+//! Covariances of the adjusted cameras (the inverse of the reduced system at the solution) and
+//! of the points (their blocks of the full inverse, from the same reduced system).
 
 use super::*;
 
@@ -10,6 +11,9 @@ pub struct CameraCovariance {
     pub matrix: DMatrix<f64>,
     /// The observations' σ (pixels) the covariance is scaled by: given, or estimated.
     pub sigma_px: f64,
+    /// Per point, its 3×3 covariance: zero for a fixed point, `None` for one that the
+    /// observations and priors do not determine (seen in one image only, not surveyed).
+    pub points: Vec<Option<Matrix3<f64>>>,
     pub(super) pose_offsets: Vec<usize>,
     pub(super) intrinsics_offsets: Vec<usize>,
     pub(super) intrinsics_len: usize,
@@ -43,7 +47,8 @@ impl CameraCovariance {
 
 /// The covariance of the camera-side parameters at the problem's current values: the inverse
 /// of the information matrix (observations weighted by `1/σ²`, priors by their own σ) with the
-/// points eliminated. `σ` is `sigma_px` or, when `None`, estimated from the observations'
+/// points eliminated; and each point's block of the full inverse. `σ` is `sigma_px` (in units
+/// of the observations' own σ where [`Problem::sigma_px`] gives them) or, when `None`, estimated from the observations'
 /// residuals as `Σ r²` over the degrees of freedom (`2·observations + 3·priors − free
 /// parameters`). With a robust loss the observations are weighted by `√ρ'` as in the solver
 /// (an outlier's say shrinks). Fixed parameters get zero rows and columns. Without priors the
@@ -63,7 +68,7 @@ pub fn covariance<const M: usize>(
     let free = lay.free(p);
     // A point's observable coordinates: two per image it is seen in and three for a survey.
     let mut point_rank = vec![0; p.points.len()];
-    for o in &p.observations {
+    for o in p.observations.iter().filter(|o| !p.fixed_points[o.point]) {
         point_rank[o.point] += 2;
     }
     for q in &priors.points {
@@ -104,8 +109,18 @@ pub fn covariance<const M: usize>(
     for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
         s[(k, k)] = 1.0;
     }
+    let s_inv = s.cholesky().ok_or(BaError::Singular)?.inverse();
+    let points = point_covariances(p, &st, &lay, &n, &v_inv, &s_inv, &s_point)
+        .into_iter()
+        .enumerate()
+        .map(|(j, c)| match (p.fixed_points[j], point_rank[j] >= 3) {
+            (true, _) => Some(Matrix3::zeros()),
+            (false, true) => Some(c),
+            (false, false) => None,
+        })
+        .collect();
     let scale = DMatrix::from_diagonal(&s_cam);
-    let mut matrix = &scale * s.cholesky().ok_or(BaError::Singular)?.inverse() * &scale;
+    let mut matrix = &scale * s_inv * &scale;
     for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
         matrix.row_mut(k).fill(0.0);
         matrix.column_mut(k).fill(0.0);
@@ -113,8 +128,46 @@ pub fn covariance<const M: usize>(
     Ok(CameraCovariance {
         matrix,
         sigma_px: sigma,
+        points,
         pose_offsets: lay.pose,
         intrinsics_offsets: lay.intr,
         intrinsics_len: M,
     })
+}
+
+/// Each point's block of the inverse of the full normal matrix,
+/// `V⁻¹ + V⁻¹ Wᵀ S⁻¹ W V⁻¹` (`W` the point's column of camera couplings), in the problem's
+/// own units: `s_inv` and the blocks are in the Jacobi-scaled variables.
+fn point_covariances<const M: usize>(
+    p: &Problem<M>,
+    st: &Structure,
+    lay: &Layout,
+    n: &Normal<M>,
+    v_inv: &[Matrix3<f64>],
+    s_inv: &DMatrix<f64>,
+    s_point: &[Vector3<f64>],
+) -> Vec<Matrix3<f64>> {
+    st.by_point
+        .par_iter()
+        .enumerate()
+        .map(|(j, ks)| {
+            let mut wsw = Matrix3::zeros();
+            for &a in ks {
+                let (pa, ia) = lay.of(p, p.observations[a].camera);
+                let (wpa, wia) = (n.w_pose[a].transpose(), n.w_intr[a].transpose());
+                for &b in ks {
+                    let (pb, ib) = lay.of(p, p.observations[b].camera);
+                    let (wpb, wib) = (&n.w_pose[b], &n.w_intr[b]);
+                    wsw += wpa * s_inv.fixed_view::<6, 6>(pa, pb) * wpb
+                        + wpa * s_inv.fixed_view::<6, M>(pa, ib) * wib
+                        + wia * s_inv.fixed_view::<M, 6>(ia, pb) * wpb
+                        + wia * s_inv.fixed_view::<M, M>(ia, ib) * wib;
+                }
+            }
+            let vi = &v_inv[j];
+            let scaled = vi + vi * wsw * vi;
+            let sp = Matrix3::from_diagonal(&s_point[j]);
+            sp * scaled * sp
+        })
+        .collect()
 }

@@ -18,7 +18,7 @@ pub(super) fn robust(loss: RobustLoss, r: Vector2<f64>) -> (f64, f64) {
     (0.5 * loss.rho(s), loss.weight(s).max(0.0).sqrt())
 }
 
-/// Where an image's camera sees a point, minus the measurement.
+/// Where an image's camera sees a point, minus the measurement (pixels).
 pub(super) fn residual<const M: usize>(
     p: &Problem<M>,
     model: &impl Projection<M>,
@@ -29,6 +29,12 @@ pub(super) fn residual<const M: usize>(
     let p_cam = rotation(&w) * Vector3::from(p.points[o.point]) + Vector3::new(q[3], q[4], q[5]);
     let u = model.project(&p.intrinsics[p.intrinsics_of[o.camera]], &p_cam)?;
     Some(u - Vector2::from(o.xy))
+}
+
+/// `1/σ` of observation `k`: its residual and Jacobians are divided by its σ.
+#[inline]
+pub(super) fn whitening<const M: usize>(p: &Problem<M>, k: usize) -> f64 {
+    p.sigma_px.get(k).map_or(1.0, |s| 1.0 / s)
 }
 
 /// A matrix with the fixed parameters' columns zeroed.
@@ -54,8 +60,7 @@ pub(super) fn scale_columns<const R: usize, const N: usize>(
 }
 
 pub(super) fn prior_residual<const M: usize>(p: &Problem<M>, q: &PointPrior) -> Vector3<f64> {
-    (Vector3::from(p.points[q.point]) - Vector3::from(q.position))
-        .component_div(&Vector3::from(q.sigma))
+    q.sqrt_information * (Vector3::from(p.points[q.point]) - Vector3::from(q.position))
 }
 
 /// A camera-centre prior's residual and its Jacobian with respect to the image's pose (fixed
@@ -103,7 +108,10 @@ pub(super) fn cost_of<const M: usize>(
     let each: Vec<f64> = p
         .observations
         .par_iter()
-        .map(|o| residual(p, model, o).map_or(f64::INFINITY, |r| robust(loss, r).0))
+        .enumerate()
+        .map(|(k, o)| {
+            residual(p, model, o).map_or(f64::INFINITY, |r| robust(loss, r * whitening(p, k)).0)
+        })
         .collect();
     let cost = each.iter().sum::<f64>() + prior_cost(p, priors);
     if cost.is_finite() {
@@ -123,16 +131,25 @@ pub(super) fn evaluate<const M: usize>(
     let per: Vec<Option<(Linearised<M>, f64)>> = p
         .observations
         .par_iter()
-        .map(|o| {
+        .enumerate()
+        .map(|(k, o)| {
             let (r, jc, ji, jp) = linearise(p, model, o)?;
-            let (c, w) = robust(loss, r);
+            // Whitened by the observation's σ, then weighted by the loss.
+            let white = whitening(p, k);
+            let (c, robust_weight) = robust(loss, r * white);
+            let w = robust_weight * white;
             let ji = mask_columns(ji * w, &p.fixed_intrinsics[p.intrinsics_of[o.camera]]);
+            let jp = if p.fixed_points[o.point] {
+                Mat23::zeros()
+            } else {
+                jp * w
+            };
             Some((
                 (
                     r * w,
                     mask_columns(jc * w, &p.fixed_poses[o.camera]),
                     ji,
-                    jp * w,
+                    jp,
                 ),
                 c,
             ))

@@ -46,7 +46,7 @@ pub(super) fn model_decrease<const M: usize>(
         .points
         .iter()
         .map(|q| {
-            let jd = delta_point[q.point].component_div(&Vector3::from(q.sigma));
+            let jd = q.sqrt_information * delta_point[q.point];
             -jd.dot(&(prior_residual(p, q) + jd * 0.5))
         })
         .sum();
@@ -79,43 +79,50 @@ pub(super) fn stepped<const M: usize>(
     q
 }
 
-/// Every prior names a point or image of the problem and has a finite position and σ > 0.
+/// Every prior names a point or image of the problem, has a finite position and a positive σ
+/// (a positive-definite covariance), and no point prior is on a fixed point.
 pub(super) fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> Result<(), BaError> {
-    // One prior on `kind` number `index` (of `count`), `part` naming what of it ("'s centre").
-    let check = |(kind, part): (&str, &str),
-                 index: usize,
-                 count: usize,
-                 x: &[f64; 3],
-                 s: &[f64; 3]| {
+    let named = |kind: &str, index: usize, count: usize| {
         if index >= count {
             return Err(BaError::Invalid(format!(
                 "a prior names {kind} {index} of {count}"
             )));
         }
-        if !(x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)) {
-            return Err(BaError::Invalid(format!(
-                "the prior on {kind} {index}{part} needs a finite position and σ > 0, got {x:?} ± {s:?}"
-            )));
-        }
         Ok(())
     };
     for q in &priors.points {
-        check(
-            ("point", ""),
-            q.point,
-            p.points.len(),
-            &q.position,
-            &q.sigma,
-        )?;
+        named("point", q.point, p.points.len())?;
+        let w = &q.sqrt_information;
+        let lower = (0..3).all(|r| (r + 1..3).all(|c| w[(r, c)] == 0.0));
+        if !(q.position.iter().all(|v| v.is_finite())
+            && w.iter().all(|v| v.is_finite())
+            && lower
+            && w.diagonal().iter().all(|v| *v > 0.0))
+        {
+            return Err(BaError::Invalid(format!(
+                "the prior on point {} needs a finite position and σ > 0 (a positive-definite \
+                 covariance), got {:?} with W = {:?}",
+                q.point,
+                q.position,
+                w.as_slice()
+            )));
+        }
+        if p.fixed_points[q.point] {
+            return Err(BaError::Invalid(format!(
+                "point {} is held fixed and has a prior: free it or drop the prior",
+                q.point
+            )));
+        }
     }
     for q in &priors.centres {
-        check(
-            ("image", "'s centre"),
-            q.camera,
-            p.poses.len(),
-            &q.position,
-            &q.sigma,
-        )?;
+        named("image", q.camera, p.poses.len())?;
+        let (x, s) = (&q.position, &q.sigma);
+        if !(x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)) {
+            return Err(BaError::Invalid(format!(
+                "the prior on image {}'s centre needs a finite position and σ > 0, got {x:?} ± {s:?}",
+                q.camera
+            )));
+        }
     }
     Ok(())
 }

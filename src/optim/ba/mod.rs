@@ -92,6 +92,11 @@ pub struct Problem<const M: usize> {
     pub fixed_poses: Vec<[bool; 6]>,
     /// Per camera, which intrinsic parameters are held fixed.
     pub fixed_intrinsics: Vec<[bool; M]>,
+    /// Per point, whether it is held fixed (a calibration board's corners).
+    pub fixed_points: Vec<bool>,
+    /// Per observation, its standard deviation (pixels): residuals are divided by it, so that
+    /// costs and losses are in σ units. Empty: every observation 1 px (residuals in pixels).
+    pub sigma_px: Vec<f64>,
 }
 
 impl<const M: usize> Problem<M> {
@@ -137,6 +142,8 @@ impl<const M: usize> Problem<M> {
         Problem {
             fixed_poses: vec![[false; 6]; poses.len()],
             fixed_intrinsics: vec![[false; M]; intrinsics.len()],
+            fixed_points: vec![false; points.len()],
+            sigma_px: Vec::new(),
             poses,
             intrinsics,
             intrinsics_of,
@@ -168,6 +175,27 @@ impl<const M: usize> Problem<M> {
                 self.fixed_poses.len(),
                 self.fixed_intrinsics.len()
             ));
+        }
+        if self.fixed_points.len() != np {
+            return bad(format!(
+                "fixed-point mask for {} points, expected {np}",
+                self.fixed_points.len()
+            ));
+        }
+        if !self.sigma_px.is_empty() && self.sigma_px.len() != self.observations.len() {
+            return bad(format!(
+                "{} observation σ for {} observations: give one per observation or none",
+                self.sigma_px.len(),
+                self.observations.len()
+            ));
+        }
+        if let Some((k, s)) = self
+            .sigma_px
+            .iter()
+            .enumerate()
+            .find(|(_, s)| !(s.is_finite() && **s > 0.0))
+        {
+            return bad(format!("observation {k} has σ = {s} px, expected > 0"));
         }
         if let Some((i, g)) = self
             .intrinsics_of
@@ -273,13 +301,58 @@ pub struct CentrePrior {
     pub sigma: [f64; 3],
 }
 
-/// A prior on a point's position (a surveyed ground control point): `(X − position) / sigma`
-/// per coordinate joins the residuals.
+/// A prior on a point's position (a surveyed ground control point): `W (X − position)` joins
+/// the residuals, `W` the square root of the survey's information (`WᵀW = Σ⁻¹`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointPrior {
     pub point: usize,
     pub position: [f64; 3],
-    pub sigma: [f64; 3],
+    /// `W`, lower triangular: `diag(1/σ)` for independent coordinates.
+    pub sqrt_information: Matrix3<f64>,
+}
+
+impl PointPrior {
+    /// Independent coordinates with standard deviations `sigma`.
+    pub fn new(point: usize, position: [f64; 3], sigma: [f64; 3]) -> Self {
+        PointPrior {
+            point,
+            position,
+            sqrt_information: Matrix3::from_diagonal(&Vector3::from(sigma).map(|s| 1.0 / s)),
+        }
+    }
+
+    /// A full covariance (a survey's correlated east, north and up); `None` unless it is
+    /// symmetric positive definite.
+    pub fn with_covariance(point: usize, position: [f64; 3], cov: &Matrix3<f64>) -> Option<Self> {
+        if (cov - cov.transpose()).amax() > 1e-12 * cov.amax() {
+            return None;
+        }
+        // Σ = L Lᵀ ⇒ W = L⁻¹ gives WᵀW = Σ⁻¹.
+        let w = cov.cholesky()?.l().try_inverse()?;
+        w.iter().all(|v| v.is_finite()).then_some(PointPrior {
+            point,
+            position,
+            sqrt_information: w,
+        })
+    }
+}
+
+impl BaSettings {
+    /// The tolerances and limits of a Levenberg–Marquardt run (`initial_mu` the inverse of the
+    /// initial radius), the rest at their defaults.
+    pub fn from_lm(lm: &super::LmSettings) -> Self {
+        BaSettings {
+            max_iterations: lm.max_iterations,
+            function_tolerance: lm.function_tolerance,
+            gradient_tolerance: lm.gradient_tolerance,
+            parameter_tolerance: lm.parameter_tolerance,
+            initial_radius: 1.0 / lm.initial_mu,
+            min_diagonal: lm.min_diagonal,
+            max_diagonal: lm.max_diagonal,
+            min_relative_decrease: lm.min_relative_decrease,
+            ..BaSettings::default()
+        }
+    }
 }
 
 impl Default for BaSettings {

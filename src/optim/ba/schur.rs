@@ -120,7 +120,8 @@ pub(super) fn scales<const M: usize>(
     let intr_sq = column_norms_sq(&st.by_camera, &e.j_intr);
     let mut point_sq = column_norms_sq(&st.by_point, &e.j_point);
     for q in &priors.points {
-        point_sq[q.point] += Vector3::from(q.sigma).map(|v| 1.0 / (v * v));
+        let w = &q.sqrt_information;
+        point_sq[q.point] += Vector3::from_fn(|c, _| w.column(c).norm_squared());
     }
     (
         flat(lay, &jacobi_scales(&pose_sq), &jacobi_scales(&intr_sq)),
@@ -170,12 +171,11 @@ pub(super) fn scaled_normal<const M: usize>(
     let mut g_pose: Vec<Vec6> = per_image.iter().map(|x| x.2).collect();
     let (u_intr, g_intr) = normal_blocks(&st.by_camera, ji, &e.residuals);
     let (mut v, mut g_point) = normal_blocks(&st.by_point, jp, &e.residuals);
-    // A point prior's Jacobian is diag(1/σ), scaled like the point's columns.
+    // A point prior's Jacobian is W, scaled like the point's columns.
     for q in &priors.points {
-        let sp = s_point[q.point];
-        let j = Vector3::from(q.sigma).map(|v| 1.0 / v).component_mul(&sp);
-        v[q.point] += Matrix3::from_diagonal(&j.component_mul(&j));
-        g_point[q.point] += j.component_mul(&prior_residual(p, q));
+        let j = scale_columns(q.sqrt_information, &s_point[q.point]);
+        v[q.point] += j.transpose() * j;
+        g_point[q.point] += j.transpose() * prior_residual(p, q);
     }
     for q in &priors.centres {
         let (r, j) = centre_residual(p, q);

@@ -130,11 +130,7 @@ fn covariance_agrees_with_a_monte_carlo_spread() {
     };
     let sigma = [0.01; 3];
     let exact: Vec<PointPrior> = (0..10)
-        .map(|j| PointPrior {
-            point: j * 6,
-            position: truth.points[j * 6],
-            sigma,
-        })
+        .map(|j| PointPrior::new(j * 6, truth.points[j * 6], sigma))
         .collect();
     let exact_priors = Priors {
         points: exact.clone(),
@@ -374,11 +370,15 @@ fn schur_steps_equal_the_full_system_solution() {
     shared.fixed_intrinsics[0][2] = true;
     shared.fixed_poses[1] = [false, true, false, false, false, true];
     let priors = Priors {
-        points: vec![PointPrior {
-            point: 3,
-            position: [0.1, 0.2, 0.3],
-            sigma: [0.05, 0.05, 0.1],
-        }],
+        // A correlated survey (east and north at ρ = 0.5).
+        points: vec![
+            PointPrior::with_covariance(
+                3,
+                [0.1, 0.2, 0.3],
+                &Matrix3::new(25e-4, 12.5e-4, 0.0, 12.5e-4, 25e-4, 0.0, 0.0, 0.0, 1e-2),
+            )
+            .unwrap(),
+        ],
         centres: vec![CentrePrior {
             camera: 2,
             position: [1.0, 0.0, 10.0],
@@ -411,10 +411,12 @@ fn schur_steps_equal_the_full_system_solution() {
             }
         }
         for q in &priors.points {
-            for c in 0..3 {
+            for r in 0..3 {
                 let mut j = DVector::zeros(dim);
-                j[lay.dim + 3 * q.point + c] = s_point[q.point][c] / q.sigma[c];
-                rows.push((j, prior_residual(&p, q)[c]));
+                for c in 0..3 {
+                    j[lay.dim + 3 * q.point + c] = q.sqrt_information[(r, c)] * s_point[q.point][c];
+                }
+                rows.push((j, prior_residual(&p, q)[r]));
             }
         }
         for q in &priors.centres {
@@ -477,4 +479,184 @@ fn huber_loss_converges_through_gross_outliers() {
     assert!(summary.termination.converged(), "{:?}", summary.termination);
     let (a, b) = (rms_to_truth(&truth, &plain), rms_to_truth(&truth, &robust));
     assert!(b < 0.45 && b < 0.1 * a, "plain {a}, Huber {b}");
+}
+
+/// A problem of the ring scene with its gauge held by a fixed first pose and a fixed point
+/// (the scale), the rest free; per-observation σ when `sigma` is given.
+fn gauged(seed: u64, sigma: Option<&dyn Fn(usize) -> f64>) -> Problem<3> {
+    let (_, start) = scene(seed, 0.5, 0.0);
+    let mut p = start.to_problem();
+    p.fixed_poses[0] = [true; 6];
+    p.fixed_points[0] = true;
+    if let Some(s) = sigma {
+        p.sigma_px = (0..p.observations.len()).map(s).collect();
+    }
+    p
+}
+
+/// The cost is `½ Σ ‖r/σ‖²`; scaling every σ by one constant scales the cost and moves nothing;
+/// a fixed point stays where it is; with σ varying per observation the result is a minimum of
+/// the weighted cost (central differences along the points vanish), not of the plain one.
+#[test]
+fn observation_sigmas_weigh_and_fixed_points_stay() {
+    let settings = BaSettings {
+        function_tolerance: 1e-14,
+        parameter_tolerance: 1e-14,
+        ..BaSettings::default()
+    };
+    let mut plain = gauged(8, None);
+    let fixed_point = plain.points[0];
+    let a = adjust(&mut plain, &BalIntrinsics, &Priors::default(), &settings).unwrap();
+    let mut doubled = gauged(8, Some(&|_| 2.0));
+    let b = adjust(&mut doubled, &BalIntrinsics, &Priors::default(), &settings).unwrap();
+    assert!((a.initial_cost / b.initial_cost - 4.0).abs() < 1e-12);
+    assert!((a.final_cost / b.final_cost - 4.0).abs() < 1e-8);
+    assert_eq!(plain.points[0], fixed_point);
+    assert_eq!(doubled.points[0], fixed_point);
+    let moved = plain
+        .points
+        .iter()
+        .zip(&doubled.points)
+        .map(|(x, y)| (Vector3::from(*x) - Vector3::from(*y)).norm())
+        .fold(0.0, f64::max);
+    // Two paths to one optimum: the points (±2 m) agree to micrometres.
+    assert!(moved < 1e-5, "{moved}");
+
+    // Some observations of each point four times less certain than the others.
+    let weights = |k: usize| if k % 7 < 3 { 4.0 } else { 1.0 };
+    let mut weighted = gauged(8, Some(&weights));
+    adjust(&mut weighted, &BalIntrinsics, &Priors::default(), &settings).unwrap();
+    // The largest central difference of a cost along the first coordinates of points 1..20.
+    let slope = |p: &Problem<3>, q: &Problem<3>| {
+        (1..20)
+            .map(|j| {
+                let h = 1e-6;
+                let (mut up, mut down) = (p.clone(), p.clone());
+                up.points[j][0] += h;
+                down.points[j][0] -= h;
+                let cost = |x: &Problem<3>| {
+                    let mut x = x.clone();
+                    x.sigma_px.clone_from(&q.sigma_px);
+                    cost_of(&x, &BalIntrinsics, &Priors::default(), RobustLoss::Squared)
+                };
+                ((cost(&up) - cost(&down)) / (2.0 * h)).abs()
+            })
+            .fold(0.0, f64::max)
+    };
+    let at_weighted = slope(&weighted, &weighted);
+    let plain_under_weights = slope(&plain, &weighted);
+    assert!(
+        at_weighted < 1e-3 * plain_under_weights,
+        "{at_weighted} vs {plain_under_weights}"
+    );
+}
+
+/// The covariance's camera block and every point's block equal the inverse of the full normal
+/// matrix (observations with their own σ, a fixed point, a correlated point prior and a
+/// centre prior), formed and inverted densely.
+#[test]
+fn covariance_blocks_equal_the_full_inverse() {
+    let mut p = gauged(9, Some(&|k| 0.5 + 0.1 * (k % 5) as f64));
+    p.observations.retain(|o| o.camera < 5 && o.point < 30);
+    p.sigma_px.truncate(p.observations.len());
+    p.poses.truncate(5);
+    p.intrinsics.truncate(1);
+    p.intrinsics_of = vec![0; 5];
+    p.fixed_poses.truncate(5);
+    p.fixed_poses[0] = [false; 6];
+    p.fixed_intrinsics.truncate(1);
+    p.fixed_intrinsics[0][2] = true;
+    p.points.truncate(30);
+    p.fixed_points.truncate(30);
+    p.sigma_px = (0..p.observations.len())
+        .map(|k| 0.5 + 0.1 * (k % 5) as f64)
+        .collect();
+    let priors = Priors {
+        points: vec![
+            PointPrior::with_covariance(
+                3,
+                [0.1, 0.2, 0.3],
+                &Matrix3::new(25e-4, 12.5e-4, 0.0, 12.5e-4, 25e-4, 0.0, 0.0, 0.0, 1e-2),
+            )
+            .unwrap(),
+        ],
+        centres: (0..3)
+            .map(|i| CentrePrior {
+                camera: i,
+                position: p.centre(i).into(),
+                sigma: [0.05; 3],
+            })
+            .collect(),
+    };
+    let cov = covariance(&p, &BalIntrinsics, &priors, RobustLoss::Squared, Some(1.0)).unwrap();
+    let lay = Layout::new(&p);
+    let e = evaluate(&p, &BalIntrinsics, &Priors::default(), RobustLoss::Squared).unwrap();
+    let dim = lay.dim + 3 * p.points.len();
+    let mut a = DMatrix::<f64>::zeros(dim, dim);
+    let mut add = |j: DVector<f64>| a += &j * j.transpose();
+    for (k, o) in p.observations.iter().enumerate() {
+        let (pk, ik) = lay.of(&p, o.camera);
+        for r in 0..2 {
+            let mut j = DVector::zeros(dim);
+            for c in 0..6 {
+                j[pk + c] = e.j_pose[k][(r, c)];
+            }
+            for c in 0..3 {
+                j[ik + c] = e.j_intr[k][(r, c)];
+                j[lay.dim + 3 * o.point + c] = e.j_point[k][(r, c)];
+            }
+            add(j);
+        }
+    }
+    for q in &priors.points {
+        for r in 0..3 {
+            let mut j = DVector::zeros(dim);
+            for c in 0..3 {
+                j[lay.dim + 3 * q.point + c] = q.sqrt_information[(r, c)];
+            }
+            add(j);
+        }
+    }
+    for q in &priors.centres {
+        let jq = centre_residual(&p, q).1;
+        for r in 0..3 {
+            let mut j = DVector::zeros(dim);
+            for k in 0..6 {
+                j[lay.pose[q.camera] + k] = jq[(r, k)];
+            }
+            add(j);
+        }
+    }
+    // Fixed parameters: unit rows, zeroed after inversion.
+    let mut fixed: Vec<usize> = lay
+        .free(&p)
+        .iter()
+        .enumerate()
+        .filter(|f| !*f.1)
+        .map(|f| f.0)
+        .collect();
+    fixed.extend((0..3).map(|c| lay.dim + c));
+    for &k in &fixed {
+        a[(k, k)] = 1.0;
+    }
+    let inv = a.cholesky().expect("determined").inverse();
+    let mut cams = inv.view((0, 0), (lay.dim, lay.dim)).into_owned();
+    for &k in fixed.iter().filter(|k| **k < lay.dim) {
+        cams.row_mut(k).fill(0.0);
+        cams.column_mut(k).fill(0.0);
+    }
+    assert!(
+        (&cams - &cov.matrix).amax() < 1e-8 * cams.amax(),
+        "{}",
+        (&cams - &cov.matrix).amax()
+    );
+    assert_eq!(cov.points[0], Some(Matrix3::zeros()));
+    for j in 1..p.points.len() {
+        let want = inv.fixed_view::<3, 3>(lay.dim + 3 * j, lay.dim + 3 * j);
+        let got = cov.points[j].expect("seen five times");
+        assert!(
+            (got - want).amax() < 1e-8 * want.amax(),
+            "point {j}: {got} vs {want}"
+        );
+    }
 }

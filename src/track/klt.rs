@@ -331,7 +331,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                     t.features.iter().map(|f| motion(f) + t.velocity).collect();
                 let next = self
                     .features
-                    .track(prev, &frame, &t.features, Some(&guess))?;
+                    .track(prev, frame, &t.features, Some(&guess))?;
                 let (mut to, mut flow) = (Vec::new(), Vec::new());
                 for (a, b) in t.features.iter().zip(&next) {
                     if let Some(b) = b {
@@ -535,7 +535,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                 } else {
                     self.box_around(&est)
                 };
-                t.features = self.features.detect_in(&frame, b, s.max_features)?;
+                t.features = self.features.detect_in(frame, b, s.max_features)?;
                 self.reinitialised += 1;
             }
             keep.push(t);
@@ -563,7 +563,7 @@ impl<F: FeatureTracker> KltTracker<F> {
             {
                 continue;
             }
-            let features = self.features.detect_in(&frame, d.bbox, s.max_features)?;
+            let features = self.features.detect_in(frame, d.bbox, s.max_features)?;
             self.started += 1;
             keep.push(Live {
                 features: features.clone(),

@@ -359,7 +359,7 @@ fn project_camera(l: &Loaded, width: u32, height: u32) -> Result<Camera, RunErro
     let spec = &l.project.camera.calibration;
     let cal = match presets::preset(spec) {
         Some(c) => c,
-        None => formats::read(&l.resolve(spec), None).map_err(|e| RunError::from_input(e))?,
+        None => formats::read(&l.resolve(spec), None).map_err(RunError::from_input)?,
     };
     let cam = cal.camera;
     match cam.image_size {
@@ -398,7 +398,7 @@ fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
         disable: Vec::new(),
         origin,
     };
-    load_framed(&l.resolve(&s.gcps), &opts).map_err(|e| RunError::from_input(e))
+    load_framed(&l.resolve(&s.gcps), &opts).map_err(RunError::from_input)
 }
 
 /// The picks of the picked frame: (frame, control, check), checked like `geostride pose` checks
@@ -462,7 +462,7 @@ fn picked(
     }
     let seen = framed
         .observations(&image, s.pick_sigma_px, s.gcp_sigma_m, Some(size))
-        .map_err(|e| RunError::from_input(e))?;
+        .map_err(RunError::from_input)?;
     if seen.control.len() < 4 {
         return Err(input(
             "picks",

@@ -1,16 +1,18 @@
 //! Joint refinement of several poses of one camera and the GCP positions they see, the GCPs
-//! held to their survey by priors (a small bundle adjustment with known intrinsics).
-//!
-//! Levenberg–Marquardt on the normal equations, with the poses eliminated (each pose touches
-//! only its own observations): the reduced system is over the GCPs, which are few.
+//! held to their survey by priors: a configuration of the bundle adjuster ([`crate::optim::ba`])
+//! with the intrinsics fixed, each pick weighted by its own σ and each GCP by its survey's full
+//! covariance.
 
-use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
+use nalgebra::{Matrix3, Matrix6, Vector3};
 
 use super::PoseError;
-use super::refine::{project_pose, whitener};
-use crate::camera::Camera;
+use crate::camera::{Camera, N_PARAMS};
 use crate::geom::Rigid3;
-use crate::optim::{Damping, LmSettings, RobustLoss, Termination};
+use crate::optim::ba::{
+    BaError, BaSettings, Observation, PointPrior, Priors, Problem, adjust, covariance, total_cost,
+};
+use crate::optim::ba_camera::{BrownConrady, pose_params, pose_with_covariance};
+use crate::optim::{LmSettings, RobustLoss, Termination};
 
 /// A pick of GCP `point` in the image of pose `pose`.
 #[derive(Clone, Debug)]
@@ -26,129 +28,13 @@ pub struct JointObs {
 pub struct JointResult {
     pub poses: Vec<Rigid3>,
     pub points: Vec<Vector3<f64>>,
-    /// Covariance of each pose's increment `(δθ, δt)` (see `refine`).
+    /// Covariance of each pose's [`Rigid3::plus`] increment `(δθ, δt)`.
     pub pose_cov: Vec<Matrix6<f64>>,
     pub point_cov: Vec<Matrix3<f64>>,
     /// Σ of the squared whitened residuals, priors included.
     pub chi2: f64,
     pub iterations: usize,
     pub termination: Termination,
-}
-
-/// Increments of the poses and of the points.
-type Steps = (Vec<Vector6<f64>>, Vec<Vector3<f64>>);
-
-struct System {
-    cost: f64,
-    chi2: f64,
-    u: Vec<Matrix6<f64>>,
-    w: Vec<Vec<(usize, Matrix6x3<f64>)>>,
-    v: Vec<Matrix3<f64>>,
-    bp: Vec<Vector6<f64>>,
-    bx: Vec<Vector3<f64>>,
-}
-
-struct Problem<'a> {
-    camera: &'a Camera,
-    prior: &'a [Vector3<f64>],
-    prior_white: Vec<Matrix3<f64>>,
-    obs: &'a [JointObs],
-    loss: RobustLoss,
-    n_poses: usize,
-}
-
-impl Problem<'_> {
-    fn build(&self, poses: &[Rigid3], points: &[Vector3<f64>]) -> Option<System> {
-        let np = points.len();
-        let mut s = System {
-            cost: 0.0,
-            chi2: 0.0,
-            u: vec![Matrix6::zeros(); self.n_poses],
-            w: vec![Vec::new(); self.n_poses],
-            v: vec![Matrix3::zeros(); np],
-            bp: vec![Vector6::zeros(); self.n_poses],
-            bx: vec![Vector3::zeros(); np],
-        };
-        for o in self.obs {
-            let (uv, jp, jx) = project_pose(self.camera, &poses[o.pose], &points[o.point])?;
-            let white = whitener(&(Matrix2::identity() / (o.sigma_px * o.sigma_px)));
-            let r = white * (uv - o.uv);
-            let (jp, jx) = (white * jp, white * jx);
-            let sq = r.norm_squared();
-            let wt = self.loss.weight(sq);
-            s.cost += self.loss.rho(sq);
-            s.chi2 += sq;
-            s.u[o.pose] += jp.transpose() * jp * wt;
-            s.v[o.point] += jx.transpose() * jx * wt;
-            s.bp[o.pose] += jp.transpose() * r * wt;
-            s.bx[o.point] += jx.transpose() * r * wt;
-            let wkj = jp.transpose() * jx * wt;
-            match s.w[o.pose].iter_mut().find(|(j, _)| *j == o.point) {
-                Some((_, m)) => *m += wkj,
-                None => s.w[o.pose].push((o.point, wkj)),
-            }
-        }
-        // Priors: the surveyed positions with their covariance.
-        for (j, (x, (x0, white))) in points
-            .iter()
-            .zip(self.prior.iter().zip(&self.prior_white))
-            .enumerate()
-        {
-            let r = white * (x - x0);
-            s.cost += r.norm_squared();
-            s.chi2 += r.norm_squared();
-            s.v[j] += white.transpose() * white;
-            s.bx[j] += white.transpose() * r;
-        }
-        Some(s)
-    }
-
-    /// Solves the damped system; returns pose and point increments.
-    fn solve(&self, s: &System, damping: &Damping, lm: &LmSettings) -> Option<Steps> {
-        let np = s.v.len();
-        let mut u_inv = Vec::with_capacity(self.n_poses);
-        for u in &s.u {
-            let mut a = *u;
-            for k in 0..6 {
-                a[(k, k)] += damping.regularizer(u[(k, k)], lm);
-            }
-            u_inv.push(a.try_inverse()?);
-        }
-        // Reduced system over the points: S = V − Σ Wᵀ U⁻¹ W, rhs = −bx + Σ Wᵀ U⁻¹ bp.
-        let mut sm = DMatrix::<f64>::zeros(3 * np, 3 * np);
-        let mut rhs = DVector::<f64>::zeros(3 * np);
-        for j in 0..np {
-            let mut v = s.v[j];
-            for k in 0..3 {
-                v[(k, k)] += damping.regularizer(s.v[j][(k, k)], lm);
-            }
-            sm.fixed_view_mut::<3, 3>(3 * j, 3 * j).copy_from(&v);
-            rhs.fixed_rows_mut::<3>(3 * j).copy_from(&(-s.bx[j]));
-        }
-        for ((ui, wk), bp) in u_inv.iter().zip(&s.w).zip(&s.bp) {
-            for &(a, wa) in wk {
-                let wt_ui = wa.transpose() * ui;
-                let mut r = rhs.fixed_rows_mut::<3>(3 * a);
-                r += wt_ui * bp;
-                for &(b, wb) in wk {
-                    let mut blk = sm.fixed_view_mut::<3, 3>(3 * a, 3 * b);
-                    blk -= wt_ui * wb;
-                }
-            }
-        }
-        let dx = sm.cholesky()?.solve(&rhs);
-        let dxs: Vec<Vector3<f64>> = (0..np).map(|j| dx.fixed_rows::<3>(3 * j).into()).collect();
-        let dps = (0..self.n_poses)
-            .map(|k| {
-                let mut b = -s.bp[k];
-                for &(j, w) in &s.w[k] {
-                    b -= w * dxs[j];
-                }
-                u_inv[k] * b
-            })
-            .collect();
-        Some((dps, dxs))
-    }
 }
 
 /// Refines `poses` and `points` on `obs`, with `points` held to `prior` by `prior_cov`.
@@ -161,148 +47,89 @@ pub fn refine_jointly(
     loss: RobustLoss,
     lm: &LmSettings,
 ) -> Result<JointResult, PoseError> {
-    let mut prior_white = Vec::with_capacity(prior.len());
-    for (j, c) in prior_cov.iter().enumerate() {
+    let mut priors = Priors::default();
+    for (j, (x, c)) in prior.iter().zip(prior_cov).enumerate() {
         // A point with a zero σ is held fast by a stiff prior (1 µm).
         let c = c + Matrix3::identity() * 1e-12;
-        let info = c
-            .try_inverse()
-            .ok_or_else(|| PoseError::Degenerate(format!("GCP {j}: singular survey covariance")))?;
-        prior_white.push(
-            info.cholesky()
-                .map(|ch| ch.l().transpose())
-                .ok_or_else(|| {
-                    PoseError::Degenerate(format!("GCP {j}: survey covariance not positive"))
-                })?,
+        priors.points.push(
+            PointPrior::with_covariance(j, (*x).into(), &c).ok_or_else(|| {
+                PoseError::Degenerate(format!(
+                    "GCP {j}: survey covariance not symmetric positive definite"
+                ))
+            })?,
         );
     }
-    let problem = Problem {
-        camera,
-        prior,
-        prior_white,
-        obs,
-        loss,
-        n_poses: poses.len(),
+    let mut problem = Problem::new(
+        poses.iter().map(pose_params).collect(),
+        vec![camera.params()],
+        vec![0; poses.len()],
+        prior.iter().map(|x| (*x).into()).collect(),
+        obs.iter()
+            .map(|o| Observation {
+                camera: o.pose,
+                point: o.point,
+                xy: [o.uv.x, o.uv.y],
+            })
+            .collect(),
+    );
+    problem.fixed_intrinsics = vec![[true; N_PARAMS]];
+    problem.sigma_px = obs.iter().map(|o| o.sigma_px).collect();
+    let degenerate = |e: BaError| match e {
+        BaError::Projection { image, point, .. } => PoseError::Degenerate(format!(
+            "GCP {point} is behind the camera in key frame {image}"
+        )),
+        BaError::Singular => PoseError::Degenerate(
+            "the key frames' poses are not determined by their picks and the GCPs".into(),
+        ),
+        e => PoseError::Degenerate(e.to_string()),
     };
-    let mut poses = poses.to_vec();
-    let mut points = prior.to_vec();
-    let behind = || PoseError::Degenerate("a GCP is behind the camera in a key frame".into());
-    let mut sys = problem.build(&poses, &points).ok_or_else(behind)?;
-    let mut damping = Damping::new(lm);
-    let mut termination = Termination::MaxIterations;
-    let mut iterations = 0;
-    while iterations < lm.max_iterations {
-        iterations += 1;
-        let Some((dp, dx)) = problem.solve(&sys, &damping, lm) else {
-            damping.update(f64::NAN, lm);
-            if damping.exhausted() {
-                termination = Termination::NoFurtherProgress;
-                break;
-            }
-            continue;
-        };
-        // Predicted decrease of the Gauss–Newton model, −(2δᵀb + δᵀHδ).
-        let mut predicted = 0.0;
-        for (((d, b), u), wk) in dp.iter().zip(&sys.bp).zip(&sys.u).zip(&sys.w) {
-            predicted -= 2.0 * d.dot(b) + d.dot(&(u * d));
-            for &(j, w) in wk {
-                predicted -= 2.0 * d.dot(&(w * dx[j]));
-            }
-        }
-        for ((d, b), v) in dx.iter().zip(&sys.bx).zip(&sys.v) {
-            predicted -= 2.0 * d.dot(b) + d.dot(&(v * d));
-        }
-        let cand_poses: Vec<Rigid3> = poses.iter().zip(&dp).map(|(p, d)| p.plus(d)).collect();
-        let cand_points: Vec<Vector3<f64>> = points.iter().zip(&dx).map(|(p, d)| p + d).collect();
-        let next = problem.build(&cand_poses, &cand_points);
-        let rho = match &next {
-            Some(n) if predicted > 0.0 => (sys.cost - n.cost) / predicted,
-            _ => f64::NAN,
-        };
-        if damping.update(rho, lm) {
-            let next = next.expect("accepted step was evaluated");
-            let rel = (sys.cost - next.cost).abs() / sys.cost.max(1e-300);
-            let step = dp.iter().map(|d| d.norm_squared()).sum::<f64>()
-                + dx.iter().map(|d| d.norm_squared()).sum::<f64>();
-            poses = cand_poses;
-            points = cand_points;
-            sys = next;
-            if rel <= lm.function_tolerance {
-                termination = Termination::FunctionTolerance;
-                break;
-            }
-            if step.sqrt() <= lm.parameter_tolerance {
-                termination = Termination::ParameterTolerance;
-                break;
-            }
-        } else if damping.exhausted() {
-            termination = Termination::NoFurtherProgress;
-            break;
-        }
-    }
-    // Covariances from the undamped system: points from the inverse of the reduced matrix,
-    // poses from U⁻¹ + U⁻¹ W S⁻¹ Wᵀ U⁻¹.
-    let np = points.len();
-    let u_inv: Vec<Matrix6<f64>> = sys
-        .u
+    let settings = BaSettings {
+        loss,
+        ..BaSettings::from_lm(lm)
+    };
+    let summary = adjust(&mut problem, &BrownConrady, &priors, &settings).map_err(degenerate)?;
+    let cov = covariance(&problem, &BrownConrady, &priors, loss, Some(1.0)).map_err(degenerate)?;
+    let (poses, pose_cov) = (0..poses.len())
+        .map(|i| pose_with_covariance(&problem, &cov, i))
+        .unzip();
+    let point_cov = cov
+        .points
         .iter()
-        .map(|u| u.try_inverse())
-        .collect::<Option<_>>()
-        .ok_or_else(|| {
-            PoseError::Degenerate("a key frame's pose is not determined by its picks".into())
-        })?;
-    let mut sm = DMatrix::<f64>::zeros(3 * np, 3 * np);
-    for (j, v) in sys.v.iter().enumerate() {
-        sm.fixed_view_mut::<3, 3>(3 * j, 3 * j).copy_from(v);
-    }
-    for (ui, wk) in u_inv.iter().zip(&sys.w) {
-        for &(a, wa) in wk {
-            for &(b, wb) in wk {
-                let mut blk = sm.fixed_view_mut::<3, 3>(3 * a, 3 * b);
-                blk -= wa.transpose() * ui * wb;
-            }
-        }
-    }
-    let s_inv = sm
-        .try_inverse()
-        .ok_or_else(|| PoseError::Degenerate("the GCPs are not determined".into()))?;
-    let point_cov = (0..np)
-        .map(|j| s_inv.fixed_view::<3, 3>(3 * j, 3 * j).into())
-        .collect();
-    let pose_cov = (0..poses.len())
-        .map(|k| {
-            let mut c = u_inv[k];
-            for &(a, wa) in &sys.w[k] {
-                for &(b, wb) in &sys.w[k] {
-                    let sab: Matrix3<f64> = s_inv.fixed_view::<3, 3>(3 * a, 3 * b).into();
-                    c += u_inv[k] * wa * sab * wb.transpose() * u_inv[k];
-                }
-            }
-            c
-        })
+        .map(|c| c.expect("every GCP has a prior"))
         .collect();
     Ok(JointResult {
         poses,
-        points,
+        points: problem.points.iter().map(|x| Vector3::from(*x)).collect(),
         pose_cov,
         point_cov,
-        chi2: sys.chi2,
-        iterations,
-        termination,
+        chi2: 2.0 * total_cost(&problem, &BrownConrady, &priors, RobustLoss::Squared),
+        iterations: summary.iterations.len(),
+        termination: summary.termination.into(),
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Rotation3, Vector2};
+    use nalgebra::{Rotation3, Vector2, Vector6};
     use rand::{RngExt, SeedableRng};
     use rand_distr::{Distribution, Normal};
 
-    #[test]
-    fn recovers_poses_and_pulls_gcps_towards_the_images() {
+    /// Five key frames 30 m above ten GCPs (picks at 0.5 px, surveys at 3 cm), the start off
+    /// by decimetres: (camera, truth, start, survey, survey covariance, picks).
+    #[allow(clippy::type_complexity)]
+    fn scene(
+        seed: u64,
+    ) -> (
+        Camera,
+        Vec<Rigid3>,
+        Vec<Rigid3>,
+        Vec<Vector3<f64>>,
+        Vec<Matrix3<f64>>,
+        Vec<JointObs>,
+    ) {
         let camera = Camera::pinhole(1400.0, 1400.0, 960.0, 540.0).with_distortion(&[-0.05, 0.02]);
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let truth_pts: Vec<Vector3<f64>> = (0..10)
             .map(|_| {
                 Vector3::new(
@@ -357,6 +184,12 @@ mod tests {
             .iter()
             .map(|p| p.plus(&Vector6::new(0.003, -0.002, 0.004, 0.2, -0.1, 0.3)))
             .collect();
+        (camera, truth_poses, start, prior, cov, obs)
+    }
+
+    #[test]
+    fn recovers_poses_and_pulls_gcps_towards_the_images() {
+        let (camera, truth_poses, start, prior, cov, obs) = scene(2);
         let r = refine_jointly(
             &camera,
             &start,
@@ -386,5 +219,50 @@ mod tests {
         // χ² near its degrees of freedom: 2·50 observations + 30 prior − 30 − 30 parameters.
         let dof = 2.0 * 50.0 + 30.0 - 30.0 - 30.0;
         assert!(r.chi2 < 2.0 * dof, "χ² {} for {dof} dof", r.chi2);
+    }
+
+    /// The bundle-adjuster configuration against the former hand-written solver, on the same
+    /// problems (plain and robust): the same optimum, covariances and χ².
+    #[test]
+    fn agrees_with_the_former_solver() {
+        for (seed, loss) in [
+            (2, RobustLoss::Squared),
+            (3, RobustLoss::Squared),
+            (4, RobustLoss::Huber(1.0)),
+        ] {
+            let (camera, _, start, prior, mut cov, obs) = scene(seed);
+            // A correlated survey for one GCP.
+            cov[1][(0, 1)] = 4e-4;
+            cov[1][(1, 0)] = 4e-4;
+            let lm = LmSettings::default();
+            let new = refine_jointly(&camera, &start, &prior, &cov, &obs, loss, &lm).unwrap();
+            let old = super::super::joint_oracle::refine_jointly(
+                &camera, &start, &prior, &cov, &obs, loss, &lm,
+            )
+            .unwrap();
+            let rel = |a: f64, b: f64| (a - b).abs() / b.abs().max(1e-300);
+            let mut worst = [0.0f64; 5];
+            for (a, b) in new.poses.iter().zip(&old.poses) {
+                worst[0] = worst[0].max((a.centre() - b.centre()).norm());
+                worst[1] = worst[1].max(a.rotation.angle_to(&b.rotation));
+            }
+            for (a, b) in new.points.iter().zip(&old.points) {
+                worst[2] = worst[2].max((a - b).norm());
+            }
+            for (a, b) in new.point_cov.iter().zip(&old.point_cov) {
+                worst[3] = worst[3].max((a - b).amax() / b.amax());
+            }
+            for (a, b) in new.pose_cov.iter().zip(&old.pose_cov) {
+                worst[4] = worst[4].max((a - b).amax() / b.amax());
+            }
+            eprintln!(
+                "seed {seed} {loss:?}: centres {:.1e} m, rotations {:.1e} rad, points {:.1e} m, \
+                 point cov {:.1e}, pose cov {:.1e} (relative), χ² {} vs {}",
+                worst[0], worst[1], worst[2], worst[3], worst[4], new.chi2, old.chi2
+            );
+            assert!(worst[0] < 1e-6 && worst[1] < 1e-7 && worst[2] < 1e-7, "{worst:?}");
+            assert!(worst[3] < 1e-6 && worst[4] < 1e-6, "{worst:?}");
+            assert!(rel(new.chi2, old.chi2) < 1e-6);
+        }
     }
 }

@@ -392,6 +392,17 @@ pub enum LinearSolver {
 /// Images beyond which `Auto` goes iterative.
 const DENSE_MAX_IMAGES: usize = 200;
 
+/// The cost `½ Σ ρ(‖r/σ‖²)` of the observations plus `½ Σ ‖W (X − X₀)‖²` and the centre
+/// priors' at the problem's parameters (infinite where an observation cannot be projected).
+pub fn total_cost<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    loss: RobustLoss,
+) -> f64 {
+    cost_of(p, model, priors, loss)
+}
+
 /// Why the solver stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -409,6 +420,19 @@ pub enum BaTermination {
 impl BaTermination {
     pub fn converged(self) -> bool {
         !matches!(self, BaTermination::MaxIterations | BaTermination::Failure)
+    }
+}
+
+impl From<BaTermination> for super::Termination {
+    fn from(t: BaTermination) -> Self {
+        use super::Termination as T;
+        match t {
+            BaTermination::FunctionTolerance => T::FunctionTolerance,
+            BaTermination::GradientTolerance => T::GradientTolerance,
+            BaTermination::ParameterTolerance => T::ParameterTolerance,
+            BaTermination::MaxIterations => T::MaxIterations,
+            BaTermination::MinRadius | BaTermination::Failure => T::NoFurtherProgress,
+        }
     }
 }
 

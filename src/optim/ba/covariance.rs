@@ -60,6 +60,17 @@ pub fn covariance<const M: usize>(
     loss: RobustLoss,
     sigma_px: Option<f64>,
 ) -> Result<CameraCovariance, BaError> {
+    // On a worker of the pool, as `adjust`.
+    rayon::scope(|_| covariance_on_pool(p, model, priors, loss, sigma_px))
+}
+
+fn covariance_on_pool<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    loss: RobustLoss,
+    sigma_px: Option<f64>,
+) -> Result<CameraCovariance, BaError> {
     p.check()?;
     check_priors(p, priors)?;
     let st = Structure::new(p);
@@ -109,7 +120,10 @@ pub fn covariance<const M: usize>(
     for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
         s[(k, k)] = 1.0;
     }
-    let s_inv = s.cholesky().ok_or(BaError::Singular)?.inverse();
+    let s_inv = match Arrow::of(&st, &lay, &s) {
+        Some(arrow) => arrow.inverse(lay.dim),
+        None => s.cholesky().ok_or(BaError::Singular)?.inverse(),
+    };
     let points = point_covariances(p, &st, &lay, &n, &v_inv, &s_inv, &s_point)
         .into_iter()
         .enumerate()
@@ -119,8 +133,12 @@ pub fn covariance<const M: usize>(
             (false, false) => None,
         })
         .collect();
-    let scale = DMatrix::from_diagonal(&s_cam);
-    let mut matrix = &scale * s_inv * &scale;
+    // Back to the problem's units: `diag(s) S⁻¹ diag(s)`, entry by entry.
+    let mut matrix = s_inv;
+    for (j, mut col) in matrix.column_iter_mut().enumerate() {
+        col.component_mul_assign(&s_cam);
+        col *= s_cam[j];
+    }
     for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
         matrix.row_mut(k).fill(0.0);
         matrix.column_mut(k).fill(0.0);
@@ -147,8 +165,9 @@ fn point_covariances<const M: usize>(
     s_inv: &DMatrix<f64>,
     s_point: &[Vector3<f64>],
 ) -> Vec<Matrix3<f64>> {
-    st.by_point
+    st.coupling()
         .par_iter()
+        .with_min_len(grain(p.points.len(), p.observations.len()))
         .enumerate()
         .map(|(j, ks)| {
             let mut wsw = Matrix3::zeros();

@@ -18,15 +18,16 @@ pub(super) fn robust(loss: RobustLoss, r: Vector2<f64>) -> (f64, f64) {
     (0.5 * loss.rho(s), loss.weight(s).max(0.0).sqrt())
 }
 
-/// Where an image's camera sees a point, minus the measurement (pixels).
+/// Where an image's camera sees a point, minus the measurement (pixels); `rotations` per image.
 pub(super) fn residual<const M: usize>(
     p: &Problem<M>,
     model: &impl Projection<M>,
     o: &Observation,
+    rotations: &[Matrix3<f64>],
 ) -> Option<Vector2<f64>> {
     let q = &p.poses[o.camera];
-    let w = Vector3::new(q[0], q[1], q[2]);
-    let p_cam = rotation(&w) * Vector3::from(p.points[o.point]) + Vector3::new(q[3], q[4], q[5]);
+    let p_cam =
+        rotations[o.camera] * Vector3::from(p.points[o.point]) + Vector3::new(q[3], q[4], q[5]);
     let u = model.project(&p.intrinsics[p.intrinsics_of[o.camera]], &p_cam)?;
     Some(u - Vector2::from(o.xy))
 }
@@ -46,6 +47,17 @@ pub(super) fn mask_columns<const R: usize, const N: usize>(
         j.column_mut(k).fill(0.0);
     }
     j
+}
+
+/// Zeroes the fixed parameters' columns in place.
+#[inline]
+pub(super) fn zero_columns<const R: usize, const N: usize>(
+    j: &mut SMatrix<f64, R, N>,
+    fixed: &[bool; N],
+) {
+    for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
+        j.column_mut(k).fill(0.0);
+    }
 }
 
 /// A matrix with its columns scaled.
@@ -105,12 +117,19 @@ pub(super) fn cost_of<const M: usize>(
     priors: &Priors,
     loss: RobustLoss,
 ) -> f64 {
+    let rotations: Vec<Matrix3<f64>> = p
+        .poses
+        .iter()
+        .map(|q| rotation(&Vector3::new(q[0], q[1], q[2])))
+        .collect();
     let each: Vec<f64> = p
         .observations
         .par_iter()
+        .with_min_len(GRAIN)
         .enumerate()
         .map(|(k, o)| {
-            residual(p, model, o).map_or(f64::INFINITY, |r| robust(loss, r * whitening(p, k)).0)
+            residual(p, model, o, &rotations)
+                .map_or(f64::INFINITY, |r| robust(loss, r * whitening(p, k)).0)
         })
         .collect();
     let cost = each.iter().sum::<f64>() + prior_cost(p, priors);
@@ -128,48 +147,45 @@ pub(super) fn evaluate<const M: usize>(
     priors: &Priors,
     loss: RobustLoss,
 ) -> Result<Evaluation<M>, usize> {
-    let per: Vec<Option<(Linearised<M>, f64)>> = p
-        .observations
-        .par_iter()
+    let frames = PoseFrame::all(p);
+    let n = p.observations.len();
+    // Written in place: each observation's 47 numbers moved once, not thrice.
+    let mut e = Evaluation {
+        residuals: vec![Vector2::zeros(); n],
+        j_pose: vec![Mat26::zeros(); n],
+        j_intr: vec![SMatrix::<f64, 2, M>::zeros(); n],
+        j_point: vec![Mat23::zeros(); n],
+        cost: 0.0,
+    };
+    let costs: Vec<Option<f64>> = (
+        e.residuals.par_iter_mut(),
+        e.j_pose.par_iter_mut(),
+        e.j_intr.par_iter_mut(),
+        e.j_point.par_iter_mut(),
+    )
+        .into_par_iter()
+        .with_min_len(GRAIN)
         .enumerate()
-        .map(|(k, o)| {
-            let (r, jc, ji, jp) = linearise(p, model, o)?;
+        .map(|(k, (r_out, jc_out, ji_out, jp_out))| {
+            let o = &p.observations[k];
+            let (r, jc, ji, jp) = linearise_at(p, model, o, &frames[o.camera])?;
             // Whitened by the observation's σ, then weighted by the loss.
             let white = whitening(p, k);
             let (c, robust_weight) = robust(loss, r * white);
             let w = robust_weight * white;
-            let ji = mask_columns(ji * w, &p.fixed_intrinsics[p.intrinsics_of[o.camera]]);
-            let jp = if p.fixed_points[o.point] {
-                Mat23::zeros()
-            } else {
-                jp * w
-            };
-            Some((
-                (
-                    r * w,
-                    mask_columns(jc * w, &p.fixed_poses[o.camera]),
-                    ji,
-                    jp,
-                ),
-                c,
-            ))
+            *r_out = r * w;
+            *jc_out = jc * w;
+            zero_columns(jc_out, &p.fixed_poses[o.camera]);
+            *ji_out = ji * w;
+            zero_columns(ji_out, &p.fixed_intrinsics[p.intrinsics_of[o.camera]]);
+            if !p.fixed_points[o.point] {
+                *jp_out = jp * w;
+            }
+            Some(c)
         })
         .collect();
-    let n = per.len();
-    let mut e = Evaluation {
-        residuals: Vec::with_capacity(n),
-        j_pose: Vec::with_capacity(n),
-        j_intr: Vec::with_capacity(n),
-        j_point: Vec::with_capacity(n),
-        cost: 0.0,
-    };
-    for (k, item) in per.into_iter().enumerate() {
-        let ((r, jc, ji, jp), c) = item.ok_or(k)?;
-        e.residuals.push(r);
-        e.j_pose.push(jc);
-        e.j_intr.push(ji);
-        e.j_point.push(jp);
-        e.cost += c;
+    for (k, c) in costs.into_iter().enumerate() {
+        e.cost += c.ok_or(k)?;
     }
     e.cost += prior_cost(p, priors);
     Ok(e)

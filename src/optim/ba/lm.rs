@@ -25,6 +25,7 @@ pub(super) fn model_decrease<const M: usize>(
     let obs = &p.observations;
     let observed: f64 = (0..obs.len())
         .into_par_iter()
+        .with_min_len(GRAIN)
         .map(|k| {
             let (pk, ik) = lay.of(p, obs[k].camera);
             let jd = e.j_pose[k] * delta_cam.fixed_rows::<6>(pk)
@@ -144,6 +145,17 @@ pub fn adjust<const M: usize>(
     priors: &Priors,
     settings: &BaSettings,
 ) -> Result<BaSummary, BaError> {
+    // On a worker of the pool: its loops hand work to the other workers directly, instead of
+    // each loop crossing from this thread into the pool and back.
+    rayon::scope(|_| adjust_on_pool(p, model, priors, settings))
+}
+
+fn adjust_on_pool<const M: usize>(
+    p: &mut Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    settings: &BaSettings,
+) -> Result<BaSummary, BaError> {
     let start = Instant::now();
     p.check()?;
     check_priors(p, priors)?;
@@ -242,8 +254,11 @@ pub fn adjust<const M: usize>(
             continue;
         };
         invalid = 0;
+        // The candidate evaluated once, Jacobians included: most steps are accepted, and a
+        // rejected one costs the Jacobians it need not have had.
         let candidate = stepped(p, &lay, &delta_cam, &delta_point);
-        let new_cost = cost_of(&candidate, model, priors, s.loss);
+        let trial = evaluate(&candidate, model, priors, s.loss).ok();
+        let new_cost = trial.as_ref().map_or(f64::INFINITY, |t| t.cost);
         let xn = x_norm(p);
         let mut record = BaIteration {
             iteration: iterations.len() + 1,
@@ -264,9 +279,7 @@ pub fn adjust<const M: usize>(
             termination = BaTermination::FunctionTolerance;
             None
         } else if record.rho > s.min_relative_decrease {
-            evaluate(&candidate, model, priors, s.loss)
-                .ok()
-                .map(|e_new| (candidate, e_new))
+            trial.map(|e_new| (candidate, e_new))
         } else {
             None
         };

@@ -28,8 +28,9 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
         )
     };
     let (b_plus, schur) = st
-        .by_point
+        .coupling()
         .par_iter()
+        .with_min_len(grain(p.points.len(), p.observations.len()))
         .enumerate()
         .fold(zero, |(mut b, mut blocks), (j, ks)| {
             let t = v_inv[j] * n.g_point[j];
@@ -92,8 +93,9 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
     };
     let apply = |x: &DVector<f64>| -> DVector<f64> {
         let minus = st
-            .by_point
+            .coupling()
             .par_iter()
+            .with_min_len(grain(p.points.len(), p.observations.len()))
             .enumerate()
             .fold(
                 || DVector::<f64>::zeros(dim),

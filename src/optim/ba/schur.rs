@@ -25,8 +25,10 @@ pub(super) fn normal_blocks<const N: usize>(
     jac: impl Fn(usize) -> SMatrix<f64, 2, N> + Sync,
     residuals: &[Vector2<f64>],
 ) -> (Vec<SMatrix<f64, N, N>>, Vec<SVector<f64, N>>) {
+    let observations = groups.iter().map(Vec::len).sum();
     groups
         .par_iter()
+        .with_min_len(grain(groups.len(), observations))
         .map(|ks| {
             let mut a = SMatrix::<f64, N, N>::zeros();
             let mut g = SVector::<f64, N>::zeros();
@@ -69,6 +71,8 @@ pub(super) struct Structure {
     pub(super) by_image: Vec<Vec<usize>>,
     pub(super) by_camera: Vec<Vec<usize>>,
     pub(super) by_point: Vec<Vec<usize>>,
+    /// `by_point` with fixed points' lists emptied, when there are fixed points.
+    fixed_free: Option<Vec<Vec<usize>>>,
 }
 
 impl Structure {
@@ -77,13 +81,30 @@ impl Structure {
             by_image: vec![Vec::new(); p.poses.len()],
             by_camera: vec![Vec::new(); p.intrinsics.len()],
             by_point: vec![Vec::new(); p.points.len()],
+            fixed_free: None,
         };
         for (k, o) in p.observations.iter().enumerate() {
             st.by_image[o.camera].push(k);
             st.by_camera[p.intrinsics_of[o.camera]].push(k);
             st.by_point[o.point].push(k);
         }
+        if p.fixed_points.iter().any(|f| *f) {
+            st.fixed_free = Some(
+                st.by_point
+                    .iter()
+                    .zip(&p.fixed_points)
+                    .map(|(ks, fixed)| if *fixed { Vec::new() } else { ks.clone() })
+                    .collect(),
+            );
+        }
         st
+    }
+
+    /// Per point, the observations that couple it to the cameras in the Schur complement: none
+    /// for a fixed point (its `W` blocks are zero), which spares a calibration's board corners
+    /// every pair of views.
+    pub(super) fn coupling(&self) -> &[Vec<usize>] {
+        self.fixed_free.as_deref().unwrap_or(&self.by_point)
     }
 }
 
@@ -139,37 +160,87 @@ pub(super) fn scaled_normal<const M: usize>(
     s_point: &[Vector3<f64>],
 ) -> Normal<M> {
     let obs = &p.observations;
-    let jc = |k: usize| {
-        let s = s_cam.fixed_rows::<6>(lay.pose[obs[k].camera]).into_owned();
-        scale_columns(e.j_pose[k], &s)
-    };
-    let ji = |k: usize| {
-        let s = s_cam
-            .fixed_rows::<M>(lay.of(p, obs[k].camera).1)
-            .into_owned();
-        scale_columns(e.j_intr[k], &s)
-    };
-    let jp = |k: usize| scale_columns(e.j_point[k], &s_point[obs[k].point]);
-    let per_image: Vec<(Mat6, SMatrix<f64, 6, M>, Vec6)> = st
+    let fixed_point = |k: usize| p.fixed_points[obs[k].point];
+    // One pass per image: its pose blocks and its share of its camera's intrinsic blocks (in
+    // parallel even when every image shares one camera), each Jacobian scaled once.
+    type PerImage<const M: usize> = (
+        Mat6,
+        SMatrix<f64, 6, M>,
+        Vec6,
+        SMatrix<f64, M, M>,
+        SVector<f64, M>,
+    );
+    let per_image: Vec<PerImage<M>> = st
         .by_image
         .par_iter()
-        .map(|ks| {
+        .enumerate()
+        .with_min_len(grain(p.poses.len(), obs.len()))
+        .map(|(i, ks)| {
+            let (pi, gi) = lay.of(p, i);
+            let sc = s_cam.fixed_rows::<6>(pi).into_owned();
+            let si = s_cam.fixed_rows::<M>(gi).into_owned();
+            // The image's rows stacked, unscaled, so that its blocks are matrix products
+            // (BLAS-like kernels) rather than a small product per observation; scaled after.
+            let rows = 2 * ks.len();
+            let mut a = DMatrix::<f64>::zeros(rows, 6);
+            let mut b = DMatrix::<f64>::zeros(rows, M);
+            let mut r = DVector::<f64>::zeros(rows);
+            for (n, &k) in ks.iter().enumerate() {
+                a.fixed_view_mut::<2, 6>(2 * n, 0).copy_from(&e.j_pose[k]);
+                b.fixed_view_mut::<2, M>(2 * n, 0).copy_from(&e.j_intr[k]);
+                r.fixed_rows_mut::<2>(2 * n).copy_from(&e.residuals[k]);
+            }
+            // Column dot products over the free columns only (a fixed parameter's column is
+            // zero), each symmetric block's lower triangle mirrored.
+            let free_pose: Vec<usize> = (0..6).filter(|&c| !p.fixed_poses[i][c]).collect();
+            let fixed_intr = &p.fixed_intrinsics[p.intrinsics_of[i]];
+            let free_intr: Vec<usize> = (0..M).filter(|&c| !fixed_intr[c]).collect();
             let mut u = Mat6::zeros();
             let mut ui = SMatrix::<f64, 6, M>::zeros();
+            let mut uii = SMatrix::<f64, M, M>::zeros();
             let mut g = Vec6::zeros();
-            for &k in ks {
-                let (a, b) = (jc(k), ji(k));
-                u += a.transpose() * a;
-                ui += a.transpose() * b;
-                g += a.transpose() * e.residuals[k];
+            let mut g_i = SVector::<f64, M>::zeros();
+            for (n, &x) in free_pose.iter().enumerate() {
+                let ax = a.column(x);
+                for &y in &free_pose[..=n] {
+                    u[(x, y)] = ax.dot(&a.column(y));
+                    u[(y, x)] = u[(x, y)];
+                }
+                for &y in &free_intr {
+                    ui[(x, y)] = ax.dot(&b.column(y));
+                }
+                g[x] = ax.dot(&r);
             }
-            (u, ui, g)
+            for (n, &x) in free_intr.iter().enumerate() {
+                let bx = b.column(x);
+                for &y in &free_intr[..=n] {
+                    uii[(x, y)] = bx.dot(&b.column(y));
+                    uii[(y, x)] = uii[(x, y)];
+                }
+                g_i[x] = bx.dot(&r);
+            }
+            u.component_mul_assign(&(sc * sc.transpose()));
+            ui.component_mul_assign(&(sc * si.transpose()));
+            uii.component_mul_assign(&(si * si.transpose()));
+            g.component_mul_assign(&sc);
+            g_i.component_mul_assign(&si);
+            (u, ui, g, uii, g_i)
         })
         .collect();
-    let mut u_pose: Vec<Mat6> = per_image.iter().map(|x| x.0).collect();
-    let u_pose_intr = per_image.iter().map(|x| x.1).collect();
-    let mut g_pose: Vec<Vec6> = per_image.iter().map(|x| x.2).collect();
-    let (u_intr, g_intr) = normal_blocks(&st.by_camera, ji, &e.residuals);
+    let mut u_intr = vec![SMatrix::<f64, M, M>::zeros(); p.intrinsics.len()];
+    let mut g_intr = vec![SVector::<f64, M>::zeros(); p.intrinsics.len()];
+    let mut u_pose = Vec::with_capacity(p.poses.len());
+    let mut u_pose_intr = Vec::with_capacity(p.poses.len());
+    let mut g_pose = Vec::with_capacity(p.poses.len());
+    for (i, (u, ui, g, uii, gi)) in per_image.into_iter().enumerate() {
+        let c = p.intrinsics_of[i];
+        u_intr[c] += uii;
+        g_intr[c] += gi;
+        u_pose.push(u);
+        u_pose_intr.push(ui);
+        g_pose.push(g);
+    }
+    let jp = |k: usize| scale_columns(e.j_point[k], &s_point[obs[k].point]);
     let (mut v, mut g_point) = normal_blocks(&st.by_point, jp, &e.residuals);
     // A point prior's Jacobian is W, scaled like the point's columns.
     for q in &priors.points {
@@ -186,9 +257,20 @@ pub(super) fn scaled_normal<const M: usize>(
     }
     let (w_pose, w_intr) = (0..obs.len())
         .into_par_iter()
+        .with_min_len(GRAIN)
         .map(|k| {
-            let b = jp(k);
-            (jc(k).transpose() * b, ji(k).transpose() * b)
+            // A fixed point's Jacobian is zero, and so are its couplings.
+            if fixed_point(k) {
+                return (Mat63::zeros(), SMatrix::<f64, M, 3>::zeros());
+            }
+            // Unscaled products, then scaled: no 2×M temporaries moved about.
+            let (pk, ik) = lay.of(p, obs[k].camera);
+            let sp = s_point[obs[k].point].transpose();
+            let mut wp = e.j_pose[k].tr_mul(&e.j_point[k]);
+            let mut wi = e.j_intr[k].tr_mul(&e.j_point[k]);
+            wp.component_mul_assign(&(s_cam.fixed_rows::<6>(pk) * sp));
+            wi.component_mul_assign(&(s_cam.fixed_rows::<M>(ik) * sp));
+            (wp, wi)
         })
         .unzip();
     Normal {
@@ -262,8 +344,9 @@ pub(super) fn reduced_system<const M: usize>(
     let dim = lay.dim;
     // Σ W V⁻¹ Wᵀ and Σ W V⁻¹ g, accumulated point by point in parallel.
     let (s_minus, b_plus) = st
-        .by_point
+        .coupling()
         .par_iter()
+        .with_min_len(grain(p.points.len(), p.observations.len()))
         .enumerate()
         .fold(
             || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim)),
@@ -337,6 +420,7 @@ pub(super) fn point_inverses<const M: usize>(
     radius: f64,
 ) -> Option<Vec<Matrix3<f64>>> {
     n.v.par_iter()
+        .with_min_len(grain(n.v.len(), n.w_pose.len()))
         .zip(d_point)
         .map(|(v, d)| (v + Matrix3::from_diagonal(&(d / radius))).try_inverse())
         .collect()
@@ -409,7 +493,10 @@ pub(super) fn schur_step<const M: usize>(
     let (y_cam, v_inv) = if dense {
         let v_inv = point_inverses(n, d_point, radius)?;
         let (s, b) = reduced_system(p, st, lay, n, d_cam, &v_inv, radius);
-        let y = s.cholesky()?.solve(&b);
+        let y = match Arrow::of(st, lay, &s) {
+            Some(arrow) => arrow.solve(&b),
+            None => s.cholesky()?.solve(&b),
+        };
         if !y.iter().all(|v| v.is_finite()) {
             return None;
         }
@@ -422,8 +509,9 @@ pub(super) fn schur_step<const M: usize>(
         )
     };
     let y_point = st
-        .by_point
+        .coupling()
         .par_iter()
+        .with_min_len(grain(p.points.len(), p.observations.len()))
         .enumerate()
         .map(|(j, ks)| {
             let mut r = -n.g_point[j];
@@ -436,4 +524,88 @@ pub(super) fn schur_step<const M: usize>(
         })
         .collect();
     Some((y_cam, y_point))
+}
+
+/// The reduced camera system when no point couples two images (every point fixed, as a
+/// calibration board's): block-diagonal over the images' units but for their rows of the
+/// shared intrinsics, which come last. Each unit is eliminated in turn and the shared
+/// intrinsics come from their Schur complement: the cost grows with the images, not with their
+/// cube.
+pub(super) struct Arrow {
+    tail: usize,
+    /// Per unit: its offset, `A⁻¹` and `A⁻¹ B` (`A` its block, `B` its coupling to the tail).
+    units: Vec<(usize, DMatrix<f64>, DMatrix<f64>)>,
+    /// `B`s, per unit, for the right-hand sides.
+    couplings: Vec<DMatrix<f64>>,
+    /// The Cholesky factor of the tail's Schur complement `C − Σ Bᵀ A⁻¹ B`.
+    complement: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+}
+
+impl Arrow {
+    /// `None` where the structure does not hold (a point couples images, or nothing is shared)
+    /// or a block is not positive definite (the dense path then decides).
+    pub(super) fn of(st: &Structure, lay: &Layout, s: &DMatrix<f64>) -> Option<Arrow> {
+        let tail = lay.shared_start;
+        let m = lay.dim - tail;
+        if tail == 0 || m == 0 || !st.coupling().iter().all(|ks| ks.is_empty()) {
+            return None;
+        }
+        let mut c = s.view((tail, tail), (m, m)).into_owned();
+        let mut units = Vec::new();
+        let mut couplings = Vec::new();
+        for &(o, n) in lay.units.iter().filter(|(o, _)| *o < tail) {
+            let a_inv = s.view((o, o), (n, n)).into_owned().cholesky()?.inverse();
+            let coupling = s.view((o, tail), (n, m)).into_owned();
+            let x = &a_inv * &coupling;
+            c.gemm_tr(-1.0, &coupling, &x, 1.0);
+            units.push((o, a_inv, x));
+            couplings.push(coupling);
+        }
+        Some(Arrow {
+            tail,
+            units,
+            couplings,
+            complement: c.cholesky()?,
+        })
+    }
+
+    pub(super) fn solve(&self, b: &DVector<f64>) -> DVector<f64> {
+        let m = b.len() - self.tail;
+        let mut rhs = b.rows(self.tail, m).into_owned();
+        for ((o, a_inv, _), coupling) in self.units.iter().zip(&self.couplings) {
+            let a_inv_b = a_inv * b.rows(*o, a_inv.nrows());
+            rhs.gemv_tr(-1.0, coupling, &a_inv_b, 1.0);
+        }
+        let y_tail = self.complement.solve(&rhs);
+        let mut y = DVector::zeros(b.len());
+        for (o, a_inv, x) in &self.units {
+            let yu = a_inv * b.rows(*o, a_inv.nrows()) - x * &y_tail;
+            y.rows_mut(*o, yu.len()).copy_from(&yu);
+        }
+        y.rows_mut(self.tail, m).copy_from(&y_tail);
+        y
+    }
+
+    /// The whole inverse: `Σ_tt = S_c⁻¹`, `Σ_ut = −X_u Σ_tt`, `Σ_uv = δ_uv A_u⁻¹ + X_u Σ_tt X_vᵀ`
+    /// with `X_u = A_u⁻¹ B_u`.
+    pub(super) fn inverse(&self, dim: usize) -> DMatrix<f64> {
+        let m = dim - self.tail;
+        let tt = self.complement.inverse();
+        let mut inv = DMatrix::zeros(dim, dim);
+        let xs: Vec<DMatrix<f64>> = self.units.iter().map(|(_, _, x)| x * &tt).collect();
+        for ((o, a_inv, _), x_tt) in self.units.iter().zip(&xs) {
+            let n = a_inv.nrows();
+            inv.view_mut((*o, self.tail), (n, m)).copy_from(&(-x_tt));
+            inv.view_mut((self.tail, *o), (m, n))
+                .copy_from(&(-x_tt.transpose()));
+            for (o2, _, x2) in &self.units {
+                let block = x_tt * x2.transpose();
+                inv.view_mut((*o, *o2), (n, x2.nrows())).copy_from(&block);
+            }
+            let mut diag = inv.view_mut((*o, *o), (n, n));
+            diag += a_inv;
+        }
+        inv.view_mut((self.tail, self.tail), (m, m)).copy_from(&tt);
+        inv
+    }
 }

@@ -556,6 +556,12 @@ fn observation_sigmas_weigh_and_fixed_points_stay() {
 /// centre prior), formed and inverted densely.
 #[test]
 fn covariance_blocks_equal_the_full_inverse() {
+    covariance_against_the_full_inverse(false);
+    // Every point fixed (a calibration): the reduced system is eliminated image by image.
+    covariance_against_the_full_inverse(true);
+}
+
+fn covariance_against_the_full_inverse(all_fixed: bool) {
     let mut p = gauged(9, Some(&|k| 0.5 + 0.1 * (k % 5) as f64));
     p.observations.retain(|o| o.camera < 5 && o.point < 30);
     p.sigma_px.truncate(p.observations.len());
@@ -571,15 +577,22 @@ fn covariance_blocks_equal_the_full_inverse() {
     p.sigma_px = (0..p.observations.len())
         .map(|k| 0.5 + 0.1 * (k % 5) as f64)
         .collect();
+    if all_fixed {
+        p.fixed_points = vec![true; p.points.len()];
+    }
     let priors = Priors {
-        points: vec![
-            PointPrior::with_covariance(
-                3,
-                [0.1, 0.2, 0.3],
-                &Matrix3::new(25e-4, 12.5e-4, 0.0, 12.5e-4, 25e-4, 0.0, 0.0, 0.0, 1e-2),
-            )
-            .unwrap(),
-        ],
+        points: if all_fixed {
+            Vec::new()
+        } else {
+            vec![
+                PointPrior::with_covariance(
+                    3,
+                    [0.1, 0.2, 0.3],
+                    &Matrix3::new(25e-4, 12.5e-4, 0.0, 12.5e-4, 25e-4, 0.0, 0.0, 0.0, 1e-2),
+                )
+                .unwrap(),
+            ]
+        },
         centres: (0..3)
             .map(|i| CentrePrior {
                 camera: i,
@@ -635,7 +648,8 @@ fn covariance_blocks_equal_the_full_inverse() {
         .filter(|f| !*f.1)
         .map(|f| f.0)
         .collect();
-    fixed.extend((0..3).map(|c| lay.dim + c));
+    let fixed_points = if all_fixed { p.points.len() } else { 1 };
+    fixed.extend((0..3 * fixed_points).map(|c| lay.dim + c));
     for &k in &fixed {
         a[(k, k)] = 1.0;
     }
@@ -651,7 +665,7 @@ fn covariance_blocks_equal_the_full_inverse() {
         (&cams - &cov.matrix).amax()
     );
     assert_eq!(cov.points[0], Some(Matrix3::zeros()));
-    for j in 1..p.points.len() {
+    for j in fixed_points..p.points.len() {
         let want = inv.fixed_view::<3, 3>(lay.dim + 3 * j, lay.dim + 3 * j);
         let got = cov.points[j].expect("seen five times");
         assert!(

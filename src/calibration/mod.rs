@@ -526,7 +526,8 @@ mod tests {
             let v = views(&cam, 12, 0.3, seed);
             let corners: Vec<&[Vector2<f64>]> = v.iter().map(|v| v.corners.as_slice()).collect();
             let param = Parametrization::new(&opts).unwrap();
-            let init = zhang::initialise(&object, &corners, cam.image_size.unwrap(), &opts).unwrap();
+            let init =
+                zhang::initialise(&object, &corners, cam.image_size.unwrap(), &opts).unwrap();
             let run = |new: bool| {
                 let f = if new {
                     refine::refine

@@ -34,32 +34,44 @@ pub struct Solved {
 /// The Brown–Conrady camera with its parameters tied as a [`Parametrization`] says: each
 /// quantity's last parameter carries it (the engine's free parameter), the others follow by
 /// their coefficients and are held fixed.
-struct Tied<'a>(&'a Parametrization);
+struct Tied {
+    /// Per quantity of several parameters: its carrier and the others with their ratio to it.
+    ties: Vec<(usize, Vec<(usize, f64)>)>,
+    fixed: [bool; N_PARAMS],
+}
 
-impl Tied<'_> {
+impl Tied {
+    fn new(param: &Parametrization) -> Tied {
+        let mut fixed = [true; N_PARAMS];
+        let mut ties = Vec::new();
+        for (_, coeffs) in &param.slots {
+            let &(lead, c_lead) = coeffs.last().expect("slot");
+            fixed[lead] = false;
+            let others: Vec<(usize, f64)> = coeffs
+                .iter()
+                .filter(|(i, _)| *i != lead)
+                .map(|&(i, c)| (i, c / c_lead))
+                .collect();
+            if !others.is_empty() {
+                ties.push((lead, others));
+            }
+        }
+        Tied { ties, fixed }
+    }
+
+    /// The 13 parameters with the tied ones following their carriers.
     fn expand(&self, k: &[f64; N_PARAMS]) -> [f64; N_PARAMS] {
         let mut out = *k;
-        for (_, coeffs) in &self.0.slots {
-            let &(lead, c_lead) = coeffs.last().expect("slot");
-            let value = k[lead] / c_lead;
-            for &(i, c) in coeffs {
-                out[i] = c * value;
+        for (lead, others) in &self.ties {
+            for &(i, ratio) in others {
+                out[i] = ratio * k[*lead];
             }
         }
         out
     }
-
-    /// Which of the 13 parameters the engine holds fixed: all but each quantity's carrier.
-    fn fixed(&self) -> [bool; N_PARAMS] {
-        let mut fixed = [true; N_PARAMS];
-        for (_, coeffs) in &self.0.slots {
-            fixed[coeffs.last().expect("slot").0] = false;
-        }
-        fixed
-    }
 }
 
-impl Projection<N_PARAMS> for Tied<'_> {
+impl Projection<N_PARAMS> for Tied {
     fn project(&self, k: &[f64; N_PARAMS], p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
         camera_from_params(&self.expand(k)).project(p_cam).ok()
     }
@@ -69,17 +81,19 @@ impl Projection<N_PARAMS> for Tied<'_> {
         k: &[f64; N_PARAMS],
         p_cam: &Vector3<f64>,
     ) -> Option<(Vector2<f64>, SMatrix<f64, 2, 3>, SMatrix<f64, 2, N_PARAMS>)> {
-        let (uv, j_point, j_params) = camera_from_params(&self.expand(k))
+        if self.ties.is_empty() {
+            return camera_from_params(k).project_with_jacobians(p_cam).ok();
+        }
+        let (uv, j_point, mut j) = camera_from_params(&self.expand(k))
             .project_with_jacobians(p_cam)
             .ok()?;
-        let mut j = j_params;
-        for (_, coeffs) in self.0.slots.iter().filter(|(_, c)| c.len() > 1) {
-            let &(lead, c_lead) = coeffs.last().expect("slot");
-            let mut col = SMatrix::<f64, 2, 1>::zeros();
-            for &(i, c) in coeffs {
-                col += j_params.column(i) * (c / c_lead);
+        // A carrier's column gathers its followers' (their columns are held fixed).
+        for (lead, others) in &self.ties {
+            for &(i, ratio) in others {
+                let follower = j.column(i) * ratio;
+                let mut col = j.column_mut(*lead);
+                col += follower;
             }
-            j.column_mut(lead).copy_from(&col);
         }
         Some((uv, j_point, j))
     }
@@ -98,7 +112,7 @@ pub fn refine(
     if n_obs <= param.len() + 6 * views.len() {
         return Err(CalibrationError::TooFewViews { got: views.len() });
     }
-    let model = Tied(param);
+    let model = Tied::new(param);
     let mut start = camera.clone();
     param.set(&mut start, &param.get(&camera));
     let observations = views
@@ -120,7 +134,7 @@ pub fn refine(
         observations,
     );
     problem.fixed_points = vec![true; object.len()];
-    problem.fixed_intrinsics = vec![model.fixed()];
+    problem.fixed_intrinsics = vec![model.fixed];
     let failed = |e: BaError| match e {
         BaError::Projection { image, .. } => CalibrationError::Optimisation(format!(
             "a board corner projects behind the camera in view {image} at the start"

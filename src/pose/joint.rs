@@ -260,7 +260,10 @@ mod tests {
                  point cov {:.1e}, pose cov {:.1e} (relative), χ² {} vs {}",
                 worst[0], worst[1], worst[2], worst[3], worst[4], new.chi2, old.chi2
             );
-            assert!(worst[0] < 1e-6 && worst[1] < 1e-7 && worst[2] < 1e-7, "{worst:?}");
+            assert!(
+                worst[0] < 1e-6 && worst[1] < 1e-7 && worst[2] < 1e-7,
+                "{worst:?}"
+            );
             assert!(worst[3] < 1e-6 && worst[4] < 1e-6, "{worst:?}");
             assert!(rel(new.chi2, old.chi2) < 1e-6);
         }

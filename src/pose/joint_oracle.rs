@@ -272,4 +272,3 @@ pub fn refine_jointly(
         termination,
     })
 }
-

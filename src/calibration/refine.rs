@@ -204,3 +204,45 @@ fn parameter_covariance(param: &Parametrization, engine: &DMatrix<f64>) -> Param
     let full = &p * free * p.transpose();
     ParamCovariance::from_iterator(full.iter().copied())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::Options;
+
+    /// The tied camera's Jacobian with respect to the engine's parameters (a fixed aspect ties
+    /// fx to fy) agrees with central differences of its projection.
+    #[test]
+    fn tied_jacobians_match_finite_differences() {
+        let cam = Camera::pinhole(800.0, 790.0, 330.0, 250.0)
+            .with_distortion(&[-0.2, 0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.003]);
+        let p_cam = Vector3::new(0.1, -0.07, 0.6);
+        for opts in [
+            Options {
+                rational: true,
+                ..Options::default()
+            },
+            Options {
+                fix_aspect: Some(1.02),
+                zero_tangential: true,
+                ..Options::default()
+            },
+        ] {
+            let param = Parametrization::new(&opts).unwrap();
+            let model = Tied::new(&param);
+            let k = model.expand(&cam.params());
+            let (_, _, j) = model.project_with_jacobians(&k, &p_cam).unwrap();
+            for c in (0..N_PARAMS).filter(|&c| !model.fixed[c]) {
+                let h = 1e-6 * (1.0 + k[c].abs());
+                let (mut up, mut down) = (k, k);
+                up[c] += h;
+                down[c] -= h;
+                let fd = (model.project(&up, &p_cam).unwrap()
+                    - model.project(&down, &p_cam).unwrap())
+                    / (2.0 * h);
+                let err = (fd - j.column(c)).amax();
+                assert!(err < 1e-5 * (1.0 + fd.amax()), "parameter {c}: {err}");
+            }
+        }
+    }
+}

@@ -4,8 +4,6 @@
 pub mod attitude;
 pub mod hover;
 pub mod joint;
-#[cfg(test)]
-mod joint_oracle;
 pub mod oracle;
 pub mod refine;
 pub mod solve;

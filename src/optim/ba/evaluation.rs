@@ -147,9 +147,7 @@ pub(super) fn evaluate<const M: usize>(
     priors: &Priors,
     loss: RobustLoss,
 ) -> Result<Evaluation<M>, usize> {
-    let frames = PoseFrame::all(p);
     let n = p.observations.len();
-    // Written in place: each observation's 47 numbers moved once, not thrice.
     let mut e = Evaluation {
         residuals: vec![Vector2::zeros(); n],
         j_pose: vec![Mat26::zeros(); n],
@@ -157,6 +155,22 @@ pub(super) fn evaluate<const M: usize>(
         j_point: vec![Mat23::zeros(); n],
         cost: 0.0,
     };
+    evaluate_into(p, model, priors, loss, &mut e)?;
+    Ok(e)
+}
+
+/// [`evaluate`] into the buffers of an earlier evaluation of the same problem's structure (the
+/// trust-region loop keeps two and swaps them, rather than allocating each step's).
+pub(super) fn evaluate_into<const M: usize>(
+    p: &Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    loss: RobustLoss,
+    e: &mut Evaluation<M>,
+) -> Result<(), usize> {
+    let frames = PoseFrame::all(p);
+    e.cost = 0.0;
+    // Written in place: each observation's 47 numbers moved once, not thrice.
     let costs: Vec<Option<f64>> = (
         e.residuals.par_iter_mut(),
         e.j_pose.par_iter_mut(),
@@ -178,9 +192,11 @@ pub(super) fn evaluate<const M: usize>(
             zero_columns(jc_out, &p.fixed_poses[o.camera]);
             *ji_out = ji * w;
             zero_columns(ji_out, &p.fixed_intrinsics[p.intrinsics_of[o.camera]]);
-            if !p.fixed_points[o.point] {
-                *jp_out = jp * w;
-            }
+            *jp_out = if p.fixed_points[o.point] {
+                Mat23::zeros()
+            } else {
+                jp * w
+            };
             Some(c)
         })
         .collect();
@@ -188,5 +204,5 @@ pub(super) fn evaluate<const M: usize>(
         e.cost += c.ok_or(k)?;
     }
     e.cost += prior_cost(p, priors);
-    Ok(e)
+    Ok(())
 }

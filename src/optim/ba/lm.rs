@@ -170,6 +170,14 @@ fn adjust_on_pool<const M: usize>(
     let st = Structure::new(p);
     let lay = Layout::new(p);
     let mut e = evaluate(p, model, priors, s.loss).map_err(|k| projection_error(p, k))?;
+    // The trial evaluation's buffers, swapped with `e` when a step is accepted.
+    let mut spare = Evaluation {
+        residuals: e.residuals.clone(),
+        j_pose: e.j_pose.clone(),
+        j_intr: e.j_intr.clone(),
+        j_point: e.j_point.clone(),
+        cost: e.cost,
+    };
     let initial_cost = e.cost;
     let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
     let mut n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
@@ -257,8 +265,8 @@ fn adjust_on_pool<const M: usize>(
         // The candidate evaluated once, Jacobians included: most steps are accepted, and a
         // rejected one costs the Jacobians it need not have had.
         let candidate = stepped(p, &lay, &delta_cam, &delta_point);
-        let trial = evaluate(&candidate, model, priors, s.loss).ok();
-        let new_cost = trial.as_ref().map_or(f64::INFINITY, |t| t.cost);
+        let trial = evaluate_into(&candidate, model, priors, s.loss, &mut spare).is_ok();
+        let new_cost = if trial { spare.cost } else { f64::INFINITY };
         let xn = x_norm(p);
         let mut record = BaIteration {
             iteration: iterations.len() + 1,
@@ -279,14 +287,14 @@ fn adjust_on_pool<const M: usize>(
             termination = BaTermination::FunctionTolerance;
             None
         } else if record.rho > s.min_relative_decrease {
-            trial.map(|e_new| (candidate, e_new))
+            trial.then_some(candidate)
         } else {
             None
         };
         match accepted {
-            Some((candidate, e_new)) => {
+            Some(candidate) => {
                 *p = candidate;
-                e = e_new;
+                std::mem::swap(&mut e, &mut spare);
                 region.accept(record.rho);
                 accepted_steps += 1;
                 n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);

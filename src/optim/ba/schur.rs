@@ -10,9 +10,11 @@ pub(super) struct Normal<const M: usize> {
     pub(super) u_pose_intr: Vec<SMatrix<f64, 6, M>>,
     pub(super) u_intr: Vec<SMatrix<f64, M, M>>,
     pub(super) v: Vec<Matrix3<f64>>,
-    /// Per observation: `Jposeᵀ Jpoint` and `Jintrᵀ Jpoint`.
+    /// Per observation: `Jposeᵀ Jpoint` and `Jintrᵀ Jpoint`; empty when every point is fixed
+    /// (they would be zero, and [`Structure::coupling`] names no observation to read them).
     pub(super) w_pose: Vec<Mat63>,
     pub(super) w_intr: Vec<SMatrix<f64, M, 3>>,
+    pub(super) observations: usize,
     /// The camera side's gradient, in [`Layout`] order.
     pub(super) g_cam: DVector<f64>,
     pub(super) g_point: Vec<Vector3<f64>>,
@@ -255,7 +257,8 @@ pub(super) fn scaled_normal<const M: usize>(
         u_pose[q.camera] += j.transpose() * j;
         g_pose[q.camera] += j.transpose() * r;
     }
-    let (w_pose, w_intr) = (0..obs.len())
+    let all_fixed = p.fixed_points.iter().all(|f| *f);
+    let (w_pose, w_intr) = (0..if all_fixed { 0 } else { obs.len() })
         .into_par_iter()
         .with_min_len(GRAIN)
         .map(|k| {
@@ -282,6 +285,7 @@ pub(super) fn scaled_normal<const M: usize>(
         w_intr,
         g_cam: flat(lay, &g_pose, &g_intr),
         g_point,
+        observations: obs.len(),
     }
 }
 
@@ -420,7 +424,7 @@ pub(super) fn point_inverses<const M: usize>(
     radius: f64,
 ) -> Option<Vec<Matrix3<f64>>> {
     n.v.par_iter()
-        .with_min_len(grain(n.v.len(), n.w_pose.len()))
+        .with_min_len(grain(n.v.len(), n.observations))
         .zip(d_point)
         .map(|(v, d)| (v + Matrix3::from_diagonal(&(d / radius))).try_inverse())
         .collect()

@@ -11,10 +11,10 @@ use super::{CalibrationError, Parametrization};
 use crate::camera::{Camera, N_PARAMS, ParamCovariance};
 use crate::geom::Rigid3;
 use crate::optim::ba::{
-    BaError, BaSettings, Observation, Priors, Problem, Projection, adjust, covariance,
+    BaError, BaSettings, Observation, Priors, Problem, Projection, adjust_with_covariance,
 };
 use crate::optim::ba_camera::{camera_from_params, pose_params, rigid_pose};
-use crate::optim::{LmSettings, RobustLoss, Termination};
+use crate::optim::{LmSettings, Termination};
 
 /// The optimum and what is known about it.
 pub struct Solved {
@@ -84,18 +84,20 @@ impl Projection<N_PARAMS> for Tied {
         if self.ties.is_empty() {
             return camera_from_params(k).project_with_jacobians(p_cam).ok();
         }
-        let (uv, j_point, mut j) = camera_from_params(&self.expand(k))
+        let mut out = camera_from_params(&self.expand(k))
             .project_with_jacobians(p_cam)
-            .ok()?;
-        // A carrier's column gathers its followers' (their columns are held fixed).
-        for (lead, others) in &self.ties {
-            for &(i, ratio) in others {
-                let follower = j.column(i) * ratio;
-                let mut col = j.column_mut(*lead);
-                col += follower;
+            .ok();
+        if let Some((_, _, j)) = out.as_mut() {
+            // A carrier's column gathers its followers' (their columns are held fixed).
+            for (lead, others) in &self.ties {
+                for &(i, ratio) in others {
+                    let follower = j.column(i) * ratio;
+                    let mut col = j.column_mut(*lead);
+                    col += follower;
+                }
             }
         }
-        Some((uv, j_point, j))
+        out
     }
 }
 
@@ -146,18 +148,11 @@ pub fn refine(
         ),
         e => CalibrationError::Optimisation(e.to_string()),
     };
-    let summary = adjust(
+    let (summary, cov) = adjust_with_covariance(
         &mut problem,
         &model,
         &Priors::default(),
         &BaSettings::from_lm(settings),
-    )
-    .map_err(failed)?;
-    let cov = covariance(
-        &problem,
-        &model,
-        &Priors::default(),
-        RobustLoss::Squared,
         None,
     )
     .map_err(failed)?;

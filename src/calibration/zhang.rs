@@ -11,7 +11,6 @@ use super::{CalibrationError, Options};
 use crate::camera::{Camera, ImageSize};
 use crate::estimate::homography::homography_refined;
 use crate::geom::{Rigid3, nearest_rotation};
-use rayon::prelude::*;
 
 /// Initial intrinsics (no distortion) and board poses.
 pub struct Initial {
@@ -171,9 +170,8 @@ pub fn initialise(
     opts: &Options,
 ) -> Result<Initial, CalibrationError> {
     let plane: Vec<Vector2<f64>> = object.iter().map(|p| p.xy()).collect();
-    // Each view's homography on its own (the views in parallel).
     let hs = views
-        .par_iter()
+        .iter()
         .map(|c| homography_refined(&plane, c))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| CalibrationError::Initialisation(format!("board homography: {e}")))?;

@@ -9,7 +9,8 @@ use super::PoseError;
 use crate::camera::{Camera, N_PARAMS};
 use crate::geom::Rigid3;
 use crate::optim::ba::{
-    BaError, BaSettings, Observation, PointPrior, Priors, Problem, adjust, covariance, total_cost,
+    BaError, BaSettings, Observation, PointPrior, Priors, Problem, adjust_with_covariance,
+    total_cost,
 };
 use crate::optim::ba_camera::{BrownConrady, pose_params, pose_with_covariance};
 use crate::optim::{LmSettings, RobustLoss, Termination};
@@ -87,8 +88,9 @@ pub fn refine_jointly(
         loss,
         ..BaSettings::from_lm(lm)
     };
-    let summary = adjust(&mut problem, &BrownConrady, &priors, &settings).map_err(degenerate)?;
-    let cov = covariance(&problem, &BrownConrady, &priors, loss, Some(1.0)).map_err(degenerate)?;
+    let (summary, cov) =
+        adjust_with_covariance(&mut problem, &BrownConrady, &priors, &settings, Some(1.0))
+            .map_err(degenerate)?;
     let (poses, pose_cov) = (0..poses.len())
         .map(|i| pose_with_covariance(&problem, &cov, i))
         .unzip();

@@ -60,8 +60,10 @@ pub fn covariance<const M: usize>(
     loss: RobustLoss,
     sigma_px: Option<f64>,
 ) -> Result<CameraCovariance, BaError> {
-    // On a worker of the pool, as `adjust`.
-    rayon::scope(|_| covariance_on_pool(p, model, priors, loss, sigma_px))
+    // On this thread when small, else on a worker of the pool, as `adjust`.
+    on_pool(p.observations.len(), || {
+        covariance_on_pool(p, model, priors, loss, sigma_px)
+    })
 }
 
 fn covariance_on_pool<const M: usize>(
@@ -76,26 +78,8 @@ fn covariance_on_pool<const M: usize>(
     let st = Structure::new(p);
     let lay = Layout::new(p);
     let mut e = evaluate(p, model, &Priors::default(), loss).map_err(|k| projection_error(p, k))?;
-    let free = lay.free(p);
-    // A point's observable coordinates: two per image it is seen in and three for a survey.
-    let mut point_rank = vec![0; p.points.len()];
-    for o in p.observations.iter().filter(|o| !p.fixed_points[o.point]) {
-        point_rank[o.point] += 2;
-    }
-    for q in &priors.points {
-        point_rank[q.point] += 3;
-    }
-    let n_free =
-        free.iter().filter(|f| **f).count() + point_rank.iter().map(|r| (*r).min(3)).sum::<usize>();
-    let dof = (2 * p.observations.len() + 3 * (priors.points.len() + priors.centres.len()))
-        .saturating_sub(n_free);
-    let sigma = match sigma_px {
-        Some(v) => v,
-        None => {
-            let sq: f64 = e.residuals.iter().map(|r| r.norm_squared()).sum();
-            (sq / dof.max(1) as f64).sqrt()
-        }
-    };
+    let freedom = Freedom::of(p, priors, &lay);
+    let sigma = sigma_px.unwrap_or_else(|| freedom.sigma(&e.residuals));
     // Whiten the observations; the priors are whitened already.
     for k in 0..e.residuals.len() {
         e.residuals[k] /= sigma;
@@ -107,6 +91,73 @@ fn covariance_on_pool<const M: usize>(
     // coefficients and radians would otherwise defeat the factorisation.
     let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
     let n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
+    let at = Linearisation {
+        st: &st,
+        lay: &lay,
+        n: &n,
+        s_cam: &s_cam,
+        s_point: &s_point,
+    };
+    from_normal(p, &at, &freedom, sigma, 1.0)
+}
+
+/// The degrees of freedom of a problem with its priors.
+pub(super) struct Freedom {
+    /// Per parameter of the camera side, whether it is estimated.
+    free: Vec<bool>,
+    /// Per point, its observable coordinates: two per image it is seen in and three for a
+    /// survey (a fixed point none).
+    point_rank: Vec<usize>,
+    dof: usize,
+}
+
+impl Freedom {
+    pub(super) fn of<const M: usize>(p: &Problem<M>, priors: &Priors, lay: &Layout) -> Freedom {
+        let free = lay.free(p);
+        let mut point_rank = vec![0; p.points.len()];
+        for o in p.observations.iter().filter(|o| !p.fixed_points[o.point]) {
+            point_rank[o.point] += 2;
+        }
+        for q in &priors.points {
+            point_rank[q.point] += 3;
+        }
+        let n_free = free.iter().filter(|f| **f).count()
+            + point_rank.iter().map(|r| (*r).min(3)).sum::<usize>();
+        let dof = (2 * p.observations.len() + 3 * (priors.points.len() + priors.centres.len()))
+            .saturating_sub(n_free);
+        Freedom {
+            free,
+            point_rank,
+            dof,
+        }
+    }
+
+    /// `σ` from the residuals: `√(Σ r² / dof)`.
+    pub(super) fn sigma(&self, residuals: &[Vector2<f64>]) -> f64 {
+        let sq: f64 = residuals.iter().map(|r| r.norm_squared()).sum();
+        (sq / self.dof.max(1) as f64).sqrt()
+    }
+}
+
+/// A problem's normal equations at one point, in the Jacobi-scaled variables.
+pub(super) struct Linearisation<'a, const M: usize> {
+    pub(super) st: &'a Structure,
+    pub(super) lay: &'a Layout,
+    pub(super) n: &'a Normal<M>,
+    pub(super) s_cam: &'a DVector<f64>,
+    pub(super) s_point: &'a [Vector3<f64>],
+}
+
+/// The covariances from the normal equations: their inverse (points eliminated) times
+/// `variance_factor` (`σ²` when the equations are of residuals not divided by `σ`).
+pub(super) fn from_normal<const M: usize>(
+    p: &Problem<M>,
+    at: &Linearisation<M>,
+    freedom: &Freedom,
+    sigma: f64,
+    variance_factor: f64,
+) -> Result<CameraCovariance, BaError> {
+    let (st, lay, n) = (at.st, at.lay, at.n);
     // A point seen once (and not surveyed) is free along its ray: the pseudo-inverse of its
     // block gives it no say on the cameras, as it has none.
     let v_inv: Vec<Matrix3<f64>> =
@@ -116,30 +167,33 @@ fn covariance_on_pool<const M: usize>(
                     .unwrap_or_else(|_| Matrix3::zeros())
             })
             .collect();
-    let (mut s, _) = reduced_system(p, &st, &lay, &n, &DVector::zeros(lay.dim), &v_inv, 1.0);
-    for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
+    let (mut s, _) = reduced_system(p, st, lay, n, &DVector::zeros(lay.dim), &v_inv, 1.0);
+    let fixed: Vec<usize> = (0..lay.dim).filter(|&k| !freedom.free[k]).collect();
+    for &k in &fixed {
         s[(k, k)] = 1.0;
     }
-    let s_inv = match Arrow::of(&st, &lay, &s) {
+    let s_inv = match Arrow::of(st, lay, &s) {
         Some(arrow) => arrow.inverse(lay.dim),
         None => s.cholesky().ok_or(BaError::Singular)?.inverse(),
     };
-    let points = point_covariances(p, &st, &lay, &n, &v_inv, &s_inv, &s_point)
+    let points = point_covariances(p, st, lay, n, &v_inv, &s_inv, at.s_point)
         .into_iter()
         .enumerate()
-        .map(|(j, c)| match (p.fixed_points[j], point_rank[j] >= 3) {
-            (true, _) => Some(Matrix3::zeros()),
-            (false, true) => Some(c),
-            (false, false) => None,
-        })
+        .map(
+            |(j, c)| match (p.fixed_points[j], freedom.point_rank[j] >= 3) {
+                (true, _) => Some(Matrix3::zeros()),
+                (false, true) => Some(c * variance_factor),
+                (false, false) => None,
+            },
+        )
         .collect();
     // Back to the problem's units: `diag(s) S⁻¹ diag(s)`, entry by entry.
     let mut matrix = s_inv;
     for (j, mut col) in matrix.column_iter_mut().enumerate() {
-        col.component_mul_assign(&s_cam);
-        col *= s_cam[j];
+        col.component_mul_assign(at.s_cam);
+        col *= at.s_cam[j] * variance_factor;
     }
-    for (k, _) in free.iter().enumerate().filter(|f| !*f.1) {
+    for &k in &fixed {
         matrix.row_mut(k).fill(0.0);
         matrix.column_mut(k).fill(0.0);
     }
@@ -147,8 +201,8 @@ fn covariance_on_pool<const M: usize>(
         matrix,
         sigma_px: sigma,
         points,
-        pose_offsets: lay.pose,
-        intrinsics_offsets: lay.intr,
+        pose_offsets: lay.pose.clone(),
+        intrinsics_offsets: lay.intr.clone(),
         intrinsics_len: M,
     })
 }

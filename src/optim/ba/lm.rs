@@ -1,5 +1,6 @@
 //! The Levenberg–Marquardt trust-region loop (Ceres' strategy) and its checks.
 
+use super::covariance::{Freedom, Linearisation, from_normal};
 use super::*;
 use crate::optim::Damping;
 
@@ -145,17 +146,56 @@ pub fn adjust<const M: usize>(
     priors: &Priors,
     settings: &BaSettings,
 ) -> Result<BaSummary, BaError> {
-    // On a worker of the pool: its loops hand work to the other workers directly, instead of
-    // each loop crossing from this thread into the pool and back.
-    rayon::scope(|_| adjust_on_pool(p, model, priors, settings))
+    // A small problem's loops are not split and run on this thread; a larger one's run on a
+    // worker of the pool, whose loops hand work to the other workers directly instead of each
+    // loop crossing from this thread into the pool and back.
+    on_pool(p.observations.len(), || {
+        adjust_on_pool(p, model, priors, settings, None).map(|r| r.0)
+    })
 }
 
+/// [`adjust`], then [`covariance`] at the optimum (`sigma_px` as there), from the solver's last
+/// normal equations where they are the covariance's (no priors, or the observations' σ given as
+/// 1), rather than linearising again.
+pub fn adjust_with_covariance<const M: usize>(
+    p: &mut Problem<M>,
+    model: &impl Projection<M>,
+    priors: &Priors,
+    settings: &BaSettings,
+    sigma_px: Option<f64>,
+) -> Result<(BaSummary, CameraCovariance), BaError> {
+    let reusable = (priors.points.is_empty() && priors.centres.is_empty()) || sigma_px == Some(1.0);
+    if !reusable {
+        let summary = adjust(p, model, priors, settings)?;
+        let cov = covariance(p, model, priors, settings.loss, sigma_px)?;
+        return Ok((summary, cov));
+    }
+    on_pool(p.observations.len(), || {
+        let (summary, cov) = adjust_on_pool(p, model, priors, settings, Some(sigma_px))?;
+        Ok((summary, cov.expect("asked for")))
+    })
+}
+
+/// Runs `f` on this thread when the problem is small (its loops are not split), else on a
+/// worker of the pool, whose loops hand work to the other workers directly instead of each
+/// crossing from this thread into the pool and back.
+pub(super) fn on_pool<R: Send>(observations: usize, f: impl FnOnce() -> R + Send) -> R {
+    if observations <= GRAIN {
+        f()
+    } else {
+        rayon::scope(|_| f())
+    }
+}
+
+/// The adjustment; with `covariance` (its `sigma_px`), the covariance from the last normal
+/// equations too.
 fn adjust_on_pool<const M: usize>(
     p: &mut Problem<M>,
     model: &impl Projection<M>,
     priors: &Priors,
     settings: &BaSettings,
-) -> Result<BaSummary, BaError> {
+    covariance: Option<Option<f64>>,
+) -> Result<(BaSummary, Option<CameraCovariance>), BaError> {
     let start = Instant::now();
     p.check()?;
     check_priors(p, priors)?;
@@ -317,7 +357,22 @@ fn adjust_on_pool<const M: usize>(
         record.seconds = t0.elapsed().as_secs_f64();
         iterations.push(record);
     }
-    Ok(BaSummary {
+    let cov = match covariance {
+        None => None,
+        Some(sigma_px) => {
+            let freedom = Freedom::of(p, priors, &lay);
+            let sigma = sigma_px.unwrap_or_else(|| freedom.sigma(&e.residuals));
+            let at = Linearisation {
+                st: &st,
+                lay: &lay,
+                n: &n,
+                s_cam: &s_cam,
+                s_point: &s_point,
+            };
+            Some(from_normal(p, &at, &freedom, sigma, sigma * sigma)?)
+        }
+    };
+    let summary = BaSummary {
         cameras: p.poses.len(),
         points: p.points.len(),
         observations: p.observations.len(),
@@ -327,5 +382,6 @@ fn adjust_on_pool<const M: usize>(
         accepted_steps,
         termination,
         seconds: start.elapsed().as_secs_f64(),
-    })
+    };
+    Ok((summary, cov))
 }

@@ -47,7 +47,7 @@ mod tests;
 pub use covariance::{CameraCovariance, covariance};
 use evaluation::*;
 use lm::*;
-pub use lm::{adjust, bundle_adjust};
+pub use lm::{adjust, adjust_with_covariance, bundle_adjust};
 use pcg::*;
 use schur::*;
 

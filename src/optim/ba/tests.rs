@@ -674,3 +674,46 @@ fn covariance_against_the_full_inverse(all_fixed: bool) {
         );
     }
 }
+
+/// The covariance taken from the solver's last normal equations equals the one linearised again
+/// at the optimum: without priors (σ estimated) and with priors (σ given as 1).
+#[test]
+fn covariance_after_adjusting_equals_covariance_afresh() {
+    let mut p = gauged(10, Some(&|k| 0.5 + 0.1 * (k % 3) as f64));
+    p.fixed_poses[0] = [false; 6];
+    p.fixed_points[0] = false;
+    let priors = Priors {
+        points: (0..4)
+            .map(|j| PointPrior::new(j * 7, p.points[j * 7], [0.02; 3]))
+            .collect(),
+        centres: Vec::new(),
+    };
+    let mut gauged_only = gauged(10, None);
+    for (problem, priors, sigma) in [
+        (&mut p, priors, Some(1.0)),
+        (&mut gauged_only, Priors::default(), None),
+    ] {
+        let mut again = problem.clone();
+        let (_, reused) = adjust_with_covariance(
+            problem,
+            &BalIntrinsics,
+            &priors,
+            &BaSettings::default(),
+            sigma,
+        )
+        .unwrap();
+        adjust(&mut again, &BalIntrinsics, &priors, &BaSettings::default()).unwrap();
+        assert_eq!(*problem, again);
+        let afresh =
+            covariance(&again, &BalIntrinsics, &priors, RobustLoss::Squared, sigma).unwrap();
+        let diff = (&reused.matrix - &afresh.matrix).amax() / afresh.matrix.amax();
+        assert!(diff < 1e-9, "{diff}");
+        assert!((reused.sigma_px / afresh.sigma_px - 1.0).abs() < 1e-12);
+        for (a, b) in reused.points.iter().zip(&afresh.points) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!((a - b).amax() <= 1e-9 * b.amax()),
+                (a, b) => assert_eq!(a.is_some(), b.is_some()),
+            }
+        }
+    }
+}

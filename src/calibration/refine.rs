@@ -35,8 +35,8 @@ pub struct Solved {
 /// quantity's last parameter carries it (the engine's free parameter), the others follow by
 /// their coefficients and are held fixed.
 struct Tied {
-    /// Per quantity of several parameters: its carrier and the others with their ratio to it.
-    ties: Vec<(usize, Vec<(usize, f64)>)>,
+    /// Per parameter following another: its index, its carrier's and its ratio to it.
+    ties: Vec<(usize, usize, f64)>,
     fixed: [bool; N_PARAMS],
 }
 
@@ -47,14 +47,12 @@ impl Tied {
         for (_, coeffs) in &param.slots {
             let &(lead, c_lead) = coeffs.last().expect("slot");
             fixed[lead] = false;
-            let others: Vec<(usize, f64)> = coeffs
-                .iter()
-                .filter(|(i, _)| *i != lead)
-                .map(|&(i, c)| (i, c / c_lead))
-                .collect();
-            if !others.is_empty() {
-                ties.push((lead, others));
-            }
+            ties.extend(
+                coeffs
+                    .iter()
+                    .filter(|(i, _)| *i != lead)
+                    .map(|&(i, c)| (i, lead, c / c_lead)),
+            );
         }
         Tied { ties, fixed }
     }
@@ -62,10 +60,8 @@ impl Tied {
     /// The 13 parameters with the tied ones following their carriers.
     fn expand(&self, k: &[f64; N_PARAMS]) -> [f64; N_PARAMS] {
         let mut out = *k;
-        for (lead, others) in &self.ties {
-            for &(i, ratio) in others {
-                out[i] = ratio * k[*lead];
-            }
+        for &(i, lead, ratio) in &self.ties {
+            out[i] = ratio * k[lead];
         }
         out
     }
@@ -89,11 +85,9 @@ impl Projection<N_PARAMS> for Tied {
             .ok();
         if let Some((_, _, j)) = out.as_mut() {
             // A carrier's column gathers its followers' (their columns are held fixed).
-            for (lead, others) in &self.ties {
-                for &(i, ratio) in others {
-                    let follower = j.column(i) * ratio;
-                    let mut col = j.column_mut(*lead);
-                    col += follower;
+            for &(i, lead, ratio) in &self.ties {
+                for r in 0..2 {
+                    j[(r, lead)] += ratio * j[(r, i)];
                 }
             }
         }

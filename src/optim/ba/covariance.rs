@@ -48,8 +48,8 @@ impl CameraCovariance {
 /// The covariance of the camera-side parameters at the problem's current values: the inverse
 /// of the information matrix (observations weighted by `1/σ²`, priors by their own σ) with the
 /// points eliminated; and each point's block of the full inverse. `σ` is `sigma_px` (in units
-/// of the observations' own σ where [`Problem::sigma_px`] gives them) or, when `None`, estimated from the observations'
-/// residuals as `Σ r²` over the degrees of freedom (`2·observations + 3·priors − free
+/// of the observations' own σ where [`Problem::sigma_px`] gives them) or, when `None`,
+/// estimated from the observations' residuals as `Σ r²` over the degrees of freedom (`2·observations + 3·priors − free
 /// parameters`). With a robust loss the observations are weighted by `√ρ'` as in the solver
 /// (an outlier's say shrinks). Fixed parameters get zero rows and columns. Without priors the
 /// gauge (a similarity) is free and the covariance is not defined ([`BaError::Singular`]).

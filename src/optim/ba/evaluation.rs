@@ -43,9 +43,7 @@ pub(super) fn mask_columns<const R: usize, const N: usize>(
     mut j: SMatrix<f64, R, N>,
     fixed: &[bool; N],
 ) -> SMatrix<f64, R, N> {
-    for (k, _) in fixed.iter().enumerate().filter(|f| *f.1) {
-        j.column_mut(k).fill(0.0);
-    }
+    zero_columns(&mut j, fixed);
     j
 }
 

@@ -830,6 +830,12 @@ impl Transform {
 
     /// The operation used for the last point converted.
     pub fn last_operation(&self) -> Option<OperationInfo> {
+        self.last_used().map(|(_, info)| info)
+    }
+
+    /// The operation used for the last point converted, as an operation of its own (PROJ
+    /// clones it: tens of microseconds).
+    fn last_used(&self) -> Option<(Pj, OperationInfo)> {
         let op = unsafe { sys::proj_trans_get_last_used_operation(self.op.ptr) };
         if op.is_null() {
             return None;
@@ -837,10 +843,62 @@ impl Transform {
         let op = Pj { ptr: op };
         let name = c_str_opt(unsafe { sys::proj_get_name(op.ptr) }).unwrap_or_default();
         let acc = unsafe { sys::proj_coordoperation_get_accuracy(self.ctx.ptr, op.ptr) };
-        Some(OperationInfo {
-            name,
-            accuracy_m: (acc >= 0.0).then_some(acc),
-        })
+        Some((
+            op,
+            OperationInfo {
+                name,
+                accuracy_m: (acc >= 0.0).then_some(acc),
+            },
+        ))
+    }
+
+    /// `apply_3d`, noting in `used` the operation PROJ chose for the point. Asking PROJ for
+    /// every point costs ~25 µs a point; instead the point is converted again by each operation
+    /// already noted, and PROJ is asked only when none gives the same bits (an operation that
+    /// gives the same numbers as a noted one is not told apart from it).
+    pub fn apply_3d_noting(
+        &self,
+        x: f64,
+        y: f64,
+        h: f64,
+        used: &mut UsedOperations,
+    ) -> Result<(f64, f64, f64), CrsError> {
+        let out = self.apply_3d(x, y, h)?;
+        let same = |op: &Pj| {
+            let c = sys::PJ_COORD {
+                v: [x, y, h, f64::INFINITY],
+            };
+            let v = unsafe { sys::proj_trans(op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
+            v[0].to_bits() == out.0.to_bits()
+                && v[1].to_bits() == out.1.to_bits()
+                && v[2].to_bits() == out.2.to_bits()
+        };
+        if !used.noted.iter().any(|(op, _)| same(op))
+            && let Some((op, info)) = self.last_used()
+        {
+            used.noted.push((op, info));
+        }
+        Ok(out)
+    }
+}
+
+/// The operations a `Transform` used over many points (`Transform::apply_3d_noting`). Not
+/// `Send`, like the transform.
+#[derive(Default)]
+pub struct UsedOperations {
+    noted: Vec<(Pj, OperationInfo)>,
+}
+
+impl UsedOperations {
+    /// Each operation once, in the order first used.
+    pub fn infos(&self) -> Vec<OperationInfo> {
+        let mut out: Vec<OperationInfo> = Vec::new();
+        for (_, info) in &self.noted {
+            if !out.contains(info) {
+                out.push(info.clone());
+            }
+        }
+        out
     }
 }
 
@@ -960,5 +1018,31 @@ mod tests {
         let (lon, lat) = crs.to_lon_lat(150_000.0, 170_000.0).unwrap();
         let (x, y) = crs.from_lon_lat(lon, lat).unwrap();
         assert!((x - 150_000.0).abs() < 1e-6 && (y - 170_000.0).abs() < 1e-6);
+    }
+
+    /// NAD27 to WGS 84 is a different transformation in each region (here without grids:
+    /// regional Helmert shifts); the noted operations must be the ones PROJ reports point by
+    /// point.
+    #[test]
+    fn noted_operations_are_those_used_point_by_point() {
+        let t = Transform::new(
+            &Crs::new("EPSG:4267").unwrap(),
+            &Crs::new("EPSG:4326").unwrap(),
+        )
+        .unwrap();
+        let mut used = UsedOperations::default();
+        let mut asked: Vec<OperationInfo> = Vec::new();
+        for i in 0..200 {
+            // Florida to Alaska.
+            let (lon, lat) = (-81.0 - 0.35 * f64::from(i), 27.0 + 0.17 * f64::from(i));
+            let noted = t.apply_3d_noting(lon, lat, 0.0, &mut used).unwrap();
+            assert_eq!(noted, t.apply_3d(lon, lat, 0.0).unwrap());
+            let op = t.last_operation().unwrap();
+            if !asked.contains(&op) {
+                asked.push(op);
+            }
+        }
+        assert!(asked.len() >= 2, "{asked:?}");
+        assert_eq!(used.infos(), asked);
     }
 }

@@ -36,7 +36,7 @@ use crate::progress::Progress;
 use crate::projection::{WorldPoint, project};
 use crate::smooth::Observation;
 use crate::survey::Role;
-use crate::survey::crs::{Crs, HeightKind, OperationInfo, Transform};
+use crate::survey::crs::{Crs, HeightKind, Transform, UsedOperations};
 use crate::survey::frame::Origin;
 use crate::survey::load::{Framed, LoadOptions, load_framed};
 use crate::survey::read::{HeightChoice, ReadOptions};
@@ -845,22 +845,18 @@ fn wgs84_trajectories(
     let failed = RunError::Crs;
     let crs = Crs::new(spec).map_err(failed)?;
     let to_wgs84 = Transform::new(&crs, &Crs::new("EPSG:4326").map_err(failed)?).map_err(failed)?;
-    let mut used: Vec<OperationInfo> = Vec::new();
+    let mut used = UsedOperations::default();
     let mut out = trajectories.to_vec();
     for t in &mut out {
         for q in &mut t.points {
             let (lon, lat, h) = to_wgs84
-                .apply_3d(q.crs.x, q.crs.y, q.crs.z)
+                .apply_3d_noting(q.crs.x, q.crs.y, q.crs.z, &mut used)
                 .map_err(failed)?;
             q.crs = Vector3::new(lon, lat, if heights_ellipsoidal { h } else { f64::NAN });
-            if let Some(op) = to_wgs84.last_operation()
-                && !used.contains(&op)
-            {
-                used.push(op);
-            }
         }
     }
     let operations = used
+        .infos()
         .iter()
         .map(|op| {
             let acc = op.accuracy_m.map_or("accuracy unknown".to_string(), |a| {

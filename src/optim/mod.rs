@@ -1,5 +1,7 @@
-//! Least-squares machinery (pure): the Levenberg–Marquardt trust-region controller shared by
-//! every optimiser in geostride.
+//! Least-squares machinery (pure): the Levenberg–Marquardt trust-region controller of the one
+//! sparse engine, `ba` (calibration refinement and the joint key-frame refinement are its
+//! configurations); small dense problems (a homography, one pose) go to the
+//! `levenberg-marquardt` crate.
 //!
 //! The strategy follows Ceres Solver's Levenberg–Marquardt: the damped system
 //! `(JᵀJ + μ·D) δ = −Jᵀr` with `D = diag(JᵀJ)` clamped to `[1e-6, 1e32]`, a step accepted when

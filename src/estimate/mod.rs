@@ -1,7 +1,8 @@
 //! Estimation from correspondences (pure): a robust MSAC framework and minimal and linear
-//! solvers (homography DLT, P3P, EPnP).
+//! solvers (homography DLT, P3P, EPnP, the five-point essential matrix).
 
 pub mod epnp;
+pub mod essential;
 pub mod homography;
 pub mod p3p;
 pub mod pnp;

@@ -176,7 +176,10 @@ impl Camera {
         )
     }
 
-    fn distort_eval(&self, xy: &Vector2<f64>) -> Result<DistortEval, CameraError> {
+    /// The distorted point, and what its derivatives need: `r², r⁴, r⁶, a, b`, the rational
+    /// radial factor being `a / b`.
+    #[inline]
+    fn distorted(&self, xy: &Vector2<f64>) -> Result<(Vector2<f64>, [f64; 5]), CameraError> {
         let [k1, k2, p1, p2, k3, k4, k5, k6] = self.dist;
         let (x, y) = (xy.x, xy.y);
         let r2 = x * x + y * y;
@@ -188,13 +191,20 @@ impl Camera {
             return Err(CameraError::DenominatorNotPositive { r2 });
         }
         let radial = a / b;
+        let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+        let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+        Ok((Vector2::new(xd, yd), [r2, r4, r6, a, b]))
+    }
+
+    fn distort_eval(&self, xy: &Vector2<f64>) -> Result<DistortEval, CameraError> {
+        let [k1, k2, p1, p2, k3, k4, k5, k6] = self.dist;
+        let (x, y) = (xy.x, xy.y);
+        let (xd, [r2, r4, r6, a, b]) = self.distorted(xy)?;
+        let radial = a / b;
         // d radial / d r²
         let da = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4;
         let db = k4 + 2.0 * k5 * r2 + 3.0 * k6 * r4;
         let dradial = (da * b - a * db) / (b * b);
-
-        let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
-        let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
 
         let d_xy = Matrix2::new(
             radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x,
@@ -215,31 +225,13 @@ impl Camera {
             x * num[0], x * num[1], 2.0 * x * y,         r2 + 2.0 * x * x, x * num[2], x * den[0], x * den[1], x * den[2],
             y * num[0], y * num[1], r2 + 2.0 * y * y,    2.0 * x * y,      y * num[2], y * den[0], y * den[1], y * den[2],
         ]);
-        Ok(DistortEval {
-            xd: Vector2::new(xd, yd),
-            d_xy,
-            d_dist,
-        })
+        Ok(DistortEval { xd, d_xy, d_dist })
     }
 
-    /// Applies the distortion to undistorted normalised coordinates (`distort_eval`'s point,
-    /// the same arithmetic, without the derivatives: every projection goes through here).
+    /// Applies the distortion to undistorted normalised coordinates (without the derivatives:
+    /// every projection goes through here).
     pub fn distort(&self, xy: &Vector2<f64>) -> Result<Vector2<f64>, CameraError> {
-        let [k1, k2, p1, p2, k3, k4, k5, k6] = self.dist;
-        let (x, y) = (xy.x, xy.y);
-        let r2 = x * x + y * y;
-        let r4 = r2 * r2;
-        let r6 = r4 * r2;
-        let a = 1.0 + k1 * r2 + k2 * r4 + k3 * r6;
-        let b = 1.0 + k4 * r2 + k5 * r4 + k6 * r6;
-        if b <= 0.0 {
-            return Err(CameraError::DenominatorNotPositive { r2 });
-        }
-        let radial = a / b;
-        Ok(Vector2::new(
-            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-        ))
+        Ok(self.distorted(xy)?.0)
     }
 
     /// Maps distorted normalised coordinates to pixels.

@@ -34,6 +34,7 @@ pub mod pipeline;
 pub mod pose;
 pub mod progress;
 pub mod projection;
+pub mod sfm;
 pub mod simulate;
 pub mod smooth;
 pub mod survey;

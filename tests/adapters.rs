@@ -17,6 +17,7 @@ const ADAPTERS: &[&str] = &[
     "export/gis.rs",
     "pipeline/scan.rs",
     "pose/oracle.rs",
+    "sfm/sift.rs",
     "survey/crs.rs",
     "survey/gis.rs",
     "terrain/raster.rs",

@@ -1,0 +1,232 @@
+//! Descriptor matching (pure): mutual nearest neighbours with Lowe's ratio test, by brute force
+//! over unit-length descriptors (`Features::descriptors`), on the rayon pool.
+
+use rayon::prelude::*;
+
+use super::{DESCRIPTOR_LEN, Features};
+
+/// How two images' features are matched.
+#[derive(Clone, Debug)]
+pub struct MatchSettings {
+    /// Keep a match only when its distance is below this fraction of the second nearest's.
+    pub ratio: f64,
+    /// Keep a match only when each feature is the other's nearest.
+    pub mutual: bool,
+}
+
+impl Default for MatchSettings {
+    fn default() -> Self {
+        MatchSettings {
+            ratio: 0.8,
+            mutual: true,
+        }
+    }
+}
+
+/// Feature `a` of the first image matched to feature `b` of the second, at Euclidean distance
+/// `distance` (descriptors of unit length: 0 to 2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Match {
+    pub a: usize,
+    pub b: usize,
+    pub distance: f32,
+}
+
+/// `x·y` of two descriptors, in eight independent lanes (so that the compiler may use vector
+/// registers: floating-point sums are otherwise kept in order).
+#[inline]
+fn dot(x: &[f32], y: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    for (cx, cy) in x.chunks_exact(8).zip(y.chunks_exact(8)) {
+        for l in 0..8 {
+            acc[l] += cx[l] * cy[l];
+        }
+    }
+    acc.iter().sum()
+}
+
+/// Rows of `a` per task.
+const BLOCK: usize = 64;
+
+/// A row's best and second-best dot product and the best's index.
+type RowBest = (f32, f32, usize);
+/// A column's best dot product and its index.
+type ColBest = (f32, usize);
+
+/// For each row of `a` its `RowBest` among the rows of `b`, and for each row of `b` its
+/// `ColBest` among the rows of `a`.
+struct Nearest {
+    row_best: Vec<RowBest>,
+    col_best: Vec<ColBest>,
+}
+
+fn nearest(a: &Features, b: &Features) -> Nearest {
+    let nb = b.len();
+    let blocks: Vec<(Vec<RowBest>, Vec<ColBest>)> = (0..a.len().div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|blk| {
+            let rows = blk * BLOCK..((blk + 1) * BLOCK).min(a.len());
+            let mut col = vec![(f32::NEG_INFINITY, usize::MAX); nb];
+            let mut out = Vec::with_capacity(rows.len());
+            for i in rows {
+                let da = a.descriptor(i);
+                let (mut best, mut second, mut arg) = (f32::NEG_INFINITY, f32::NEG_INFINITY, 0);
+                for (j, c) in col.iter_mut().enumerate() {
+                    let d = dot(da, b.descriptor(j));
+                    if d > best {
+                        second = best;
+                        best = d;
+                        arg = j;
+                    } else if d > second {
+                        second = d;
+                    }
+                    if d > c.0 {
+                        *c = (d, i);
+                    }
+                }
+                out.push((best, second, arg));
+            }
+            (out, col)
+        })
+        .collect();
+    let mut row_best = Vec::with_capacity(a.len());
+    let mut col_best = vec![(f32::NEG_INFINITY, usize::MAX); nb];
+    for (rows, col) in blocks {
+        row_best.extend(rows);
+        // Blocks in row order, ties to the first row: the same result whatever the threads.
+        for (c, d) in col_best.iter_mut().zip(col) {
+            if d.0 > c.0 {
+                *c = d;
+            }
+        }
+    }
+    Nearest { row_best, col_best }
+}
+
+/// Distance of unit vectors from their dot product.
+fn distance(dot: f32) -> f32 {
+    (2.0 - 2.0 * dot).max(0.0).sqrt()
+}
+
+/// The matches of `a`'s features to `b`'s, in the order of `a`.
+pub fn match_features(a: &Features, b: &Features, s: &MatchSettings) -> Vec<Match> {
+    if a.is_empty() || b.is_empty() {
+        return Vec::new();
+    }
+    debug_assert_eq!(a.descriptors.len(), a.len() * DESCRIPTOR_LEN);
+    let n = nearest(a, b);
+    n.row_best
+        .iter()
+        .enumerate()
+        .filter_map(|(i, &(best, second, j))| {
+            let d1 = distance(best);
+            let d2 = distance(second);
+            let ratio_ok = b.len() < 2 || f64::from(d1) < s.ratio * f64::from(d2);
+            let mutual_ok = !s.mutual || n.col_best[j].1 == i;
+            (ratio_ok && mutual_ok).then_some(Match {
+                a: i,
+                b: j,
+                distance: d1,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{Keypoint, root_sift};
+    use super::*;
+
+    fn features(descriptors: Vec<Vec<f32>>) -> Features {
+        let mut f = Features {
+            width: 100,
+            height: 100,
+            ..Features::default()
+        };
+        for mut d in descriptors {
+            root_sift(&mut d);
+            f.keypoints.push(Keypoint {
+                x: 0.0,
+                y: 0.0,
+                size: 1.0,
+                angle_deg: 0.0,
+                response: 1.0,
+            });
+            f.descriptors.extend(d);
+        }
+        f
+    }
+
+    fn random_descriptors(seed: u64, n: usize) -> Vec<Vec<f32>> {
+        let mut state = seed;
+        (0..n)
+            .map(|_| {
+                (0..DESCRIPTOR_LEN)
+                    .map(|_| {
+                        state = state
+                            .wrapping_mul(6_364_136_223_846_793_005)
+                            .wrapping_add(1_442_695_040_888_963_407);
+                        ((state >> 40) % 256) as f32
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The brute-force matcher against a plain double loop: the same matches.
+    #[test]
+    fn matches_are_the_mutual_nearest_that_pass_the_ratio() {
+        let da = random_descriptors(1, 300);
+        // b: a shuffled, slightly perturbed copy of the first 200 of a, and 100 others.
+        let mut db: Vec<Vec<f32>> = (0..200)
+            .map(|i| {
+                let src = &da[(i * 7) % 200];
+                src.iter()
+                    .enumerate()
+                    .map(|(k, v)| v + ((k + i) % 5) as f32)
+                    .collect()
+            })
+            .collect();
+        db.extend(random_descriptors(2, 100));
+        let (a, b) = (features(da), features(db));
+        let s = MatchSettings::default();
+        let got = match_features(&a, &b, &s);
+        // Reference.
+        let d = |i: usize, j: usize| -> f32 {
+            let x = a.descriptor(i);
+            let y = b.descriptor(j);
+            x.iter()
+                .zip(y)
+                .map(|(p, q)| (p - q) * (p - q))
+                .sum::<f32>()
+                .sqrt()
+        };
+        let mut expect = Vec::new();
+        for i in 0..a.len() {
+            let mut ds: Vec<(f32, usize)> = (0..b.len()).map(|j| (d(i, j), j)).collect();
+            ds.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let j = ds[0].1;
+            let back = (0..a.len())
+                .min_by(|&p, &q| d(p, j).total_cmp(&d(q, j)))
+                .unwrap();
+            if f64::from(ds[0].0) < 0.8 * f64::from(ds[1].0) && back == i {
+                expect.push((i, j));
+            }
+        }
+        let got_pairs: Vec<(usize, usize)> = got.iter().map(|m| (m.a, m.b)).collect();
+        assert_eq!(got_pairs, expect);
+        // The planted pairs are found.
+        assert!(got_pairs.len() >= 190, "{}", got_pairs.len());
+        for (i, j) in &got_pairs {
+            if *j < 200 {
+                assert_eq!(*i, (j * 7) % 200);
+            }
+        }
+    }
+
+    #[test]
+    fn nothing_to_match() {
+        let a = features(random_descriptors(3, 5));
+        assert!(match_features(&a, &Features::default(), &MatchSettings::default()).is_empty());
+    }
+}

@@ -41,3 +41,20 @@ pub mod survey;
 pub mod terrain;
 pub mod track;
 pub mod video;
+
+/// Helpers shared by the unit tests.
+#[cfg(test)]
+pub(crate) mod testing {
+    /// Uniform numbers in [−1, 1) from a seed.
+    pub struct Uniform(rand_chacha::ChaCha8Rng);
+
+    impl Uniform {
+        pub fn new(seed: u64) -> Self {
+            Uniform(rand::SeedableRng::seed_from_u64(seed))
+        }
+
+        pub fn next(&mut self) -> f64 {
+            rand::RngExt::random_range(&mut self.0, -1.0..1.0)
+        }
+    }
+}

@@ -242,7 +242,9 @@ pub fn five_point(x1: &[Vector2<f64>; 5], x2: &[Vector2<f64>; 5]) -> Vec<Matrix3
     };
     let mut out: Vec<Matrix3<f64>> = Vec::new();
     for lambda in eigen.complex_eigenvalues().iter() {
-        if lambda.im.abs() > 1e-8 * (1.0 + lambda.re.abs()) {
+        // A real root near another shows as a pair with a tiny imaginary part: its real part is
+        // tried, and kept only if the matrix it gives is essential (checked below).
+        if lambda.im.abs() > 1e-4 * (1.0 + lambda.re.abs()) {
             continue;
         }
         // The eigenvector: the basis monomials at the solution.
@@ -267,6 +269,11 @@ pub fn five_point(x1: &[Vector2<f64>; 5], x2: &[Vector2<f64>; 5]) -> Vec<Matrix3
             continue;
         }
         let m = m / n;
+        let mmt = m * m.transpose();
+        let cubic = 2.0 * mmt * m - mmt.trace() * m;
+        if cubic.norm() > 1e-6 || m.determinant().abs() > 1e-6 {
+            continue;
+        }
         // A double eigenvalue (rare) would give the same matrix twice.
         if out
             .iter()
@@ -407,22 +414,12 @@ impl Estimator for EssentialEstimator<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::Uniform;
     use nalgebra::Rotation3;
-
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        }
-    }
 
     /// Two views of random points: `(cam2_from_cam1, x₁, x₂)`.
     fn scene(
-        rng: &mut Lcg,
+        rng: &mut Uniform,
         n: usize,
         depth_spread: f64,
     ) -> (Rigid3, Vec<Vector2<f64>>, Vec<Vector2<f64>>) {
@@ -454,7 +451,7 @@ mod tests {
 
     #[test]
     fn five_points_recover_the_true_essential_matrix() {
-        let mut rng = Lcg(3);
+        let mut rng = Uniform::new(3);
         for depth_spread in [3.0, 0.01] {
             let mut worst: f64 = 0.0;
             for _ in 0..200 {
@@ -473,7 +470,7 @@ mod tests {
                     let s = e.singular_values();
                     let mut s: Vec<f64> = s.iter().copied().collect();
                     s.sort_by(f64::total_cmp);
-                    assert!(s[0] < 1e-9 && (s[2] - s[1]).abs() < 1e-7, "{s:?}");
+                    assert!(s[0] < 1e-6 && (s[2] - s[1]).abs() < 1e-6, "{s:?}");
                 }
                 let best = sols
                     .iter()
@@ -487,7 +484,7 @@ mod tests {
 
     #[test]
     fn the_pose_in_front_is_the_true_one() {
-        let mut rng = Lcg(11);
+        let mut rng = Uniform::new(11);
         for _ in 0..50 {
             let (pose, a, b) = scene(&mut rng, 20, 2.0);
             let (found, n) = pose_in_front(&essential_of(&pose), &a, &b);
@@ -500,7 +497,7 @@ mod tests {
 
     #[test]
     fn msac_finds_the_inliers() {
-        let mut rng = Lcg(5);
+        let mut rng = Uniform::new(5);
         let (pose, mut a, b) = scene(&mut rng, 200, 3.0);
         let focal = 1000.0;
         let outliers: Vec<usize> = (0..200).filter(|i| i % 4 == 0).collect();

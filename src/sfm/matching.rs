@@ -47,6 +47,8 @@ fn dot(x: &[f32], y: &[f32]) -> f32 {
 
 /// Rows of `a` per task.
 const BLOCK: usize = 64;
+/// Descriptors of `b` per tile: 128 KiB, within a core's L2 cache.
+const TILE: usize = 256;
 
 /// A row's best and second-best dot product and the best's index.
 type RowBest = (f32, f32, usize);
@@ -67,24 +69,29 @@ fn nearest(a: &Features, b: &Features) -> Nearest {
         .map(|blk| {
             let rows = blk * BLOCK..((blk + 1) * BLOCK).min(a.len());
             let mut col = vec![(f32::NEG_INFINITY, usize::MAX); nb];
-            let mut out = Vec::with_capacity(rows.len());
-            for i in rows {
-                let da = a.descriptor(i);
-                let (mut best, mut second, mut arg) = (f32::NEG_INFINITY, f32::NEG_INFINITY, 0);
-                for (j, c) in col.iter_mut().enumerate() {
-                    let d = dot(da, b.descriptor(j));
-                    if d > best {
-                        second = best;
-                        best = d;
-                        arg = j;
-                    } else if d > second {
-                        second = d;
+            let mut out = vec![(f32::NEG_INFINITY, f32::NEG_INFINITY, 0); rows.len()];
+            // `b` in tiles that stay in the cache while the block's rows pass over them.
+            for tile in (0..nb).step_by(TILE) {
+                let cols = tile..(tile + TILE).min(nb);
+                for (i, o) in rows.clone().zip(out.iter_mut()) {
+                    let da = a.descriptor(i);
+                    let (mut best, mut second, mut arg) = *o;
+                    for j in cols.clone() {
+                        let d = dot(da, b.descriptor(j));
+                        if d > best {
+                            second = best;
+                            best = d;
+                            arg = j;
+                        } else if d > second {
+                            second = d;
+                        }
+                        let c = &mut col[j];
+                        if d > c.0 {
+                            *c = (d, i);
+                        }
                     }
-                    if d > c.0 {
-                        *c = (d, i);
-                    }
+                    *o = (best, second, arg);
                 }
-                out.push((best, second, arg));
             }
             (out, col)
         })

@@ -2,11 +2,14 @@
 //! (`sfm::sift`, OpenCV's SIFT).
 //!
 //! So far: features (`Features`: keypoints at full resolution, RootSIFT descriptors, a cap per
-//! image spread over a grid of cells) and their matching (`matching`: mutual nearest neighbours
-//! with a ratio test). The two-view geometry is in `estimate::essential`.
+//! image spread over a grid of cells), their matching (`matching`: mutual nearest neighbours
+//! with a ratio test), tracks (`tracks`), and an incremental reconstruction with one known
+//! camera (`reconstruct`). The two-view geometry is in `estimate::essential`.
 
 pub mod matching;
+pub mod reconstruct;
 pub mod sift;
+pub mod tracks;
 
 /// Descriptor length (SIFT).
 pub const DESCRIPTOR_LEN: usize = 128;

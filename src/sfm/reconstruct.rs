@@ -1,0 +1,653 @@
+//! Incremental reconstruction (pure): verified pairs, tracks, an initial pair from its
+//! essential matrix, then image by image P3P + MSAC against the points already built,
+//! triangulation of the tracks each new image completes, and bundle adjustment of everything
+//! (`optim::ba`, a robust loss) with the observations that stay far from their point dropped.
+//!
+//! One camera for every image, its intrinsics known (from a calibration) and held fixed while
+//! images are added; optionally its focal lengths and first two radial terms refined in the last
+//! adjustments (`SfmSettings::refine_intrinsics`).
+
+use std::collections::HashMap;
+
+use nalgebra::{Matrix4, Vector2, Vector3};
+
+use super::tracks::{FeatureId, PairMatches, build_tracks};
+use crate::camera::{Camera, param};
+use crate::estimate::essential::{EssentialEstimator, pose_in_front};
+use crate::estimate::pnp::{PnpEstimator, gauss_newton_pose};
+use crate::estimate::ransac::{RansacSettings, msac};
+use crate::geom::Rigid3;
+use crate::optim::RobustLoss;
+use crate::optim::ba::{BaSettings, Observation, Priors, Problem, adjust};
+use crate::optim::ba_camera::{BrownConrady, pose_params, rigid_pose};
+
+/// Thresholds of the reconstruction.
+#[derive(Clone, Debug)]
+pub struct SfmSettings {
+    /// Inlier threshold of the two-view and PnP fits, pixels.
+    pub inlier_px: f64,
+    /// A pair needs this many essential-matrix inliers to be used.
+    pub min_pair_inliers: usize,
+    /// An image needs this many PnP inliers to be registered.
+    pub min_pnp_inliers: usize,
+    /// A point needs two rays at least this far apart, degrees.
+    pub min_triangulation_deg: f64,
+    /// An observation further than this from its point's projection is dropped, pixels.
+    pub max_reprojection_px: f64,
+    /// Refine the focal lengths and `k1`, `k2` in the last adjustments (a camera known only
+    /// roughly: EXIF, a preset).
+    pub refine_intrinsics: bool,
+    pub seed: u64,
+}
+
+impl Default for SfmSettings {
+    fn default() -> Self {
+        SfmSettings {
+            inlier_px: 4.0,
+            min_pair_inliers: 30,
+            min_pnp_inliers: 30,
+            min_triangulation_deg: 1.5,
+            max_reprojection_px: 4.0,
+            refine_intrinsics: false,
+            seed: 0,
+        }
+    }
+}
+
+/// A point of the model and the features that see it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelPoint {
+    pub xyz: Vector3<f64>,
+    pub observations: Vec<FeatureId>,
+}
+
+/// A reconstruction in an arbitrary frame and scale (the first image's camera at the origin).
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    /// Per image, `cam_from_world` when registered.
+    pub poses: Vec<Option<Rigid3>>,
+    pub points: Vec<ModelPoint>,
+    /// Mean distance of every observation from its point's projection, pixels.
+    pub mean_reprojection_px: f64,
+    /// The camera at the end (refined when asked).
+    pub camera: Camera,
+    /// The two images the model started from.
+    pub initial_pair: (usize, usize),
+}
+
+/// Why no model could be made.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SfmError {
+    #[error("structure from motion needs at least two images, got {0}")]
+    TooFewImages(usize),
+    #[error(
+        "no pair of images shares enough verified matches ({needed} essential-matrix inliers) \
+         with enough baseline to start a model: the images may not overlap, or the camera only \
+         rotated between them"
+    )]
+    NoInitialPair { needed: usize },
+    #[error("bundle adjustment failed: {0}")]
+    Adjustment(String),
+}
+
+/// Each image's keypoints undistorted and normalised (`None` where the model cannot invert).
+fn normalise(camera: &Camera, pixels: &[Vec<Vector2<f64>>]) -> Vec<Vec<Option<Vector2<f64>>>> {
+    pixels
+        .iter()
+        .map(|kps| {
+            kps.iter()
+                .map(|p| camera.pixel_to_normalized(p).ok())
+                .collect()
+        })
+        .collect()
+}
+
+/// The matches of `pair` that fit one essential matrix (`inlier_px`), or `None` below
+/// `min_pair_inliers`. `normalised`: each image's keypoints undistorted and normalised.
+pub fn verify_pair(
+    normalised: &[Vec<Option<Vector2<f64>>>],
+    pair: &PairMatches,
+    focal_px: f64,
+    s: &SfmSettings,
+) -> Option<PairMatches> {
+    let usable: Vec<(usize, usize)> = pair
+        .matches
+        .iter()
+        .copied()
+        .filter(|&(a, b)| normalised[pair.i][a].is_some() && normalised[pair.j][b].is_some())
+        .collect();
+    if usable.len() < s.min_pair_inliers {
+        return None;
+    }
+    let x1: Vec<Vector2<f64>> = usable
+        .iter()
+        .map(|&(a, _)| normalised[pair.i][a].expect("filtered"))
+        .collect();
+    let x2: Vec<Vector2<f64>> = usable
+        .iter()
+        .map(|&(_, b)| normalised[pair.j][b].expect("filtered"))
+        .collect();
+    let est = EssentialEstimator {
+        x1: &x1,
+        x2: &x2,
+        focal_px,
+    };
+    let r = msac(
+        &est,
+        &RansacSettings {
+            threshold: s.inlier_px,
+            seed: s.seed,
+            ..RansacSettings::default()
+        },
+    )
+    .ok()?;
+    (r.inlier_count >= s.min_pair_inliers).then(|| PairMatches {
+        i: pair.i,
+        j: pair.j,
+        matches: usable
+            .iter()
+            .zip(&r.inliers)
+            .filter(|(_, ok)| **ok)
+            .map(|(m, _)| *m)
+            .collect(),
+    })
+}
+
+/// A point from its rays (`cam_from_world`, normalised image point) by linear triangulation;
+/// `None` unless every ray sees it in front and two rays are `min_angle_deg` apart.
+pub fn triangulate(rays: &[(Rigid3, Vector2<f64>)], min_angle_deg: f64) -> Option<Vector3<f64>> {
+    if rays.len() < 2 {
+        return None;
+    }
+    let mut a = nalgebra::DMatrix::<f64>::zeros(2 * rays.len(), 4);
+    for (k, (pose, x)) in rays.iter().enumerate() {
+        let r = pose.rotation.matrix();
+        let t = pose.translation;
+        let row = |i: usize| nalgebra::RowVector4::new(r[(i, 0)], r[(i, 1)], r[(i, 2)], t[i]);
+        a.set_row(2 * k, &(row(2) * x.x - row(0)));
+        a.set_row(2 * k + 1, &(row(2) * x.y - row(1)));
+    }
+    let ata: Matrix4<f64> = (a.transpose() * &a).fixed_view::<4, 4>(0, 0).into_owned();
+    let eig = ata.symmetric_eigen();
+    let v = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+    if v[3].abs() < 1e-12 {
+        return None;
+    }
+    let p = Vector3::new(v[0], v[1], v[2]) / v[3];
+    let mut centres_rays = Vec::with_capacity(rays.len());
+    for (pose, _) in rays {
+        if pose.apply(&p).z <= 0.0 {
+            return None;
+        }
+        centres_rays.push((p - pose.centre()).normalize());
+    }
+    let cos_min = min_angle_deg.to_radians().cos();
+    let wide = centres_rays
+        .iter()
+        .enumerate()
+        .any(|(i, a)| centres_rays[i + 1..].iter().any(|b| a.dot(b) < cos_min));
+    wide.then_some(p)
+}
+
+/// The state of a reconstruction in progress.
+struct Builder<'a> {
+    camera: Camera,
+    pixels: &'a [Vec<Vector2<f64>>],
+    normalised: Vec<Vec<Option<Vector2<f64>>>>,
+    settings: &'a SfmSettings,
+    tracks: Vec<Vec<FeatureId>>,
+    /// Per image, keypoint → track.
+    track_of: Vec<HashMap<usize, usize>>,
+    point_of_track: Vec<Option<usize>>,
+    points: Vec<Option<ModelPoint>>,
+    poses: Vec<Option<Rigid3>>,
+    gauge: (usize, usize),
+}
+
+impl Builder<'_> {
+    fn reprojection_px(&self, pose: &Rigid3, xyz: &Vector3<f64>, f: FeatureId) -> f64 {
+        match self.camera.project(&pose.apply(xyz)) {
+            Ok(uv) => (uv - self.pixels[f.0][f.1]).norm(),
+            Err(_) => f64::INFINITY,
+        }
+    }
+
+    /// Triangulates every track with two or more registered features and no point yet.
+    fn triangulate_new(&mut self) -> usize {
+        let mut made = 0;
+        for t in 0..self.tracks.len() {
+            if self.point_of_track[t].is_some() {
+                continue;
+            }
+            let obs: Vec<FeatureId> = self.tracks[t]
+                .iter()
+                .copied()
+                .filter(|f| self.poses[f.0].is_some() && self.normalised[f.0][f.1].is_some())
+                .collect();
+            if obs.len() < 2 {
+                continue;
+            }
+            let rays: Vec<(Rigid3, Vector2<f64>)> = obs
+                .iter()
+                .map(|f| {
+                    (
+                        self.poses[f.0].expect("registered"),
+                        self.normalised[f.0][f.1].expect("filtered"),
+                    )
+                })
+                .collect();
+            let Some(xyz) = triangulate(&rays, self.settings.min_triangulation_deg) else {
+                continue;
+            };
+            let good: Vec<FeatureId> = obs
+                .into_iter()
+                .filter(|&f| {
+                    self.reprojection_px(&self.poses[f.0].expect("registered"), &xyz, f)
+                        <= self.settings.max_reprojection_px
+                })
+                .collect();
+            if good.len() < 2 {
+                continue;
+            }
+            self.point_of_track[t] = Some(self.points.len());
+            self.points.push(Some(ModelPoint {
+                xyz,
+                observations: good,
+            }));
+            made += 1;
+        }
+        made
+    }
+
+    /// Bundle adjustment of every registered image and point, the first image fixed and the
+    /// scale held by the second's largest translation component; then observations beyond
+    /// `max_reprojection_px` dropped, and points left with fewer than two.
+    fn adjust(&mut self, loss: RobustLoss, refine_intrinsics: bool) -> Result<(), SfmError> {
+        let images: Vec<usize> = (0..self.poses.len())
+            .filter(|&i| self.poses[i].is_some())
+            .collect();
+        let slot: HashMap<usize, usize> = images.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+        let live: Vec<usize> = (0..self.points.len())
+            .filter(|&p| self.points[p].is_some())
+            .collect();
+        let mut observations = Vec::new();
+        for (k, &p) in live.iter().enumerate() {
+            for f in &self.points[p].as_ref().expect("live").observations {
+                let xy = self.pixels[f.0][f.1];
+                observations.push(Observation {
+                    camera: slot[&f.0],
+                    point: k,
+                    xy: [xy.x, xy.y],
+                });
+            }
+        }
+        let mut problem = Problem::new(
+            images
+                .iter()
+                .map(|&i| pose_params(&self.poses[i].expect("registered")))
+                .collect(),
+            vec![self.camera.params()],
+            vec![0; images.len()],
+            live.iter()
+                .map(|&p| {
+                    let x = self.points[p].as_ref().expect("live").xyz;
+                    [x.x, x.y, x.z]
+                })
+                .collect(),
+            observations,
+        );
+        problem.fixed_intrinsics = vec![[true; crate::camera::N_PARAMS]];
+        if refine_intrinsics {
+            for k in [param::FX, param::FY, param::K1, param::K2] {
+                problem.fixed_intrinsics[0][k] = false;
+            }
+        }
+        problem.fixed_poses[slot[&self.gauge.0]] = [true; 6];
+        let second = slot[&self.gauge.1];
+        let t = &problem.poses[second];
+        let largest = (3..6)
+            .max_by(|&a, &b| t[a].abs().total_cmp(&t[b].abs()))
+            .expect("three");
+        problem.fixed_poses[second][largest] = true;
+        let settings = BaSettings {
+            loss,
+            max_iterations: 100,
+            ..BaSettings::default()
+        };
+        adjust(&mut problem, &BrownConrady, &Priors::default(), &settings)
+            .map_err(|e| SfmError::Adjustment(e.to_string()))?;
+        for (k, &i) in images.iter().enumerate() {
+            self.poses[i] = Some(rigid_pose(&problem.poses[k]));
+        }
+        if refine_intrinsics {
+            self.camera.set_params(&problem.intrinsics[0]);
+            self.normalised = normalise(&self.camera, self.pixels);
+        }
+        for (k, &p) in live.iter().enumerate() {
+            let x = problem.points[k];
+            self.points[p].as_mut().expect("live").xyz = Vector3::new(x[0], x[1], x[2]);
+        }
+        self.filter();
+        Ok(())
+    }
+
+    /// Drops observations beyond `max_reprojection_px`, and points left with fewer than two
+    /// (their tracks may be triangulated again).
+    fn filter(&mut self) {
+        for p in 0..self.points.len() {
+            let Some(point) = &self.points[p] else {
+                continue;
+            };
+            let keep: Vec<FeatureId> = point
+                .observations
+                .iter()
+                .copied()
+                .filter(|&f| {
+                    self.reprojection_px(&self.poses[f.0].expect("registered"), &point.xyz, f)
+                        <= self.settings.max_reprojection_px
+                })
+                .collect();
+            if keep.len() < 2 {
+                let f = point.observations[0];
+                let t = self.track_of[f.0][&f.1];
+                self.point_of_track[t] = None;
+                self.points[p] = None;
+            } else {
+                self.points[p].as_mut().expect("live").observations = keep;
+            }
+        }
+    }
+
+    /// Registers image `i` from its features whose tracks have points; `false` when too few
+    /// agree.
+    fn register(&mut self, i: usize) -> bool {
+        let mut world = Vec::new();
+        let mut xy = Vec::new();
+        let mut feats = Vec::new();
+        // In keypoint order: the sampler's draws must not depend on a hash map's order.
+        let mut on_points: Vec<(usize, usize)> = self.track_of[i]
+            .iter()
+            .filter_map(|(&kp, &t)| self.point_of_track[t].map(|p| (kp, p)))
+            .collect();
+        on_points.sort_unstable();
+        for (kp, p) in on_points {
+            if let Some(n) = self.normalised[i][kp] {
+                world.push(self.points[p].as_ref().expect("live").xyz);
+                xy.push(n);
+                feats.push((kp, p));
+            }
+        }
+        if world.len() < self.settings.min_pnp_inliers {
+            return false;
+        }
+        let est = PnpEstimator::new(&world, &xy, self.camera.fx);
+        let Ok(r) = msac(
+            &est,
+            &RansacSettings {
+                threshold: self.settings.inlier_px,
+                seed: self.settings.seed,
+                ..RansacSettings::default()
+            },
+        ) else {
+            return false;
+        };
+        if r.inlier_count < self.settings.min_pnp_inliers {
+            return false;
+        }
+        let inliers: Vec<usize> = (0..world.len()).filter(|&k| r.inliers[k]).collect();
+        let pose = gauss_newton_pose(&world, &xy, &inliers, &r.model, 10);
+        self.poses[i] = Some(pose);
+        for k in inliers {
+            let (kp, p) = feats[k];
+            self.points[p]
+                .as_mut()
+                .expect("live")
+                .observations
+                .push((i, kp));
+        }
+        true
+    }
+
+    /// The unregistered image with the most features on points.
+    fn next_image(&self, failed: &[bool]) -> Option<usize> {
+        (0..self.poses.len())
+            .filter(|&i| self.poses[i].is_none() && !failed[i])
+            .map(|i| {
+                let n = self.track_of[i]
+                    .values()
+                    .filter(|&&t| self.point_of_track[t].is_some())
+                    .count();
+                (n, i)
+            })
+            .filter(|&(n, _)| n >= self.settings.min_pnp_inliers)
+            .max_by(|a, b| a.0.cmp(&b.0).then(b.1.cmp(&a.1)))
+            .map(|(_, i)| i)
+    }
+}
+
+/// Reconstructs from the images' keypoints (`pixels`, full-resolution pixels) and their pairwise
+/// matches (not yet verified), with one known camera. Images that cannot be registered are left
+/// without a pose.
+pub fn reconstruct(
+    camera: &Camera,
+    pixels: &[Vec<Vector2<f64>>],
+    pairs: &[PairMatches],
+    s: &SfmSettings,
+) -> Result<Reconstruction, SfmError> {
+    let n = pixels.len();
+    if n < 2 {
+        return Err(SfmError::TooFewImages(n));
+    }
+    let normalised = normalise(camera, pixels);
+    let mut verified: Vec<PairMatches> = pairs
+        .iter()
+        .filter_map(|p| verify_pair(&normalised, p, camera.fx, s))
+        .collect();
+    verified.sort_by(|a, b| {
+        b.matches
+            .len()
+            .cmp(&a.matches.len())
+            .then((a.i, a.j).cmp(&(b.i, b.j)))
+    });
+    let (tracks, _conflicts) = build_tracks(&verified);
+    let mut track_of: Vec<HashMap<usize, usize>> = vec![HashMap::new(); n];
+    for (t, track) in tracks.iter().enumerate() {
+        for &(i, kp) in track {
+            track_of[i].insert(kp, t);
+        }
+    }
+    let mut b = Builder {
+        camera: camera.clone(),
+        pixels,
+        normalised: normalised.clone(),
+        settings: s,
+        point_of_track: vec![None; tracks.len()],
+        tracks,
+        track_of,
+        points: Vec::new(),
+        poses: vec![None; n],
+        gauge: (0, 0),
+    };
+    // The initial pair: the most verified matches whose relative pose triangulates enough
+    // points with enough parallax.
+    let mut started = false;
+    for p in &verified {
+        let x1: Vec<Vector2<f64>> = p
+            .matches
+            .iter()
+            .map(|&(a, _)| normalised[p.i][a].expect("verified"))
+            .collect();
+        let x2: Vec<Vector2<f64>> = p
+            .matches
+            .iter()
+            .map(|&(_, c)| normalised[p.j][c].expect("verified"))
+            .collect();
+        let est = EssentialEstimator {
+            x1: &x1,
+            x2: &x2,
+            focal_px: camera.fx,
+        };
+        let Ok(r) = msac(
+            &est,
+            &RansacSettings {
+                threshold: s.inlier_px,
+                seed: s.seed,
+                ..RansacSettings::default()
+            },
+        ) else {
+            continue;
+        };
+        let (pose, _) = pose_in_front(&r.model, &x1, &x2);
+        b.poses = vec![None; n];
+        b.poses[p.i] = Some(Rigid3::identity());
+        b.poses[p.j] = Some(pose);
+        b.points.clear();
+        b.point_of_track = vec![None; b.tracks.len()];
+        b.gauge = (p.i, p.j);
+        if b.triangulate_new() >= s.min_pair_inliers {
+            b.adjust(RobustLoss::Huber(1.0), false)?;
+            if b.points.iter().flatten().count() >= s.min_pair_inliers {
+                started = true;
+                break;
+            }
+        }
+    }
+    if !started {
+        return Err(SfmError::NoInitialPair {
+            needed: s.min_pair_inliers,
+        });
+    }
+    let initial_pair = b.gauge;
+    let mut failed = vec![false; n];
+    while let Some(i) = b.next_image(&failed) {
+        if !b.register(i) {
+            failed[i] = true;
+            continue;
+        }
+        b.triangulate_new();
+        b.adjust(RobustLoss::Huber(1.0), false)?;
+        // A newly registered image may make another registrable again.
+        failed.iter_mut().for_each(|f| *f = false);
+    }
+    // Tracks whose points were dropped may triangulate now; then a last adjustment.
+    b.triangulate_new();
+    b.adjust(RobustLoss::Huber(1.0), s.refine_intrinsics)?;
+    b.adjust(RobustLoss::Squared, s.refine_intrinsics)?;
+    let camera = b.camera.clone();
+    let points: Vec<ModelPoint> = b.points.into_iter().flatten().collect();
+    let (mut sum, mut count) = (0.0, 0usize);
+    for p in &points {
+        for &f in &p.observations {
+            let pose = b.poses[f.0].expect("registered");
+            sum += match camera.project(&pose.apply(&p.xyz)) {
+                Ok(uv) => (uv - pixels[f.0][f.1]).norm(),
+                Err(_) => f64::INFINITY,
+            };
+            count += 1;
+        }
+    }
+    Ok(Reconstruction {
+        poses: b.poses,
+        points,
+        mean_reprojection_px: if count > 0 {
+            sum / count as f64
+        } else {
+            f64::NAN
+        },
+        camera,
+        initial_pair,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::similarity::{ScaleMode, fit_weighted};
+    use crate::testing::Uniform;
+    use nalgebra::Rotation3;
+
+    /// Six cameras along a strip looking down at rough ground: every image registers, and the
+    /// cameras are the truth up to a similarity, the pixels 0.3 px noisy, 10 % of matches
+    /// wrong.
+    #[test]
+    fn a_strip_of_images_is_reconstructed() {
+        let mut rng = Uniform::new(9);
+        let camera = Camera::pinhole(1000.0, 1000.0, 640.0, 480.0)
+            .with_image_size(1280, 960)
+            .with_distortion(&[-0.05, 0.01, 0.0, 0.0, 0.0]);
+        // Nadir cameras 30 m up, 8 m apart, slightly tilted.
+        let truth: Vec<Rigid3> = (0..6)
+            .map(|k| {
+                let centre = Vector3::new(8.0 * f64::from(k), 2.0 * rng.next(), 30.0);
+                let r = Rotation3::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0))
+                    * Rotation3::from_scaled_axis(
+                        Vector3::new(rng.next(), rng.next(), rng.next()) * 0.05,
+                    );
+                // cam_from_world: R·(X − C).
+                let rotation = r.inverse();
+                Rigid3::new(rotation, -(rotation * centre))
+            })
+            .collect();
+        let world: Vec<Vector3<f64>> = (0..3000)
+            .map(|_| {
+                Vector3::new(
+                    -15.0 + 70.0 * (rng.next() + 1.0) / 2.0,
+                    25.0 * rng.next(),
+                    2.0 * rng.next(),
+                )
+            })
+            .collect();
+        // Each image's keypoints: the points it sees, noisy, in a shuffled order.
+        let mut pixels: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); 6];
+        let mut index: Vec<HashMap<usize, usize>> = vec![HashMap::new(); 6];
+        for (i, pose) in truth.iter().enumerate() {
+            for (p, x) in world.iter().enumerate() {
+                let Ok(uv) = camera.project(&pose.apply(x)) else {
+                    continue;
+                };
+                if uv.x < 0.0 || uv.y < 0.0 || uv.x > 1279.0 || uv.y > 959.0 {
+                    continue;
+                }
+                index[i].insert(p, pixels[i].len());
+                pixels[i].push(uv + Vector2::new(rng.next(), rng.next()) * 0.3);
+            }
+        }
+        let mut pairs = Vec::new();
+        for i in 0..6 {
+            for j in i + 1..6 {
+                let mut matches: Vec<(usize, usize)> = index[i]
+                    .iter()
+                    .filter_map(|(p, &a)| index[j].get(p).map(|&b| (a, b)))
+                    .collect();
+                matches.sort_unstable();
+                // 10 % wrong: the second feature replaced by another of the image.
+                let n = pixels[j].len();
+                for (k, m) in matches.iter_mut().enumerate() {
+                    if k % 10 == 3 {
+                        m.1 = (m.1 + n / 2) % n;
+                    }
+                }
+                pairs.push(PairMatches { i, j, matches });
+            }
+        }
+        let r = reconstruct(&camera, &pixels, &pairs, &SfmSettings::default()).unwrap();
+        assert!(
+            r.poses.iter().all(Option::is_some),
+            "{:?}",
+            r.poses.iter().map(Option::is_some).collect::<Vec<_>>()
+        );
+        assert!(r.mean_reprojection_px < 0.4, "{}", r.mean_reprojection_px);
+        assert!(r.points.len() > 1000, "{}", r.points.len());
+        // Camera centres: the truth up to a similarity, to 1 cm over a 40 m strip.
+        let got: Vec<Vector3<f64>> = r.poses.iter().map(|p| p.unwrap().centre()).collect();
+        let want: Vec<Vector3<f64>> = truth.iter().map(Rigid3::centre).collect();
+        let sim = fit_weighted(&got, &want, &[1.0; 6], ScaleMode::Free).unwrap();
+        for (g, w) in got.iter().zip(&want) {
+            assert!(
+                (sim.apply(g) - w).norm() < 0.01,
+                "{} m",
+                (sim.apply(g) - w).norm()
+            );
+        }
+    }
+}

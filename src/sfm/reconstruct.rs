@@ -9,7 +9,7 @@
 
 use std::collections::HashMap;
 
-use nalgebra::{Matrix4, Vector2, Vector3};
+use nalgebra::{Matrix3, Matrix4, Vector2, Vector3};
 
 use super::tracks::{FeatureId, PairMatches, build_tracks};
 use crate::camera::{Camera, param};
@@ -102,14 +102,15 @@ fn normalise(camera: &Camera, pixels: &[Vec<Vector2<f64>>]) -> Vec<Vec<Option<Ve
         .collect()
 }
 
-/// The matches of `pair` that fit one essential matrix (`inlier_px`), or `None` below
-/// `min_pair_inliers`. `normalised`: each image's keypoints undistorted and normalised.
+/// The matches of `pair` that fit one essential matrix (`inlier_px`), with that matrix, or
+/// `None` below `min_pair_inliers`. `normalised`: each image's keypoints undistorted and
+/// normalised.
 pub fn verify_pair(
     normalised: &[Vec<Option<Vector2<f64>>>],
     pair: &PairMatches,
     focal_px: f64,
     s: &SfmSettings,
-) -> Option<PairMatches> {
+) -> Option<(PairMatches, Matrix3<f64>)> {
     let usable: Vec<(usize, usize)> = pair
         .matches
         .iter()
@@ -141,15 +142,21 @@ pub fn verify_pair(
         },
     )
     .ok()?;
-    (r.inlier_count >= s.min_pair_inliers).then(|| PairMatches {
-        i: pair.i,
-        j: pair.j,
-        matches: usable
+    (r.inlier_count >= s.min_pair_inliers).then(|| {
+        let matches = usable
             .iter()
             .zip(&r.inliers)
             .filter(|(_, ok)| **ok)
             .map(|(m, _)| *m)
-            .collect(),
+            .collect();
+        (
+            PairMatches {
+                i: pair.i,
+                j: pair.j,
+                matches,
+            },
+            r.model,
+        )
     })
 }
 
@@ -439,17 +446,18 @@ pub fn reconstruct(
         return Err(SfmError::TooFewImages(n));
     }
     let normalised = normalise(camera, pixels);
-    let mut verified: Vec<PairMatches> = pairs
+    let mut verified: Vec<(PairMatches, Matrix3<f64>)> = pairs
         .iter()
         .filter_map(|p| verify_pair(&normalised, p, camera.fx, s))
         .collect();
-    verified.sort_by(|a, b| {
+    verified.sort_by(|(a, _), (b, _)| {
         b.matches
             .len()
             .cmp(&a.matches.len())
             .then((a.i, a.j).cmp(&(b.i, b.j)))
     });
-    let (tracks, _conflicts) = build_tracks(&verified);
+    let matched: Vec<PairMatches> = verified.iter().map(|(p, _)| p.clone()).collect();
+    let (tracks, _conflicts) = build_tracks(&matched);
     let mut track_of: Vec<HashMap<usize, usize>> = vec![HashMap::new(); n];
     for (t, track) in tracks.iter().enumerate() {
         for &(i, kp) in track {
@@ -471,7 +479,7 @@ pub fn reconstruct(
     // The initial pair: the most verified matches whose relative pose triangulates enough
     // points with enough parallax.
     let mut started = false;
-    for p in &verified {
+    for (p, e) in &verified {
         let x1: Vec<Vector2<f64>> = p
             .matches
             .iter()
@@ -482,22 +490,7 @@ pub fn reconstruct(
             .iter()
             .map(|&(_, c)| normalised[p.j][c].expect("verified"))
             .collect();
-        let est = EssentialEstimator {
-            x1: &x1,
-            x2: &x2,
-            focal_px: camera.fx,
-        };
-        let Ok(r) = msac(
-            &est,
-            &RansacSettings {
-                threshold: s.inlier_px,
-                seed: s.seed,
-                ..RansacSettings::default()
-            },
-        ) else {
-            continue;
-        };
-        let (pose, _) = pose_in_front(&r.model, &x1, &x2);
+        let (pose, _) = pose_in_front(e, &x1, &x2);
         b.poses = vec![None; n];
         b.poses[p.i] = Some(Rigid3::identity());
         b.poses[p.j] = Some(pose);

@@ -10,6 +10,7 @@ mod plan;
 mod pose;
 mod pose_video;
 mod run;
+mod sfm;
 mod simulate;
 pub(crate) mod survey;
 mod track;
@@ -80,6 +81,9 @@ enum Command {
     Track(track::Args),
     /// Plan a flight: footprint, ground sample distance and error maps for a camera and altitude
     Plan(plan::Args),
+    /// Structure from motion: camera poses and sparse points from overlapping photos (COLMAP
+    /// text model, PLY, report)
+    Sfm(sfm::Args),
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
     #[command(subcommand)]
     Survey(survey::Command),
@@ -100,6 +104,7 @@ impl Cli {
             Command::Plan(args) => plan::run(args),
             Command::Pose(args) => pose::run(args),
             Command::Simulate(args) => simulate::run(args),
+            Command::Sfm(args) => sfm::run(args),
         }
     }
 }

@@ -6,6 +6,8 @@
 //! with a ratio test), tracks (`tracks`), and an incremental reconstruction with one known
 //! camera (`reconstruct`). The two-view geometry is in `estimate::essential`.
 
+pub mod colmap;
+pub mod job;
 pub mod matching;
 pub mod reconstruct;
 pub mod sift;

@@ -1,0 +1,160 @@
+//! `geostride sfm` as a user runs it: a folder of photos and a calibration in, a COLMAP text
+//! model, a PLY, `report.json` and `report.md` out; bad input refused with a reason and exit 2.
+
+use std::path::Path;
+use std::process::Command;
+
+mod common;
+
+fn geostride(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_geostride"))
+        .args(args)
+        .output()
+        .expect("geostride runs")
+}
+
+/// An OpenCV YAML calibration without distortion.
+fn write_camera(path: &Path, w: u32, h: u32, fx: f64, fy: f64, cx: f64, cy: f64) {
+    std::fs::write(
+        path,
+        format!(
+            "%YAML:1.0\n---\nimage_width: {w}\nimage_height: {h}\n\
+             camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n\
+             \x20  data: [ {fx}, 0., {cx}, 0., {fy}, {cy}, 0., 0., 1. ]\n\
+             distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n\
+             \x20  data: [ 0., 0., 0., 0., 0. ]\n"
+        ),
+    )
+    .unwrap();
+}
+
+#[test]
+fn a_folder_of_photos_becomes_a_colmap_model() {
+    let Some(dir) = common::data_dir("strecha-herzjesu-p8") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = tmp.path().join("k.yaml");
+    write_camera(&cam, 3072, 2048, 2759.48, 2764.16, 1520.69, 1006.81);
+    let out = tmp.path().join("model");
+    let o = geostride(&[
+        "sfm",
+        dir.join("images").to_str().unwrap(),
+        "--camera",
+        cam.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["images"], 8);
+    assert_eq!(report["registered"], 8);
+    let mean = report["mean_reprojection_px"].as_f64().unwrap();
+    assert!(mean > 0.0 && mean < 0.6, "{mean}");
+    for f in [
+        "cameras.txt",
+        "images.txt",
+        "points3D.txt",
+        "points.ply",
+        "report.json",
+        "report.md",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let cameras = std::fs::read_to_string(out.join("cameras.txt")).unwrap();
+    assert!(
+        cameras.contains("1 OPENCV 3072 2048 2759.48 2764.16 1521.19"),
+        "{cameras}"
+    );
+    let images = std::fs::read_to_string(out.join("images.txt")).unwrap();
+    assert_eq!(images.lines().filter(|l| l.ends_with(".jpg")).count(), 8);
+}
+
+#[test]
+fn bad_input_is_refused_with_a_reason() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = tmp.path().join("k.yaml");
+    write_camera(&cam, 640, 480, 500.0, 500.0, 320.0, 240.0);
+    let out = tmp.path().join("out");
+    let run = |inputs: &[&str]| {
+        let mut a = vec!["sfm"];
+        a.extend_from_slice(inputs);
+        a.extend_from_slice(&[
+            "--camera",
+            cam.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let o = geostride(&a);
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    // One image.
+    let one = tmp.path().join("one.png");
+    std::fs::write(&one, b"x").unwrap();
+    let (code, err) = run(&[one.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("at least two"), "{err}");
+    // Unreadable images: the file is named.
+    let two = tmp.path().join("two.png");
+    std::fs::write(&two, b"not an image").unwrap();
+    let (code, err) = run(&[one.to_str().unwrap(), two.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("one.png") && err.contains("cannot decode"),
+        "{err}"
+    );
+    // A missing input, an empty folder.
+    let (code, err) = run(&[
+        tmp.path().join("nope").to_str().unwrap(),
+        one.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("no such file or folder"), "{err}");
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let (code, err) = run(&[empty.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("no images in this folder"), "{err}");
+    // Images of two sizes with one camera; images that do not overlap.
+    let a = tmp.path().join("a.png");
+    let b = tmp.path().join("b.png");
+    let c = tmp.path().join("c.png");
+    write_png(&a, 64, 48, 1);
+    write_png(&b, 80, 48, 2);
+    write_png(&c, 64, 48, 3);
+    let (code, err) = run(&[a.to_str().unwrap(), b.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("b.png") && err.contains("80x48") && err.contains("64x48"),
+        "{err}"
+    );
+    let (code, err) = run(&[a.to_str().unwrap(), c.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("no pair of images shares enough verified matches"),
+        "{err}"
+    );
+}
+
+/// A noisy grey PNG (no two alike).
+fn write_png(path: &Path, w: u32, h: u32, seed: u64) {
+    let mut state = seed;
+    let px: Vec<u8> = (0..w * h)
+        .map(|_| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 56) as u8
+        })
+        .collect();
+    let img = geostride::simulate::board::GrayImage {
+        width: w,
+        height: h,
+        pixels: px,
+    };
+    geostride::imageio::write_gray(path, &img).unwrap();
+}

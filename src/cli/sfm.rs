@@ -15,10 +15,10 @@ pub struct Args {
     /// Images, or folders of images (JPEG, PNG, TIFF; a folder's images in name order)
     #[arg(required = true, value_name = "IMAGES-OR-FOLDERS")]
     inputs: Vec<PathBuf>,
-    /// The camera of every image: a calibration file or a preset (EXIF focal lengths are not
-    /// read yet)
+    /// The camera of every image: a calibration file or a preset [default: a pinhole from the
+    /// EXIF 35 mm focal length, refined]
     #[arg(long, value_name = "CAL")]
-    camera: String,
+    camera: Option<String>,
     /// Refine the focal lengths and the first two radial terms at the end (a calibration known
     /// only roughly)
     #[arg(long)]
@@ -83,7 +83,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             images.len()
         )));
     }
-    let (camera, camera_source) = load_camera(&args.camera)?;
+    let (camera, camera_source) = match &args.camera {
+        Some(spec) => {
+            let (c, s) = load_camera(spec)?;
+            (Some(c), s)
+        }
+        None => (None, "EXIF focal length (refined)".to_string()),
+    };
     if args.max_features < 100 {
         return Err(bad_input(anyhow!(
             "--max-features {}: too few to match images (8192 is the default)",
@@ -93,12 +99,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let inputs: Vec<&Path> = images
         .iter()
         .map(PathBuf::as_path)
-        .chain(std::iter::once(Path::new(&args.camera)))
+        .chain(args.camera.iter().map(Path::new))
         .collect();
     create_output_dir(&args.out, inputs)?;
     let job = SfmJob {
         images,
         camera,
+        gps_neighbours: 8,
         features: FeatureSettings {
             max_features: args.max_features,
             ..FeatureSettings::default()
@@ -145,6 +152,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         r.mean_track_length,
         r.mean_reprojection_px
     );
+    if let Some(g) = &r.gps {
+        println!(
+            "Placed on the EXIF GPS of {} images (east-north-up at {:.7}, {:.7}): cameras {:.2} m RMS horizontally, {:.2} m vertically from their GPS",
+            g.images, g.origin[0], g.origin[1], g.rms_horizontal_m, g.rms_vertical_m
+        );
+    }
     for i in r.per_image.iter().filter(|i| !i.registered) {
         println!(
             "  not registered: {}: {}",

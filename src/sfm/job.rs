@@ -5,16 +5,20 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nalgebra::Vector2;
+use nalgebra::{Vector2, Vector3};
 use serde::Serialize;
 
 use super::colmap::{cameras_txt, images_txt, ply, points3d_txt};
+use super::exif::{GpsFix, PhotoMeta, focal_px_from_exif, read_meta};
 use super::matching::{MatchSettings, match_features};
 use super::reconstruct::{Reconstruction, SfmError, SfmSettings, reconstruct};
 use super::sift::read_features;
 use super::tracks::PairMatches;
 use super::{FeatureSettings, Features};
 use crate::camera::Camera;
+use crate::geom::Rigid3;
+use crate::geom::geodesy::{Ellipsoid, Geodetic, LocalTangentFrame};
+use crate::geom::similarity::{ScaleMode, fit_weighted};
 use crate::imageio::ImageError;
 use crate::progress::Progress;
 
@@ -22,8 +26,13 @@ use crate::progress::Progress;
 #[derive(Clone, Debug)]
 pub struct SfmJob {
     pub images: Vec<PathBuf>,
-    /// The camera of every image (its size is scaled to the images' when the aspect agrees).
-    pub camera: Camera,
+    /// The camera of every image (its size is scaled to the images' when the aspect agrees);
+    /// `None`: a pinhole from the EXIF 35 mm focal length, principal point at the centre,
+    /// refined.
+    pub camera: Option<Camera>,
+    /// With GPS in every image's EXIF, each image is matched with this many nearest (by GPS)
+    /// rather than with every other; 0: always every pair.
+    pub gps_neighbours: usize,
     pub features: FeatureSettings,
     pub matching: MatchSettings,
     pub sfm: SfmSettings,
@@ -58,8 +67,16 @@ pub enum SfmJobError {
         width: u32,
         height: u32,
     },
+    #[error(
+        "{}: no camera given and no 35 mm focal length in its EXIF: give --camera (a \
+         calibration file or a preset)",
+        path.display()
+    )]
+    NoFocal { path: PathBuf },
     #[error(transparent)]
     Sfm(#[from] SfmError),
+    #[error(transparent)]
+    Meta(#[from] crate::io::FileError),
 }
 
 impl SfmJobError {
@@ -86,6 +103,20 @@ pub struct ImageReport {
     pub reason: Option<String>,
 }
 
+/// The model on the photos' GPS positions.
+#[derive(Clone, Debug, Serialize)]
+pub struct GpsPlacement {
+    /// The east-north-up frame's origin: WGS 84 latitude, longitude (degrees), height (m).
+    pub origin: [f64; 3],
+    /// Model units per metre before placement.
+    pub scale: f64,
+    pub images: usize,
+    /// RMS of the registered cameras' horizontal and vertical distances from their GPS
+    /// positions after the similarity, metres.
+    pub rms_horizontal_m: f64,
+    pub rms_vertical_m: f64,
+}
+
 /// What a run found (`report.json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct SfmReport {
@@ -99,6 +130,13 @@ pub struct SfmReport {
     /// centres at integers.
     pub camera: Vec<f64>,
     pub pairs_matched: usize,
+    /// How pairs were chosen: `all` or `gps-neighbours`.
+    pub pair_selection: String,
+    /// Where the camera came from: `given` or `exif`.
+    pub camera_source: String,
+    /// With GPS: the model scaled and placed on the GPS positions (a local east-north-up frame
+    /// at their centroid, metres), and the camera centres' distances from their GPS positions.
+    pub gps: Option<GpsPlacement>,
     pub initial_pair: (String, String),
     pub per_image: Vec<ImageReport>,
     pub seconds_features: f64,
@@ -132,6 +170,16 @@ pub fn run_sfm(
     if job.images.len() < 2 {
         return Err(SfmError::TooFewImages(job.images.len()).into());
     }
+    let metas: Vec<PhotoMeta> = job
+        .images
+        .iter()
+        .map(|p| read_meta(p))
+        .collect::<Result<_, _>>()?;
+    if job.camera.is_none() && metas[0].focal_35mm.is_none() {
+        return Err(SfmJobError::NoFocal {
+            path: job.images[0].clone(),
+        });
+    }
     let t = Instant::now();
     features.set_length(job.images.len() as u64);
     let mut found: Vec<Features> = Vec::with_capacity(job.images.len());
@@ -154,33 +202,51 @@ pub fn run_sfm(
     }
     let seconds_features = t.elapsed().as_secs_f64();
     let (width, height) = (found[0].width, found[0].height);
-    let camera = match job.camera.image_size {
-        Some(s) if (s.width, s.height) == (width, height) => job.camera.clone(),
-        Some(s) => job
-            .camera
-            .scaled_to(width, height)
-            .ok_or(SfmJobError::CameraSize {
-                cw: s.width,
-                ch: s.height,
-                width,
-                height,
-            })?,
-        None => job.camera.clone().with_image_size(width, height),
+    let mut sfm_settings = job.sfm.clone();
+    let (camera, camera_source) = match &job.camera {
+        Some(c) => (given_camera(c, width, height)?, "given"),
+        None => {
+            let f = focal_px_from_exif(&metas[0], width, height).ok_or_else(|| {
+                SfmJobError::NoFocal {
+                    path: job.images[0].clone(),
+                }
+            })?;
+            // Known only roughly: refined.
+            sfm_settings.refine_intrinsics = true;
+            let c = Camera::pinhole(
+                f,
+                f,
+                (f64::from(width) - 1.0) / 2.0,
+                (f64::from(height) - 1.0) / 2.0,
+            )
+            .with_image_size(width, height);
+            (c, "exif")
+        }
     };
     let t = Instant::now();
     let n = found.len();
-    matching.set_length((n * (n - 1) / 2) as u64);
-    let mut pairs = Vec::new();
-    for i in 0..n {
-        for j in i + 1..n {
-            let m = match_features(&found[i], &found[j], &job.matching);
-            pairs.push(PairMatches {
-                i,
-                j,
-                matches: m.iter().map(|m| (m.a, m.b)).collect(),
-            });
-            matching.inc(1);
+    let gps: Option<Vec<GpsFix>> = metas.iter().map(|m| m.gps).collect();
+    let (chosen, pair_selection) = match &gps {
+        Some(g) if job.gps_neighbours > 0 && n > job.gps_neighbours + 1 => {
+            (gps_neighbour_pairs(g, job.gps_neighbours), "gps-neighbours")
         }
+        _ => (
+            (0..n)
+                .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+                .collect(),
+            "all",
+        ),
+    };
+    matching.set_length(chosen.len() as u64);
+    let mut pairs = Vec::new();
+    for &(i, j) in &chosen {
+        let m = match_features(&found[i], &found[j], &job.matching);
+        pairs.push(PairMatches {
+            i,
+            j,
+            matches: m.iter().map(|m| (m.a, m.b)).collect(),
+        });
+        matching.inc(1);
     }
     let seconds_matching = t.elapsed().as_secs_f64();
     let keypoints: Vec<Vec<Vector2<f64>>> = found
@@ -188,7 +254,8 @@ pub fn run_sfm(
         .map(|f| f.keypoints.iter().map(|k| Vector2::new(k.x, k.y)).collect())
         .collect();
     let t = Instant::now();
-    let r = reconstruct(&camera, &keypoints, &pairs, &job.sfm)?;
+    let mut r = reconstruct(&camera, &keypoints, &pairs, &sfm_settings)?;
+    let gps_placement = gps.as_ref().and_then(|g| place_on_gps(&mut r, g));
     let seconds_reconstruction = t.elapsed().as_secs_f64();
     let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
     let mut seen = vec![0usize; n];
@@ -222,6 +289,9 @@ pub fn run_sfm(
         mean_reprojection_px: r.mean_reprojection_px,
         camera: r.camera.params().to_vec(),
         pairs_matched: pairs.len(),
+        pair_selection: pair_selection.to_string(),
+        camera_source: camera_source.to_string(),
+        gps: gps_placement,
         initial_pair: (
             names[r.initial_pair.0].clone(),
             names[r.initial_pair.1].clone(),
@@ -238,6 +308,95 @@ pub fn run_sfm(
         width,
         height,
         report,
+    })
+}
+
+/// The given camera at the images' size.
+fn given_camera(c: &Camera, width: u32, height: u32) -> Result<Camera, SfmJobError> {
+    match c.image_size {
+        Some(s) if (s.width, s.height) == (width, height) => Ok(c.clone()),
+        Some(s) => c.scaled_to(width, height).ok_or(SfmJobError::CameraSize {
+            cw: s.width,
+            ch: s.height,
+            width,
+            height,
+        }),
+        None => Ok(c.clone().with_image_size(width, height)),
+    }
+}
+
+/// East-north-up positions of GPS fixes (metres) in a frame at their centroid, and the frame.
+fn enu_of(gps: &[GpsFix]) -> Option<(Vec<Vector3<f64>>, LocalTangentFrame)> {
+    let g: Vec<Geodetic> = gps
+        .iter()
+        .map(|f| Geodetic::from_degrees(f.lat_deg, f.lon_deg, f.alt_m.unwrap_or(0.0)))
+        .collect();
+    let frame = LocalTangentFrame::at_centroid(Ellipsoid::WGS84, &g)?;
+    Some((
+        g.iter().map(|p| frame.enu_from_geodetic(p)).collect(),
+        frame,
+    ))
+}
+
+/// Each image with its `k` nearest by GPS (horizontal distance): the pairs, `i < j`, sorted.
+pub fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize)> {
+    let Some((enu, _)) = enu_of(gps) else {
+        return Vec::new();
+    };
+    let mut pairs = std::collections::BTreeSet::new();
+    for i in 0..enu.len() {
+        let mut by: Vec<(f64, usize)> = (0..enu.len())
+            .filter(|&j| j != i)
+            .map(|j| ((enu[i] - enu[j]).xy().norm(), j))
+            .collect();
+        by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        for &(_, j) in by.iter().take(k) {
+            pairs.insert((i.min(j), i.max(j)));
+        }
+    }
+    pairs.into_iter().collect()
+}
+
+/// Scales and places the model on the GPS positions of its registered images (a similarity,
+/// least squares), in an east-north-up frame at their centroid; `None` with fewer than three.
+fn place_on_gps(r: &mut Reconstruction, gps: &[GpsFix]) -> Option<GpsPlacement> {
+    let (enu, frame) = enu_of(gps)?;
+    let registered: Vec<usize> = (0..r.poses.len())
+        .filter(|&i| r.poses[i].is_some())
+        .collect();
+    if registered.len() < 3 {
+        return None;
+    }
+    let src: Vec<Vector3<f64>> = registered
+        .iter()
+        .map(|&i| r.poses[i].expect("registered").centre())
+        .collect();
+    let dst: Vec<Vector3<f64>> = registered.iter().map(|&i| enu[i]).collect();
+    let sim = fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).ok()?;
+    let rs = sim.rotation.to_rotation_matrix();
+    for pose in r.poses.iter_mut().flatten() {
+        // p' = s·p_cam = R_c·R_sᵀ·(X' − t) + s·t_c.
+        let rotation = pose.rotation * rs.inverse();
+        let translation = sim.scale * pose.translation - rotation * sim.translation;
+        *pose = Rigid3::new(rotation, translation);
+    }
+    for p in &mut r.points {
+        p.xyz = sim.apply(&p.xyz);
+    }
+    let (mut h2, mut v2) = (0.0, 0.0);
+    for (&i, d) in registered.iter().zip(&dst) {
+        let e = r.poses[i].expect("registered").centre() - d;
+        h2 += e.xy().norm_squared();
+        v2 += e.z * e.z;
+    }
+    let n = registered.len() as f64;
+    let o = frame.origin;
+    Some(GpsPlacement {
+        origin: [o.lat.to_degrees(), o.lon.to_degrees(), o.h],
+        scale: 1.0 / sim.scale,
+        images: registered.len(),
+        rms_horizontal_m: (h2 / n).sqrt(),
+        rms_vertical_m: (v2 / n).sqrt(),
     })
 }
 
@@ -306,4 +465,26 @@ pub fn write_outputs(out: &Path, run: &SfmRun) -> std::io::Result<Vec<String>> {
         written.push(name.to_string());
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gps_neighbours_pair_each_image_with_its_nearest() {
+        // A line of five positions about 11 m apart (1e-4 degrees of latitude).
+        let gps: Vec<GpsFix> = (0..5)
+            .map(|k| GpsFix {
+                lat_deg: 46.0 + 1e-4 * f64::from(k),
+                lon_deg: 7.0,
+                alt_m: Some(500.0),
+            })
+            .collect();
+        assert_eq!(
+            gps_neighbour_pairs(&gps, 1),
+            vec![(0, 1), (1, 2), (2, 3), (3, 4)]
+        );
+        assert_eq!(gps_neighbour_pairs(&gps, 4).len(), 10);
+    }
 }

@@ -7,6 +7,7 @@
 //! camera (`reconstruct`). The two-view geometry is in `estimate::essential`.
 
 pub mod colmap;
+pub mod exif;
 pub mod job;
 pub mod matching;
 pub mod reconstruct;

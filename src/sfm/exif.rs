@@ -1,0 +1,192 @@
+//! What a photo says about itself (pure; the `kamadak-exif` crate): EXIF make, model, focal
+//! length (and its 35 mm equivalent), GPS position; DJI's XMP attributes (relative altitude,
+//! gimbal angles, RTK standard deviations when present).
+
+use std::io::{BufReader, Read};
+use std::path::Path;
+
+use exif::{In, Reader, Tag, Value};
+
+use crate::io::FileError;
+
+/// A GPS fix: WGS 84 latitude and longitude (degrees) and the altitude written by the camera
+/// (metres; DJI: above mean sea level).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct GpsFix {
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    pub alt_m: Option<f64>,
+}
+
+/// A photo's metadata; every field optional.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PhotoMeta {
+    pub make: Option<String>,
+    pub model: Option<String>,
+    pub focal_mm: Option<f64>,
+    pub focal_35mm: Option<f64>,
+    pub gps: Option<GpsFix>,
+    /// DJI XMP `RelativeAltitude`: above the take-off point, metres.
+    pub relative_altitude_m: Option<f64>,
+    /// DJI XMP gimbal yaw, pitch, roll, degrees.
+    pub gimbal_ypr_deg: Option<[f64; 3]>,
+    /// DJI XMP `RtkStdLon`, `RtkStdLat`, `RtkStdHgt`: the RTK fix's standard deviations,
+    /// metres (RTK drones only).
+    pub rtk_sigma_m: Option<[f64; 3]>,
+}
+
+fn rational(v: &Value, k: usize) -> Option<f64> {
+    match v {
+        Value::Rational(r) => r.get(k).map(|x| x.to_f64()),
+        Value::SRational(r) => r.get(k).map(|x| x.to_f64()),
+        Value::Short(s) => s.get(k).map(|x| f64::from(*x)),
+        Value::Long(s) => s.get(k).map(|x| f64::from(*x)),
+        _ => None,
+    }
+    .filter(|x| x.is_finite())
+}
+
+fn ascii(v: &Value) -> Option<String> {
+    match v {
+        Value::Ascii(a) => a.first().map(|s| {
+            String::from_utf8_lossy(s)
+                .trim_end_matches('\0')
+                .trim()
+                .to_string()
+        }),
+        _ => None,
+    }
+}
+
+/// A DJI XMP attribute `drone-dji:NAME="+12.3"` as a number.
+fn xmp_number(xmp: &str, name: &str) -> Option<f64> {
+    let key = format!("drone-dji:{name}=\"");
+    let start = xmp.find(&key)? + key.len();
+    let end = xmp[start..].find('"')? + start;
+    xmp[start..end]
+        .trim()
+        .parse()
+        .ok()
+        .filter(|x: &f64| x.is_finite())
+}
+
+/// The metadata of the photo at `path`. A photo without EXIF gives empty metadata; a file
+/// that cannot be read is an error.
+pub fn read_meta(path: &Path) -> Result<PhotoMeta, FileError> {
+    let ctx = crate::io::FileCtx { path };
+    let file =
+        std::fs::File::open(path).map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    let mut meta = PhotoMeta::default();
+    // XMP sits in the first segments of a JPEG: 256 KiB is plenty.
+    let mut head = Vec::new();
+    BufReader::new(
+        file.try_clone()
+            .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?,
+    )
+    .take(256 << 10)
+    .read_to_end(&mut head)
+    .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    let text = String::from_utf8_lossy(&head);
+    if let Some(i) = text.find("<x:xmpmeta") {
+        let xmp = &text[i..];
+        let xmp = &xmp[..xmp.find("</x:xmpmeta>").unwrap_or(xmp.len())];
+        meta.relative_altitude_m = xmp_number(xmp, "RelativeAltitude");
+        if let (Some(y), Some(p), Some(r)) = (
+            xmp_number(xmp, "GimbalYawDegree"),
+            xmp_number(xmp, "GimbalPitchDegree"),
+            xmp_number(xmp, "GimbalRollDegree"),
+        ) {
+            meta.gimbal_ypr_deg = Some([y, p, r]);
+        }
+        if let (Some(lon), Some(lat), Some(h)) = (
+            xmp_number(xmp, "RtkStdLon"),
+            xmp_number(xmp, "RtkStdLat"),
+            xmp_number(xmp, "RtkStdHgt"),
+        ) {
+            meta.rtk_sigma_m = Some([lon, lat, h]);
+        }
+    }
+    // The clone above shares the file's position: back to the start for the EXIF reader.
+    let mut file = file;
+    std::io::Seek::rewind(&mut file)
+        .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    let Ok(exif) = Reader::new().read_from_container(&mut BufReader::new(file)) else {
+        return Ok(meta);
+    };
+    let field = |t: Tag| exif.get_field(t, In::PRIMARY).map(|f| &f.value);
+    meta.make = field(Tag::Make).and_then(ascii);
+    meta.model = field(Tag::Model).and_then(ascii);
+    meta.focal_mm = field(Tag::FocalLength)
+        .and_then(|v| rational(v, 0))
+        .filter(|f| *f > 0.0);
+    meta.focal_35mm = field(Tag::FocalLengthIn35mmFilm)
+        .and_then(|v| rational(v, 0))
+        .filter(|f| *f > 0.0);
+    let dms = |t: Tag| {
+        let v = field(t)?;
+        Some(rational(v, 0)? + rational(v, 1)? / 60.0 + rational(v, 2)? / 3600.0)
+    };
+    let sign = |t: Tag, negative: &str| {
+        field(t).and_then(ascii).map_or(1.0, |s| {
+            if s.eq_ignore_ascii_case(negative) {
+                -1.0
+            } else {
+                1.0
+            }
+        })
+    };
+    if let (Some(lat), Some(lon)) = (dms(Tag::GPSLatitude), dms(Tag::GPSLongitude)) {
+        let (lat, lon) = (
+            lat * sign(Tag::GPSLatitudeRef, "S"),
+            lon * sign(Tag::GPSLongitudeRef, "W"),
+        );
+        if lat.abs() <= 90.0 && lon.abs() <= 180.0 && (lat, lon) != (0.0, 0.0) {
+            let below =
+                matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
+            let alt = field(Tag::GPSAltitude)
+                .and_then(|v| rational(v, 0))
+                .map(|a| if below { -a } else { a });
+            meta.gps = Some(GpsFix {
+                lat_deg: lat,
+                lon_deg: lon,
+                alt_m: alt,
+            });
+        }
+    }
+    Ok(meta)
+}
+
+/// A starting focal length in pixels for an image `width` × `height`: from the 35 mm equivalent
+/// (36 mm across the longer side), else `None`.
+pub fn focal_px_from_exif(meta: &PhotoMeta, width: u32, height: u32) -> Option<f64> {
+    meta.focal_35mm
+        .map(|f35| f35 / 36.0 * f64::from(width.max(height)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dji_xmp_numbers() {
+        let xmp = r#"<x:xmpmeta> drone-dji:RelativeAltitude="+39.80"
+            drone-dji:GimbalYawDegree="+45.00" drone-dji:GimbalPitchDegree="-89.90"
+            drone-dji:GimbalRollDegree="+0.00" drone-dji:Bad="x" </x:xmpmeta>"#;
+        assert_eq!(xmp_number(xmp, "RelativeAltitude"), Some(39.8));
+        assert_eq!(xmp_number(xmp, "GimbalPitchDegree"), Some(-89.9));
+        assert_eq!(xmp_number(xmp, "Bad"), None);
+        assert_eq!(xmp_number(xmp, "RtkStdLon"), None);
+    }
+
+    #[test]
+    fn a_file_without_exif_has_empty_metadata_and_a_missing_one_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.jpg");
+        std::fs::write(&p, b"not a jpeg").unwrap();
+        assert_eq!(read_meta(&p).unwrap(), PhotoMeta::default());
+        let e = read_meta(&dir.path().join("nope.jpg"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("nope.jpg"), "{e}");
+    }
+}

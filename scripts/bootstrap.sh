@@ -8,7 +8,8 @@
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
 #
 # `bootstrap.sh --bench` adds what only `make bench` needs: Ceres Solver and a C++ compiler for
-# the bundle adjustment peer program (benches/ceres/).
+# the bundle adjustment peer program (benches/ceres/), and COLMAP (the structure-from-motion
+# peer, benches/sfm_vs_colmap.rs).
 set -euo pipefail
 
 packages=(
@@ -17,7 +18,7 @@ packages=(
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
 )
 if [ "${1:-}" = "--bench" ]; then
-  packages+=(g++ libceres-dev)
+  packages+=(g++ libceres-dev colmap)
 fi
 
 if ! command -v cargo >/dev/null 2>&1; then

@@ -63,6 +63,9 @@ pub struct FeatureSettings {
     pub max_features: usize,
     /// Columns of the grid (rows in the image's proportion).
     pub grid_cols: usize,
+    /// SIFT's contrast threshold (OpenCV's, divided by the 3 layers per octave inside):
+    /// Lowe's 0.04 leaves weak texture (a façade's plaster, grass) without features.
+    pub contrast_threshold: f64,
 }
 
 impl Default for FeatureSettings {
@@ -71,6 +74,7 @@ impl Default for FeatureSettings {
             working_size_px: Some(2000),
             max_features: 8192,
             grid_cols: 8,
+            contrast_threshold: 0.04,
         }
     }
 }

@@ -66,7 +66,7 @@ pub fn features_of_grey(grey: &Mat, s: &FeatureSettings) -> Result<Features, ope
         f64::from(w) / f64::from(work.cols()),
         f64::from(h) / f64::from(work.rows()),
     );
-    let mut sift = features2d::SIFT::create(0, 3, 0.04, 10.0, 1.6)?;
+    let mut sift = features2d::SIFT::create(0, 3, s.contrast_threshold, 10.0, 1.6)?;
     let mut kps = Vector::<KeyPoint>::new();
     let mut desc = Mat::default();
     sift.detect_and_compute(work, &no_array(), &mut kps, &mut desc, false)?;

@@ -1,0 +1,270 @@
+//! geostride's structure from motion beside COLMAP (Debian's 3.8, CPU, installed by
+//! `scripts/bootstrap.sh --bench`) on the same images with the same known camera, in one run:
+//! images registered, points, mean reprojection error, time, and for Strecha's Herz-Jesu P8 the
+//! camera centres' RMS distance from the ground truth after a similarity.
+//!
+//! COLMAP runs `feature_extractor` (one PINHOLE camera, the given K, 0.5 added to the principal
+//! point for its pixel convention), `exhaustive_matcher` and `mapper` with the intrinsics held
+//! (`ba_refine_focal_length 0`, `ba_refine_extra_params 0`), GPU off; geostride `sfm::job::run_sfm`
+//! with the same camera held fixed.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use geostride::camera::Camera;
+use geostride::geom::similarity::{ScaleMode, fit_weighted};
+use geostride::progress::NoProgress;
+use geostride::sfm::FeatureSettings;
+use geostride::sfm::job::{SfmJob, run_sfm};
+use geostride::sfm::matching::MatchSettings;
+use geostride::sfm::reconstruct::SfmSettings;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+
+struct Outcome {
+    registered: usize,
+    points: usize,
+    mean_px: f64,
+    seconds: f64,
+    /// Image name → camera centre.
+    centres: Vec<(String, Vector3<f64>)>,
+}
+
+fn colmap(args: &[&str], log: &Path) {
+    let out = Command::new("colmap")
+        .args(args)
+        .output()
+        .expect("colmap runs (scripts/bootstrap.sh --bench installs it)");
+    std::fs::write(log, [out.stdout.as_slice(), out.stderr.as_slice()].concat()).unwrap();
+    assert!(
+        out.status.success(),
+        "colmap {}: see {}",
+        args[0],
+        log.display()
+    );
+}
+
+fn run_colmap(images: &Path, names: &[String], k: [f64; 4], work: &Path) -> Outcome {
+    let img = work.join("images");
+    std::fs::create_dir_all(&img).unwrap();
+    for n in names {
+        let _ = std::fs::remove_file(img.join(n));
+        std::os::unix::fs::symlink(images.join(n), img.join(n)).unwrap();
+    }
+    let db = work.join("db.db");
+    let _ = std::fs::remove_file(&db);
+    let sparse = work.join("sparse");
+    let _ = std::fs::remove_dir_all(&sparse);
+    std::fs::create_dir_all(&sparse).unwrap();
+    let params = format!("{},{},{},{}", k[0], k[1], k[2] + 0.5, k[3] + 0.5);
+    let (db_s, img_s, sparse_s) = (
+        db.to_str().unwrap(),
+        img.to_str().unwrap(),
+        sparse.to_str().unwrap(),
+    );
+    let t = Instant::now();
+    colmap(
+        &[
+            "feature_extractor",
+            "--database_path",
+            db_s,
+            "--image_path",
+            img_s,
+            "--ImageReader.single_camera",
+            "1",
+            "--ImageReader.camera_model",
+            "PINHOLE",
+            "--ImageReader.camera_params",
+            &params,
+            "--SiftExtraction.use_gpu",
+            "0",
+        ],
+        &work.join("features.log"),
+    );
+    colmap(
+        &[
+            "exhaustive_matcher",
+            "--database_path",
+            db_s,
+            "--SiftMatching.use_gpu",
+            "0",
+        ],
+        &work.join("matching.log"),
+    );
+    colmap(
+        &[
+            "mapper",
+            "--database_path",
+            db_s,
+            "--image_path",
+            img_s,
+            "--output_path",
+            sparse_s,
+            "--Mapper.ba_refine_focal_length",
+            "0",
+            "--Mapper.ba_refine_principal_point",
+            "0",
+            "--Mapper.ba_refine_extra_params",
+            "0",
+        ],
+        &work.join("mapper.log"),
+    );
+    let seconds = t.elapsed().as_secs_f64();
+    // The largest model is `0`.
+    let model = sparse.join("0");
+    let txt = work.join("txt");
+    std::fs::create_dir_all(&txt).unwrap();
+    colmap(
+        &[
+            "model_converter",
+            "--input_path",
+            model.to_str().unwrap(),
+            "--output_path",
+            txt.to_str().unwrap(),
+            "--output_type",
+            "TXT",
+        ],
+        &work.join("convert.log"),
+    );
+    let images_txt = std::fs::read_to_string(txt.join("images.txt")).unwrap();
+    let lines: Vec<&str> = images_txt.lines().filter(|l| !l.starts_with('#')).collect();
+    let mut centres = Vec::new();
+    for pose in lines.iter().step_by(2) {
+        let v: Vec<&str> = pose.split_whitespace().collect();
+        let f: Vec<f64> = v[1..8].iter().map(|x| x.parse().unwrap()).collect();
+        let q = UnitQuaternion::from_quaternion(Quaternion::new(f[0], f[1], f[2], f[3]));
+        let t = Vector3::new(f[4], f[5], f[6]);
+        centres.push((v[9].to_string(), -(q.inverse() * t)));
+    }
+    let points3d = std::fs::read_to_string(txt.join("points3D.txt")).unwrap();
+    let (mut err, mut n) = (0.0, 0usize);
+    let mut obs_err = 0.0;
+    let mut obs = 0usize;
+    for l in points3d.lines().filter(|l| !l.starts_with('#')) {
+        let v: Vec<&str> = l.split_whitespace().collect();
+        let e: f64 = v[7].parse().unwrap();
+        let track = (v.len() - 8) / 2;
+        err += e;
+        n += 1;
+        obs_err += e * track as f64;
+        obs += track;
+    }
+    let _ = err;
+    Outcome {
+        registered: centres.len(),
+        points: n,
+        mean_px: obs_err / obs.max(1) as f64,
+        seconds,
+        centres,
+    }
+}
+
+fn run_geostride(images: &Path, names: &[String], k: [f64; 4], size: (u32, u32)) -> Outcome {
+    let job = SfmJob {
+        images: names.iter().map(|n| images.join(n)).collect(),
+        camera: Some(Camera::pinhole(k[0], k[1], k[2], k[3]).with_image_size(size.0, size.1)),
+        gps_neighbours: 0,
+        features: FeatureSettings::default(),
+        matching: MatchSettings::default(),
+        sfm: SfmSettings::default(),
+    };
+    let t = Instant::now();
+    let run = run_sfm(&job, &NoProgress, &NoProgress).expect("geostride sfm");
+    let seconds = t.elapsed().as_secs_f64();
+    let r = &run.reconstruction;
+    Outcome {
+        registered: run.report.registered,
+        points: run.report.points,
+        mean_px: run.report.mean_reprojection_px,
+        seconds,
+        centres: (0..names.len())
+            .filter_map(|i| r.poses[i].map(|p| (names[i].clone(), p.centre())))
+            .collect(),
+    }
+}
+
+/// RMS of the centres' distances from the truth after a 7-parameter similarity.
+fn centre_rmse(centres: &[(String, Vector3<f64>)], truth: &dyn Fn(&str) -> Vector3<f64>) -> f64 {
+    let src: Vec<_> = centres.iter().map(|c| c.1).collect();
+    let dst: Vec<_> = centres.iter().map(|c| truth(&c.0)).collect();
+    let sim = fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).unwrap();
+    (src.iter()
+        .zip(&dst)
+        .map(|(s, d)| (sim.apply(s) - d).norm_squared())
+        .sum::<f64>()
+        / src.len() as f64)
+        .sqrt()
+}
+
+fn main() {
+    let Some(data) = std::env::var_os("GEOSTRIDE_DATA").map(PathBuf::from) else {
+        eprintln!("sfm_vs_colmap: set GEOSTRIDE_DATA (make bench does)");
+        std::process::exit(2);
+    };
+    let work = tempfile::tempdir().unwrap();
+    println!("sfm_vs_colmap: the same images and camera, COLMAP 3.8 (CPU) and geostride, 2 cores");
+    println!(
+        "  {:<22} {:<10} {:>10} {:>8} {:>10} {:>9} {:>12}",
+        "set", "tool", "registered", "points", "mean px", "seconds", "centre RMSE"
+    );
+    let sets: [(&str, &str, usize, [f64; 4], (u32, u32)); 2] = [
+        (
+            "strecha-herzjesu-p8",
+            "images",
+            8,
+            [2759.48, 2764.16, 1520.69, 1006.81],
+            (3072, 2048),
+        ),
+        (
+            "sceaux-castle",
+            "",
+            11,
+            [2905.88, 2905.88, 1416.0, 1064.0],
+            (2832, 2128),
+        ),
+    ];
+    for (set, sub, count, k, size) in sets {
+        let images = data.join(set).join(sub);
+        let names: Vec<String> = if set == "sceaux-castle" {
+            (7100..7100 + count)
+                .map(|i| format!("100_{i}.JPG"))
+                .collect()
+        } else {
+            (0..count).map(|i| format!("{i:04}.jpg")).collect()
+        };
+        let truth = |name: &str| -> Vector3<f64> {
+            let text = std::fs::read_to_string(
+                data.join(set)
+                    .join("gt_dense_cameras")
+                    .join(format!("{name}.camera")),
+            )
+            .unwrap();
+            let v: Vec<f64> = text
+                .lines()
+                .nth(7)
+                .unwrap()
+                .split_whitespace()
+                .map(|x| x.parse().unwrap())
+                .collect();
+            Vector3::new(v[0], v[1], v[2])
+        };
+        let cm_work = work.path().join(set);
+        let c = run_colmap(&images, &names, k, &cm_work);
+        let g = run_geostride(&images, &names, k, size);
+        for (tool, o) in [("COLMAP", &c), ("geostride", &g)] {
+            let rmse = if set.starts_with("strecha") {
+                format!("{:.4} m", centre_rmse(&o.centres, &truth))
+            } else {
+                "-".into()
+            };
+            println!(
+                "  {:<22} {:<10} {:>7}/{:<2} {:>8} {:>10.3} {:>9.1} {:>12}",
+                set, tool, o.registered, count, o.points, o.mean_px, o.seconds, rmse
+            );
+        }
+        println!(
+            "  {set}: time ratio geostride / COLMAP {:.2}",
+            g.seconds / c.seconds
+        );
+    }
+}

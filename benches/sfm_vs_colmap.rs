@@ -196,6 +196,9 @@ fn centre_rmse(centres: &[(String, Vector3<f64>)], truth: &dyn Fn(&str) -> Vecto
         .sqrt()
 }
 
+/// An image set: folder, subfolder of the images, image count, `[fx, fy, cx, cy]`, size.
+type Set = (&'static str, &'static str, usize, [f64; 4], (u32, u32));
+
 fn main() {
     let Some(data) = std::env::var_os("GEOSTRIDE_DATA").map(PathBuf::from) else {
         eprintln!("sfm_vs_colmap: set GEOSTRIDE_DATA (make bench does)");
@@ -207,7 +210,7 @@ fn main() {
         "  {:<22} {:<10} {:>10} {:>8} {:>10} {:>9} {:>12}",
         "set", "tool", "registered", "points", "mean px", "seconds", "centre RMSE"
     );
-    let sets: [(&str, &str, usize, [f64; 4], (u32, u32)); 2] = [
+    let sets: [Set; 2] = [
         (
             "strecha-herzjesu-p8",
             "images",

@@ -1,6 +1,7 @@
 //! Tracks (pure): the matches of every image pair joined by union–find into features seen in
-//! several images; a track that would hold two features of one image is a conflict and is
-//! dropped whole.
+//! several images. Pairs are joined in the order given (the best-verified first): a match that
+//! would put two features of one image in a track is refused, and the track keeps the
+//! features it already has.
 
 use std::collections::HashMap;
 
@@ -18,13 +19,23 @@ pub struct PairMatches {
 struct UnionFind {
     parent: Vec<usize>,
     size: Vec<usize>,
+    /// Per root, the images of its features (a bit set, `words` words a set).
+    images: Vec<u64>,
+    words: usize,
 }
 
 impl UnionFind {
-    fn new(n: usize) -> Self {
+    fn new(features: &[FeatureId], n_images: usize) -> Self {
+        let words = n_images.div_ceil(64).max(1);
+        let mut images = vec![0u64; features.len() * words];
+        for (k, f) in features.iter().enumerate() {
+            images[k * words + f.0 / 64] |= 1 << (f.0 % 64);
+        }
         UnionFind {
-            parent: (0..n).collect(),
-            size: vec![1; n],
+            parent: (0..features.len()).collect(),
+            size: vec![1; features.len()],
+            images,
+            words,
         }
     }
 
@@ -36,22 +47,31 @@ impl UnionFind {
         a
     }
 
-    fn union(&mut self, a: usize, b: usize) {
+    /// Joins the tracks of `a` and `b` unless they share an image; `false` when refused.
+    fn union(&mut self, a: usize, b: usize) -> bool {
         let (mut a, mut b) = (self.find(a), self.find(b));
         if a == b {
-            return;
+            return true;
+        }
+        let w = self.words;
+        if (0..w).any(|k| self.images[a * w + k] & self.images[b * w + k] != 0) {
+            return false;
         }
         if self.size[a] < self.size[b] {
             std::mem::swap(&mut a, &mut b);
         }
         self.parent[b] = a;
         self.size[a] += self.size[b];
+        for k in 0..w {
+            self.images[a * w + k] |= self.images[b * w + k];
+        }
+        true
     }
 }
 
 /// The tracks of `pairs` (each at least two features, images in ascending order), and how many
-/// were dropped for holding two features of one image. Deterministic: tracks ordered by their
-/// first feature.
+/// matches were refused for joining two features of one image. Deterministic: tracks ordered by
+/// their first feature.
 pub fn build_tracks(pairs: &[PairMatches]) -> (Vec<Vec<FeatureId>>, usize) {
     let mut ids: HashMap<FeatureId, usize> = HashMap::new();
     let mut features: Vec<FeatureId> = Vec::new();
@@ -69,26 +89,26 @@ pub fn build_tracks(pairs: &[PairMatches]) -> (Vec<Vec<FeatureId>>, usize) {
             edges.push((ia, ib));
         }
     }
-    let mut uf = UnionFind::new(features.len());
+    let n_images = features.iter().map(|f| f.0 + 1).max().unwrap_or(0);
+    let mut uf = UnionFind::new(&features, n_images);
+    let mut refused = 0;
     for (a, b) in edges {
-        uf.union(a, b);
+        refused += usize::from(!uf.union(a, b));
     }
     let mut groups: HashMap<usize, Vec<FeatureId>> = HashMap::new();
     for (k, f) in features.iter().enumerate() {
         groups.entry(uf.find(k)).or_default().push(*f);
     }
-    let mut tracks = Vec::new();
-    let mut conflicts = 0;
-    for mut t in groups.into_values() {
-        t.sort_unstable();
-        if t.windows(2).any(|w| w[0].0 == w[1].0) {
-            conflicts += 1;
-            continue;
-        }
-        tracks.push(t);
-    }
+    let mut tracks: Vec<Vec<FeatureId>> = groups
+        .into_values()
+        .filter(|t| t.len() >= 2)
+        .map(|mut t| {
+            t.sort_unstable();
+            t
+        })
+        .collect();
     tracks.sort_unstable();
-    (tracks, conflicts)
+    (tracks, refused)
 }
 
 #[cfg(test)]
@@ -96,7 +116,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn matches_join_into_tracks_and_conflicts_are_dropped() {
+    fn matches_join_into_tracks_and_conflicting_matches_are_refused() {
         let pairs = vec![
             PairMatches {
                 i: 0,
@@ -115,8 +135,16 @@ mod tests {
                 matches: vec![(0, 9), (2, 10)],
             },
         ];
-        let (tracks, conflicts) = build_tracks(&pairs);
-        assert_eq!(tracks, vec![vec![(0, 0), (1, 5), (2, 9)]]);
-        assert_eq!(conflicts, 1);
+        let (tracks, refused) = build_tracks(&pairs);
+        // (0,2)–(2,10) would join (0,2)'s track with (0,1)'s through (1,6)–(2,10): refused.
+        assert_eq!(
+            tracks,
+            vec![
+                vec![(0, 0), (1, 5), (2, 9)],
+                vec![(0, 1), (1, 6), (2, 10)],
+                vec![(0, 2), (1, 7)],
+            ]
+        );
+        assert_eq!(refused, 1);
     }
 }

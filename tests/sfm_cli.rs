@@ -52,7 +52,17 @@ fn a_folder_of_photos_becomes_a_colmap_model() {
     assert_eq!(report["registered"], 8);
     let mean = report["mean_reprojection_px"].as_f64().unwrap();
     assert!(mean > 0.0 && mean < 0.6, "{mean}");
+    let csv = std::fs::read_to_string(out.join("cameras.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 9, "{csv}");
+    assert!(
+        csv.lines()
+            .nth(1)
+            .unwrap()
+            .starts_with("0000.jpg,yes,model,"),
+        "{csv}"
+    );
     for f in [
+        "cameras.csv",
         "cameras.txt",
         "images.txt",
         "points3D.txt",
@@ -213,6 +223,8 @@ fn drone_photos_register_and_are_placed_on_their_gps() {
     assert_eq!(r["gps"]["images"], 18);
     assert!(r["gps"]["rms_horizontal_m"].as_f64().unwrap() < 2.0);
     assert!(r["gps"]["rms_vertical_m"].as_f64().unwrap() < 2.0);
+    let csv = std::fs::read_to_string(out.join("cameras.csv")).unwrap();
+    assert_eq!(csv.matches(",yes,enu,").count(), 18, "{csv}");
     assert!(
         std::fs::read_to_string(out.join("report.md"))
             .unwrap()

@@ -444,8 +444,34 @@ pub fn report_md(r: &SfmReport) -> String {
     s
 }
 
+/// `cameras.csv`: each image, whether registered, its camera centre and its `cam_from_world`
+/// rotation as a unit quaternion, in the model's frame: east-north-up metres at the GPS centroid
+/// when placed on the GPS (`frame` says which), else the arbitrary frame of the reconstruction.
+pub fn cameras_csv(run: &SfmRun) -> String {
+    let frame = if run.report.gps.is_some() {
+        "enu"
+    } else {
+        "model"
+    };
+    let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz\n");
+    for (i, name) in run.names.iter().enumerate() {
+        match run.reconstruction.poses[i] {
+            Some(pose) => {
+                let c = pose.centre();
+                let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
+                s.push_str(&format!(
+                    "{name},yes,{frame},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9}\n",
+                    c.x, c.y, c.z, q.w, q.i, q.j, q.k
+                ));
+            }
+            None => s.push_str(&format!("{name},no,{frame},,,,,,,\n")),
+        }
+    }
+    s
+}
+
 /// Writes the run's files into `out` (which exists): the COLMAP text model, `points.ply`,
-/// `report.json`, `report.md`. Returns their names.
+/// `cameras.csv`, `report.json`, `report.md`. Returns their names.
 pub fn write_outputs(out: &Path, run: &SfmRun) -> std::io::Result<Vec<String>> {
     let r = &run.reconstruction;
     let files = [
@@ -453,6 +479,7 @@ pub fn write_outputs(out: &Path, run: &SfmRun) -> std::io::Result<Vec<String>> {
         ("images.txt", images_txt(r, &run.names, &run.keypoints)),
         ("points3D.txt", points3d_txt(r, &run.keypoints)),
         ("points.ply", ply(r)),
+        ("cameras.csv", cameras_csv(run)),
         (
             "report.json",
             serde_json::to_string_pretty(&run.report).map_err(std::io::Error::other)?,

@@ -5,14 +5,33 @@
 use std::time::Instant;
 
 use geostride::camera::Camera;
+use geostride::progress::NoProgress;
 use geostride::sfm::FeatureSettings;
-use geostride::sfm::matching::{MatchSettings, match_features};
-use geostride::sfm::reconstruct::{SfmSettings, reconstruct};
-use geostride::sfm::sift::read_features;
-use geostride::sfm::tracks::PairMatches;
-use nalgebra::Vector2;
+use geostride::sfm::job::{SfmJob, run_sfm};
+use geostride::sfm::matching::MatchSettings;
+use geostride::sfm::reconstruct::{Reconstruction, SfmSettings};
 
 mod common;
+
+/// The images `names` of `dir`, every pair matched, reconstructed with `camera`.
+fn reconstruct_all(
+    dir: &std::path::Path,
+    names: &[String],
+    camera: Camera,
+    sfm: SfmSettings,
+) -> Reconstruction {
+    let job = SfmJob {
+        images: names.iter().map(|n| dir.join(n)).collect(),
+        camera: Some(camera),
+        gps_neighbours: 0,
+        features: FeatureSettings::default(),
+        matching: MatchSettings::default(),
+        sfm,
+    };
+    run_sfm(&job, &NoProgress, &NoProgress)
+        .unwrap()
+        .reconstruction
+}
 
 #[test]
 fn sceaux_castle_registers_every_image() {
@@ -21,32 +40,13 @@ fn sceaux_castle_registers_every_image() {
     };
     let t = Instant::now();
     let names: Vec<String> = (7100..=7110).map(|k| format!("100_{k}.JPG")).collect();
-    let features: Vec<_> = names
-        .iter()
-        .map(|n| read_features(&dir.join(n), &FeatureSettings::default()).unwrap())
-        .collect();
-    let mut pairs = Vec::new();
-    for i in 0..features.len() {
-        for j in i + 1..features.len() {
-            let m = match_features(&features[i], &features[j], &MatchSettings::default());
-            pairs.push(PairMatches {
-                i,
-                j,
-                matches: m.iter().map(|m| (m.a, m.b)).collect(),
-            });
-        }
-    }
-    let pixels: Vec<Vec<Vector2<f64>>> = features
-        .iter()
-        .map(|f| f.keypoints.iter().map(|k| Vector2::new(k.x, k.y)).collect())
-        .collect();
     // K.txt: fx = fy = 2905.88, (1416, 1064), no distortion given.
     let camera = Camera::pinhole(2905.88, 2905.88, 1416.0, 1064.0).with_image_size(2832, 2128);
     let settings = SfmSettings {
         refine_intrinsics: true,
         ..SfmSettings::default()
     };
-    let r = reconstruct(&camera, &pixels, &pairs, &settings).unwrap();
+    let r = reconstruct_all(&dir, &names, camera, settings);
     let registered = r.poses.iter().filter(|p| p.is_some()).count();
     let observations: usize = r.points.iter().map(|p| p.observations.len()).sum();
     eprintln!(
@@ -88,28 +88,9 @@ fn strecha_herzjesu_centres_match_the_ground_truth() {
     };
     let t = Instant::now();
     let names: Vec<String> = (0..8).map(|k| format!("{k:04}.jpg")).collect();
-    let features: Vec<_> = names
-        .iter()
-        .map(|n| read_features(&dir.join("images").join(n), &FeatureSettings::default()).unwrap())
-        .collect();
-    let mut pairs = Vec::new();
-    for i in 0..features.len() {
-        for j in i + 1..features.len() {
-            let m = match_features(&features[i], &features[j], &MatchSettings::default());
-            pairs.push(PairMatches {
-                i,
-                j,
-                matches: m.iter().map(|m| (m.a, m.b)).collect(),
-            });
-        }
-    }
-    let pixels: Vec<Vec<Vector2<f64>>> = features
-        .iter()
-        .map(|f| f.keypoints.iter().map(|k| Vector2::new(k.x, k.y)).collect())
-        .collect();
     // images/K.txt.
     let camera = Camera::pinhole(2759.48, 2764.16, 1520.69, 1006.81).with_image_size(3072, 2048);
-    let r = reconstruct(&camera, &pixels, &pairs, &SfmSettings::default()).unwrap();
+    let r = reconstruct_all(&dir.join("images"), &names, camera, SfmSettings::default());
     let registered = r.poses.iter().filter(|p| p.is_some()).count();
     assert_eq!(registered, 8);
     let got: Vec<_> = r.poses.iter().map(|p| p.unwrap().centre()).collect();

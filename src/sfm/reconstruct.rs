@@ -467,7 +467,7 @@ pub fn reconstruct(
     let mut b = Builder {
         camera: camera.clone(),
         pixels,
-        normalised: normalised.clone(),
+        normalised,
         settings: s,
         point_of_track: vec![None; tracks.len()],
         tracks,
@@ -483,12 +483,12 @@ pub fn reconstruct(
         let x1: Vec<Vector2<f64>> = p
             .matches
             .iter()
-            .map(|&(a, _)| normalised[p.i][a].expect("verified"))
+            .map(|&(a, _)| b.normalised[p.i][a].expect("verified"))
             .collect();
         let x2: Vec<Vector2<f64>> = p
             .matches
             .iter()
-            .map(|&(_, c)| normalised[p.j][c].expect("verified"))
+            .map(|&(_, c)| b.normalised[p.j][c].expect("verified"))
             .collect();
         let (pose, _) = pose_in_front(e, &x1, &x2);
         b.poses = vec![None; n];

@@ -167,6 +167,7 @@ fn run_geostride(images: &Path, names: &[String], k: [f64; 4], size: (u32, u32))
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
         sfm: SfmSettings::default(),
+        georef: None,
     };
     let t = Instant::now();
     let run = run_sfm(&job, &NoProgress, &NoProgress).expect("geostride sfm");

@@ -56,5 +56,17 @@ pub(crate) mod testing {
         pub fn next(&mut self) -> f64 {
             rand::RngExt::random_range(&mut self.0, -1.0..1.0)
         }
+
+        /// Uniform in [lo, hi).
+        pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+            lo + (hi - lo) * (self.next() + 1.0) / 2.0
+        }
+
+        /// Standard normal (Box–Muller).
+        pub fn normal(&mut self) -> f64 {
+            let u = (self.next() + 1.0) / 2.0;
+            let v = (self.next() + 1.0) / 2.0;
+            (-2.0 * (1.0 - u).ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
     }
 }

@@ -231,3 +231,246 @@ fn drone_photos_register_and_are_placed_on_their_gps() {
             .contains("18 of 18")
     );
 }
+
+/// Reads a CSV with a header into rows of named fields.
+fn read_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<String> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    lines
+        .map(|l| {
+            header
+                .iter()
+                .cloned()
+                .zip(l.split(',').map(str::to_string))
+                .collect()
+        })
+        .collect()
+}
+
+fn field(row: &std::collections::HashMap<String, String>, name: &str) -> f64 {
+    row[name]
+        .parse()
+        .unwrap_or_else(|_| panic!("{name}: {:?}", row[name]))
+}
+
+/// The simulated survey flight (tests/scenes/survey-flight.toml: 15 nadir photos 30 m over a
+/// footbridge and 4 obliques, 2400x1350, RTK-like centres with 2/3 cm noise, 10 GCPs and 3
+/// check points with 1/2 cm survey noise, picks with 0.5 px noise): after georeferencing, every
+/// camera within 3 cm and 0.05° of the truth, the check points within their survey σ.
+#[test]
+fn simulated_survey_flight_is_georeferenced_to_centimetres() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sim = tmp.path().join("sim");
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/scenes/survey-flight.toml"
+    );
+    let o = geostride(&["simulate", scene, "--out", sim.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = tmp.path().join("model");
+    let p = |s: &str| sim.join(s).to_str().unwrap().to_string();
+    let o = geostride(&[
+        "sfm",
+        &p("survey/photos"),
+        "--camera",
+        "mini3pro",
+        "--gcps",
+        &p("gcps.csv"),
+        "--picks",
+        &p("survey/picks.csv"),
+        "--centres",
+        &p("survey/centres.csv"),
+        "--max-features",
+        "4096",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["registered"], 19);
+    assert_eq!(report["frame"], "site");
+    let g = &report["georef"];
+    assert_eq!(g["placed_by"], "control points");
+    assert_eq!(g["left_out"].as_array().unwrap().len(), 0, "{g}");
+    assert_eq!(g["control_rms"]["points"], 10);
+    assert_eq!(g["check_rms"]["points"], 3);
+    let check_h = g["check_rms"]["horizontal_m"].as_f64().unwrap();
+    let check_v = g["check_rms"]["vertical_m"].as_f64().unwrap();
+    // The check points' survey σ: 1 cm per horizontal axis (1.4 cm horizontally), 2 cm up.
+    assert!(
+        check_h < 0.028 && check_v < 0.04,
+        "check {check_h} m, {check_v} m"
+    );
+
+    let truth = read_rows(&sim.join("truth/survey_cameras.csv"));
+    let got = read_rows(&out.join("cameras.csv"));
+    assert_eq!(truth.len(), 19);
+    let (mut worst_m, mut worst_deg) = (0.0f64, 0.0f64);
+    for t in &truth {
+        let g = got.iter().find(|g| g["image"] == t["image"]).unwrap();
+        assert_eq!(g["registered"], "yes");
+        let d = nalgebra::Vector3::new(
+            field(g, "crs_x") - field(t, "x"),
+            field(g, "crs_y") - field(t, "y"),
+            field(g, "crs_h") - field(t, "ellipsoidal_height_m"),
+        );
+        worst_m = worst_m.max(d.norm());
+        let q = |r: &std::collections::HashMap<String, String>| {
+            nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                field(r, "qw"),
+                field(r, "qx"),
+                field(r, "qy"),
+                field(r, "qz"),
+            ))
+        };
+        // Both cam_from_world in east-north-up frames whose origins lie metres apart (the
+        // control points' centroid, the scene's origin): their tilt is 1e-6 rad.
+        worst_deg = worst_deg.max(q(g).angle_to(&q(t)).to_degrees());
+    }
+    eprintln!(
+        "survey flight: 19/19, cameras within {worst_m:.4} m and {worst_deg:.4}° of the truth; check {check_h:.4} m horizontally, {check_v:.4} m vertically"
+    );
+    assert!(worst_m <= 0.03, "{worst_m} m");
+    assert!(worst_deg <= 0.05, "{worst_deg}°");
+    for f in ["cameras.gpkg", "topview.png", "report.md"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("## Georeferencing") && md.contains("CHK-2"),
+        "{md}"
+    );
+}
+
+/// Herz-Jesu with its ground-truth camera centres given as measured centres (a local frame):
+/// the model is placed and adjusted on them, and its centres lie within millimetres of them.
+#[test]
+fn measured_camera_centres_place_a_real_model() {
+    let Some(dir) = common::data_dir("strecha-herzjesu-p8") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = tmp.path().join("k.yaml");
+    write_camera(&cam, 3072, 2048, 2759.48, 2764.16, 1520.69, 1006.81);
+    let mut centres = String::from("name,x,y,z\n");
+    for k in 0..8 {
+        let text = std::fs::read_to_string(dir.join(format!("gt_dense_cameras/{k:04}.jpg.camera")))
+            .unwrap();
+        let c = text
+            .lines()
+            .nth(7)
+            .unwrap()
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(",");
+        centres.push_str(&format!("{k:04}.jpg,{c}\n"));
+    }
+    let centres_path = tmp.path().join("centres.csv");
+    std::fs::write(&centres_path, &centres).unwrap();
+    let out = tmp.path().join("model");
+    let o = geostride(&[
+        "sfm",
+        dir.join("images").to_str().unwrap(),
+        "--camera",
+        cam.to_str().unwrap(),
+        "--centres",
+        centres_path.to_str().unwrap(),
+        "--crs",
+        "local",
+        "--centre-sigma",
+        "0.005,0.005",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["registered"], 8);
+    assert_eq!(report["georef"]["placed_by"], "camera centres");
+    let c = &report["georef"]["centres_rms"];
+    let h = c["horizontal_m"].as_f64().unwrap();
+    let v = c["vertical_m"].as_f64().unwrap();
+    eprintln!("herz-jesu on its true centres: {h:.4} m horizontally, {v:.4} m vertically");
+    assert_eq!(c["points"], 8);
+    assert!(h < 0.006 && v < 0.006, "{h} {v}");
+    let rows = read_rows(&out.join("cameras.csv"));
+    assert!(rows.iter().all(|r| r["frame"] == "site"));
+}
+
+/// GCPs whose picks lie in none of the images, a pick outside its image, picks without a GCP
+/// file, and too few control points: each refused with a reason and exit 2.
+#[test]
+fn bad_georeferencing_input_is_refused_with_a_reason() {
+    let Some(dir) = common::data_dir("strecha-herzjesu-p8") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = tmp.path().join("k.yaml");
+    write_camera(&cam, 3072, 2048, 2759.48, 2764.16, 1520.69, 1006.81);
+    let gcps = tmp.path().join("gcps.csv");
+    std::fs::write(&gcps, "name,x,y,z\nG1,0,0,0\nG2,1,0,0\nG3,0,1,0\n").unwrap();
+    let picks = tmp.path().join("picks.csv");
+    let out = tmp.path().join("out");
+    let images = dir.join("images");
+    let run = |extra: &[&str], picks_text: &str| {
+        std::fs::write(&picks, picks_text).unwrap();
+        let mut a = vec![
+            "sfm",
+            images.to_str().unwrap(),
+            "--camera",
+            cam.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--crs",
+            "local",
+        ];
+        a.extend_from_slice(extra);
+        let o = geostride(&a);
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let with_gcps = [
+        "--gcps",
+        gcps.to_str().unwrap(),
+        "--picks",
+        picks.to_str().unwrap(),
+    ];
+    // Picks of other images only: the GCPs are outside every image given.
+    let (code, err) = run(
+        &with_gcps,
+        "name,image,u,v\nG1,other1.jpg,10,10\nG2,other1.jpg,20,10\nG3,other2.jpg,10,20\n",
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("outside every image") && err.contains("other1.jpg"),
+        "{err}"
+    );
+    // A pick beyond the image's edge: the file and line are named.
+    let (code, err) = run(&with_gcps, "name,image,u,v\nG1,0000.jpg,4000,10\n");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("picks.csv:2") && err.contains("outside the 3072x2048 image"),
+        "{err}"
+    );
+    // One control point picked: the model cannot be placed.
+    let (code, err) = run(
+        &with_gcps,
+        "name,image,u,v\nG1,0000.jpg,100,100\nG1,0001.jpg,120,100\n",
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("1 control point(s)"), "{err}");
+    // Picks without the GCPs' coordinates.
+    let (code, err) = run(&["--picks", picks.to_str().unwrap()], "name,image,u,v\n");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--picks needs --gcps"), "{err}");
+    assert!(!out.join("report.json").exists());
+}

@@ -27,6 +27,7 @@ fn reconstruct_all(
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
         sfm,
+        georef: None,
     };
     run_sfm(&job, &NoProgress, &NoProgress)
         .unwrap()

@@ -4,11 +4,20 @@ use std::path::{Path, PathBuf};
 
 use anyhow::anyhow;
 
+use super::survey::{ReadArgs, read_framed, read_other};
 use super::{bad_input, create_output_dir, load_camera, progress_bar};
 use geostride::sfm::FeatureSettings;
-use geostride::sfm::job::{SfmJob, SfmJobError, run_sfm, write_outputs};
+use geostride::sfm::georef::{GeorefSettings, PointRole};
+use geostride::sfm::job::{
+    CrsPositions, GeorefInput, NamedCentre, NamedGroundPoint, NamedPick, SfmJob, SfmJobError,
+    SfmRun, run_sfm, write_outputs,
+};
 use geostride::sfm::matching::MatchSettings;
 use geostride::sfm::reconstruct::SfmSettings;
+use geostride::survey::Role;
+use geostride::survey::frame::SiteFrame;
+use geostride::survey::gis::{CameraPoint, write_cameras};
+use nalgebra::Vector3;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -26,7 +35,34 @@ pub struct Args {
     /// Features per image at most
     #[arg(long, default_value = "8192", value_name = "N")]
     max_features: usize,
-    /// Output folder: COLMAP text model, points.ply, report.json, report.md
+    /// Ground control and check points with their pixel picks: a survey file (Emlid CSV,
+    /// OpenDroneMap gcp_list.txt with its picks, Metashape CSV, ...; more picks with --picks).
+    /// The model is placed in the survey's site frame and adjusted with it
+    #[arg(long, value_name = "FILE")]
+    gcps: Option<PathBuf>,
+    #[command(flatten)]
+    read: ReadArgs,
+    /// Camera centres measured in flight (RTK, PPK): a survey-format file whose point names are
+    /// the image names, in the CRS of --gcps; priors of the adjustment (alone they place the
+    /// model too)
+    #[arg(long, value_name = "FILE")]
+    centres: Option<PathBuf>,
+    /// σ of picks that do not state one, pixels
+    #[arg(long, default_value = "1.0", value_parser = super::parse_positive, value_name = "PX")]
+    pick_sigma: f64,
+    /// σ of surveyed points that do not state one (each axis), metres
+    #[arg(long, default_value = "0.02", value_parser = super::parse_positive, value_name = "M")]
+    gcp_sigma: f64,
+    /// σ of camera centres that do not state one: horizontal,vertical metres
+    #[arg(
+        long,
+        default_value = "0.03,0.05",
+        value_delimiter = ',',
+        value_name = "H,V"
+    )]
+    centre_sigma: Vec<f64>,
+    /// Output folder: COLMAP text model, points.ply, cameras.csv (and cameras.gpkg when
+    /// georeferenced), topview.png, report.json, report.md
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
     /// Print the report as JSON
@@ -96,10 +132,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.max_features
         )));
     }
+    if args.centre_sigma.len() != 2
+        || args
+            .centre_sigma
+            .iter()
+            .any(|v| !(*v > 0.0 && v.is_finite()))
+    {
+        return Err(bad_input(anyhow!(
+            "--centre-sigma {:?}: two positive numbers, horizontal,vertical metres",
+            args.centre_sigma
+        )));
+    }
+    if args.gcps.is_none() && !args.read.picks.is_empty() {
+        return Err(bad_input(anyhow!(
+            "--picks needs --gcps: the picks' points and their coordinates come from the GCP file"
+        )));
+    }
+    let (georef, frame) = georef_input(&args)?;
     let inputs: Vec<&Path> = images
         .iter()
         .map(PathBuf::as_path)
         .chain(args.camera.iter().map(Path::new))
+        .chain(args.gcps.iter().map(PathBuf::as_path))
+        .chain(args.centres.iter().map(PathBuf::as_path))
+        .chain(args.read.picks.iter().map(PathBuf::as_path))
         .collect();
     create_output_dir(&args.out, inputs)?;
     let job = SfmJob {
@@ -115,6 +171,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             refine_intrinsics: args.refine_intrinsics,
             ..SfmSettings::default()
         },
+        georef,
     };
     let features = progress_bar(
         args.quiet || args.json,
@@ -135,8 +192,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     features.finish_and_clear();
     matching.finish_and_clear();
-    let written =
-        write_outputs(&args.out, &run).map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
+    let crs = match &frame {
+        Some(f) => Some(crs_positions(&run, f)?),
+        None => None,
+    };
+    let mut written = write_outputs(&args.out, &run, crs.as_ref())
+        .map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
+    if let (Some(f), Some(c)) = (&frame, &crs) {
+        write_gpkg(&args.out.join("cameras.gpkg"), &run, f, c)?;
+        written.push("cameras.gpkg".into());
+    }
+    geostride::sfm::topview::write_topview(&args.out.join("topview.png"), &run)
+        .map_err(|e| anyhow!("{}: {e}", args.out.join("topview.png").display()))?;
+    written.push("topview.png".into());
     let r = &run.report;
     if args.json {
         println!("{}", serde_json::to_string_pretty(r)?);
@@ -158,6 +226,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             g.images, g.origin[0], g.origin[1], g.rms_horizontal_m, g.rms_vertical_m
         );
     }
+    if let Some(g) = &r.georef {
+        let rms = |x: &Option<geostride::sfm::georef::Rms>| match x {
+            Some(x) => format!(
+                "{:.3} m horizontally, {:.3} m vertically ({} points)",
+                x.horizontal_m, x.vertical_m, x.points
+            ),
+            None => "none".into(),
+        };
+        println!(
+            "Georeferenced in {} (placed by the {}): control {}; check {}{}",
+            r.site_frame.as_deref().unwrap_or("the site frame"),
+            g.placed_by,
+            rms(&g.control_rms),
+            rms(&g.check_rms),
+            g.check_rms_px
+                .map(|p| format!(", check picks {p:.2} px"))
+                .unwrap_or_default()
+        );
+        if let Some(c) = &g.centres_rms {
+            println!(
+                "Camera centres {:.3} m horizontally, {:.3} m vertically from their measurements ({} images)",
+                c.horizontal_m, c.vertical_m, c.points
+            );
+        }
+        for (name, why) in &g.left_out {
+            println!("  left out: {name}: {why}");
+        }
+    }
+    if !r.unmatched_names.is_empty() {
+        println!(
+            "Note: picks or centres name images not given here (ignored): {}",
+            r.unmatched_names.join(", ")
+        );
+    }
     for i in r.per_image.iter().filter(|i| !i.registered) {
         println!(
             "  not registered: {}: {}",
@@ -173,4 +275,165 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("Written: {}", args.out.join(f).display());
     }
     Ok(())
+}
+
+/// The surveyed points, picks and camera centres in the site frame, and the frame.
+fn georef_input(args: &Args) -> anyhow::Result<(Option<GeorefInput>, Option<SiteFrame>)> {
+    let (points, frame, source) = match &args.gcps {
+        Some(file) => {
+            let framed = read_framed(file, &args.read, None)?;
+            let mut points = Vec::new();
+            for (p, local) in framed.survey.points.iter().zip(&framed.local) {
+                let role = match p.role {
+                    Role::Control => PointRole::Control,
+                    Role::Check => PointRole::Check,
+                    Role::Disabled => continue,
+                };
+                if !local.z.is_finite() {
+                    return Err(bad_input(anyhow!(
+                        "{}:{}: '{}' has no height; georeferencing needs 3D points",
+                        file.display(),
+                        p.line,
+                        p.name
+                    )));
+                }
+                points.push(NamedGroundPoint {
+                    name: p.name.clone(),
+                    role,
+                    position: *local,
+                    sigma_m: p.sigma_m.unwrap_or(Vector3::repeat(args.gcp_sigma)),
+                    picks: p
+                        .observations
+                        .iter()
+                        .map(|o| NamedPick {
+                            image: o.image.clone(),
+                            uv: o.uv,
+                            sigma_px: o.sigma_px.unwrap_or(args.pick_sigma),
+                            file: o.file.clone(),
+                            line: o.line,
+                        })
+                        .collect(),
+                });
+            }
+            if points.iter().all(|p| p.picks.is_empty()) {
+                return Err(bad_input(anyhow!(
+                    "{}: no pixel picks: add them with --picks FILE (CSV 'name,image,u,v[,sigma]') or use a GCP file with picks (ODM gcp_list.txt)",
+                    file.display()
+                )));
+            }
+            (points, Some(framed.frame), Some(framed.survey))
+        }
+        None => (Vec::new(), None, None),
+    };
+    let mut centres = Vec::new();
+    let frame = match &args.centres {
+        None => frame,
+        Some(file) => {
+            let survey = read_other(file, &args.read)?;
+            if let Some(g) = &source
+                && (g.crs != survey.crs || g.height != survey.height)
+            {
+                return Err(bad_input(anyhow!(
+                    "{}: its coordinates are in {} ({} heights), the GCPs' in {} ({} heights): give both in one CRS (geostride survey convert)",
+                    file.display(),
+                    survey.crs.as_deref().unwrap_or("a local frame"),
+                    survey.height,
+                    g.crs.as_deref().unwrap_or("a local frame"),
+                    g.height
+                )));
+            }
+            let frame = match frame {
+                Some(f) => f,
+                None => SiteFrame::new(&survey, &args.read.origin).map_err(bad_input)?,
+            };
+            let [h, v] = [args.centre_sigma[0], args.centre_sigma[1]];
+            for p in &survey.points {
+                let local = frame
+                    .local_from_source(&p.position)
+                    .map_err(|e| bad_input(anyhow!("{}:{}: {e}", file.display(), p.line)))?;
+                if !local.z.is_finite() {
+                    return Err(bad_input(anyhow!(
+                        "{}:{}: the centre of '{}' has no height",
+                        file.display(),
+                        p.line,
+                        p.name
+                    )));
+                }
+                centres.push(NamedCentre {
+                    image: p.name.clone(),
+                    position: local,
+                    sigma_m: p.sigma_m.unwrap_or(Vector3::new(h, h, v)),
+                });
+            }
+            Some(frame)
+        }
+    };
+    let Some(frame) = frame else {
+        return Ok((None, None));
+    };
+    let description = match &frame.crs {
+        Some(c) => format!(
+            "east-north-up metres of {} ({} heights), {}",
+            c.name, frame.height, frame.origin_note
+        ),
+        None => format!("the survey's own local frame, {}", frame.origin_note),
+    };
+    Ok((
+        Some(GeorefInput {
+            points,
+            centres,
+            settings: GeorefSettings::default(),
+            frame: description,
+        }),
+        Some(frame),
+    ))
+}
+
+/// Each registered camera's centre in the survey's CRS.
+fn crs_positions(run: &SfmRun, frame: &SiteFrame) -> anyhow::Result<CrsPositions> {
+    let positions = run
+        .reconstruction
+        .poses
+        .iter()
+        .map(|p| match p {
+            Some(p) => frame
+                .source_from_local(&p.centre())
+                .map(|x| Some([x.x, x.y, x.z]))
+                .map_err(|e| anyhow!("camera centre to the survey's CRS: {e}")),
+            None => Ok(None),
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(CrsPositions { positions })
+}
+
+/// `cameras.gpkg`: the registered cameras in the survey's CRS.
+fn write_gpkg(
+    path: &Path,
+    run: &SfmRun,
+    frame: &SiteFrame,
+    crs: &CrsPositions,
+) -> anyhow::Result<()> {
+    let cams: Vec<CameraPoint> = run
+        .names
+        .iter()
+        .enumerate()
+        .filter_map(|(i, name)| {
+            let pose = run.reconstruction.poses[i]?;
+            let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
+            let c = pose.centre();
+            Some(CameraPoint {
+                image: name,
+                position: crs.positions[i]?,
+                quaternion: [q.w, q.i, q.j, q.k],
+                local: [c.x, c.y, c.z],
+            })
+        })
+        .collect();
+    let wkt = frame
+        .crs
+        .as_ref()
+        .map(|c| c.wkt.clone())
+        .unwrap_or_default();
+    write_cameras(path, &wkt, &frame.height.to_string(), &cams)
+        .map_err(|e| anyhow!("{}: {e}", path.display()))
 }

@@ -130,7 +130,7 @@ pub struct ReadArgs {
     /// Origin of the local east-north-up frame: 'centroid' (of the control points), 'point:NAME'
     /// or 'LAT,LON,H'
     #[arg(long, default_value = "centroid", value_name = "ORIGIN")]
-    origin: Origin,
+    pub(crate) origin: Origin,
 }
 
 /// How to read the survey and what to do with it; shared by `inspect` and `convert`.
@@ -193,19 +193,7 @@ pub(crate) fn read_framed(
     petrack_image: Option<String>,
 ) -> anyhow::Result<Framed> {
     let opts = LoadOptions {
-        read: ReadOptions {
-            format: args.format.map(SurveyFormat::from),
-            crs: args.crs.clone(),
-            height: args.height.map(|h| match h {
-                HeightArg::Orthometric => HeightChoice::Orthometric,
-                HeightArg::Ellipsoidal => HeightChoice::Ellipsoidal,
-            }),
-            fix_only: args.fix_only,
-            columns: args.columns.clone(),
-            delimiter: args.delimiter,
-            image_size: args.image_size,
-            image: petrack_image,
-        },
+        read: read_options(args, petrack_image),
         picks: args.picks.clone(),
         check_prefix: Some(args.check_prefix.clone()),
         check: args.check.clone(),
@@ -213,6 +201,32 @@ pub(crate) fn read_framed(
         origin: Some(args.origin.clone()),
     };
     load_framed(file, &opts).map_err(bad_input)
+}
+
+/// How `args` say a survey file is to be read.
+pub(crate) fn read_options(args: &ReadArgs, petrack_image: Option<String>) -> ReadOptions {
+    ReadOptions {
+        format: args.format.map(SurveyFormat::from),
+        crs: args.crs.clone(),
+        height: args.height.map(|h| match h {
+            HeightArg::Orthometric => HeightChoice::Orthometric,
+            HeightArg::Ellipsoidal => HeightChoice::Ellipsoidal,
+        }),
+        fix_only: args.fix_only,
+        columns: args.columns.clone(),
+        delimiter: args.delimiter,
+        image_size: args.image_size,
+        image: petrack_image,
+    }
+}
+
+/// Reads another survey-like file (camera centres) with the CRS and height choices of `args`,
+/// its format detected from its content.
+pub(crate) fn read_other(file: &Path, args: &ReadArgs) -> anyhow::Result<Survey> {
+    let mut o = read_options(args, None);
+    o.format = None;
+    o.columns = None;
+    read(file, &o).map_err(bad_input)
 }
 
 /// A survey read, framed and (optionally) fitted.

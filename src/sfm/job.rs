@@ -10,13 +10,16 @@ use serde::Serialize;
 
 use super::colmap::{cameras_txt, images_txt, ply, points3d_txt};
 use super::exif::{GpsFix, PhotoMeta, focal_px_from_exif, read_meta};
+use super::georef::{
+    CentreMeasurement, GeorefError, GeorefReport, GeorefSettings, GroundPoint, Pick, PointRole,
+    georeference,
+};
 use super::matching::{MatchSettings, match_features};
 use super::reconstruct::{Reconstruction, SfmError, SfmSettings, reconstruct};
 use super::sift::read_features;
 use super::tracks::PairMatches;
 use super::{FeatureSettings, Features};
 use crate::camera::Camera;
-use crate::geom::Rigid3;
 use crate::geom::geodesy::{Ellipsoid, Geodetic, LocalTangentFrame};
 use crate::geom::similarity::{ScaleMode, fit_weighted};
 use crate::imageio::ImageError;
@@ -36,6 +39,48 @@ pub struct SfmJob {
     pub features: FeatureSettings,
     pub matching: MatchSettings,
     pub sfm: SfmSettings,
+    /// Surveyed points with their picks and measured camera centres, in a site frame: the
+    /// model is placed and adjusted in that frame (the EXIF GPS then only chooses pairs).
+    pub georef: Option<GeorefInput>,
+}
+
+/// A pixel pick of a surveyed point, by image name (its file name, or the file name without
+/// its extension), with where it was read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedPick {
+    pub image: String,
+    pub uv: Vector2<f64>,
+    pub sigma_px: f64,
+    pub file: PathBuf,
+    pub line: usize,
+}
+
+/// A surveyed point in the site frame and its picks by image name.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedGroundPoint {
+    pub name: String,
+    pub role: PointRole,
+    pub position: Vector3<f64>,
+    pub sigma_m: Vector3<f64>,
+    pub picks: Vec<NamedPick>,
+}
+
+/// A measured camera centre in the site frame, by image name.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedCentre {
+    pub image: String,
+    pub position: Vector3<f64>,
+    pub sigma_m: Vector3<f64>,
+}
+
+/// What places the model in a site frame.
+#[derive(Clone, Debug, Default)]
+pub struct GeorefInput {
+    pub points: Vec<NamedGroundPoint>,
+    pub centres: Vec<NamedCentre>,
+    pub settings: GeorefSettings,
+    /// The site frame, in words, for the report (the CRS and origin).
+    pub frame: String,
 }
 
 /// Why a job could not run.
@@ -77,6 +122,28 @@ pub enum SfmJobError {
     Sfm(#[from] SfmError),
     #[error(transparent)]
     Meta(#[from] crate::io::FileError),
+    #[error("{}:{line}: the pick of '{point}' at ({u:.1}, {v:.1}) lies outside the {width}x{height} image '{image}': check the image name and the pixel origin", file.display())]
+    PickOutside {
+        file: PathBuf,
+        line: usize,
+        point: String,
+        image: String,
+        u: f64,
+        v: f64,
+        width: u32,
+        height: u32,
+    },
+    #[error(
+        "none of the {picks} GCP picks names one of the {images} images given (the picks name {named}; the images are {given}): the GCPs lie outside every image, or the picks are for other images"
+    )]
+    NoPicksInImages {
+        picks: usize,
+        images: usize,
+        named: String,
+        given: String,
+    },
+    #[error(transparent)]
+    Georef(#[from] GeorefError),
 }
 
 impl SfmJobError {
@@ -86,6 +153,7 @@ impl SfmJobError {
             SfmJobError::Image(ImageError::File { .. }) => true,
             SfmJobError::Image(_) => false,
             SfmJobError::Sfm(SfmError::Adjustment(_)) => false,
+            SfmJobError::Georef(GeorefError::Adjustment(_)) => false,
             _ => true,
         }
     }
@@ -137,6 +205,14 @@ pub struct SfmReport {
     /// With GPS: the model scaled and placed on the GPS positions (a local east-north-up frame
     /// at their centroid, metres), and the camera centres' distances from their GPS positions.
     pub gps: Option<GpsPlacement>,
+    /// Placement in a site frame by surveyed points and camera centres, when given.
+    pub georef: Option<GeorefReport>,
+    /// The frame of the model's coordinates: `site` (the survey's, `site_frame` says which),
+    /// `enu` (east-north-up metres at the GPS centroid) or `model` (arbitrary).
+    pub frame: String,
+    pub site_frame: Option<String>,
+    /// Picks and centres naming images that are not among those given.
+    pub unmatched_names: Vec<String>,
     pub initial_pair: (String, String),
     pub per_image: Vec<ImageReport>,
     pub seconds_features: f64,
@@ -202,6 +278,13 @@ pub fn run_sfm(
     }
     let seconds_features = t.elapsed().as_secs_f64();
     let (width, height) = (found[0].width, found[0].height);
+    // The survey's picks checked before the long work.
+    let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
+    let mut unmatched_names = Vec::new();
+    let indexed = match &job.georef {
+        Some(g) => Some(index_georef(g, &names, width, height, &mut unmatched_names)?),
+        None => None,
+    };
     let mut sfm_settings = job.sfm.clone();
     let (camera, camera_source) = match &job.camera {
         Some(c) => (given_camera(c, width, height)?, "given"),
@@ -255,9 +338,23 @@ pub fn run_sfm(
         .collect();
     let t = Instant::now();
     let mut r = reconstruct(&camera, &keypoints, &pairs, &sfm_settings)?;
-    let gps_placement = gps.as_ref().and_then(|g| place_on_gps(&mut r, g));
+    let (gps_placement, georef) = match (&job.georef, indexed) {
+        (Some(g), Some((points, centres))) => {
+            let mut settings = g.settings.clone();
+            settings.refine_intrinsics |= sfm_settings.refine_intrinsics;
+            let report = georeference(&mut r, &keypoints, &points, &centres, &settings)?;
+            (None, Some(report))
+        }
+        _ => (gps.as_ref().and_then(|g| place_on_gps(&mut r, g)), None),
+    };
+    let frame = if georef.is_some() {
+        "site"
+    } else if gps_placement.is_some() {
+        "enu"
+    } else {
+        "model"
+    };
     let seconds_reconstruction = t.elapsed().as_secs_f64();
-    let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
     let mut seen = vec![0usize; n];
     for p in &r.points {
         for &(i, _) in &p.observations {
@@ -292,6 +389,10 @@ pub fn run_sfm(
         pair_selection: pair_selection.to_string(),
         camera_source: camera_source.to_string(),
         gps: gps_placement,
+        georef,
+        frame: frame.to_string(),
+        site_frame: job.georef.as_ref().map(|g| g.frame.clone()),
+        unmatched_names,
         initial_pair: (
             names[r.initial_pair.0].clone(),
             names[r.initial_pair.1].clone(),
@@ -309,6 +410,122 @@ pub fn run_sfm(
         height,
         report,
     })
+}
+
+/// The image a pick or centre names: its file name, or its file name without the extension
+/// (case aside).
+fn image_index(names: &[String], wanted: &str) -> Option<usize> {
+    names.iter().position(|n| n == wanted).or_else(|| {
+        let stem = |s: &str| {
+            Path::new(s)
+                .file_stem()
+                .map(|x| x.to_string_lossy().to_lowercase())
+                .unwrap_or_default()
+        };
+        let w = stem(wanted);
+        names.iter().position(|n| stem(n) == w)
+    })
+}
+
+/// The georeferencing input with image indices; picks outside their image are an error, names
+/// of images not given are collected in `unmatched`.
+fn index_georef(
+    g: &GeorefInput,
+    names: &[String],
+    width: u32,
+    height: u32,
+    unmatched: &mut Vec<String>,
+) -> Result<(Vec<GroundPoint>, Vec<CentreMeasurement>), SfmJobError> {
+    let mut note = |n: &str| {
+        if !unmatched.iter().any(|u| u == n) {
+            unmatched.push(n.to_string());
+        }
+    };
+    let (w, h) = (f64::from(width), f64::from(height));
+    let mut points = Vec::new();
+    let mut total_picks = 0;
+    let mut matched_picks = 0;
+    for p in &g.points {
+        let mut picks = Vec::new();
+        for k in &p.picks {
+            total_picks += 1;
+            let Some(image) = image_index(names, &k.image) else {
+                note(&k.image);
+                continue;
+            };
+            if !(k.uv.x >= -0.5 && k.uv.x <= w - 0.5 && k.uv.y >= -0.5 && k.uv.y <= h - 0.5) {
+                return Err(SfmJobError::PickOutside {
+                    file: k.file.clone(),
+                    line: k.line,
+                    point: p.name.clone(),
+                    image: k.image.clone(),
+                    u: k.uv.x,
+                    v: k.uv.y,
+                    width,
+                    height,
+                });
+            }
+            matched_picks += 1;
+            picks.push(Pick {
+                image,
+                uv: k.uv,
+                sigma_px: k.sigma_px,
+            });
+        }
+        points.push(GroundPoint {
+            name: p.name.clone(),
+            role: p.role,
+            position: p.position,
+            sigma_m: p.sigma_m,
+            picks,
+        });
+    }
+    let mut centres = Vec::new();
+    for c in &g.centres {
+        match image_index(names, &c.image) {
+            Some(image) => centres.push(CentreMeasurement {
+                image,
+                position: c.position,
+                sigma_m: c.sigma_m,
+            }),
+            None => note(&c.image),
+        }
+    }
+    let placeable = points
+        .iter()
+        .filter(|p| {
+            p.role == PointRole::Control && {
+                let mut seen: Vec<usize> = p.picks.iter().map(|k| k.image).collect();
+                seen.sort_unstable();
+                seen.dedup();
+                seen.len() >= 2
+            }
+        })
+        .count();
+    if matched_picks == 0 && total_picks > 0 && centres.len() < 3 {
+        let list = |v: &[String]| {
+            let shown: Vec<&str> = v.iter().take(5).map(String::as_str).collect();
+            format!(
+                "{}{}",
+                shown.join(", "),
+                if v.len() > 5 { ", ..." } else { "" }
+            )
+        };
+        return Err(SfmJobError::NoPicksInImages {
+            picks: total_picks,
+            images: names.len(),
+            named: list(unmatched),
+            given: list(names),
+        });
+    }
+    if placeable < 3 && centres.len() < 3 {
+        return Err(GeorefError::NotEnough {
+            control: placeable,
+            centres: format!(" and {} image(s) have a measured centre", centres.len()),
+        }
+        .into());
+    }
+    Ok((points, centres))
 }
 
 /// The given camera at the images' size.
@@ -373,16 +590,7 @@ fn place_on_gps(r: &mut Reconstruction, gps: &[GpsFix]) -> Option<GpsPlacement> 
         .collect();
     let dst: Vec<Vector3<f64>> = registered.iter().map(|&i| enu[i]).collect();
     let sim = fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).ok()?;
-    let rs = sim.rotation.to_rotation_matrix();
-    for pose in r.poses.iter_mut().flatten() {
-        // p' = s·p_cam = R_c·R_sᵀ·(X' − t) + s·t_c.
-        let rotation = pose.rotation * rs.inverse();
-        let translation = sim.scale * pose.translation - rotation * sim.translation;
-        *pose = Rigid3::new(rotation, translation);
-    }
-    for p in &mut r.points {
-        p.xyz = sim.apply(&p.xyz);
-    }
+    super::georef::transform(r, &sim);
     let (mut h2, mut v2) = (0.0, 0.0);
     for (&i, d) in registered.iter().zip(&dst) {
         let e = r.poses[i].expect("registered").centre() - d;
@@ -441,45 +649,139 @@ pub fn report_md(r: &SfmReport) -> String {
             i.reason.as_deref().unwrap_or("")
         ));
     }
+    if let Some(g) = &r.gps {
+        s.push_str(&format!(
+            "\n## Placed on the EXIF GPS\n\n\
+             East-north-up metres at {:.7}, {:.7}, {:.1} m; {} images; cameras {:.2} m RMS \
+             horizontally and {:.2} m vertically from their GPS (consumer GPS: metres).\n",
+            g.origin[0], g.origin[1], g.origin[2], g.images, g.rms_horizontal_m, g.rms_vertical_m
+        ));
+    }
+    if let Some(g) = &r.georef {
+        s.push_str(&georef_md(g, r.site_frame.as_deref().unwrap_or("")));
+    }
+    if !r.unmatched_names.is_empty() {
+        s.push_str(&format!(
+            "\nPicks or centres name images not given here (ignored): {}\n",
+            r.unmatched_names.join(", ")
+        ));
+    }
+    s
+}
+
+/// The georeferencing section of `report.md`.
+fn georef_md(g: &GeorefReport, frame: &str) -> String {
+    let rms = |r: &Option<super::georef::Rms>| match r {
+        Some(r) => format!(
+            "{:.3} m horizontally, {:.3} m vertically ({} points)",
+            r.horizontal_m, r.vertical_m, r.points
+        ),
+        None => "none".into(),
+    };
+    let px = |p: Option<f64>| p.map_or("-".into(), |p| format!("{p:.2} px"));
+    let mut s = format!(
+        "\n## Georeferencing\n\n\
+         - frame: {frame}\n\
+         - placed by the {}, then adjusted with the control points' and centres' σ\n\
+         - control points: {}, picks {}\n\
+         - check points: {}, picks {}\n\
+         - camera centres against their measurements: {}\n\n\
+         | point | role | images | east m | north m | up m | picks px | σ e/n/u m |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        g.placed_by,
+        rms(&g.control_rms),
+        px(g.control_rms_px),
+        rms(&g.check_rms),
+        px(g.check_rms_px),
+        rms(&g.centres_rms),
+    );
+    for p in &g.points {
+        let (e, n, u) = match p.residual_m {
+            Some(r) => (
+                format!("{:.3}", r[0]),
+                format!("{:.3}", r[1]),
+                format!("{:.3}", r[2]),
+            ),
+            None => ("-".into(), "-".into(), "-".into()),
+        };
+        s.push_str(&format!(
+            "| {} | {} | {} | {e} | {n} | {u} | {} | {:.3}/{:.3}/{:.3} |\n",
+            p.name,
+            match p.role {
+                PointRole::Control => "control",
+                PointRole::Check => "check",
+            },
+            p.images,
+            p.rms_px.map_or("-".into(), |x| format!("{x:.2}")),
+            p.sigma_m[0],
+            p.sigma_m[1],
+            p.sigma_m[2]
+        ));
+    }
+    for (name, why) in &g.left_out {
+        s.push_str(&format!("\nLeft out: {name}: {why}\n"));
+    }
     s
 }
 
 /// `cameras.csv`: each image, whether registered, its camera centre and its `cam_from_world`
 /// rotation as a unit quaternion, in the model's frame: east-north-up metres at the GPS centroid
 /// when placed on the GPS (`frame` says which), else the arbitrary frame of the reconstruction.
-pub fn cameras_csv(run: &SfmRun) -> String {
-    let frame = if run.report.gps.is_some() {
-        "enu"
-    } else {
-        "model"
-    };
-    let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz\n");
+pub fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
+    let frame = &run.report.frame;
+    let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz");
+    if crs.is_some() {
+        s.push_str(",crs_x,crs_y,crs_h");
+    }
+    s.push('\n');
     for (i, name) in run.names.iter().enumerate() {
         match run.reconstruction.poses[i] {
             Some(pose) => {
                 let c = pose.centre();
                 let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
                 s.push_str(&format!(
-                    "{name},yes,{frame},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9}\n",
+                    "{name},yes,{frame},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9}",
                     c.x, c.y, c.z, q.w, q.i, q.j, q.k
                 ));
+                if let Some(p) = crs.and_then(|c| c.positions[i]) {
+                    s.push_str(&format!(",{:.4},{:.4},{:.4}", p[0], p[1], p[2]));
+                } else if crs.is_some() {
+                    s.push_str(",,,");
+                }
             }
-            None => s.push_str(&format!("{name},no,{frame},,,,,,,\n")),
+            None => {
+                s.push_str(&format!("{name},no,{frame},,,,,,,"));
+                if crs.is_some() {
+                    s.push_str(",,,");
+                }
+            }
         }
+        s.push('\n');
     }
     s
 }
 
+/// The camera centres in the survey's CRS (easting or longitude, northing or latitude, height),
+/// per image, for `cameras.csv` and the GeoPackage.
+#[derive(Clone, Debug)]
+pub struct CrsPositions {
+    pub positions: Vec<Option<[f64; 3]>>,
+}
+
 /// Writes the run's files into `out` (which exists): the COLMAP text model, `points.ply`,
 /// `cameras.csv`, `report.json`, `report.md`. Returns their names.
-pub fn write_outputs(out: &Path, run: &SfmRun) -> std::io::Result<Vec<String>> {
+pub fn write_outputs(
+    out: &Path,
+    run: &SfmRun,
+    crs: Option<&CrsPositions>,
+) -> std::io::Result<Vec<String>> {
     let r = &run.reconstruction;
     let files = [
         ("cameras.txt", cameras_txt(&r.camera, run.width, run.height)),
         ("images.txt", images_txt(r, &run.names, &run.keypoints)),
         ("points3D.txt", points3d_txt(r, &run.keypoints)),
         ("points.ply", ply(r)),
-        ("cameras.csv", cameras_csv(run)),
+        ("cameras.csv", cameras_csv(run, crs)),
         (
             "report.json",
             serde_json::to_string_pretty(&run.report).map_err(std::io::Error::other)?,

@@ -8,10 +8,12 @@
 
 pub mod colmap;
 pub mod exif;
+pub mod georef;
 pub mod job;
 pub mod matching;
 pub mod reconstruct;
 pub mod sift;
+pub mod topview;
 pub mod tracks;
 
 /// Descriptor length (SIFT).

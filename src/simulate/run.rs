@@ -9,7 +9,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
 use super::board::{BoardRenderer, random_board_poses};
-use super::flight::camera_pose;
+use super::flight::{camera_pose, survey_poses};
 use super::people::{Body, Person, Pose, spawn};
 use super::render::{CameraPose, FrameInput, RenderSettings, Renderer, Shadow};
 use super::scene::{Gait, Motion, Scene, Site};
@@ -161,6 +161,14 @@ pub fn check(scene: &Scene, camera: &Camera) -> Result<(), SimError> {
             size.width, size.height
         )));
     }
+    if let Some(f) = &scene.survey_flight
+        && camera.scaled_to(f.image_size[0], f.image_size[1]).is_none()
+    {
+        return Err(SimError::Input(format!(
+            "survey_flight.image_size {}x{}: not the aspect ratio of the {}x{} camera",
+            f.image_size[0], f.image_size[1], size.width, size.height
+        )));
+    }
     site_frame(&scene.site).map(|_| ())
 }
 
@@ -178,7 +186,8 @@ pub fn simulate(
     let frames = ((duration * scene.fps).round() as usize).max(1);
     check(scene, camera)?;
     let size = camera.image_size.expect("checked");
-    let world = World::new(&scene.ground, &scene.gcp, seed);
+    let mut world = World::new(&scene.ground, &scene.gcp, seed);
+    world.detail = scene.ground_detail;
     let people = spawn(&scene.people, &world, duration, seed);
     let sun = sun_vector(scene.people.sun_azimuth_deg, scene.people.sun_elevation_deg);
     let hat = scene
@@ -439,6 +448,7 @@ pub fn simulate(
         video_name.as_deref(),
     )?);
     files.extend(write_checkerboards(scene, camera, out, seed)?);
+    files.extend(write_survey_flight(scene, &world, camera, out, seed, &sun)?);
 
     let meta = serde_json::json!({
         "name": scene.name,
@@ -601,5 +611,147 @@ fn write_checkerboards(
         crate::imageio::write_gray(&path, &img).map_err(|e| SimError::Output(e.to_string()))?;
         files.push(path);
     }
+    Ok(files)
+}
+
+/// The survey flight's photos (JPEG, no people: taken before the event), their camera centres
+/// as recorded (an Emlid CSV in the site CRS with RTK-like noise, named after the photos), the
+/// GCP picks in every photo that sees them (pixel noise as for the video's picks) and the exact
+/// cameras, under `survey/`.
+fn write_survey_flight(
+    scene: &Scene,
+    world: &World,
+    camera: &Camera,
+    out: &Path,
+    seed: u64,
+    sun: &Vector3<f64>,
+) -> Result<Vec<PathBuf>, SimError> {
+    let Some(spec) = &scene.survey_flight else {
+        return Ok(Vec::new());
+    };
+    let [w, h] = spec.image_size;
+    let photo_camera = camera.scaled_to(w, h).ok_or_else(|| {
+        SimError::Input(format!(
+            "survey_flight.image_size {w}x{h}: not the camera's aspect ratio"
+        ))
+    })?;
+    let dir = out.join("survey");
+    let photos = dir.join("photos");
+    std::fs::create_dir_all(&photos)
+        .map_err(|e| SimError::Output(format!("{}: {e}", photos.display())))?;
+    let poses = survey_poses(spec, photo_camera.fx, photo_camera.fy, w, h, seed);
+    // Textures over what the nadir photos see; the obliques' far field is drawn procedurally.
+    let nadir = &poses[..poses.len() - spec.obliques as usize];
+    let (lo, hi) = view_box(&photo_camera, world, nadir);
+    let gsd = spec.altitude_m / photo_camera.fx.max(photo_camera.fy);
+    let area = (hi.x - lo.x) * (hi.y - lo.y);
+    let texel = (0.7 * gsd).max((area / 60e6).sqrt()).clamp(0.004, 0.05);
+    let settings = RenderSettings {
+        texel_m: texel,
+        sun: *sun,
+        image_noise: scene.output.image_noise,
+        seed: seed ^ 0x5EED,
+    };
+    let renderer = Renderer::new(world, photo_camera.clone(), (lo, hi), &settings);
+    let (crs, tangent) = site_frame(&scene.site)?;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5A7E_F117);
+    let [sh, sv] = spec.rtk_noise_m;
+    let (nh, nv) = (
+        Normal::new(0.0, sh.max(1e-12)).expect("sigma"),
+        Normal::new(0.0, sv.max(1e-12)).expect("sigma"),
+    );
+    let pick_noise = Normal::new(0.0, scene.output.pick_noise_px.max(1e-12)).expect("sigma");
+    let unit = if crs.horizontal == Horizontal::Projected {
+        crs.unit_m
+    } else {
+        1.0
+    };
+    let mut centres = Vec::new();
+    let mut picks = String::from("name,image,u,v,sigma\n");
+    let mut truth = String::from("image,e_m,n_m,u_m,x,y,ellipsoidal_height_m,qw,qx,qy,qz\n");
+    for (i, pose) in poses.iter().enumerate() {
+        let name = format!("IMG_{:04}.jpg", i + 1);
+        let rgb = renderer.render(&FrameInput {
+            index: i,
+            pose,
+            bodies: &[],
+            shadows: &[],
+            light: 1.0,
+        });
+        crate::imageio::write_rgb(&photos.join(&name), w, h, &rgb)
+            .map_err(|e| SimError::Output(e.to_string()))?;
+        let g = tangent.geodetic_from_enu(&pose.centre);
+        let (x, y) = crs
+            .from_lon_lat(g.lon.to_degrees(), g.lat.to_degrees())
+            .map_err(|e| SimError::Input(e.to_string()))?;
+        let q = nalgebra::UnitQuaternion::from_matrix(&pose.world_from_cam.transpose());
+        let _ = writeln!(
+            truth,
+            "{name},{:.6},{:.6},{:.6},{x:.6},{y:.6},{:.6},{:.12},{:.12},{:.12},{:.12}",
+            pose.centre.x, pose.centre.y, pose.centre.z, g.h, q.w, q.i, q.j, q.k
+        );
+        let mut c = Gcp::new(
+            name.clone(),
+            Vector3::new(
+                x + nh.sample(&mut rng) / unit,
+                y + nh.sample(&mut rng) / unit,
+                g.h + nv.sample(&mut rng),
+            ),
+            i + 2,
+        );
+        c.sigma_m = Some(Vector3::new(sh, sh, sv));
+        c.status = Some(SolutionStatus::Fix);
+        centres.push(c);
+        for (gcp, p) in &world.gcps {
+            let Some(uv) = pose.project(&photo_camera, p) else {
+                continue;
+            };
+            let inside = uv.x >= 10.0
+                && uv.y >= 10.0
+                && uv.x <= f64::from(w) - 11.0
+                && uv.y <= f64::from(h) - 11.0;
+            // Seen, not hidden behind the deck.
+            let dir = (p - pose.centre).normalize();
+            let seen = world
+                .intersect(&pose.centre, &dir)
+                .is_some_and(|(hit, _)| (hit - p).norm() < 0.05);
+            if inside && seen {
+                let _ = writeln!(
+                    picks,
+                    "{gcp},{name},{:.3},{:.3},{}",
+                    uv.x + pick_noise.sample(&mut rng),
+                    uv.y + pick_noise.sample(&mut rng),
+                    scene.output.pick_noise_px
+                );
+            }
+        }
+    }
+    let out_crs = OutCrs {
+        spec: Some(crs.id.clone().unwrap_or_else(|| scene.site.crs.clone())),
+        name: crs.name.clone(),
+        projected: crs.horizontal == Horizontal::Projected,
+        height: HeightKind::Ellipsoidal,
+    };
+    let points: Vec<OutPoint> = centres
+        .iter()
+        .map(|g| OutPoint {
+            gcp: g,
+            position: g.position,
+            lon_lat: crs.to_lon_lat(g.position.x, g.position.y).ok(),
+            local: Vector3::zeros(),
+            residual: None,
+        })
+        .collect();
+    let csv = emlid(&out_crs, &points).map_err(|e| SimError::Output(e.0))?;
+    let paths = [
+        dir.join("centres.csv"),
+        dir.join("picks.csv"),
+        out.join("truth").join("survey_cameras.csv"),
+    ];
+    write_file(&paths[0], &csv)?;
+    write_file(&paths[1], &picks)?;
+    write_file(&paths[2], &truth)?;
+    let mut files = vec![photos];
+    files.extend(paths);
     Ok(files)
 }

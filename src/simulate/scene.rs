@@ -17,6 +17,9 @@ pub const MAX_SIDE_PX: u32 = 8192;
 fn default_fps() -> f64 {
     25.0
 }
+fn default_detail() -> f64 {
+    1.0
+}
 fn default_duration() -> f64 {
     10.0
 }
@@ -41,12 +44,74 @@ pub struct Scene {
     pub site: Site,
     pub camera: CameraSpec,
     pub ground: Ground,
+    /// Contrast of the ground's fine texture: 1 by default; 3 to 4 gives the grain of real grass,
+    /// gravel and asphalt that structure from motion finds features in.
+    #[serde(default = "default_detail")]
+    pub ground_detail: f64,
     #[serde(default)]
     pub gcp: Vec<GcpSpec>,
     #[serde(default)]
     pub people: PeopleSpec,
     #[serde(default)]
     pub output: OutputSpec,
+    /// `[survey_flight]`: photos of the site for structure from motion, before the event.
+    #[serde(default)]
+    pub survey_flight: Option<SurveyFlightSpec>,
+}
+
+/// A photo survey of the site: a nadir grid in flight lines running east, and oblique photos
+/// around it looking at its centre; each photo's centre recorded with RTK-like noise.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SurveyFlightSpec {
+    /// Height above the site origin, metres.
+    #[serde(default = "SurveyFlightSpec::default_altitude")]
+    pub altitude_m: f64,
+    /// The east-north box the nadir grid covers: `[[min_e, min_n], [max_e, max_n]]`.
+    pub area: [[f64; 2]; 2],
+    /// Overlap of neighbouring photos along and across the flight lines.
+    #[serde(default = "SurveyFlightSpec::default_forward")]
+    pub forward_overlap: f64,
+    #[serde(default = "SurveyFlightSpec::default_side")]
+    pub side_overlap: f64,
+    /// Oblique photos, evenly around the area, each tilted `oblique_deg` from nadir towards
+    /// its centre.
+    #[serde(default = "SurveyFlightSpec::default_obliques")]
+    pub obliques: u32,
+    #[serde(default = "SurveyFlightSpec::default_oblique_deg")]
+    pub oblique_deg: f64,
+    /// Photo size: the scene's camera scaled (same aspect ratio), pixels.
+    pub image_size: [u32; 2],
+    /// Noise of the recorded camera centres: horizontal and vertical σ, metres.
+    #[serde(default = "SurveyFlightSpec::default_rtk")]
+    pub rtk_noise_m: [f64; 2],
+    /// Attitude scatter of the nadir photos (σ about each axis), degrees.
+    #[serde(default = "SurveyFlightSpec::default_jitter")]
+    pub jitter_deg: f64,
+}
+
+impl SurveyFlightSpec {
+    fn default_altitude() -> f64 {
+        30.0
+    }
+    fn default_forward() -> f64 {
+        0.75
+    }
+    fn default_side() -> f64 {
+        0.65
+    }
+    fn default_obliques() -> u32 {
+        4
+    }
+    fn default_oblique_deg() -> f64 {
+        30.0
+    }
+    fn default_rtk() -> [f64; 2] {
+        [0.02, 0.03]
+    }
+    fn default_jitter() -> f64 {
+        1.0
+    }
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -405,6 +470,49 @@ impl Scene {
                 "people.sun_elevation_deg",
                 "must be between 1 and 89 degrees",
             );
+        }
+        if !(0.0..=10.0).contains(&scene.ground_detail) {
+            return bad("ground_detail", "must be from 0 to 10");
+        }
+        if let Some(f) = &scene.survey_flight {
+            if !(5.0..=500.0).contains(&f.altitude_m) {
+                return bad("survey_flight.altitude_m", "must be from 5 to 500 m");
+            }
+            if !(f.area[0][0] < f.area[1][0] && f.area[0][1] < f.area[1][1]) {
+                return bad(
+                    "survey_flight.area",
+                    "expected [[min_e, min_n], [max_e, max_n]] with min < max",
+                );
+            }
+            if !((0.0..=0.95).contains(&f.forward_overlap)
+                && (0.0..=0.95).contains(&f.side_overlap))
+            {
+                return bad(
+                    "survey_flight.forward_overlap",
+                    "overlaps must be from 0 to 0.95",
+                );
+            }
+            if f.obliques > 64 || !(0.0..=70.0).contains(&f.oblique_deg) {
+                return bad(
+                    "survey_flight.obliques",
+                    "at most 64 oblique photos, tilted 0 to 70 degrees",
+                );
+            }
+            let [w, h] = f.image_size;
+            if !((64..=MAX_SIDE_PX).contains(&w) && (64..=MAX_SIDE_PX).contains(&h)) {
+                return bad(
+                    "survey_flight.image_size",
+                    &format!("expected [width, height] from 64 to {MAX_SIDE_PX} pixels"),
+                );
+            }
+            if !(f.rtk_noise_m.iter().all(|v| (0.0..=10.0).contains(v))
+                && (0.0..=10.0).contains(&f.jitter_deg))
+            {
+                return bad(
+                    "survey_flight.rtk_noise_m",
+                    "expected two σ from 0 to 10 m, and a jitter from 0 to 10 degrees",
+                );
+            }
         }
         let o = &scene.output;
         if o.checkerboards > 100 {

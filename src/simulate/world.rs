@@ -24,6 +24,8 @@ pub struct World {
     pub ground: Ground,
     pub gcps: Vec<(String, Vector3<f64>)>,
     seed: u64,
+    /// Contrast of the fine texture (1 the default).
+    pub detail: f64,
     /// Unit vector along the deck or the track's straights, and its left normal.
     along: Vector2<f64>,
     left: Vector2<f64>,
@@ -57,6 +59,7 @@ impl World {
             ground: ground.clone(),
             gcps: Vec::new(),
             seed,
+            detail: 1.0,
             along,
             left: Vector2::new(-along.y, along.x),
             centre,
@@ -284,10 +287,17 @@ impl World {
             return c;
         }
         let (x, y) = (p.x, p.y);
-        let fine = fbm(self.seed ^ 11, x, y, 0.06, 3) as f32 - 0.5;
+        let d = self.detail as f32;
+        let fine = (fbm(self.seed ^ 11, x, y, 0.06, 3) as f32 - 0.5) * d;
         let coarse = fbm(self.seed ^ 23, x, y, 4.0, 3) as f32 - 0.5;
+        // Beyond the default detail, blotches of 10 to 40 cm too (exactly 0 at detail 1).
+        let mid = if d == 1.0 {
+            0.0
+        } else {
+            0.4 * (d - 1.0) * (fbm(self.seed ^ 37, x, y, 0.3, 2) as f32 - 0.5)
+        };
         let tint = |base: Rgb, f: f32, c: f32| -> Rgb {
-            std::array::from_fn(|k| (base[k] * (1.0 + f + c)).clamp(0.0, 1.0))
+            std::array::from_fn(|k| (base[k] * (1.0 + f + c + mid)).clamp(0.0, 1.0))
         };
         match (&self.ground, layer) {
             (

@@ -103,3 +103,69 @@ pub fn write_points(
         Ok(())
     })
 }
+
+/// A camera for [`write_cameras`]: its centre in the layer's CRS and its attitude.
+pub struct CameraPoint<'a> {
+    pub image: &'a str,
+    /// Easting or longitude, northing or latitude, height.
+    pub position: [f64; 3],
+    /// `cam_from_world` in the site's east-north-up frame, as a unit quaternion.
+    pub quaternion: [f64; 4],
+    /// The site frame's east, north, up, metres.
+    pub local: [f64; 3],
+}
+
+/// Writes camera centres as a point layer `cameras` with `crs_wkt` as its SRS (none when
+/// empty).
+pub fn write_cameras(
+    path: &Path,
+    crs_wkt: &str,
+    height_kind: &str,
+    cameras: &[CameraPoint],
+) -> Result<(), crate::gis::GisError> {
+    let format = GisFormat::GeoPackage;
+    let srs = layer_srs(format, crs_wkt)?;
+    write_dataset(path, format, |ds| {
+        let layer = ds
+            .create_layer(LayerOptions {
+                name: "cameras",
+                srs: srs.as_ref(),
+                ty: OGRwkbGeometryType::wkbPoint25D,
+                options: Some(format.layer_options()),
+            })
+            .map_err(|e| format!("cannot create the layer: {e}"))?;
+        let fields = [
+            ("image", OGRFieldType::OFTString),
+            ("height_m", OGRFieldType::OFTReal),
+            ("height_kind", OGRFieldType::OFTString),
+            ("e_m", OGRFieldType::OFTReal),
+            ("n_m", OGRFieldType::OFTReal),
+            ("u_m", OGRFieldType::OFTReal),
+            ("qw", OGRFieldType::OFTReal),
+            ("qx", OGRFieldType::OFTReal),
+            ("qy", OGRFieldType::OFTReal),
+            ("qz", OGRFieldType::OFTReal),
+        ];
+        layer
+            .create_defn_fields(&fields)
+            .map_err(|e| e.to_string())?;
+        for c in cameras {
+            let mut f = Feature::new(layer.defn()).map_err(|e| e.to_string())?;
+            set_string(&mut f, "image", c.image)?;
+            set_real(&mut f, "height_m", Some(c.position[2]))?;
+            set_string(&mut f, "height_kind", height_kind)?;
+            for (name, v) in ["e_m", "n_m", "u_m"].iter().zip(c.local) {
+                set_real(&mut f, name, Some(v))?;
+            }
+            for (name, v) in ["qw", "qx", "qy", "qz"].iter().zip(c.quaternion) {
+                set_real(&mut f, name, Some(v))?;
+            }
+            let mut g =
+                Geometry::empty(OGRwkbGeometryType::wkbPoint25D).map_err(|e| e.to_string())?;
+            g.add_point((c.position[0], c.position[1], c.position[2]));
+            f.set_geometry(g).map_err(|e| e.to_string())?;
+            f.create(&layer).map_err(|e| e.to_string())?;
+        }
+        Ok(())
+    })
+}

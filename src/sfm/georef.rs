@@ -1,0 +1,745 @@
+//! Georeferencing a reconstruction (pure): control points triangulated from their picks, a
+//! robust similarity onto their surveyed positions (or onto camera centres from RTK), then a
+//! bundle adjustment in which the control points are observed points with their survey σ as
+//! priors and the camera centres, when given, priors with theirs. Check points stay out of every
+//! fit: they are triangulated afterwards from their picks and reported in metres and pixels.
+
+use nalgebra::{Matrix2x3, Matrix3, Vector2, Vector3};
+use serde::Serialize;
+
+use super::reconstruct::{Reconstruction, triangulate};
+use crate::camera::{Camera, param};
+use crate::geom::Rigid3;
+use crate::geom::similarity::{ScaleMode, Similarity, fit_weighted};
+use crate::optim::RobustLoss;
+use crate::optim::ba::{BaSettings, CentrePrior, Observation, PointPrior, Priors, Problem, adjust};
+use crate::optim::ba_camera::{BrownConrady, pose_params, rigid_pose};
+
+/// Whether a surveyed point constrains the model or only checks it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PointRole {
+    Control,
+    Check,
+}
+
+/// A pixel pick of a surveyed point in one image of the reconstruction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pick {
+    pub image: usize,
+    pub uv: Vector2<f64>,
+    pub sigma_px: f64,
+}
+
+/// A surveyed point (a GCP or check point) in the site frame, with its picks.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GroundPoint {
+    pub name: String,
+    pub role: PointRole,
+    /// Metres east, north, up in the site frame.
+    pub position: Vector3<f64>,
+    /// σ east, north, up, metres.
+    pub sigma_m: Vector3<f64>,
+    pub picks: Vec<Pick>,
+}
+
+/// A measured camera centre (RTK, a flight log) in the site frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CentreMeasurement {
+    pub image: usize,
+    pub position: Vector3<f64>,
+    pub sigma_m: Vector3<f64>,
+}
+
+#[derive(Clone, Debug)]
+pub struct GeorefSettings {
+    /// A control point further than this from the similarity fitted to the others is left out
+    /// (a wrong name, pick or coordinate), metres.
+    pub outlier_m: f64,
+    /// Refine the focal lengths and `k1`, `k2` in the adjustment.
+    pub refine_intrinsics: bool,
+}
+
+impl Default for GeorefSettings {
+    fn default() -> Self {
+        GeorefSettings {
+            outlier_m: 0.5,
+            refine_intrinsics: false,
+        }
+    }
+}
+
+/// One surveyed point's agreement with the georeferenced model.
+#[derive(Clone, Debug, Serialize)]
+pub struct PointResidual {
+    pub name: String,
+    pub role: PointRole,
+    /// Surveyed position, site frame, metres.
+    pub position_m: [f64; 3],
+    /// Registered images it is picked in.
+    pub images: usize,
+    /// Model minus survey, east, north, up (metres): for a control point its adjusted position,
+    /// for a check point its position triangulated from the picks (two images at least).
+    pub residual_m: Option<[f64; 3]>,
+    /// RMS distance of its picks from the projections of its surveyed position, pixels.
+    pub rms_px: Option<f64>,
+    pub sigma_m: [f64; 3],
+}
+
+/// RMS horizontal and vertical residuals of a set of points, metres.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct Rms {
+    pub points: usize,
+    pub horizontal_m: f64,
+    pub vertical_m: f64,
+}
+
+/// What georeferencing did and how well the survey agrees.
+#[derive(Clone, Debug, Serialize)]
+pub struct GeorefReport {
+    /// What the first similarity was fitted to: `control points` or `camera centres`.
+    pub placed_by: String,
+    /// Points left out, with why.
+    pub left_out: Vec<(String, String)>,
+    pub points: Vec<PointResidual>,
+    pub control_rms: Option<Rms>,
+    pub check_rms: Option<Rms>,
+    pub control_rms_px: Option<f64>,
+    pub check_rms_px: Option<f64>,
+    /// Adjusted camera centres against their measurements.
+    pub centres_rms: Option<Rms>,
+    /// The model's scale change: site metres per model unit.
+    pub scale: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GeorefError {
+    #[error(
+        "cannot place the model: {control} control point(s) are picked in two or more registered images (3 needed){centres}; pick more GCPs or give the camera centres"
+    )]
+    NotEnough { control: usize, centres: String },
+    #[error("the georeferencing adjustment failed: {0}")]
+    Adjustment(String),
+}
+
+/// Normalised image coordinates of a pixel.
+fn normalised(camera: &Camera, uv: &Vector2<f64>) -> Option<Vector2<f64>> {
+    let ray = camera.unproject(uv).ok()?;
+    (ray.z > 1e-9).then(|| Vector2::new(ray.x / ray.z, ray.y / ray.z))
+}
+
+/// A point from its picks in registered images: linear triangulation, then Gauss–Newton on the
+/// normalised reprojection errors. `None` with fewer than two usable picks.
+pub fn triangulate_picks(
+    camera: &Camera,
+    poses: &[Option<Rigid3>],
+    picks: &[Pick],
+) -> Option<Vector3<f64>> {
+    let rays: Vec<(Rigid3, Vector2<f64>)> = picks
+        .iter()
+        .filter_map(|p| Some((poses[p.image]?, normalised(camera, &p.uv)?)))
+        .collect();
+    let mut x = triangulate(&rays, 0.5)?;
+    for _ in 0..10 {
+        let mut h = Matrix3::zeros();
+        let mut g = Vector3::zeros();
+        for (pose, xy) in &rays {
+            let p = pose.apply(&x);
+            let j = Matrix2x3::new(1.0, 0.0, -p.x / p.z, 0.0, 1.0, -p.y / p.z) / p.z
+                * pose.rotation.matrix();
+            let r = Vector2::new(p.x / p.z, p.y / p.z) - xy;
+            h += j.transpose() * j;
+            g += j.transpose() * r;
+        }
+        let step = h.cholesky()?.solve(&g);
+        x -= step;
+        if step.norm() < 1e-12 * x.norm().max(1.0) {
+            break;
+        }
+    }
+    Some(x)
+}
+
+/// Moves a reconstruction by a similarity (points `X' = s R X + t`), poses with it.
+pub fn transform(r: &mut Reconstruction, sim: &Similarity) {
+    let rs = sim.rotation.to_rotation_matrix();
+    for pose in r.poses.iter_mut().flatten() {
+        // x_cam ∝ R_c X + t_c = R_c Rsᵀ (X' − t)/s + t_c.
+        let rotation = pose.rotation * rs.inverse();
+        let translation = sim.scale * pose.translation - rotation * sim.translation;
+        *pose = Rigid3::new(rotation, translation);
+    }
+    for p in &mut r.points {
+        p.xyz = sim.apply(&p.xyz);
+    }
+}
+
+/// The similarity from the model onto the site with the most control points within
+/// `outlier_m` (MSAC over triples), refitted on those; and which points it kept.
+fn robust_similarity(
+    model: &[Vector3<f64>],
+    site: &[Vector3<f64>],
+    outlier_m: f64,
+) -> Option<(Similarity, Vec<bool>)> {
+    let n = model.len();
+    let score = |s: &Similarity| -> f64 {
+        model
+            .iter()
+            .zip(site)
+            .map(|(m, x)| (s.apply(m) - x).norm_squared().min(outlier_m * outlier_m))
+            .sum()
+    };
+    let mut best: Option<(f64, Similarity)> = None;
+    // Every triple while they are few (30 points: 4060), then a fixed stride through them.
+    let total = n * (n - 1) * (n - 2) / 6;
+    let stride = total.div_ceil(5000).max(1);
+    let mut k = 0usize;
+    for a in 0..n {
+        for b in a + 1..n {
+            for c in b + 1..n {
+                k += 1;
+                if !k.is_multiple_of(stride) {
+                    continue;
+                }
+                let src = [model[a], model[b], model[c]];
+                let dst = [site[a], site[b], site[c]];
+                let Ok(s) = fit_weighted(&src, &dst, &[1.0; 3], ScaleMode::Free) else {
+                    continue;
+                };
+                let cost = score(&s);
+                if best.as_ref().is_none_or(|(c, _)| cost < *c) {
+                    best = Some((cost, s));
+                }
+            }
+        }
+    }
+    let (_, mut sim) = best?;
+    let mut keep = vec![false; n];
+    for _ in 0..3 {
+        keep = (0..n)
+            .map(|i| (sim.apply(&model[i]) - site[i]).norm() <= outlier_m)
+            .collect();
+        let (src, dst): (Vec<_>, Vec<_>) = (0..n)
+            .filter(|&i| keep[i])
+            .map(|i| (model[i], site[i]))
+            .unzip();
+        sim = fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).ok()?;
+    }
+    Some((sim, keep))
+}
+
+fn rms_of(residuals: &[[f64; 3]]) -> Option<Rms> {
+    if residuals.is_empty() {
+        return None;
+    }
+    let n = residuals.len() as f64;
+    Some(Rms {
+        points: residuals.len(),
+        horizontal_m: (residuals
+            .iter()
+            .map(|r| r[0] * r[0] + r[1] * r[1])
+            .sum::<f64>()
+            / n)
+            .sqrt(),
+        vertical_m: (residuals.iter().map(|r| r[2] * r[2]).sum::<f64>() / n).sqrt(),
+    })
+}
+
+/// RMS of the picks' distances from the projections of `x`.
+fn pick_rms_px(
+    camera: &Camera,
+    poses: &[Option<Rigid3>],
+    picks: &[Pick],
+    x: &Vector3<f64>,
+) -> Option<f64> {
+    let d: Vec<f64> = picks
+        .iter()
+        .filter_map(|p| {
+            let uv = camera.project(&poses[p.image]?.apply(x)).ok()?;
+            Some((uv - p.uv).norm_squared())
+        })
+        .collect();
+    (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64).sqrt())
+}
+
+/// Places `r` (features `pixels`) in the site frame of `points` and adjusts it with them and
+/// the camera-centre measurements `centres`; `r` is changed only when this succeeds.
+pub fn georeference(
+    r: &mut Reconstruction,
+    pixels: &[Vec<Vector2<f64>>],
+    points: &[GroundPoint],
+    centres: &[CentreMeasurement],
+    s: &GeorefSettings,
+) -> Result<GeorefReport, GeorefError> {
+    let mut left_out = Vec::new();
+    let registered = |i: usize| r.poses.get(i).is_some_and(Option::is_some);
+    // Picks in registered images only.
+    let points: Vec<GroundPoint> = points
+        .iter()
+        .map(|p| GroundPoint {
+            picks: p
+                .picks
+                .iter()
+                .copied()
+                .filter(|k| registered(k.image))
+                .collect(),
+            ..p.clone()
+        })
+        .collect();
+    let centres: Vec<CentreMeasurement> = centres
+        .iter()
+        .copied()
+        .filter(|c| registered(c.image))
+        .collect();
+
+    // 1. The first placement.
+    let mut control_model = Vec::new();
+    let mut control_site = Vec::new();
+    let mut control_index = Vec::new();
+    for (k, p) in points.iter().enumerate() {
+        if p.role != PointRole::Control {
+            continue;
+        }
+        if let Some(x) = triangulate_picks(&r.camera, &r.poses, &p.picks) {
+            control_model.push(x);
+            control_site.push(p.position);
+            control_index.push(k);
+        }
+    }
+    let mut rejected = vec![false; points.len()];
+    let (sim, placed_by) = if control_model.len() >= 3 {
+        let (sim, keep) = robust_similarity(&control_model, &control_site, s.outlier_m)
+            .ok_or_else(|| GeorefError::NotEnough {
+                control: control_model.len(),
+                centres: " (and they are collinear)".into(),
+            })?;
+        for (j, &k) in control_index.iter().enumerate() {
+            if !keep[j] {
+                rejected[k] = true;
+                left_out.push((
+                    points[k].name.clone(),
+                    format!(
+                        "{:.2} m from where the other control points place it: a wrong name, pick or coordinate?",
+                        (sim.apply(&control_model[j]) - control_site[j]).norm()
+                    ),
+                ));
+            }
+        }
+        (sim, "control points")
+    } else if centres.len() >= 3 {
+        let src: Vec<Vector3<f64>> = centres
+            .iter()
+            .map(|c| r.poses[c.image].expect("registered").centre())
+            .collect();
+        let dst: Vec<Vector3<f64>> = centres.iter().map(|c| c.position).collect();
+        let sim =
+            fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).map_err(|_| {
+                GeorefError::NotEnough {
+                    control: control_model.len(),
+                    centres: format!(", and the {} camera centres are collinear", centres.len()),
+                }
+            })?;
+        (sim, "camera centres")
+    } else {
+        return Err(GeorefError::NotEnough {
+            control: control_model.len(),
+            centres: format!(
+                " and {} registered image(s) have a measured centre",
+                centres.len()
+            ),
+        });
+    };
+    let mut model = r.clone();
+    transform(&mut model, &sim);
+
+    // 2. The adjustment: the model's points, then the control points picked in a registered
+    // image (one pick is enough: the survey holds the point), with priors.
+    let images: Vec<usize> = (0..model.poses.len()).filter(|&i| registered(i)).collect();
+    let mut slot = vec![usize::MAX; model.poses.len()];
+    for (k, &i) in images.iter().enumerate() {
+        slot[i] = k;
+    }
+    let mut observations = Vec::new();
+    let mut sigma_px = Vec::new();
+    // The features' σ per coordinate, from their RMS reprojection error (at least 0.1 px).
+    let (mut sum2, mut count) = (0.0, 0usize);
+    for p in &model.points {
+        for &(i, kp) in &p.observations {
+            if let Ok(uv) = model
+                .camera
+                .project(&model.poses[i].expect("registered").apply(&p.xyz))
+            {
+                sum2 += (uv - pixels[i][kp]).norm_squared();
+                count += 1;
+            }
+        }
+    }
+    let feature_sigma = (sum2 / (2 * count.max(1)) as f64).sqrt().max(0.1);
+    for (k, p) in model.points.iter().enumerate() {
+        for &(i, kp) in &p.observations {
+            let xy = pixels[i][kp];
+            observations.push(Observation {
+                camera: slot[i],
+                point: k,
+                xy: [xy.x, xy.y],
+            });
+            sigma_px.push(feature_sigma);
+        }
+    }
+    let mut ba_points: Vec<[f64; 3]> = model.points.iter().map(|p| p.xyz.into()).collect();
+    let mut priors = Priors::default();
+    let mut gcp_slot = vec![None; points.len()];
+    for (k, p) in points.iter().enumerate() {
+        if p.role != PointRole::Control || rejected[k] {
+            continue;
+        }
+        if p.picks.is_empty() {
+            left_out.push((p.name.clone(), "not picked in any registered image".into()));
+            continue;
+        }
+        let at = ba_points.len();
+        gcp_slot[k] = Some(at);
+        ba_points.push(p.position.into());
+        for pick in &p.picks {
+            observations.push(Observation {
+                camera: slot[pick.image],
+                point: at,
+                xy: [pick.uv.x, pick.uv.y],
+            });
+            sigma_px.push(pick.sigma_px);
+        }
+        priors
+            .points
+            .push(PointPrior::new(at, p.position.into(), p.sigma_m.into()));
+    }
+    for c in &centres {
+        priors.centres.push(CentrePrior {
+            camera: slot[c.image],
+            position: c.position.into(),
+            sigma: c.sigma_m.into(),
+        });
+    }
+    let mut problem = Problem::new(
+        images
+            .iter()
+            .map(|&i| pose_params(&model.poses[i].expect("registered")))
+            .collect(),
+        vec![model.camera.params()],
+        vec![0; images.len()],
+        ba_points,
+        observations,
+    );
+    problem.sigma_px = sigma_px;
+    problem.fixed_intrinsics = vec![[true; crate::camera::N_PARAMS]];
+    if s.refine_intrinsics {
+        for k in [param::FX, param::FY, param::K1, param::K2] {
+            problem.fixed_intrinsics[0][k] = false;
+        }
+    }
+    for loss in [RobustLoss::Huber(2.0), RobustLoss::Squared] {
+        let settings = BaSettings {
+            loss,
+            max_iterations: 100,
+            ..BaSettings::default()
+        };
+        adjust(&mut problem, &BrownConrady, &priors, &settings)
+            .map_err(|e| GeorefError::Adjustment(e.to_string()))?;
+    }
+    for (k, &i) in images.iter().enumerate() {
+        model.poses[i] = Some(rigid_pose(&problem.poses[k]));
+    }
+    model.camera.set_params(&problem.intrinsics[0]);
+    for (k, p) in model.points.iter_mut().enumerate() {
+        p.xyz = Vector3::from(problem.points[k]);
+    }
+    let (mut sum, mut n) = (0.0, 0usize);
+    for p in &model.points {
+        for &(i, kp) in &p.observations {
+            if let Ok(uv) = model
+                .camera
+                .project(&model.poses[i].expect("registered").apply(&p.xyz))
+            {
+                sum += (uv - pixels[i][kp]).norm();
+                n += 1;
+            }
+        }
+    }
+    model.mean_reprojection_px = sum / n.max(1) as f64;
+
+    // 3. Residuals.
+    let mut residuals = Vec::new();
+    for (k, p) in points.iter().enumerate() {
+        if rejected[k] {
+            continue;
+        }
+        let estimate = match (p.role, gcp_slot[k]) {
+            (PointRole::Control, Some(at)) => Some(Vector3::from(problem.points[at])),
+            (PointRole::Control, None) => None,
+            (PointRole::Check, _) => triangulate_picks(&model.camera, &model.poses, &p.picks),
+        };
+        if p.role == PointRole::Check && p.picks.is_empty() {
+            left_out.push((p.name.clone(), "not picked in any registered image".into()));
+            continue;
+        }
+        if p.role == PointRole::Control && estimate.is_none() {
+            continue;
+        }
+        residuals.push(PointResidual {
+            name: p.name.clone(),
+            role: p.role,
+            position_m: p.position.into(),
+            images: p.picks.len(),
+            residual_m: estimate.map(|x| (x - p.position).into()),
+            rms_px: pick_rms_px(&model.camera, &model.poses, &p.picks, &p.position),
+            sigma_m: p.sigma_m.into(),
+        });
+    }
+    let of_role = |role: PointRole| -> Vec<[f64; 3]> {
+        residuals
+            .iter()
+            .filter(|x| x.role == role)
+            .filter_map(|x| x.residual_m)
+            .collect()
+    };
+    let px_of_role = |role: PointRole| -> Option<f64> {
+        let (mut s2, mut m) = (0.0, 0usize);
+        for x in residuals.iter().filter(|x| x.role == role) {
+            if let Some(px) = x.rms_px {
+                s2 += px * px * x.images as f64;
+                m += x.images;
+            }
+        }
+        (m > 0).then(|| (s2 / m as f64).sqrt())
+    };
+    let centre_residuals: Vec<[f64; 3]> = centres
+        .iter()
+        .map(|c| (model.poses[c.image].expect("registered").centre() - c.position).into())
+        .collect();
+    let report = GeorefReport {
+        placed_by: placed_by.into(),
+        left_out,
+        control_rms: rms_of(&of_role(PointRole::Control)),
+        check_rms: rms_of(&of_role(PointRole::Check)),
+        control_rms_px: px_of_role(PointRole::Control),
+        check_rms_px: px_of_role(PointRole::Check),
+        centres_rms: rms_of(&centre_residuals),
+        points: residuals,
+        scale: sim.scale,
+    };
+    *r = model;
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sfm::reconstruct::ModelPoint;
+    use crate::testing::Uniform;
+    use nalgebra::{Rotation3, UnitQuaternion};
+
+    /// A nadir block of 3 × 3 cameras 30 m over rough ground (1.25 cm per pixel), its points and observations, in
+    /// the site frame; and the same reconstruction moved by a similarity (the model frame).
+    fn block(
+        noise_px: f64,
+        rng: &mut Uniform,
+    ) -> (Reconstruction, Reconstruction, Vec<Vec<Vector2<f64>>>) {
+        let camera = Camera::pinhole(2400.0, 2400.0, 1600.0, 1200.0).with_image_size(3200, 2400);
+        let down = Rotation3::from_matrix_unchecked(Matrix3::new(
+            1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0,
+        ));
+        let mut poses = Vec::new();
+        for a in 0..3 {
+            for b in 0..3 {
+                let c = Vector3::new(10.0 * f64::from(a), 8.0 * f64::from(b), 30.0);
+                poses.push(Some(Rigid3::new(down, -(down * c))));
+            }
+        }
+        let mut pixels = vec![Vec::new(); poses.len()];
+        let mut pts = Vec::new();
+        for _ in 0..600 {
+            let x = Vector3::new(
+                rng.range(-10.0, 30.0),
+                rng.range(-10.0, 26.0),
+                rng.range(-1.0, 1.0),
+            );
+            let mut observations = Vec::new();
+            for (i, pose) in poses.iter().enumerate() {
+                if let Ok(uv) = camera.project(&pose.expect("set").apply(&x))
+                    && uv.x > 0.0
+                    && uv.y > 0.0
+                    && uv.x < 3199.0
+                    && uv.y < 2399.0
+                {
+                    let noisy = uv + Vector2::new(rng.normal(), rng.normal()) * noise_px;
+                    observations.push((i, pixels[i].len()));
+                    pixels[i].push(noisy);
+                }
+            }
+            if observations.len() >= 2 {
+                pts.push(ModelPoint {
+                    xyz: x,
+                    observations,
+                });
+            }
+        }
+        let truth = Reconstruction {
+            poses,
+            points: pts,
+            mean_reprojection_px: 0.0,
+            camera,
+            initial_pair: (0, 1),
+        };
+        let mut model = truth.clone();
+        let sim = Similarity {
+            scale: 0.05,
+            rotation: UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1),
+            translation: Vector3::new(1.0, 2.0, -3.0),
+        };
+        transform(&mut model, &sim);
+        (truth, model, pixels)
+    }
+
+    fn picks_of(
+        truth: &Reconstruction,
+        x: &Vector3<f64>,
+        noise_px: f64,
+        rng: &mut Uniform,
+    ) -> Vec<Pick> {
+        truth
+            .poses
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| {
+                let uv = truth.camera.project(&p.expect("set").apply(x)).ok()?;
+                (uv.x > 0.0 && uv.y > 0.0 && uv.x < 3199.0 && uv.y < 2399.0).then(|| Pick {
+                    image: i,
+                    uv: uv + Vector2::new(rng.normal(), rng.normal()) * noise_px,
+                    sigma_px: noise_px.max(0.1),
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn control_points_place_the_model_and_a_wrong_one_is_left_out() {
+        let mut rng = Uniform::new(2);
+        let (truth, mut model, pixels) = block(0.3, &mut rng);
+        let sites = [
+            (-5.0, -5.0),
+            (25.0, -5.0),
+            (-5.0, 21.0),
+            (25.0, 21.0),
+            (10.0, 8.0),
+            (0.0, 15.0),
+            (10.0, -6.0),
+            (10.0, 22.0),
+        ];
+        let mut points: Vec<GroundPoint> = sites
+            .iter()
+            .enumerate()
+            .map(|(k, &(e, n))| {
+                let x = Vector3::new(e, n, 0.2);
+                GroundPoint {
+                    name: format!("G{k}"),
+                    role: if k == 5 {
+                        PointRole::Check
+                    } else {
+                        PointRole::Control
+                    },
+                    position: x,
+                    sigma_m: Vector3::new(0.01, 0.01, 0.02),
+                    picks: picks_of(&truth, &x, 0.5, &mut rng),
+                }
+            })
+            .collect();
+        // G4's coordinate is 3 m off (a typing error).
+        points[4].position.x += 3.0;
+        let report = georeference(
+            &mut model,
+            &pixels,
+            &points,
+            &[],
+            &GeorefSettings::default(),
+        )
+        .unwrap();
+        assert_eq!(report.placed_by, "control points");
+        assert_eq!(report.left_out.len(), 1, "{:?}", report.left_out);
+        assert_eq!(report.left_out[0].0, "G4");
+        for (m, t) in model.poses.iter().zip(&truth.poses) {
+            let (m, t) = (m.unwrap(), t.unwrap());
+            assert!(
+                (m.centre() - t.centre()).norm() < 0.03,
+                "{} vs {}",
+                m.centre(),
+                t.centre()
+            );
+            let angle = (m.rotation * t.rotation.inverse()).angle().to_degrees();
+            assert!(angle < 0.05, "{angle}°");
+        }
+        let check = report.check_rms.unwrap();
+        assert_eq!(check.points, 1);
+        assert!(
+            check.horizontal_m < 0.03 && check.vertical_m < 0.06,
+            "{check:?}"
+        );
+        assert!(report.check_rms_px.unwrap() < 2.0);
+        assert!(report.control_rms.unwrap().horizontal_m < 0.02);
+    }
+
+    #[test]
+    fn camera_centres_alone_place_the_model() {
+        let mut rng = Uniform::new(9);
+        let (truth, mut model, pixels) = block(0.3, &mut rng);
+        let centres: Vec<CentreMeasurement> = truth
+            .poses
+            .iter()
+            .enumerate()
+            .map(|(i, p)| CentreMeasurement {
+                image: i,
+                position: p.unwrap().centre()
+                    + Vector3::new(rng.normal(), rng.normal(), 2.0 * rng.normal()) * 0.01,
+                sigma_m: Vector3::new(0.01, 0.01, 0.02),
+            })
+            .collect();
+        let report = georeference(
+            &mut model,
+            &pixels,
+            &[],
+            &centres,
+            &GeorefSettings::default(),
+        )
+        .unwrap();
+        assert_eq!(report.placed_by, "camera centres");
+        let c = report.centres_rms.unwrap();
+        assert_eq!(c.points, 9);
+        for (m, t) in model.poses.iter().zip(&truth.poses) {
+            assert!((m.unwrap().centre() - t.unwrap().centre()).norm() < 0.04);
+        }
+        assert!(report.check_rms.is_none());
+    }
+
+    #[test]
+    fn too_few_points_is_an_error_and_leaves_the_model_unchanged() {
+        let mut rng = Uniform::new(3);
+        let (truth, mut model, pixels) = block(0.3, &mut rng);
+        let before = model.clone();
+        let x = Vector3::new(0.0, 0.0, 0.0);
+        let points = vec![GroundPoint {
+            name: "G1".into(),
+            role: PointRole::Control,
+            position: x,
+            sigma_m: Vector3::new(0.01, 0.01, 0.02),
+            picks: picks_of(&truth, &x, 0.5, &mut rng),
+        }];
+        let e = georeference(
+            &mut model,
+            &pixels,
+            &points,
+            &[],
+            &GeorefSettings::default(),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("1 control point(s)"), "{e}");
+        assert_eq!(model.poses, before.poses);
+    }
+}

@@ -121,6 +121,7 @@ fn strecha_herzjesu_centres_match_the_ground_truth() {
         rmse,
         t.elapsed().as_secs_f64()
     );
-    // Measured: 8/8, 4 944 points, 0.410 px, 3.9 mm (COLMAP: 3.5 mm, make bench).
-    assert!(rmse < 0.006, "{rmse} m");
+    // Measured: 8/8, 4 952 points, 0.421 px, 3.0 mm with the observations weighted by their
+    // keypoints' scale (3.9 mm unweighted; COLMAP 3.6 mm, make bench).
+    assert!(rmse < 0.0035, "{rmse} m");
 }

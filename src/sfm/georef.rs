@@ -262,11 +262,12 @@ fn pick_rms_px(
     (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64).sqrt())
 }
 
-/// Places `r` (features `pixels`) in the site frame of `points` and adjusts it with them and
+/// Places `r` (features `pixels`, their relative σ `sigmas`) in the site frame of `points` and adjusts it with them and
 /// the camera-centre measurements `centres`; `r` is changed only when this succeeds.
 pub fn georeference(
     r: &mut Reconstruction,
     pixels: &[Vec<Vector2<f64>>],
+    sigmas: Option<&[Vec<f64>]>,
     points: &[GroundPoint],
     centres: &[CentreMeasurement],
     s: &GeorefSettings,
@@ -361,20 +362,20 @@ pub fn georeference(
     }
     let mut observations = Vec::new();
     let mut sigma_px = Vec::new();
-    // The features' σ per coordinate, from their RMS reprojection error (at least 0.1 px).
+    // The features' σ per coordinate: their relative σ times a unit from their RMS
+    // standardised reprojection error (at least 0.1 px).
+    let relative = |i: usize, kp: usize| sigmas.map_or(1.0, |s| s[i][kp]);
     let (mut sum2, mut count) = (0.0, 0usize);
     for p in &model.points {
         for &(i, kp) in &p.observations {
-            if let Ok(uv) = model
-                .camera
-                .project(&model.poses[i].expect("registered").apply(&p.xyz))
-            {
-                sum2 += (uv - pixels[i][kp]).norm_squared();
+            let pose = model.poses[i].expect("registered");
+            if let Ok(uv) = model.camera.project(&pose.apply(&p.xyz)) {
+                sum2 += (uv - pixels[i][kp]).norm_squared() / relative(i, kp).powi(2);
                 count += 1;
             }
         }
     }
-    let feature_sigma = (sum2 / (2 * count.max(1)) as f64).sqrt().max(0.1);
+    let unit_sigma = (sum2 / (2 * count.max(1)) as f64).sqrt();
     for (k, p) in model.points.iter().enumerate() {
         for &(i, kp) in &p.observations {
             let xy = pixels[i][kp];
@@ -383,7 +384,7 @@ pub fn georeference(
                 point: k,
                 xy: [xy.x, xy.y],
             });
-            sigma_px.push(feature_sigma);
+            sigma_px.push((unit_sigma * relative(i, kp)).max(0.1));
         }
     }
     let mut ba_points: Vec<[f64; 3]> = model.points.iter().map(|p| p.xyz.into()).collect();
@@ -657,6 +658,7 @@ mod tests {
         let report = georeference(
             &mut model,
             &pixels,
+            None,
             &points,
             &[],
             &GeorefSettings::default(),
@@ -704,6 +706,7 @@ mod tests {
         let report = georeference(
             &mut model,
             &pixels,
+            None,
             &[],
             &centres,
             &GeorefSettings::default(),
@@ -734,6 +737,7 @@ mod tests {
         let e = georeference(
             &mut model,
             &pixels,
+            None,
             &points,
             &[],
             &GeorefSettings::default(),

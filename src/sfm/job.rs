@@ -282,7 +282,13 @@ pub fn run_sfm(
     let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
     let mut unmatched_names = Vec::new();
     let indexed = match &job.georef {
-        Some(g) => Some(index_georef(g, &names, width, height, &mut unmatched_names)?),
+        Some(g) => Some(index_georef(
+            g,
+            &names,
+            width,
+            height,
+            &mut unmatched_names,
+        )?),
         None => None,
     };
     let mut sfm_settings = job.sfm.clone();
@@ -337,12 +343,20 @@ pub fn run_sfm(
         .map(|f| f.keypoints.iter().map(|k| Vector2::new(k.x, k.y)).collect())
         .collect();
     let t = Instant::now();
-    let mut r = reconstruct(&camera, &keypoints, &pairs, &sfm_settings)?;
+    let sigmas = super::keypoint_sigmas(&found);
+    let mut r = reconstruct(&camera, &keypoints, Some(&sigmas), &pairs, &sfm_settings)?;
     let (gps_placement, georef) = match (&job.georef, indexed) {
         (Some(g), Some((points, centres))) => {
             let mut settings = g.settings.clone();
             settings.refine_intrinsics |= sfm_settings.refine_intrinsics;
-            let report = georeference(&mut r, &keypoints, &points, &centres, &settings)?;
+            let report = georeference(
+                &mut r,
+                &keypoints,
+                Some(&sigmas),
+                &points,
+                &centres,
+                &settings,
+            )?;
             (None, Some(report))
         }
         _ => (gps.as_ref().and_then(|g| place_on_gps(&mut r, g)), None),

@@ -200,6 +200,8 @@ pub fn triangulate(rays: &[(Rigid3, Vector2<f64>)], min_angle_deg: f64) -> Optio
 struct Builder<'a> {
     camera: Camera,
     pixels: &'a [Vec<Vector2<f64>>],
+    /// Per keypoint, its relative σ (`None`: all alike).
+    sigmas: Option<&'a [Vec<f64>]>,
     normalised: Vec<Vec<Option<Vector2<f64>>>>,
     settings: &'a SfmSettings,
     tracks: Vec<Vec<FeatureId>>,
@@ -278,9 +280,13 @@ impl Builder<'_> {
             .filter(|&p| self.points[p].is_some())
             .collect();
         let mut observations = Vec::new();
+        let mut sigma_px = Vec::new();
         for (k, &p) in live.iter().enumerate() {
             for f in &self.points[p].as_ref().expect("live").observations {
                 let xy = self.pixels[f.0][f.1];
+                if let Some(s) = self.sigmas {
+                    sigma_px.push(s[f.0][f.1]);
+                }
                 observations.push(Observation {
                     camera: slot[&f.0],
                     point: k,
@@ -303,6 +309,7 @@ impl Builder<'_> {
                 .collect(),
             observations,
         );
+        problem.sigma_px = sigma_px;
         problem.fixed_intrinsics = vec![[true; crate::camera::N_PARAMS]];
         if refine_intrinsics {
             for k in [param::FX, param::FY, param::K1, param::K2] {
@@ -432,12 +439,13 @@ impl Builder<'_> {
     }
 }
 
-/// Reconstructs from the images' keypoints (`pixels`, full-resolution pixels) and their pairwise
-/// matches (not yet verified), with one known camera. Images that cannot be registered are left
-/// without a pose.
+/// Reconstructs from the images' keypoints (`pixels`, full-resolution pixels; `sigmas`, each
+/// keypoint's relative σ, weighs them in the adjustments) and their pairwise matches (not yet
+/// verified), with one known camera. Images that cannot be registered are left without a pose.
 pub fn reconstruct(
     camera: &Camera,
     pixels: &[Vec<Vector2<f64>>],
+    sigmas: Option<&[Vec<f64>]>,
     pairs: &[PairMatches],
     s: &SfmSettings,
 ) -> Result<Reconstruction, SfmError> {
@@ -467,6 +475,7 @@ pub fn reconstruct(
     let mut b = Builder {
         camera: camera.clone(),
         pixels,
+        sigmas,
         normalised,
         settings: s,
         point_of_track: vec![None; tracks.len()],
@@ -623,7 +632,7 @@ mod tests {
                 pairs.push(PairMatches { i, j, matches });
             }
         }
-        let r = reconstruct(&camera, &pixels, &pairs, &SfmSettings::default()).unwrap();
+        let r = reconstruct(&camera, &pixels, None, &pairs, &SfmSettings::default()).unwrap();
         assert!(
             r.poses.iter().all(Option::is_some),
             "{:?}",

@@ -6,7 +6,9 @@
 //! COLMAP runs `feature_extractor` (one PINHOLE camera, the given K, 0.5 added to the principal
 //! point for its pixel convention), `exhaustive_matcher` and `mapper` with the intrinsics held
 //! (`ba_refine_focal_length 0`, `ba_refine_extra_params 0`), GPU off; geostride `sfm::job::run_sfm`
-//! with the same camera held fixed.
+//! with the same camera held fixed. Sceaux runs a second time with the intrinsics refined from K
+//! (its photos are distorted and K.txt has no distortion): COLMAP an OPENCV camera with its focal
+//! lengths and distortion refined, geostride `refine_intrinsics` (fx, fy, k1, k2).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -44,7 +46,7 @@ fn colmap(args: &[&str], log: &Path) {
     );
 }
 
-fn run_colmap(images: &Path, names: &[String], k: [f64; 4], work: &Path) -> Outcome {
+fn run_colmap(images: &Path, names: &[String], k: [f64; 4], refine: bool, work: &Path) -> Outcome {
     let img = work.join("images");
     std::fs::create_dir_all(&img).unwrap();
     for n in names {
@@ -56,7 +58,20 @@ fn run_colmap(images: &Path, names: &[String], k: [f64; 4], work: &Path) -> Outc
     let sparse = work.join("sparse");
     let _ = std::fs::remove_dir_all(&sparse);
     std::fs::create_dir_all(&sparse).unwrap();
-    let params = format!("{},{},{},{}", k[0], k[1], k[2] + 0.5, k[3] + 0.5);
+    // Refined: OPENCV (fx, fy, cx, cy, k1, k2, p1, p2) from K, the focal lengths and the
+    // distortion refined (geostride refines fx, fy, k1, k2).
+    let (model, params) = if refine {
+        (
+            "OPENCV",
+            format!("{},{},{},{},0,0,0,0", k[0], k[1], k[2] + 0.5, k[3] + 0.5),
+        )
+    } else {
+        (
+            "PINHOLE",
+            format!("{},{},{},{}", k[0], k[1], k[2] + 0.5, k[3] + 0.5),
+        )
+    };
+    let refine_flag = if refine { "1" } else { "0" };
     let (db_s, img_s, sparse_s) = (
         db.to_str().unwrap(),
         img.to_str().unwrap(),
@@ -73,7 +88,7 @@ fn run_colmap(images: &Path, names: &[String], k: [f64; 4], work: &Path) -> Outc
             "--ImageReader.single_camera",
             "1",
             "--ImageReader.camera_model",
-            "PINHOLE",
+            model,
             "--ImageReader.camera_params",
             &params,
             "--SiftExtraction.use_gpu",
@@ -101,11 +116,11 @@ fn run_colmap(images: &Path, names: &[String], k: [f64; 4], work: &Path) -> Outc
             "--output_path",
             sparse_s,
             "--Mapper.ba_refine_focal_length",
-            "0",
+            refine_flag,
             "--Mapper.ba_refine_principal_point",
             "0",
             "--Mapper.ba_refine_extra_params",
-            "0",
+            refine_flag,
         ],
         &work.join("mapper.log"),
     );
@@ -159,15 +174,25 @@ fn run_colmap(images: &Path, names: &[String], k: [f64; 4], work: &Path) -> Outc
     }
 }
 
-fn run_geostride(images: &Path, names: &[String], k: [f64; 4], size: (u32, u32)) -> Outcome {
+fn run_geostride(
+    images: &Path,
+    names: &[String],
+    k: [f64; 4],
+    size: (u32, u32),
+    refine: bool,
+) -> Outcome {
     let job = SfmJob {
         images: names.iter().map(|n| images.join(n)).collect(),
         camera: Some(Camera::pinhole(k[0], k[1], k[2], k[3]).with_image_size(size.0, size.1)),
         gps_neighbours: 0,
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
-        sfm: SfmSettings::default(),
+        sfm: SfmSettings {
+            refine_intrinsics: refine,
+            ..SfmSettings::default()
+        },
         georef: None,
+        cache_dir: None,
     };
     let t = Instant::now();
     let run = run_sfm(&job, &NoProgress, &NoProgress).expect("geostride sfm");
@@ -197,8 +222,16 @@ fn centre_rmse(centres: &[(String, Vector3<f64>)], truth: &dyn Fn(&str) -> Vecto
         .sqrt()
 }
 
-/// An image set: folder, subfolder of the images, image count, `[fx, fy, cx, cy]`, size.
-type Set = (&'static str, &'static str, usize, [f64; 4], (u32, u32));
+/// An image set: folder, subfolder of the images, image count, `[fx, fy, cx, cy]`, size, and
+/// whether both tools refine the focal lengths and distortion from that start.
+type Set = (
+    &'static str,
+    &'static str,
+    usize,
+    [f64; 4],
+    (u32, u32),
+    bool,
+);
 
 fn main() {
     let Some(data) = std::env::var_os("GEOSTRIDE_DATA").map(PathBuf::from) else {
@@ -208,16 +241,17 @@ fn main() {
     let work = tempfile::tempdir().unwrap();
     println!("sfm_vs_colmap: the same images and camera, COLMAP 3.8 (CPU) and geostride, 2 cores");
     println!(
-        "  {:<22} {:<10} {:>10} {:>8} {:>10} {:>9} {:>12}",
+        "  {:<32} {:<10} {:>10} {:>8} {:>10} {:>9} {:>12}",
         "set", "tool", "registered", "points", "mean px", "seconds", "centre RMSE"
     );
-    let sets: [Set; 2] = [
+    let sets: [Set; 3] = [
         (
             "strecha-herzjesu-p8",
             "images",
             8,
             [2759.48, 2764.16, 1520.69, 1006.81],
             (3072, 2048),
+            false,
         ),
         (
             "sceaux-castle",
@@ -225,9 +259,18 @@ fn main() {
             11,
             [2905.88, 2905.88, 1416.0, 1064.0],
             (2832, 2128),
+            false,
+        ),
+        (
+            "sceaux-castle",
+            "",
+            11,
+            [2905.88, 2905.88, 1416.0, 1064.0],
+            (2832, 2128),
+            true,
         ),
     ];
-    for (set, sub, count, k, size) in sets {
+    for (set, sub, count, k, size, refine) in sets {
         let images = data.join(set).join(sub);
         let names: Vec<String> = if set == "sceaux-castle" {
             (7100..7100 + count)
@@ -252,9 +295,14 @@ fn main() {
                 .collect();
             Vector3::new(v[0], v[1], v[2])
         };
-        let cm_work = work.path().join(set);
-        let c = run_colmap(&images, &names, k, &cm_work);
-        let g = run_geostride(&images, &names, k, size);
+        let label = if refine {
+            format!("{set} (refined)")
+        } else {
+            set.to_string()
+        };
+        let cm_work = work.path().join(&label);
+        let c = run_colmap(&images, &names, k, refine, &cm_work);
+        let g = run_geostride(&images, &names, k, size, refine);
         for (tool, o) in [("COLMAP", &c), ("geostride", &g)] {
             let rmse = if set.starts_with("strecha") {
                 format!("{:.4} m", centre_rmse(&o.centres, &truth))
@@ -262,12 +310,12 @@ fn main() {
                 "-".into()
             };
             println!(
-                "  {:<22} {:<10} {:>7}/{:<2} {:>8} {:>10.3} {:>9.1} {:>12}",
-                set, tool, o.registered, count, o.points, o.mean_px, o.seconds, rmse
+                "  {:<32} {:<10} {:>7}/{:<2} {:>8} {:>10.3} {:>9.1} {:>12}",
+                label, tool, o.registered, count, o.points, o.mean_px, o.seconds, rmse
             );
         }
         println!(
-            "  {set}: time ratio geostride / COLMAP {:.2}",
+            "  {label}: time ratio geostride / COLMAP {:.2}",
             g.seconds / c.seconds
         );
     }

@@ -79,6 +79,28 @@ fn a_folder_of_photos_becomes_a_colmap_model() {
     );
     let images = std::fs::read_to_string(out.join("images.txt")).unwrap();
     assert_eq!(images.lines().filter(|l| l.ends_with(".jpg")).count(), 8);
+    assert_eq!(report["features_cached"], 0);
+    // Again into the same folder: features and matches from the cache, the same model.
+    let o = geostride(&[
+        "sfm",
+        dir.join("images").to_str().unwrap(),
+        "--camera",
+        cam.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let again: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(again["features_cached"], 8);
+    assert_eq!(again["pairs_cached"], 28);
+    assert!(
+        again["seconds_features"].as_f64().unwrap() < report["seconds_features"].as_f64().unwrap()
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("cameras.csv")).unwrap(),
+        csv
+    );
 }
 
 #[test]
@@ -225,6 +247,18 @@ fn drone_photos_register_and_are_placed_on_their_gps() {
     assert!(r["gps"]["rms_vertical_m"].as_f64().unwrap() < 2.0);
     let csv = std::fs::read_to_string(out.join("cameras.csv")).unwrap();
     assert_eq!(csv.matches(",yes,enu,").count(), 18, "{csv}");
+    // The top view is an image of the model's size class, not an empty canvas.
+    let png = std::fs::read(out.join("topview.png")).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 50_000,
+        "{}",
+        png.len()
+    );
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("18 of 18") && md.contains("Placed on the EXIF GPS"),
+        "{md}"
+    );
     assert!(
         std::fs::read_to_string(out.join("report.md"))
             .unwrap()

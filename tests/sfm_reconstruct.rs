@@ -28,6 +28,7 @@ fn reconstruct_all(
         matching: MatchSettings::default(),
         sfm,
         georef: None,
+        cache_dir: None,
     };
     run_sfm(&job, &NoProgress, &NoProgress)
         .unwrap()

@@ -172,6 +172,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..SfmSettings::default()
         },
         georef,
+        cache_dir: Some(args.out.join("cache")),
     };
     let features = progress_bar(
         args.quiet || args.json,
@@ -268,8 +269,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     println!(
-        "Time: features {:.1} s, matching {:.1} s ({} pairs), reconstruction {:.1} s",
-        r.seconds_features, r.seconds_matching, r.pairs_matched, r.seconds_reconstruction
+        "Time: features {:.1} s ({} of {} images from the cache), matching {:.1} s ({} pairs, {} from the cache), reconstruction {:.1} s",
+        r.seconds_features,
+        r.features_cached,
+        r.images,
+        r.seconds_matching,
+        r.pairs_matched,
+        r.pairs_cached,
+        r.seconds_reconstruction
     );
     for f in written {
         println!("Written: {}", args.out.join(f).display());

@@ -7,7 +7,9 @@ use std::time::Instant;
 
 use nalgebra::{Vector2, Vector3};
 use serde::Serialize;
+use sha2::{Digest, Sha256};
 
+use super::cache::{SfmCache, key_of};
 use super::colmap::{cameras_txt, images_txt, ply, points3d_txt};
 use super::exif::{GpsFix, PhotoMeta, focal_px_from_exif, read_meta};
 use super::georef::{
@@ -42,6 +44,8 @@ pub struct SfmJob {
     /// Surveyed points with their picks and measured camera centres, in a site frame: the
     /// model is placed and adjusted in that frame (the EXIF GPS then only chooses pairs).
     pub georef: Option<GeorefInput>,
+    /// Where features and matches are cached (`sfm::cache`); `None`: nowhere.
+    pub cache_dir: Option<PathBuf>,
 }
 
 /// A pixel pick of a surveyed point, by image name (its file name, or the file name without
@@ -144,6 +148,8 @@ pub enum SfmJobError {
     },
     #[error(transparent)]
     Georef(#[from] GeorefError),
+    #[error("the stage cache: {0}")]
+    Cache(String),
 }
 
 impl SfmJobError {
@@ -154,6 +160,7 @@ impl SfmJobError {
             SfmJobError::Image(_) => false,
             SfmJobError::Sfm(SfmError::Adjustment(_)) => false,
             SfmJobError::Georef(GeorefError::Adjustment(_)) => false,
+            SfmJobError::Cache(_) => false,
             _ => true,
         }
     }
@@ -217,6 +224,9 @@ pub struct SfmReport {
     pub per_image: Vec<ImageReport>,
     pub seconds_features: f64,
     pub seconds_matching: f64,
+    /// Images whose features, and pairs whose matches, came from the cache.
+    pub features_cached: usize,
+    pub pairs_cached: usize,
     pub seconds_reconstruction: f64,
 }
 
@@ -258,9 +268,39 @@ pub fn run_sfm(
     }
     let t = Instant::now();
     features.set_length(job.images.len() as u64);
+    let cache = SfmCache::new(job.cache_dir.as_deref());
+    let build = crate::pipeline::run::build_id();
+    let feature_settings = format!("{:?}", job.features);
     let mut found: Vec<Features> = Vec::with_capacity(job.images.len());
+    let mut feature_keys = Vec::with_capacity(job.images.len());
+    let (mut features_cached, mut pairs_cached) = (0, 0);
     for path in &job.images {
-        let f = read_features(path, &job.features)?;
+        let key = if job.cache_dir.is_some() {
+            // The image's bytes: an edited or replaced file is a miss whatever its name.
+            let bytes = std::fs::read(path)
+                .map_err(|e| SfmJobError::Image(crate::imageio::file_error(path, e)))?;
+            key_of(&[
+                build.as_bytes(),
+                &Sha256::digest(&bytes),
+                feature_settings.as_bytes(),
+            ])
+        } else {
+            String::new()
+        };
+        let f = match cache.features(&key) {
+            Some(f) => {
+                features_cached += 1;
+                f
+            }
+            None => {
+                let f = read_features(path, &job.features)?;
+                cache
+                    .store_features(&key, &f)
+                    .map_err(|e| SfmJobError::Cache(e.to_string()))?;
+                f
+            }
+        };
+        feature_keys.push(key);
         if let Some(first) = found.first()
             && (f.width, f.height) != (first.width, first.height)
         {
@@ -328,13 +368,33 @@ pub fn run_sfm(
     };
     matching.set_length(chosen.len() as u64);
     let mut pairs = Vec::new();
+    let match_settings = format!("{:?}", job.matching);
     for &(i, j) in &chosen {
-        let m = match_features(&found[i], &found[j], &job.matching);
-        pairs.push(PairMatches {
-            i,
-            j,
-            matches: m.iter().map(|m| (m.a, m.b)).collect(),
-        });
+        let key = key_of(&[
+            feature_keys[i].as_bytes(),
+            feature_keys[j].as_bytes(),
+            match_settings.as_bytes(),
+        ]);
+        let matches = match cache.matches(&key) {
+            Some(m)
+                if m.iter()
+                    .all(|&(a, b)| a < found[i].len() && b < found[j].len()) =>
+            {
+                pairs_cached += 1;
+                m
+            }
+            _ => {
+                let m: Vec<(usize, usize)> = match_features(&found[i], &found[j], &job.matching)
+                    .iter()
+                    .map(|m| (m.a, m.b))
+                    .collect();
+                cache
+                    .store_matches(&key, &m)
+                    .map_err(|e| SfmJobError::Cache(e.to_string()))?;
+                m
+            }
+        };
+        pairs.push(PairMatches { i, j, matches });
         matching.inc(1);
     }
     let seconds_matching = t.elapsed().as_secs_f64();
@@ -414,6 +474,8 @@ pub fn run_sfm(
         per_image,
         seconds_features,
         seconds_matching,
+        features_cached,
+        pairs_cached,
         seconds_reconstruction,
     };
     Ok(SfmRun {
@@ -631,7 +693,8 @@ pub fn report_md(r: &SfmReport) -> String {
          - mean reprojection error: {:.3} px\n\
          - camera: fx {:.2}, fy {:.2}, cx {:.2}, cy {:.2}, k1 {:.4}, k2 {:.4}\n\
          - started from: {} and {}\n\
-         - time: features {:.1} s, matching {:.1} s ({} pairs), reconstruction {:.1} s\n\n\
+         - time: features {:.1} s ({} images from the cache), matching {:.1} s ({} pairs, {} from \
+         the cache), reconstruction {:.1} s\n\n\
          | image | registered | features | observations | why not |\n\
          | --- | --- | --- | --- | --- |\n",
         r.registered,
@@ -649,8 +712,10 @@ pub fn report_md(r: &SfmReport) -> String {
         r.initial_pair.0,
         r.initial_pair.1,
         r.seconds_features,
+        r.features_cached,
         r.seconds_matching,
         r.pairs_matched,
+        r.pairs_cached,
         r.seconds_reconstruction
     );
     for i in &r.per_image {

@@ -6,6 +6,7 @@
 //! with a ratio test), tracks (`tracks`), and an incremental reconstruction with one known
 //! camera (`reconstruct`). The two-view geometry is in `estimate::essential`.
 
+pub mod cache;
 pub mod colmap;
 pub mod exif;
 pub mod georef;

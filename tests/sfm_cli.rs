@@ -372,6 +372,28 @@ fn simulated_survey_flight_is_georeferenced_to_centimetres() {
         "survey flight: 19/19, cameras within {worst_m:.4} m and {worst_deg:.4}° of the truth; check {check_h:.4} m horizontally, {check_v:.4} m vertically"
     );
     assert!(worst_m <= 0.03, "{worst_m} m");
+    // Each camera's stated σ: centimetres, and its error within 4σ on each axis.
+    for g in &got {
+        let t = truth.iter().find(|t| t["image"] == g["image"]).unwrap();
+        for (axis, crs_axis, truth_axis) in [
+            ("sigma_e_m", "crs_x", "x"),
+            ("sigma_n_m", "crs_y", "y"),
+            ("sigma_u_m", "crs_h", "ellipsoidal_height_m"),
+        ] {
+            let sigma = field(g, axis);
+            assert!(
+                sigma > 0.001 && sigma < 0.03,
+                "{}: {axis} {sigma}",
+                g["image"]
+            );
+            let e = (field(g, crs_axis) - field(t, truth_axis)).abs();
+            assert!(
+                e < 4.0 * sigma,
+                "{}: {axis}: error {e}, σ {sigma}",
+                g["image"]
+            );
+        }
+    }
     assert!(worst_deg <= 0.05, "{worst_deg}°");
     for f in ["cameras.gpkg", "topview.png", "report.md"] {
         assert!(out.join(f).is_file(), "{f}");

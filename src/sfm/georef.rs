@@ -12,7 +12,10 @@ use crate::camera::{Camera, param};
 use crate::geom::Rigid3;
 use crate::geom::similarity::{ScaleMode, Similarity, fit_weighted};
 use crate::optim::RobustLoss;
-use crate::optim::ba::{BaSettings, CentrePrior, Observation, PointPrior, Priors, Problem, adjust};
+use crate::optim::ba::{
+    BaSettings, CameraCovariance, CentrePrior, Observation, PointPrior, Priors, Problem, adjust,
+    covariance,
+};
 use crate::optim::ba_camera::{BrownConrady, pose_params, rigid_pose};
 
 /// Whether a surveyed point constrains the model or only checks it.
@@ -110,6 +113,47 @@ pub struct GeorefReport {
     pub centres_rms: Option<Rms>,
     /// The model's scale change: site metres per model unit.
     pub scale: f64,
+    /// Per image (registered or not), the σ of its adjusted camera from the adjustment's
+    /// covariance (every observation at its σ; a Monte Carlo spread agrees, see the tests).
+    pub camera_sigma: Vec<Option<CameraSigma>>,
+}
+
+/// One camera's standard deviations after georeferencing.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct CameraSigma {
+    /// Of the centre, east, north, up, metres.
+    pub centre_m: [f64; 3],
+    /// Of the attitude: the largest σ of its rotation about any axis, degrees.
+    pub rotation_deg: f64,
+}
+
+/// A camera's centre and rotation σ from the engine's covariance of its `[w, t]` parameters,
+/// by a numerical Jacobian of the centre `−R(w)ᵀt` and of the rotation's change.
+fn camera_sigma(q: &[f64; 6], cov: &nalgebra::Matrix6<f64>) -> CameraSigma {
+    let at = |v: &[f64; 6]| -> (Vector3<f64>, nalgebra::Rotation3<f64>) {
+        let p = rigid_pose(v);
+        (p.centre(), p.rotation)
+    };
+    let (c0, r0) = at(q);
+    let mut j = nalgebra::Matrix6::<f64>::zeros();
+    for k in 0..6 {
+        let h = 1e-6 * q[k].abs().max(1.0);
+        let mut v = *q;
+        v[k] += h;
+        let (c, r) = at(&v);
+        let dc = (c - c0) / h;
+        let dr = (r * r0.inverse()).scaled_axis() / h;
+        for row in 0..3 {
+            j[(row, k)] = dc[row];
+            j[(row + 3, k)] = dr[row];
+        }
+    }
+    let s = j * cov * j.transpose();
+    let rot = s.fixed_view::<3, 3>(3, 3).into_owned().symmetric_eigen();
+    CameraSigma {
+        centre_m: [0, 1, 2].map(|k| s[(k, k)].max(0.0).sqrt()),
+        rotation_deg: rot.eigenvalues.max().max(0.0).sqrt().to_degrees(),
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -446,8 +490,22 @@ pub fn georeference(
         adjust(&mut problem, &BrownConrady, &priors, &settings)
             .map_err(|e| GeorefError::Adjustment(e.to_string()))?;
     }
+    // σ as stated: each observation's σ is its own (the features' from their residuals).
+    let cov: Option<CameraCovariance> = covariance(
+        &problem,
+        &BrownConrady,
+        &priors,
+        RobustLoss::Squared,
+        Some(1.0),
+    )
+    .ok();
+    let mut sigmas_out = vec![None; model.poses.len()];
     for (k, &i) in images.iter().enumerate() {
         model.poses[i] = Some(rigid_pose(&problem.poses[k]));
+        if let Some(c) = &cov {
+            let block = nalgebra::Matrix6::from_iterator(c.pose(k).iter().copied());
+            sigmas_out[i] = Some(camera_sigma(&problem.poses[k], &block));
+        }
     }
     model.camera.set_params(&problem.intrinsics[0]);
     for (k, p) in model.points.iter_mut().enumerate() {
@@ -526,6 +584,7 @@ pub fn georeference(
         centres_rms: rms_of(&centre_residuals),
         points: residuals,
         scale: sim.scale,
+        camera_sigma: sigmas_out,
     };
     *r = model;
     Ok(report)
@@ -686,6 +745,115 @@ mod tests {
         );
         assert!(report.check_rms_px.unwrap() < 2.0);
         assert!(report.control_rms.unwrap().horizontal_m < 0.02);
+    }
+
+    /// The σ of the cameras from the adjustment's covariance against the spread of 150
+    /// georeferencings with fresh feature, pick and survey noise.
+    #[test]
+    fn camera_sigma_agrees_with_a_monte_carlo_spread() {
+        let sites = [
+            (-5.0, -5.0),
+            (25.0, -5.0),
+            (-5.0, 21.0),
+            (25.0, 21.0),
+            (10.0, 8.0),
+        ];
+        let sigma = Vector3::new(0.01, 0.01, 0.02);
+        let trials = 150;
+        let mut centres: Vec<Vector3<f64>> = Vec::new();
+        let mut predicted = Vec::new();
+        let mut rotations: Vec<Vector3<f64>> = Vec::new();
+        // One scene (the same points), fresh noise each trial.
+        let mut scene_rng = Uniform::new(21);
+        let (truth, _, _) = block(0.0, &mut scene_rng);
+        let mut rng = Uniform::new(99);
+        for _ in 0..trials {
+            let mut pixels = vec![Vec::new(); truth.poses.len()];
+            let mut pts = Vec::new();
+            for p in &truth.points {
+                let mut observations = Vec::new();
+                for &(i, _) in &p.observations {
+                    let uv = truth
+                        .camera
+                        .project(&truth.poses[i].unwrap().apply(&p.xyz))
+                        .unwrap();
+                    observations.push((i, pixels[i].len()));
+                    pixels[i].push(uv + Vector2::new(rng.normal(), rng.normal()) * 0.3);
+                }
+                pts.push(ModelPoint {
+                    xyz: p.xyz,
+                    observations,
+                });
+            }
+            let mut model = Reconstruction {
+                points: pts,
+                ..truth.clone()
+            };
+            let points: Vec<GroundPoint> = sites
+                .iter()
+                .enumerate()
+                .map(|(k, &(e, n))| {
+                    let x = Vector3::new(e, n, 0.2);
+                    GroundPoint {
+                        name: format!("G{k}"),
+                        role: PointRole::Control,
+                        position: x + Vector3::new(rng.normal(), rng.normal(), rng.normal())
+                            .component_mul(&sigma),
+                        sigma_m: sigma,
+                        picks: picks_of(&truth, &x, 0.5, &mut rng),
+                    }
+                })
+                .collect();
+            let report = georeference(
+                &mut model,
+                &pixels,
+                None,
+                &points,
+                &[],
+                &GeorefSettings::default(),
+            )
+            .unwrap();
+            centres.push(model.poses[4].unwrap().centre());
+            rotations.push(
+                (model.poses[4].unwrap().rotation * truth.poses[4].unwrap().rotation.inverse())
+                    .scaled_axis(),
+            );
+            predicted.push(report.camera_sigma[4].unwrap());
+        }
+        let n = trials as f64;
+        let mean = centres.iter().sum::<Vector3<f64>>() / n;
+        for k in 0..3 {
+            let sd = (centres
+                .iter()
+                .map(|c| (c[k] - mean[k]).powi(2))
+                .sum::<f64>()
+                / (n - 1.0))
+                .sqrt();
+            let want = predicted.iter().map(|p| p.centre_m[k]).sum::<f64>() / n;
+            // 150 trials: the sample σ within ±18 % (3σ) of the true one.
+            assert!(
+                (sd / want - 1.0).abs() < 0.18,
+                "axis {k}: Monte Carlo {sd:.4} m, predicted {want:.4} m"
+            );
+        }
+        // The attitude: the largest σ of the rotation errors' spread.
+        let mean_r = rotations.iter().sum::<Vector3<f64>>() / n;
+        let cov_r = rotations
+            .iter()
+            .map(|r| (r - mean_r) * (r - mean_r).transpose())
+            .sum::<Matrix3<f64>>()
+            / (n - 1.0);
+        let sd = cov_r
+            .symmetric_eigen()
+            .eigenvalues
+            .max()
+            .sqrt()
+            .to_degrees();
+        let want = predicted.iter().map(|p| p.rotation_deg).sum::<f64>() / n;
+        assert!(
+            (sd / want - 1.0).abs() < 0.25,
+            "rotation: Monte Carlo {sd:.5}°, predicted {want:.5}°"
+        );
     }
 
     #[test]

@@ -808,9 +808,13 @@ fn georef_md(g: &GeorefReport, frame: &str) -> String {
 /// when placed on the GPS (`frame` says which), else the arbitrary frame of the reconstruction.
 pub fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
     let frame = &run.report.frame;
+    let sigmas = run.report.georef.as_ref().map(|g| &g.camera_sigma);
     let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz");
     if crs.is_some() {
         s.push_str(",crs_x,crs_y,crs_h");
+    }
+    if sigmas.is_some() {
+        s.push_str(",sigma_e_m,sigma_n_m,sigma_u_m,sigma_rotation_deg");
     }
     s.push('\n');
     for (i, name) in run.names.iter().enumerate() {
@@ -827,11 +831,22 @@ pub fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
                 } else if crs.is_some() {
                     s.push_str(",,,");
                 }
+                if let Some(Some(c)) = sigmas.map(|v| v[i]) {
+                    s.push_str(&format!(
+                        ",{:.4},{:.4},{:.4},{:.5}",
+                        c.centre_m[0], c.centre_m[1], c.centre_m[2], c.rotation_deg
+                    ));
+                } else if sigmas.is_some() {
+                    s.push_str(",,,,");
+                }
             }
             None => {
                 s.push_str(&format!("{name},no,{frame},,,,,,,"));
                 if crs.is_some() {
                     s.push_str(",,,");
+                }
+                if sigmas.is_some() {
+                    s.push_str(",,,,");
                 }
             }
         }

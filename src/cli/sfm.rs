@@ -223,11 +223,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     if let Some(g) = &r.gps {
         println!(
-            "Placed on the EXIF GPS of {} images (east-north-up at {:.7}, {:.7}): cameras {:.2} m RMS horizontally, {:.2} m vertically from their GPS",
-            g.images, g.origin[0], g.origin[1], g.rms_horizontal_m, g.rms_vertical_m
+            "Placed on the EXIF GPS of {} images (east-north-up at {:.7}, {:.7}; adjusted with them as priors, σ {:.2}/{:.2} m horizontally/vertically{}): cameras {:.2} m RMS horizontally, {:.2} m vertically from their GPS",
+            g.images,
+            g.origin[0],
+            g.origin[1],
+            g.prior_sigma_m[0],
+            g.prior_sigma_m[2],
+            if g.rtk { ", DJI RTK" } else { "" },
+            g.rms_horizontal_m,
+            g.rms_vertical_m
         );
     }
-    if let Some(g) = &r.georef {
+    if let Some(g) = r.georef.as_ref().filter(|_| r.frame == "site") {
         let rms = |x: &Option<geostride::sfm::georef::Rms>| match x {
             Some(x) => format!(
                 "{:.3} m horizontally, {:.3} m vertically ({} points)",

@@ -187,10 +187,18 @@ pub struct GpsPlacement {
     pub scale: f64,
     pub images: usize,
     /// RMS of the registered cameras' horizontal and vertical distances from their GPS
-    /// positions after the similarity, metres.
+    /// positions after the similarity and the adjustment, metres.
     pub rms_horizontal_m: f64,
     pub rms_vertical_m: f64,
+    /// The GPS positions' σ as priors of the adjustment (east, north, up, metres): DJI's RTK
+    /// fields where every photo has them, else a consumer receiver's.
+    pub prior_sigma_m: [f64; 3],
+    pub rtk: bool,
 }
+
+/// σ of a consumer drone's GPS position as a prior (east, north, up, metres): a few metres
+/// horizontally, more vertically.
+pub const CONSUMER_GPS_SIGMA_M: [f64; 3] = [3.0, 3.0, 5.0];
 
 /// What a run found (`report.json`).
 #[derive(Clone, Debug, Serialize)]
@@ -419,9 +427,38 @@ pub fn run_sfm(
             )?;
             (None, Some(report))
         }
-        _ => (gps.as_ref().and_then(|g| place_on_gps(&mut r, g)), None),
+        _ => match gps.as_ref().and_then(|g| place_on_gps(&mut r, g)) {
+            Some(mut placement) => {
+                // Then an adjustment with the GPS positions as priors, at their σ.
+                let (enu, _) = enu_of(gps.as_deref().expect("placed")).expect("placed");
+                let rtk: Option<Vec<[f64; 3]>> = metas.iter().map(|m| m.rtk_sigma_m).collect();
+                let centres: Vec<CentreMeasurement> = (0..n)
+                    .map(|i| CentreMeasurement {
+                        image: i,
+                        position: enu[i],
+                        // DJI gives longitude, latitude, height: east, north, up.
+                        sigma_m: Vector3::from(rtk.as_ref().map_or(CONSUMER_GPS_SIGMA_M, |s| s[i]))
+                            .map(|v| v.max(0.005)),
+                    })
+                    .collect();
+                let settings = GeorefSettings {
+                    refine_intrinsics: sfm_settings.refine_intrinsics,
+                    ..GeorefSettings::default()
+                };
+                let report =
+                    georeference(&mut r, &keypoints, Some(&sigmas), &[], &centres, &settings)?;
+                if let Some(c) = &report.centres_rms {
+                    placement.rms_horizontal_m = c.horizontal_m;
+                    placement.rms_vertical_m = c.vertical_m;
+                }
+                placement.rtk = rtk.is_some();
+                placement.prior_sigma_m = rtk.as_ref().map_or(CONSUMER_GPS_SIGMA_M, |s| s[0]);
+                (Some(placement), Some(report))
+            }
+            None => (None, None),
+        },
     };
-    let frame = if georef.is_some() {
+    let frame = if job.georef.is_some() && georef.is_some() {
         "site"
     } else if gps_placement.is_some() {
         "enu"
@@ -681,6 +718,8 @@ fn place_on_gps(r: &mut Reconstruction, gps: &[GpsFix]) -> Option<GpsPlacement> 
         images: registered.len(),
         rms_horizontal_m: (h2 / n).sqrt(),
         rms_vertical_m: (v2 / n).sqrt(),
+        prior_sigma_m: CONSUMER_GPS_SIGMA_M,
+        rtk: false,
     })
 }
 
@@ -731,12 +770,26 @@ pub fn report_md(r: &SfmReport) -> String {
     if let Some(g) = &r.gps {
         s.push_str(&format!(
             "\n## Placed on the EXIF GPS\n\n\
-             East-north-up metres at {:.7}, {:.7}, {:.1} m; {} images; cameras {:.2} m RMS \
-             horizontally and {:.2} m vertically from their GPS (consumer GPS: metres).\n",
-            g.origin[0], g.origin[1], g.origin[2], g.images, g.rms_horizontal_m, g.rms_vertical_m
+             East-north-up metres at {:.7}, {:.7}, {:.1} m; {} images placed by a similarity, \
+             then adjusted with their GPS positions as priors (σ {:.3}/{:.3}/{:.3} m east/north/up, \
+             {}); cameras {:.2} m RMS horizontally and {:.2} m vertically from their GPS.\n",
+            g.origin[0],
+            g.origin[1],
+            g.origin[2],
+            g.images,
+            g.prior_sigma_m[0],
+            g.prior_sigma_m[1],
+            g.prior_sigma_m[2],
+            if g.rtk {
+                "DJI's RTK fields"
+            } else {
+                "a consumer receiver's"
+            },
+            g.rms_horizontal_m,
+            g.rms_vertical_m
         ));
     }
-    if let Some(g) = &r.georef {
+    if let Some(g) = r.georef.as_ref().filter(|_| r.frame == "site") {
         s.push_str(&georef_md(g, r.site_frame.as_deref().unwrap_or("")));
     }
     if !r.unmatched_names.is_empty() {

@@ -185,6 +185,7 @@ fn run_geostride(
         images: names.iter().map(|n| images.join(n)).collect(),
         camera: Some(Camera::pinhole(k[0], k[1], k[2], k[3]).with_image_size(size.0, size.1)),
         gps_neighbours: 0,
+        sequential: 0,
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
         sfm: SfmSettings {

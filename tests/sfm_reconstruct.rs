@@ -24,6 +24,7 @@ fn reconstruct_all(
         images: names.iter().map(|n| dir.join(n)).collect(),
         camera: Some(camera),
         gps_neighbours: 0,
+        sequential: 0,
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
         sfm,

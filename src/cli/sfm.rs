@@ -32,6 +32,10 @@ pub struct Args {
     /// only roughly)
     #[arg(long)]
     refine_intrinsics: bool,
+    /// Ordered photos or frames: match each image with the next N only (name order) instead of
+    /// every other or its GPS neighbours
+    #[arg(long, value_name = "N")]
+    sequential: Option<usize>,
     /// Features per image at most
     #[arg(long, default_value = "8192", value_name = "N")]
     max_features: usize,
@@ -126,6 +130,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         None => (None, "EXIF focal length (refined)".to_string()),
     };
+    if args.sequential == Some(0) {
+        return Err(bad_input(anyhow!(
+            "--sequential 0: give the number of following images to match each with (1 or more)"
+        )));
+    }
     if args.max_features < 100 {
         return Err(bad_input(anyhow!(
             "--max-features {}: too few to match images (8192 is the default)",
@@ -162,6 +171,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         images,
         camera,
         gps_neighbours: 8,
+        sequential: args.sequential.unwrap_or(0),
         features: FeatureSettings {
             max_features: args.max_features,
             ..FeatureSettings::default()

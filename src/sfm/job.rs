@@ -38,6 +38,9 @@ pub struct SfmJob {
     /// With GPS in every image's EXIF, each image is matched with this many nearest (by GPS)
     /// rather than with every other; 0: always every pair.
     pub gps_neighbours: usize,
+    /// Ordered frames (a flight's photos in time order, video frames): each image matched with
+    /// the next this many only (ahead of GPS neighbours); 0: not used.
+    pub sequential: usize,
     pub features: FeatureSettings,
     pub matching: MatchSettings,
     pub sfm: SfmSettings,
@@ -364,6 +367,7 @@ pub fn run_sfm(
     let n = found.len();
     let gps: Option<Vec<GpsFix>> = metas.iter().map(|m| m.gps).collect();
     let (chosen, pair_selection) = match &gps {
+        _ if job.sequential > 0 => (sequential_pairs(n, job.sequential), "sequential"),
         Some(g) if job.gps_neighbours > 0 && n > job.gps_neighbours + 1 => {
             (gps_neighbour_pairs(g, job.gps_neighbours), "gps-neighbours")
         }
@@ -668,6 +672,13 @@ fn enu_of(gps: &[GpsFix]) -> Option<(Vec<Vector3<f64>>, LocalTangentFrame)> {
     ))
 }
 
+/// Each image with the next `window` in order: the pairs `(i, j)`, `i < j ≤ i + window`.
+pub fn sequential_pairs(n: usize, window: usize) -> Vec<(usize, usize)> {
+    (0..n)
+        .flat_map(|i| (i + 1..n.min(i + window + 1)).map(move |j| (i, j)))
+        .collect()
+}
+
 /// Each image with its `k` nearest by GPS (horizontal distance): the pairs, `i < j`, sorted.
 pub fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize)> {
     let Some((enu, _)) = enu_of(gps) else {
@@ -946,6 +957,16 @@ pub fn write_outputs(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sequential_window_pairs_each_image_with_the_next() {
+        assert_eq!(
+            sequential_pairs(4, 2),
+            vec![(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
+        );
+        assert_eq!(sequential_pairs(3, 10).len(), 3);
+        assert!(sequential_pairs(1, 3).is_empty());
+    }
 
     #[test]
     fn gps_neighbours_pair_each_image_with_its_nearest() {

@@ -101,6 +101,23 @@ fn a_folder_of_photos_becomes_a_colmap_model() {
         std::fs::read_to_string(out.join("cameras.csv")).unwrap(),
         csv
     );
+    // Ordered photos: each matched with the next two only.
+    let o = geostride(&[
+        "sfm",
+        dir.join("images").to_str().unwrap(),
+        "--camera",
+        cam.to_str().unwrap(),
+        "--sequential",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let seq: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(seq["pair_selection"], "sequential");
+    assert_eq!(seq["pairs_matched"], 13);
+    assert_eq!(seq["registered"], 8);
 }
 
 #[test]

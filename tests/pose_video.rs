@@ -13,37 +13,18 @@ use geostride::geom::Rigid3;
 use geostride::survey::crs::Crs;
 use nalgebra::Vector3;
 
-/// Rows of a CSV as maps from header to field.
-fn read_csv(path: &Path) -> Vec<HashMap<String, String>> {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut lines = text.lines();
-    let header: Vec<String> = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    lines
-        .map(|l| {
-            header
-                .iter()
-                .cloned()
-                .zip(l.split(',').map(str::to_string))
-                .collect()
-        })
-        .collect()
-}
-
-fn num(row: &HashMap<String, String>, key: &str) -> f64 {
-    row[key]
-        .parse()
-        .unwrap_or_else(|_| panic!("{key}: '{}'", row[key]))
-}
-
 fn pose_of(row: &HashMap<String, String>) -> Rigid3 {
     Rigid3::from_rvec_tvec(
-        &Vector3::new(num(row, "rvec_x"), num(row, "rvec_y"), num(row, "rvec_z")),
-        &Vector3::new(num(row, "tvec_x"), num(row, "tvec_y"), num(row, "tvec_z")),
+        &Vector3::new(
+            common::num(row, "rvec_x"),
+            common::num(row, "rvec_y"),
+            common::num(row, "rvec_z"),
+        ),
+        &Vector3::new(
+            common::num(row, "tvec_x"),
+            common::num(row, "tvec_y"),
+            common::num(row, "tvec_z"),
+        ),
     )
 }
 
@@ -116,12 +97,18 @@ fn every_frame_of_a_drifting_hover_is_within_a_pixel_of_the_truth() {
         .camera
         .scaled_to(1280, 720)
         .unwrap();
-    let gcps: Vec<Vector3<f64>> = read_csv(&sim.join("truth/gcps.csv"))
+    let gcps: Vec<Vector3<f64>> = common::read_csv(&sim.join("truth/gcps.csv"))
         .iter()
-        .map(|r| Vector3::new(num(r, "e_m"), num(r, "n_m"), num(r, "u_m")))
+        .map(|r| {
+            Vector3::new(
+                common::num(r, "e_m"),
+                common::num(r, "n_m"),
+                common::num(r, "u_m"),
+            )
+        })
         .collect();
-    let truth = read_csv(&sim.join("truth/camera.csv"));
-    let est = read_csv(&res.join("poses.csv"));
+    let truth = common::read_csv(&sim.join("truth/camera.csv"));
+    let est = common::read_csv(&res.join("poses.csv"));
     assert_eq!(est.len(), truth.len(), "a pose for every frame");
     let (mut worst, mut sum, mut keys) = (0.0f64, 0.0, 0);
     for (t, e) in truth.iter().zip(&est) {

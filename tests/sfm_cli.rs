@@ -37,17 +37,28 @@ fn a_folder_of_photos_becomes_a_colmap_model() {
     let cam = tmp.path().join("k.yaml");
     write_camera(&cam, 3072, 2048, 2759.48, 2764.16, 1520.69, 1006.81);
     let out = tmp.path().join("model");
-    let o = geostride(&[
-        "sfm",
-        dir.join("images").to_str().unwrap(),
-        "--camera",
-        cam.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let (images_dir, cam_s, out_s) = (
+        dir.join("images").to_str().unwrap().to_string(),
+        cam.to_str().unwrap().to_string(),
+        out.to_str().unwrap().to_string(),
+    );
+    // `geostride sfm` on the folder with the camera into `out`, more arguments, its report.
+    let sfm = |more: &[&str]| -> serde_json::Value {
+        let mut a = vec![
+            "sfm",
+            &images_dir,
+            "--camera",
+            &cam_s,
+            "--out",
+            &out_s,
+            "--json",
+        ];
+        a.extend_from_slice(more);
+        let o = geostride(&a);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let report = sfm(&[]);
     assert_eq!(report["images"], 8);
     assert_eq!(report["registered"], 8);
     let mean = report["mean_reprojection_px"].as_f64().unwrap();
@@ -81,17 +92,7 @@ fn a_folder_of_photos_becomes_a_colmap_model() {
     assert_eq!(images.lines().filter(|l| l.ends_with(".jpg")).count(), 8);
     assert_eq!(report["features_cached"], 0);
     // Again into the same folder: features and matches from the cache, the same model.
-    let o = geostride(&[
-        "sfm",
-        dir.join("images").to_str().unwrap(),
-        "--camera",
-        cam.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let again: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let again = sfm(&[]);
     assert_eq!(again["features_cached"], 8);
     assert_eq!(again["pairs_cached"], 28);
     assert!(
@@ -102,19 +103,7 @@ fn a_folder_of_photos_becomes_a_colmap_model() {
         csv
     );
     // Ordered photos: each matched with the next two only.
-    let o = geostride(&[
-        "sfm",
-        dir.join("images").to_str().unwrap(),
-        "--camera",
-        cam.to_str().unwrap(),
-        "--sequential",
-        "2",
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let seq: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let seq = sfm(&["--sequential", "2"]);
     assert_eq!(seq["pair_selection"], "sequential");
     assert_eq!(seq["pairs_matched"], 13);
     assert_eq!(seq["registered"], 8);
@@ -283,33 +272,6 @@ fn drone_photos_register_and_are_placed_on_their_gps() {
     );
 }
 
-/// Reads a CSV with a header into rows of named fields.
-fn read_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<String> = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    lines
-        .map(|l| {
-            header
-                .iter()
-                .cloned()
-                .zip(l.split(',').map(str::to_string))
-                .collect()
-        })
-        .collect()
-}
-
-fn field(row: &std::collections::HashMap<String, String>, name: &str) -> f64 {
-    row[name]
-        .parse()
-        .unwrap_or_else(|_| panic!("{name}: {:?}", row[name]))
-}
-
 /// The simulated survey flight (tests/scenes/survey-flight.toml: 15 nadir photos 30 m over a
 /// footbridge and 4 obliques, 2400x1350, RTK-like centres with 2/3 cm noise, 10 GCPs and 3
 /// check points with 1/2 cm survey noise, picks with 0.5 px noise): after georeferencing, every
@@ -360,25 +322,25 @@ fn simulated_survey_flight_is_georeferenced_to_centimetres() {
         "check {check_h} m, {check_v} m"
     );
 
-    let truth = read_rows(&sim.join("truth/survey_cameras.csv"));
-    let got = read_rows(&out.join("cameras.csv"));
+    let truth = common::read_csv(&sim.join("truth/survey_cameras.csv"));
+    let got = common::read_csv(&out.join("cameras.csv"));
     assert_eq!(truth.len(), 19);
     let (mut worst_m, mut worst_deg) = (0.0f64, 0.0f64);
     for t in &truth {
         let g = got.iter().find(|g| g["image"] == t["image"]).unwrap();
         assert_eq!(g["registered"], "yes");
         let d = nalgebra::Vector3::new(
-            field(g, "crs_x") - field(t, "x"),
-            field(g, "crs_y") - field(t, "y"),
-            field(g, "crs_h") - field(t, "ellipsoidal_height_m"),
+            common::num(g, "crs_x") - common::num(t, "x"),
+            common::num(g, "crs_y") - common::num(t, "y"),
+            common::num(g, "crs_h") - common::num(t, "ellipsoidal_height_m"),
         );
         worst_m = worst_m.max(d.norm());
         let q = |r: &std::collections::HashMap<String, String>| {
             nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                field(r, "qw"),
-                field(r, "qx"),
-                field(r, "qy"),
-                field(r, "qz"),
+                common::num(r, "qw"),
+                common::num(r, "qx"),
+                common::num(r, "qy"),
+                common::num(r, "qz"),
             ))
         };
         // Both cam_from_world in east-north-up frames whose origins lie metres apart (the
@@ -397,13 +359,13 @@ fn simulated_survey_flight_is_georeferenced_to_centimetres() {
             ("sigma_n_m", "crs_y", "y"),
             ("sigma_u_m", "crs_h", "ellipsoidal_height_m"),
         ] {
-            let sigma = field(g, axis);
+            let sigma = common::num(g, axis);
             assert!(
                 sigma > 0.001 && sigma < 0.03,
                 "{}: {axis} {sigma}",
                 g["image"]
             );
-            let e = (field(g, crs_axis) - field(t, truth_axis)).abs();
+            let e = (common::num(g, crs_axis) - common::num(t, truth_axis)).abs();
             assert!(
                 e < 4.0 * sigma,
                 "{}: {axis}: error {e}, σ {sigma}",
@@ -473,7 +435,7 @@ fn measured_camera_centres_place_a_real_model() {
     eprintln!("herz-jesu on its true centres: {h:.4} m horizontally, {v:.4} m vertically");
     assert_eq!(c["points"], 8);
     assert!(h < 0.006 && v < 0.006, "{h} {v}");
-    let rows = read_rows(&out.join("cameras.csv"));
+    let rows = common::read_csv(&out.join("cameras.csv"));
     assert!(rows.iter().all(|r| r["frame"] == "site"));
 }
 

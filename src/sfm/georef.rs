@@ -597,6 +597,23 @@ mod tests {
     use crate::testing::Uniform;
     use nalgebra::{Rotation3, UnitQuaternion};
 
+    /// Georeferencing with the default settings, every keypoint alike.
+    fn place(
+        model: &mut Reconstruction,
+        pixels: &[Vec<Vector2<f64>>],
+        points: &[GroundPoint],
+        centres: &[CentreMeasurement],
+    ) -> Result<GeorefReport, GeorefError> {
+        georeference(
+            model,
+            pixels,
+            None,
+            points,
+            centres,
+            &GeorefSettings::default(),
+        )
+    }
+
     /// A nadir block of 3 × 3 cameras 30 m over rough ground (1.25 cm per pixel), its points and observations, in
     /// the site frame; and the same reconstruction moved by a similarity (the model frame).
     fn block(
@@ -714,15 +731,7 @@ mod tests {
             .collect();
         // G4's coordinate is 3 m off (a typing error).
         points[4].position.x += 3.0;
-        let report = georeference(
-            &mut model,
-            &pixels,
-            None,
-            &points,
-            &[],
-            &GeorefSettings::default(),
-        )
-        .unwrap();
+        let report = place(&mut model, &pixels, &points, &[]).unwrap();
         assert_eq!(report.placed_by, "control points");
         assert_eq!(report.left_out.len(), 1, "{:?}", report.left_out);
         assert_eq!(report.left_out[0].0, "G4");
@@ -804,15 +813,7 @@ mod tests {
                     }
                 })
                 .collect();
-            let report = georeference(
-                &mut model,
-                &pixels,
-                None,
-                &points,
-                &[],
-                &GeorefSettings::default(),
-            )
-            .unwrap();
+            let report = place(&mut model, &pixels, &points, &[]).unwrap();
             centres.push(model.poses[4].unwrap().centre());
             rotations.push(
                 (model.poses[4].unwrap().rotation * truth.poses[4].unwrap().rotation.inverse())
@@ -871,15 +872,7 @@ mod tests {
                 sigma_m: Vector3::new(0.01, 0.01, 0.02),
             })
             .collect();
-        let report = georeference(
-            &mut model,
-            &pixels,
-            None,
-            &[],
-            &centres,
-            &GeorefSettings::default(),
-        )
-        .unwrap();
+        let report = place(&mut model, &pixels, &[], &centres).unwrap();
         assert_eq!(report.placed_by, "camera centres");
         let c = report.centres_rms.unwrap();
         assert_eq!(c.points, 9);
@@ -902,15 +895,7 @@ mod tests {
             sigma_m: Vector3::new(0.01, 0.01, 0.02),
             picks: picks_of(&truth, &x, 0.5, &mut rng),
         }];
-        let e = georeference(
-            &mut model,
-            &pixels,
-            None,
-            &points,
-            &[],
-            &GeorefSettings::default(),
-        )
-        .unwrap_err();
+        let e = place(&mut model, &pixels, &points, &[]).unwrap_err();
         assert!(e.to_string().contains("1 control point(s)"), "{e}");
         assert_eq!(model.poses, before.poses);
     }

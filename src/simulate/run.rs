@@ -482,6 +482,27 @@ pub fn simulate(
     })
 }
 
+/// Points in the site CRS (ellipsoidal heights) as an Emlid CSV.
+fn emlid_in_site_crs(scene: &Scene, crs: &Crs, points: &[Gcp]) -> Result<String, SimError> {
+    let out_crs = OutCrs {
+        spec: Some(crs.id.clone().unwrap_or_else(|| scene.site.crs.clone())),
+        name: crs.name.clone(),
+        projected: crs.horizontal == Horizontal::Projected,
+        height: HeightKind::Ellipsoidal,
+    };
+    let points: Vec<OutPoint> = points
+        .iter()
+        .map(|g| OutPoint {
+            gcp: g,
+            position: g.position,
+            lon_lat: crs.to_lon_lat(g.position.x, g.position.y).ok(),
+            local: Vector3::zeros(),
+            residual: None,
+        })
+        .collect();
+    emlid(&out_crs, &points).map_err(|e| SimError::Output(e.0))
+}
+
 /// GCPs: an Emlid CSV in the site CRS with RTK-like noise, the exact positions, and picks on the
 /// first frame with pixel noise.
 fn write_gcps(
@@ -557,23 +578,7 @@ fn write_gcps(
             );
         }
     }
-    let out_crs = OutCrs {
-        spec: Some(crs.id.clone().unwrap_or_else(|| scene.site.crs.clone())),
-        name: crs.name.clone(),
-        projected: crs.horizontal == Horizontal::Projected,
-        height: HeightKind::Ellipsoidal,
-    };
-    let points: Vec<OutPoint> = gcps
-        .iter()
-        .map(|g| OutPoint {
-            gcp: g,
-            position: g.position,
-            lon_lat: crs.to_lon_lat(g.position.x, g.position.y).ok(),
-            local: Vector3::zeros(),
-            residual: None,
-        })
-        .collect();
-    let csv = emlid(&out_crs, &points).map_err(|e| SimError::Output(e.0))?;
+    let csv = emlid_in_site_crs(scene, &crs, &gcps)?;
     let paths = [
         out.join("gcps.csv"),
         out.join("truth").join("gcps.csv"),
@@ -726,23 +731,7 @@ fn write_survey_flight(
             }
         }
     }
-    let out_crs = OutCrs {
-        spec: Some(crs.id.clone().unwrap_or_else(|| scene.site.crs.clone())),
-        name: crs.name.clone(),
-        projected: crs.horizontal == Horizontal::Projected,
-        height: HeightKind::Ellipsoidal,
-    };
-    let points: Vec<OutPoint> = centres
-        .iter()
-        .map(|g| OutPoint {
-            gcp: g,
-            position: g.position,
-            lon_lat: crs.to_lon_lat(g.position.x, g.position.y).ok(),
-            local: Vector3::zeros(),
-            residual: None,
-        })
-        .collect();
-    let csv = emlid(&out_crs, &points).map_err(|e| SimError::Output(e.0))?;
+    let csv = emlid_in_site_crs(scene, &crs, &centres)?;
     let paths = [
         dir.join("centres.csv"),
         dir.join("picks.csv"),

@@ -28,6 +28,34 @@ pub fn data_dir(sub: &str) -> Option<PathBuf> {
     }
 }
 
+/// Rows of a CSV as maps from header to field.
+pub fn read_csv(path: &std::path::Path) -> Vec<std::collections::HashMap<String, String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header: Vec<String> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    lines
+        .map(|l| {
+            header
+                .iter()
+                .cloned()
+                .zip(l.split(',').map(str::to_string))
+                .collect()
+        })
+        .collect()
+}
+
+/// A row's field as a number.
+pub fn num(row: &std::collections::HashMap<String, String>, key: &str) -> f64 {
+    row[key]
+        .parse()
+        .unwrap_or_else(|_| panic!("{key}: '{}'", row[key]))
+}
+
 /// The geostride binary built for these tests.
 pub fn geostride() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))

@@ -20,7 +20,10 @@ use geostride::survey::gis::{CameraPoint, write_cameras};
 use nalgebra::Vector3;
 
 #[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
+    #[command(subcommand)]
+    command: Option<SfmCommand>,
     /// Images, or folders of images (JPEG, PNG, TIFF; a folder's images in name order)
     #[arg(required = true, value_name = "IMAGES-OR-FOLDERS")]
     inputs: Vec<PathBuf>,
@@ -67,8 +70,8 @@ pub struct Args {
     centre_sigma: Vec<f64>,
     /// Output folder: COLMAP text model, points.ply, cameras.csv (and cameras.gpkg when
     /// georeferenced), topview.png, report.json, report.md
-    #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    #[arg(long, value_name = "DIR", required = true)]
+    out: Option<PathBuf>,
     /// Print the report as JSON
     #[arg(long)]
     json: bool,
@@ -115,7 +118,127 @@ fn list_images(inputs: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
     Ok(out)
 }
 
+#[derive(clap::Subcommand)]
+enum SfmCommand {
+    /// Register more images in an existing model (its frame, its points held): their poses
+    Register(RegisterArgs),
+}
+
+#[derive(clap::Args)]
+struct RegisterArgs {
+    /// The model: a folder `geostride sfm` wrote (cameras.txt, images.txt, points3D.txt)
+    #[arg(value_name = "MODEL")]
+    model: PathBuf,
+    /// Images, or folders of images, to register
+    #[arg(required = true, value_name = "IMAGES-OR-FOLDERS")]
+    inputs: Vec<PathBuf>,
+    /// Where the model's images are [default: the folder of the first image given]
+    #[arg(long, value_name = "DIR")]
+    model_images: Option<PathBuf>,
+    /// Model images each image is matched with, nearest by EXIF GPS (all without GPS)
+    #[arg(long, default_value = "8", value_name = "N")]
+    neighbours: usize,
+    /// Output folder: cameras.csv, report.json, report.md
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Print the report as JSON
+    #[arg(long)]
+    json: bool,
+    /// No progress bars
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
+    use geostride::sfm::register_job::{RegisterJob, run_register, write_register_outputs};
+    let images = list_images(&args.inputs)?;
+    let model_images = match &args.model_images {
+        Some(d) => d.clone(),
+        None => images[0]
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from(".")),
+    };
+    if !args.model.join("images.txt").is_file() {
+        return Err(bad_input(anyhow!(
+            "{}: not a model folder (no images.txt): give the --out folder of `geostride sfm`",
+            args.model.display()
+        )));
+    }
+    let inputs: Vec<&Path> = images
+        .iter()
+        .map(PathBuf::as_path)
+        .chain([args.model.as_path()])
+        .collect();
+    create_output_dir(&args.out, inputs)?;
+    let job = RegisterJob {
+        model_dir: args.model.clone(),
+        model_images,
+        images,
+        neighbours: args.neighbours,
+        features: FeatureSettings::default(),
+        matching: MatchSettings::default(),
+        settings: Default::default(),
+        cache_dir: Some(args.out.join("cache")),
+    };
+    let quiet = args.quiet || args.json;
+    let features = progress_bar(
+        quiet,
+        0,
+        "{spinner} features {bar:30} {pos}/{len} images ({eta})",
+    );
+    let matching = progress_bar(
+        quiet,
+        0,
+        "{spinner} matching {bar:30} {pos}/{len} pairs ({eta})",
+    );
+    let run = run_register(&job, &features, &matching).map_err(|e| {
+        if e.is_input() {
+            bad_input(e)
+        } else {
+            anyhow::Error::new(e)
+        }
+    })?;
+    features.finish_and_clear();
+    matching.finish_and_clear();
+    let written = write_register_outputs(&args.out, &run)
+        .map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
+    let r = &run.report;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(r)?);
+        return Ok(());
+    }
+    println!(
+        "Registered {} of {} images in the model of {} images (frame: {})",
+        r.registered, r.images, r.model_images, r.frame
+    );
+    for i in &r.per_image {
+        match (&i.pose, &i.reason) {
+            (Some(_), _) => println!(
+                "  {}: {} of {} correspondences, {:.3} px RMS",
+                i.name,
+                i.inliers,
+                i.correspondences,
+                i.rms_px.unwrap_or(f64::NAN)
+            ),
+            (None, reason) => println!(
+                "  not registered: {}: {}",
+                i.name,
+                reason.as_deref().unwrap_or("")
+            ),
+        }
+    }
+    for f in written {
+        println!("Written: {}", args.out.join(f).display());
+    }
+    Ok(())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(SfmCommand::Register(r)) = args.command {
+        return run_register_cli(r);
+    }
+    let out = args.out.clone().expect("clap requires --out");
     let images = list_images(&args.inputs)?;
     if images.len() < 2 {
         return Err(bad_input(anyhow!(
@@ -166,7 +289,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .chain(args.centres.iter().map(PathBuf::as_path))
         .chain(args.read.picks.iter().map(PathBuf::as_path))
         .collect();
-    create_output_dir(&args.out, inputs)?;
+    create_output_dir(&out, inputs)?;
     let job = SfmJob {
         images,
         camera,
@@ -182,7 +305,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..SfmSettings::default()
         },
         georef,
-        cache_dir: Some(args.out.join("cache")),
+        cache_dir: Some(out.join("cache")),
     };
     let features = progress_bar(
         args.quiet || args.json,
@@ -207,14 +330,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(f) => Some(crs_positions(&run, f)?),
         None => None,
     };
-    let mut written = write_outputs(&args.out, &run, crs.as_ref())
-        .map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
+    let mut written =
+        write_outputs(&out, &run, crs.as_ref()).map_err(|e| anyhow!("{}: {e}", out.display()))?;
     if let (Some(f), Some(c)) = (&frame, &crs) {
-        write_gpkg(&args.out.join("cameras.gpkg"), &run, f, c)?;
+        write_gpkg(&out.join("cameras.gpkg"), &run, f, c)?;
         written.push("cameras.gpkg".into());
     }
-    geostride::sfm::topview::write_topview(&args.out.join("topview.png"), &run)
-        .map_err(|e| anyhow!("{}: {e}", args.out.join("topview.png").display()))?;
+    geostride::sfm::topview::write_topview(&out.join("topview.png"), &run)
+        .map_err(|e| anyhow!("{}: {e}", out.join("topview.png").display()))?;
     written.push("topview.png".into());
     let r = &run.report;
     if args.json {
@@ -296,7 +419,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         r.seconds_reconstruction
     );
     for f in written {
-        println!("Written: {}", args.out.join(f).display());
+        println!("Written: {}", out.join(f).display());
     }
     Ok(())
 }

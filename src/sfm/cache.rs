@@ -146,6 +146,11 @@ impl SfmCache {
         }
     }
 
+    /// Whether it keeps anything.
+    pub fn is_active(&self) -> bool {
+        self.dir.is_some()
+    }
+
     fn path(&self, kind: &str, key: &str) -> Option<PathBuf> {
         Some(self.dir.as_ref()?.join(kind).join(format!("{key}.bin")))
     }

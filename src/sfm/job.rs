@@ -251,7 +251,7 @@ pub struct SfmRun {
     pub report: SfmReport,
 }
 
-fn file_name(p: &Path) -> String {
+pub(crate) fn file_name(p: &Path) -> String {
     p.file_name().map_or_else(
         || p.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
@@ -278,55 +278,10 @@ pub fn run_sfm(
         });
     }
     let t = Instant::now();
-    features.set_length(job.images.len() as u64);
     let cache = SfmCache::new(job.cache_dir.as_deref());
-    let build = crate::pipeline::run::build_id();
-    let feature_settings = format!("{:?}", job.features);
-    let mut found: Vec<Features> = Vec::with_capacity(job.images.len());
-    let mut feature_keys = Vec::with_capacity(job.images.len());
-    let (mut features_cached, mut pairs_cached) = (0, 0);
-    for path in &job.images {
-        let key = if job.cache_dir.is_some() {
-            // The image's bytes: an edited or replaced file is a miss whatever its name.
-            let bytes = std::fs::read(path)
-                .map_err(|e| SfmJobError::Image(crate::imageio::file_error(path, e)))?;
-            key_of(&[
-                build.as_bytes(),
-                &Sha256::digest(&bytes),
-                feature_settings.as_bytes(),
-            ])
-        } else {
-            String::new()
-        };
-        let f = match cache.features(&key) {
-            Some(f) => {
-                features_cached += 1;
-                f
-            }
-            None => {
-                let f = read_features(path, &job.features)?;
-                cache
-                    .store_features(&key, &f)
-                    .map_err(|e| SfmJobError::Cache(e.to_string()))?;
-                f
-            }
-        };
-        feature_keys.push(key);
-        if let Some(first) = found.first()
-            && (f.width, f.height) != (first.width, first.height)
-        {
-            return Err(SfmJobError::MixedSizes {
-                path: path.clone(),
-                width: f.width,
-                height: f.height,
-                first: job.images[0].clone(),
-                first_w: first.width,
-                first_h: first.height,
-            });
-        }
-        found.push(f);
-        features.inc(1);
-    }
+    let (found, feature_keys, features_cached) =
+        extract_features(&job.images, &job.features, &cache, features)?;
+    let mut pairs_cached = 0;
     let seconds_features = t.elapsed().as_secs_f64();
     let (width, height) = (found[0].width, found[0].height);
     // The survey's picks checked before the long work.
@@ -645,6 +600,65 @@ fn index_georef(
     Ok((points, centres))
 }
 
+/// Each image's features (from `cache` where it holds them, else found and stored), their
+/// cache keys, and how many came from the cache. Every image must have the first one's size.
+pub fn extract_features(
+    images: &[PathBuf],
+    settings: &FeatureSettings,
+    cache: &SfmCache,
+    features: &dyn Progress,
+) -> Result<(Vec<Features>, Vec<String>, usize), SfmJobError> {
+    features.set_length(images.len() as u64);
+    let build = crate::pipeline::run::build_id();
+    let feature_settings = format!("{:?}", settings);
+    let mut found: Vec<Features> = Vec::with_capacity(images.len());
+    let mut feature_keys = Vec::with_capacity(images.len());
+    let mut features_cached = 0;
+    for path in images {
+        let key = if cache.is_active() {
+            // The image's bytes: an edited or replaced file is a miss whatever its name.
+            let bytes = std::fs::read(path)
+                .map_err(|e| SfmJobError::Image(crate::imageio::file_error(path, e)))?;
+            key_of(&[
+                build.as_bytes(),
+                &Sha256::digest(&bytes),
+                feature_settings.as_bytes(),
+            ])
+        } else {
+            String::new()
+        };
+        let f = match cache.features(&key) {
+            Some(f) => {
+                features_cached += 1;
+                f
+            }
+            None => {
+                let f = read_features(path, settings)?;
+                cache
+                    .store_features(&key, &f)
+                    .map_err(|e| SfmJobError::Cache(e.to_string()))?;
+                f
+            }
+        };
+        feature_keys.push(key);
+        if let Some(first) = found.first()
+            && (f.width, f.height) != (first.width, first.height)
+        {
+            return Err(SfmJobError::MixedSizes {
+                path: path.clone(),
+                width: f.width,
+                height: f.height,
+                first: images[0].clone(),
+                first_w: first.width,
+                first_h: first.height,
+            });
+        }
+        found.push(f);
+        features.inc(1);
+    }
+    Ok((found, feature_keys, features_cached))
+}
+
 /// The given camera at the images' size.
 fn given_camera(c: &Camera, width: u32, height: u32) -> Result<Camera, SfmJobError> {
     match c.image_size {
@@ -660,7 +674,7 @@ fn given_camera(c: &Camera, width: u32, height: u32) -> Result<Camera, SfmJobErr
 }
 
 /// East-north-up positions of GPS fixes (metres) in a frame at their centroid, and the frame.
-fn enu_of(gps: &[GpsFix]) -> Option<(Vec<Vector3<f64>>, LocalTangentFrame)> {
+pub(crate) fn enu_of(gps: &[GpsFix]) -> Option<(Vec<Vector3<f64>>, LocalTangentFrame)> {
     let g: Vec<Geodetic> = gps
         .iter()
         .map(|f| Geodetic::from_degrees(f.lat_deg, f.lon_deg, f.alt_m.unwrap_or(0.0)))

@@ -13,6 +13,8 @@ pub mod georef;
 pub mod job;
 pub mod matching;
 pub mod reconstruct;
+pub mod register;
+pub mod register_job;
 pub mod sift;
 pub mod topview;
 pub mod tracks;
@@ -142,6 +144,39 @@ pub fn grid_cap(
     keep
 }
 
+/// Each keypoint's relative localisation σ: its detector scale over the median scale of every
+/// image's keypoints (0.25 to 8). A feature found at a coarser scale is located less precisely,
+/// in proportion to its scale; weighting by it made Herz-Jesu's cameras 3.9 → 3.0 mm RMSE
+/// (`docs/sfm.md`).
+pub fn keypoint_sigmas(features: &[Features]) -> Vec<Vec<f64>> {
+    let mut sizes: Vec<f64> = features
+        .iter()
+        .flat_map(|f| f.keypoints.iter().map(|k| k.size))
+        .filter(|s| *s > 0.0 && s.is_finite())
+        .collect();
+    if sizes.is_empty() {
+        return features.iter().map(|f| vec![1.0; f.len()]).collect();
+    }
+    let mid = sizes.len() / 2;
+    let median = *sizes.select_nth_unstable_by(mid, f64::total_cmp).1;
+    features
+        .iter()
+        .map(|f| {
+            f.keypoints
+                .iter()
+                .map(|k| {
+                    let r = k.size / median;
+                    if r.is_finite() {
+                        r.clamp(0.25, 8.0)
+                    } else {
+                        1.0
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,37 +235,4 @@ mod tests {
         // Under the cap: everything.
         assert_eq!(grid_cap(&kps[..50], 400, 100, 100, 4).len(), 50);
     }
-}
-
-/// Each keypoint's relative localisation σ: its detector scale over the median scale of every
-/// image's keypoints (0.25 to 8). A feature found at a coarser scale is located less precisely,
-/// in proportion to its scale; weighting by it made Herz-Jesu's cameras 3.9 → 3.0 mm RMSE
-/// (`docs/sfm.md`).
-pub fn keypoint_sigmas(features: &[Features]) -> Vec<Vec<f64>> {
-    let mut sizes: Vec<f64> = features
-        .iter()
-        .flat_map(|f| f.keypoints.iter().map(|k| k.size))
-        .filter(|s| *s > 0.0 && s.is_finite())
-        .collect();
-    if sizes.is_empty() {
-        return features.iter().map(|f| vec![1.0; f.len()]).collect();
-    }
-    let mid = sizes.len() / 2;
-    let median = *sizes.select_nth_unstable_by(mid, f64::total_cmp).1;
-    features
-        .iter()
-        .map(|f| {
-            f.keypoints
-                .iter()
-                .map(|k| {
-                    let r = k.size / median;
-                    if r.is_finite() {
-                        r.clamp(0.25, 8.0)
-                    } else {
-                        1.0
-                    }
-                })
-                .collect()
-        })
-        .collect()
 }

@@ -103,6 +103,57 @@ pub fn camera_pose(
     }
 }
 
+/// The photos of a survey flight: the nadir grid (flight lines running east, image top north,
+/// lines alternating in direction), then the obliques. `fx`, `fy`, `width`, `height`: the photo
+/// camera's focal lengths and size, pixels.
+pub fn survey_poses(
+    spec: &super::scene::SurveyFlightSpec,
+    fx: f64,
+    fy: f64,
+    width: u32,
+    height: u32,
+    seed: u64,
+) -> Vec<CameraPose> {
+    let h = spec.altitude_m;
+    let foot_e = h * f64::from(width) / fx;
+    let foot_n = h * f64::from(height) / fy;
+    let step_e = (foot_e * (1.0 - spec.forward_overlap)).max(0.5);
+    let step_n = (foot_n * (1.0 - spec.side_overlap)).max(0.5);
+    let [[e0, n0], [e1, n1]] = spec.area;
+    let count = |span: f64, step: f64| (span / step).ceil() as usize + 1;
+    let (ne, nn) = (count(e1 - e0, step_e), count(n1 - n0, step_n));
+    let mut poses = Vec::new();
+    for row in 0..nn {
+        let n = n0 + (n1 - n0) * row as f64 / (nn - 1).max(1) as f64;
+        for k in 0..ne {
+            let col = if row % 2 == 0 { k } else { ne - 1 - k };
+            let e = e0 + (e1 - e0) * col as f64 / (ne - 1).max(1) as f64;
+            let index = poses.len();
+            poses.push(CameraPose {
+                centre: Vector3::new(e, n, h),
+                world_from_cam: nadir(0.0) * jitter(seed ^ 0x05EE_DF11, index, spec.jitter_deg),
+            });
+        }
+    }
+    let target = Vector3::new((e0 + e1) / 2.0, (n0 + n1) / 2.0, 0.0);
+    let reach = h * spec.oblique_deg.to_radians().tan();
+    for k in 0..spec.obliques {
+        let a = std::f64::consts::TAU * f64::from(k) / f64::from(spec.obliques);
+        let forward = Vector3::new(a.sin(), a.cos(), 0.0);
+        let centre = target - forward * reach + Vector3::new(0.0, 0.0, h);
+        let z = (target - centre).normalize();
+        // The image top away from the camera, level.
+        let y0 = -forward;
+        let y = (y0 - z * y0.dot(&z)).normalize();
+        let x = y.cross(&z);
+        poses.push(CameraPose {
+            centre,
+            world_from_cam: Matrix3::from_columns(&[x, y, z]),
+        });
+    }
+    poses
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -147,55 +198,4 @@ mod tests {
         assert!((a.centre - b.centre).norm() < 0.01);
         assert_eq!(camera_pose(&h, 1, 1, 0.04, None), b, "deterministic");
     }
-}
-
-/// The photos of a survey flight: the nadir grid (flight lines running east, image top north,
-/// lines alternating in direction), then the obliques. `fx`, `fy`, `width`, `height`: the photo
-/// camera's focal lengths and size, pixels.
-pub fn survey_poses(
-    spec: &super::scene::SurveyFlightSpec,
-    fx: f64,
-    fy: f64,
-    width: u32,
-    height: u32,
-    seed: u64,
-) -> Vec<CameraPose> {
-    let h = spec.altitude_m;
-    let foot_e = h * f64::from(width) / fx;
-    let foot_n = h * f64::from(height) / fy;
-    let step_e = (foot_e * (1.0 - spec.forward_overlap)).max(0.5);
-    let step_n = (foot_n * (1.0 - spec.side_overlap)).max(0.5);
-    let [[e0, n0], [e1, n1]] = spec.area;
-    let count = |span: f64, step: f64| ((span / step).ceil() as usize).max(0) + 1;
-    let (ne, nn) = (count(e1 - e0, step_e), count(n1 - n0, step_n));
-    let mut poses = Vec::new();
-    for row in 0..nn {
-        let n = n0 + (n1 - n0) * row as f64 / (nn - 1).max(1) as f64;
-        for k in 0..ne {
-            let col = if row % 2 == 0 { k } else { ne - 1 - k };
-            let e = e0 + (e1 - e0) * col as f64 / (ne - 1).max(1) as f64;
-            let index = poses.len();
-            poses.push(CameraPose {
-                centre: Vector3::new(e, n, h),
-                world_from_cam: nadir(0.0) * jitter(seed ^ 0x5EED_F11, index, spec.jitter_deg),
-            });
-        }
-    }
-    let target = Vector3::new((e0 + e1) / 2.0, (n0 + n1) / 2.0, 0.0);
-    let reach = h * spec.oblique_deg.to_radians().tan();
-    for k in 0..spec.obliques {
-        let a = std::f64::consts::TAU * f64::from(k) / f64::from(spec.obliques);
-        let forward = Vector3::new(a.sin(), a.cos(), 0.0);
-        let centre = target - forward * reach + Vector3::new(0.0, 0.0, h);
-        let z = (target - centre).normalize();
-        // The image top away from the camera, level.
-        let y0 = -forward;
-        let y = (y0 - z * y0.dot(&z)).normalize();
-        let x = y.cross(&z);
-        poses.push(CameraPose {
-            centre,
-            world_from_cam: Matrix3::from_columns(&[x, y, z]),
-        });
-    }
-    poses
 }

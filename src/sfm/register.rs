@@ -1,0 +1,348 @@
+//! New images placed in an existing model (pure): the model read back from its COLMAP text files
+//! (`cameras.txt`, `images.txt` with every keypoint and the point it observes, `points3D.txt`),
+//! each new image's features matched with the model images', the matches that land on a model
+//! point turned into 2D–3D correspondences, then P3P + MSAC and Gauss–Newton on the inliers. The
+//! model is held as it is: a registered image gets a pose in the model's frame and nothing else
+//! moves.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector2, Vector3};
+use serde::Serialize;
+
+use crate::camera::Camera;
+use crate::estimate::pnp::{PnpEstimator, gauss_newton_pose};
+use crate::estimate::ransac::{RansacSettings, msac};
+use crate::geom::Rigid3;
+
+/// A model as `geostride sfm` (or COLMAP, with one camera) wrote it.
+#[derive(Clone, Debug)]
+pub struct Model {
+    pub camera: Camera,
+    pub width: u32,
+    pub height: u32,
+    /// Per registered image: its name, `cam_from_world`, and per keypoint (in the order of its
+    /// features) the index into `points` of the point it observes.
+    pub images: Vec<ModelImage>,
+    pub points: Vec<Vector3<f64>>,
+}
+
+#[derive(Clone, Debug)]
+pub struct ModelImage {
+    pub name: String,
+    pub pose: Rigid3,
+    /// Keypoints, full-resolution pixels (geostride's convention).
+    pub keypoints: Vec<Vector2<f64>>,
+    pub point_of: Vec<Option<usize>>,
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("{}{}: {message}", path.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
+pub struct ModelError {
+    pub path: PathBuf,
+    pub line: Option<usize>,
+    pub message: String,
+}
+
+fn numbers(line: &str) -> Option<Vec<f64>> {
+    line.split_whitespace().map(|v| v.parse().ok()).collect()
+}
+
+/// Reads the COLMAP text model in `dir`.
+pub fn read_model(dir: &Path) -> Result<Model, ModelError> {
+    let read = |name: &str| -> Result<(PathBuf, String), ModelError> {
+        let path = dir.join(name);
+        std::fs::read_to_string(&path)
+            .map(|t| (path.clone(), t))
+            .map_err(|e| ModelError {
+                path,
+                line: None,
+                message: format!(
+                    "{e} (a model folder holds cameras.txt, images.txt and points3D.txt, as `geostride sfm` writes them)"
+                ),
+            })
+    };
+    let bad = |path: &Path, line: usize, message: String| ModelError {
+        path: path.to_path_buf(),
+        line: Some(line),
+        message,
+    };
+    // cameras.txt: one camera.
+    let (path, text) = read("cameras.txt")?;
+    let mut camera = None;
+    for (k, l) in text.lines().enumerate() {
+        if l.starts_with('#') || l.trim().is_empty() {
+            continue;
+        }
+        if camera.is_some() {
+            return Err(bad(
+                &path,
+                k + 1,
+                "more than one camera: registration uses one".into(),
+            ));
+        }
+        let f: Vec<&str> = l.split_whitespace().collect();
+        let v = f.get(2..).and_then(|r| numbers(&r.join(" ")));
+        let (Some(model), Some(v)) = (f.get(1), v) else {
+            return Err(bad(
+                &path,
+                k + 1,
+                "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS".into(),
+            ));
+        };
+        let want = match *model {
+            "PINHOLE" => 6,
+            "OPENCV" => 10,
+            "FULL_OPENCV" => 14,
+            other => {
+                return Err(bad(
+                    &path,
+                    k + 1,
+                    format!("camera model {other}: PINHOLE, OPENCV or FULL_OPENCV expected"),
+                ));
+            }
+        };
+        if v.len() != want {
+            return Err(bad(
+                &path,
+                k + 1,
+                format!("{model} needs {} parameters", want - 2),
+            ));
+        }
+        let (w, h) = (v[0] as u32, v[1] as u32);
+        let (fx, fy, cx, cy) = (v[2], v[3], v[4] - 0.5, v[5] - 0.5);
+        let mut c = Camera::pinhole(fx, fy, cx, cy).with_image_size(w, h);
+        for (d, x) in c.dist.iter_mut().zip(v[6..].iter()) {
+            *d = *x;
+        }
+        camera = Some((c, w, h));
+    }
+    let (path_c, _) = (path, ());
+    let (camera, width, height) =
+        camera.ok_or_else(|| bad(&path_c, 1, "no camera in the file".into()))?;
+    // points3D.txt: ids to indices.
+    let (path, text) = read("points3D.txt")?;
+    let mut points = Vec::new();
+    let mut index_of: HashMap<i64, usize> = HashMap::new();
+    for (k, l) in text.lines().enumerate() {
+        if l.starts_with('#') || l.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = l.split_whitespace().take(4).collect();
+        let parsed = (f.len() == 4)
+            .then(|| {
+                Some((
+                    f[0].parse::<i64>().ok()?,
+                    Vector3::new(f[1].parse().ok()?, f[2].parse().ok()?, f[3].parse().ok()?),
+                ))
+            })
+            .flatten();
+        let Some((id, xyz)) = parsed else {
+            return Err(bad(&path, k + 1, "expected POINT3D_ID X Y Z ...".into()));
+        };
+        index_of.insert(id, points.len());
+        points.push(xyz);
+    }
+    // images.txt: two lines per image.
+    let (path, text) = read("images.txt")?;
+    let lines: Vec<(usize, &str)> = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.starts_with('#'))
+        .collect();
+    let mut images = Vec::new();
+    for pair in lines.chunks(2) {
+        let (k, head) = pair[0];
+        if head.trim().is_empty() && pair.len() == 1 {
+            continue;
+        }
+        let f: Vec<&str> = head.split_whitespace().collect();
+        let v = (f.len() >= 10)
+            .then(|| numbers(&f[1..8].join(" ")))
+            .flatten()
+            .ok_or_else(|| {
+                bad(
+                    &path,
+                    k + 1,
+                    "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME".into(),
+                )
+            })?;
+        let q = UnitQuaternion::from_quaternion(Quaternion::new(v[0], v[1], v[2], v[3]));
+        let pose = Rigid3::new(Rotation3::from(q), Vector3::new(v[4], v[5], v[6]));
+        let name = f[9..].join(" ");
+        let (k2, row) = pair.get(1).copied().unwrap_or((k + 1, ""));
+        let v = numbers(row)
+            .filter(|v| v.len() % 3 == 0)
+            .ok_or_else(|| bad(&path, k2 + 1, "expected X Y POINT3D_ID triples".into()))?;
+        let mut keypoints = Vec::with_capacity(v.len() / 3);
+        let mut point_of = Vec::with_capacity(v.len() / 3);
+        for t in v.chunks(3) {
+            keypoints.push(Vector2::new(t[0] - 0.5, t[1] - 0.5));
+            let id = t[2] as i64;
+            point_of.push(if id < 0 {
+                None
+            } else {
+                Some(*index_of.get(&id).ok_or_else(|| {
+                    bad(&path, k2 + 1, format!("point {id} is not in points3D.txt"))
+                })?)
+            });
+        }
+        images.push(ModelImage {
+            name,
+            pose,
+            keypoints,
+            point_of,
+        });
+    }
+    if images.is_empty() {
+        return Err(bad(&path, 1, "no registered image in the model".into()));
+    }
+    Ok(Model {
+        camera,
+        width,
+        height,
+        images,
+        points,
+    })
+}
+
+/// One new image's registration.
+#[derive(Clone, Debug, Serialize)]
+pub struct Registration {
+    pub name: String,
+    #[serde(skip)]
+    pub pose: Option<Rigid3>,
+    /// 2D–3D correspondences found, and those the pose agrees with.
+    pub correspondences: usize,
+    pub inliers: usize,
+    /// RMS reprojection error of the inliers, pixels.
+    pub rms_px: Option<f64>,
+    pub reason: Option<String>,
+}
+
+#[derive(Clone, Debug)]
+pub struct RegisterSettings {
+    pub inlier_px: f64,
+    pub min_inliers: usize,
+    pub seed: u64,
+}
+
+impl Default for RegisterSettings {
+    fn default() -> Self {
+        RegisterSettings {
+            inlier_px: 4.0,
+            min_inliers: 30,
+            seed: 0,
+        }
+    }
+}
+
+/// Registers one image from its keypoints (`pixels`) and its matches with model images
+/// (`matches`: model image index, then `(new keypoint, model keypoint)` pairs).
+pub fn register_image(
+    model: &Model,
+    name: &str,
+    pixels: &[Vector2<f64>],
+    matches: &[(usize, Vec<(usize, usize)>)],
+    s: &RegisterSettings,
+) -> Registration {
+    // Each new keypoint's model point, by votes over the model images it matched.
+    let mut votes: HashMap<(usize, usize), usize> = HashMap::new();
+    for (m, pairs) in matches {
+        let img = &model.images[*m];
+        for &(a, b) in pairs {
+            if let Some(Some(p)) = img.point_of.get(b) {
+                *votes.entry((a, *p)).or_insert(0) += 1;
+            }
+        }
+    }
+    let mut best: HashMap<usize, (usize, usize)> = HashMap::new();
+    for (&(a, p), &n) in &votes {
+        let e = best.entry(a).or_insert((p, n));
+        if n > e.1 || (n == e.1 && p < e.0) {
+            *e = (p, n);
+        }
+    }
+    // In keypoint order: the sampler's draws must not depend on a hash map's order.
+    let mut chosen: Vec<(usize, usize)> = best.into_iter().map(|(a, (p, _))| (a, p)).collect();
+    chosen.sort_unstable();
+    let mut world = Vec::new();
+    let mut xy = Vec::new();
+    let mut uv = Vec::new();
+    for &(a, p) in &chosen {
+        let Ok(ray) = model.camera.unproject(&pixels[a]) else {
+            continue;
+        };
+        if ray.z <= 1e-9 {
+            continue;
+        }
+        world.push(model.points[p]);
+        xy.push(Vector2::new(ray.x / ray.z, ray.y / ray.z));
+        uv.push(pixels[a]);
+    }
+    let fail = |reason: String, inliers: usize| Registration {
+        name: name.to_string(),
+        pose: None,
+        correspondences: world.len(),
+        inliers,
+        rms_px: None,
+        reason: Some(reason),
+    };
+    if world.len() < s.min_inliers {
+        return fail(
+            format!(
+                "{} of its features match model points, {} needed (too little overlap with the model's images, or too little texture)",
+                world.len(),
+                s.min_inliers
+            ),
+            0,
+        );
+    }
+    let est = PnpEstimator::new(&world, &xy, model.camera.fx);
+    let Ok(r) = msac(
+        &est,
+        &RansacSettings {
+            threshold: s.inlier_px,
+            seed: s.seed,
+            ..RansacSettings::default()
+        },
+    ) else {
+        return fail("no pose agrees with enough of its matches".into(), 0);
+    };
+    if r.inlier_count < s.min_inliers {
+        return fail(
+            format!(
+                "only {} matches agree on a pose, {} needed",
+                r.inlier_count, s.min_inliers
+            ),
+            r.inlier_count,
+        );
+    }
+    let mut inliers: Vec<usize> = (0..world.len()).filter(|&k| r.inliers[k]).collect();
+    let mut pose = gauss_newton_pose(&world, &xy, &inliers, &r.model, 10);
+    // Once more with the inliers of the refined pose.
+    let err = |pose: &Rigid3, k: usize| -> f64 {
+        model
+            .camera
+            .project(&pose.apply(&world[k]))
+            .map_or(f64::INFINITY, |p| (p - uv[k]).norm())
+    };
+    let again: Vec<usize> = (0..world.len())
+        .filter(|&k| err(&pose, k) <= s.inlier_px)
+        .collect();
+    if again.len() >= s.min_inliers {
+        inliers = again;
+        pose = gauss_newton_pose(&world, &xy, &inliers, &pose, 10);
+    }
+    let rms =
+        (inliers.iter().map(|&k| err(&pose, k).powi(2)).sum::<f64>() / inliers.len() as f64).sqrt();
+    Registration {
+        name: name.to_string(),
+        pose: Some(pose),
+        correspondences: world.len(),
+        inliers: inliers.len(),
+        rms_px: Some(rms),
+        reason: None,
+    }
+}

@@ -1,0 +1,260 @@
+//! `geostride sfm register MODEL IMAGES...` as a library call: the model read back, the model
+//! images' features (from the model's cache where it holds them) and the new images', each new
+//! image matched with its nearest model images (by EXIF GPS when every photo has it, else with
+//! all), then registered (`sfm::register`). The model is not changed.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::Vector2;
+use serde::Serialize;
+
+use super::FeatureSettings;
+use super::cache::SfmCache;
+use super::exif::{GpsFix, read_meta};
+use super::job::{SfmJobError, enu_of, extract_features, file_name};
+use super::matching::{MatchSettings, match_features};
+use super::register::{
+    Model, ModelError, RegisterSettings, Registration, read_model, register_image,
+};
+use crate::progress::Progress;
+
+#[derive(Clone, Debug)]
+pub struct RegisterJob {
+    pub model_dir: PathBuf,
+    /// Where the model's images are (their files, by the names in `images.txt`).
+    pub model_images: PathBuf,
+    pub images: Vec<PathBuf>,
+    /// Model images each new image is matched with, nearest by GPS first; 0: all.
+    pub neighbours: usize,
+    pub features: FeatureSettings,
+    pub matching: MatchSettings,
+    pub settings: RegisterSettings,
+    /// Cache of the new images' features; the model's own cache serves its images.
+    pub cache_dir: Option<PathBuf>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RegisterReport {
+    pub model_images: usize,
+    pub images: usize,
+    pub registered: usize,
+    /// The model's frame as its report says (`site`, `enu`, `model`).
+    pub frame: String,
+    pub per_image: Vec<Registration>,
+    pub seconds: f64,
+}
+
+pub struct RegisterRun {
+    pub model: Model,
+    pub report: RegisterReport,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RegisterError {
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(transparent)]
+    Job(#[from] SfmJobError),
+    #[error(
+        "{}: {found} features, but the model lists {listed} keypoints for it: the model was built from other features (another version or --max-features); build it again or give its images as they were",
+        path.display()
+    )]
+    FeaturesDiffer {
+        path: PathBuf,
+        found: usize,
+        listed: usize,
+    },
+    #[error("{}: the new images are {width}x{height}, the model's camera {mw}x{mh}: register images of the model's camera", path.display())]
+    Size {
+        path: PathBuf,
+        width: u32,
+        height: u32,
+        mw: u32,
+        mh: u32,
+    },
+}
+
+impl RegisterError {
+    pub fn is_input(&self) -> bool {
+        match self {
+            RegisterError::Job(e) => e.is_input(),
+            _ => true,
+        }
+    }
+}
+
+/// Runs the registration; `features` and `matching` show their stages' progress.
+pub fn run_register(
+    job: &RegisterJob,
+    features: &dyn Progress,
+    matching: &dyn Progress,
+) -> Result<RegisterRun, RegisterError> {
+    let t = Instant::now();
+    let model = read_model(&job.model_dir)?;
+    let model_paths: Vec<PathBuf> = model
+        .images
+        .iter()
+        .map(|m| job.model_images.join(&m.name))
+        .collect();
+    let frame = std::fs::read_to_string(job.model_dir.join("report.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["frame"].as_str().map(str::to_string))
+        .unwrap_or_else(|| "model".into());
+    let model_cache = SfmCache::new(Some(&job.model_dir.join("cache")));
+    let mut all: Vec<PathBuf> = model_paths.clone();
+    all.extend(job.images.iter().cloned());
+    // The model's images through its own cache, then the new ones through theirs.
+    let (model_features, _, _) =
+        extract_features(&model_paths, &job.features, &model_cache, features)?;
+    for (k, (f, m)) in model_features.iter().zip(&model.images).enumerate() {
+        if f.len() != m.keypoints.len() {
+            return Err(RegisterError::FeaturesDiffer {
+                path: model_paths[k].clone(),
+                found: f.len(),
+                listed: m.keypoints.len(),
+            });
+        }
+    }
+    let cache = SfmCache::new(job.cache_dir.as_deref());
+    let (new_features, _, _) = extract_features(&job.images, &job.features, &cache, features)?;
+    if let Some(f) = new_features.first()
+        && (f.width, f.height) != (model.width, model.height)
+    {
+        return Err(RegisterError::Size {
+            path: job.images[0].clone(),
+            width: f.width,
+            height: f.height,
+            mw: model.width,
+            mh: model.height,
+        });
+    }
+    // Which model images each new one is matched with.
+    let gps: Option<Vec<GpsFix>> = all
+        .iter()
+        .map(|p| read_meta(p).ok().and_then(|m| m.gps))
+        .collect();
+    let m = model.images.len();
+    let chosen: Vec<Vec<usize>> = match gps.as_ref().and_then(|g| enu_of(g)) {
+        Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..job.images.len())
+            .map(|i| {
+                let here = enu[m + i];
+                let mut by: Vec<(f64, usize)> =
+                    (0..m).map(|k| ((enu[k] - here).xy().norm(), k)).collect();
+                by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                by.into_iter()
+                    .take(job.neighbours)
+                    .map(|(_, k)| k)
+                    .collect()
+            })
+            .collect(),
+        _ => vec![(0..m).collect(); job.images.len()],
+    };
+    matching.set_length(chosen.iter().map(Vec::len).sum::<usize>() as u64);
+    let mut per_image = Vec::new();
+    for (i, path) in job.images.iter().enumerate() {
+        let mut matches = Vec::new();
+        for &k in &chosen[i] {
+            let found = match_features(&new_features[i], &model_features[k], &job.matching);
+            matches.push((k, found.iter().map(|x| (x.a, x.b)).collect::<Vec<_>>()));
+            matching.inc(1);
+        }
+        let pixels: Vec<Vector2<f64>> = new_features[i]
+            .keypoints
+            .iter()
+            .map(|k| Vector2::new(k.x, k.y))
+            .collect();
+        per_image.push(register_image(
+            &model,
+            &file_name(path),
+            &pixels,
+            &matches,
+            &job.settings,
+        ));
+    }
+    let report = RegisterReport {
+        model_images: m,
+        images: job.images.len(),
+        registered: per_image.iter().filter(|r| r.pose.is_some()).count(),
+        frame,
+        per_image,
+        seconds: t.elapsed().as_secs_f64(),
+    };
+    Ok(RegisterRun { model, report })
+}
+
+/// `cameras.csv` of the new images, as `geostride sfm` writes it: each image, whether
+/// registered, the frame, its centre and `cam_from_world` quaternion, its inliers.
+pub fn registered_csv(report: &RegisterReport) -> String {
+    let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz,inliers,rms_px\n");
+    for r in &report.per_image {
+        match r.pose {
+            Some(pose) => {
+                let c = pose.centre();
+                let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
+                s.push_str(&format!(
+                    "{},yes,{},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9},{},{:.3}\n",
+                    r.name,
+                    report.frame,
+                    c.x,
+                    c.y,
+                    c.z,
+                    q.w,
+                    q.i,
+                    q.j,
+                    q.k,
+                    r.inliers,
+                    r.rms_px.unwrap_or(f64::NAN)
+                ));
+            }
+            None => s.push_str(&format!(
+                "{},no,{},,,,,,,,{},\n",
+                r.name, report.frame, r.inliers
+            )),
+        }
+    }
+    s
+}
+
+/// `report.md` of a registration.
+pub fn register_md(r: &RegisterReport) -> String {
+    let mut s = format!(
+        "# Images registered in a model\n\n\
+         - {} of {} images registered in a model of {} images (frame: {})\n\
+         - time: {:.1} s\n\n\
+         | image | registered | correspondences | inliers | RMS px | why not |\n\
+         | --- | --- | --- | --- | --- | --- |\n",
+        r.registered, r.images, r.model_images, r.frame, r.seconds
+    );
+    for i in &r.per_image {
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} |\n",
+            i.name,
+            if i.pose.is_some() { "yes" } else { "no" },
+            i.correspondences,
+            i.inliers,
+            i.rms_px.map_or("-".into(), |v| format!("{v:.3}")),
+            i.reason.as_deref().unwrap_or("")
+        ));
+    }
+    s
+}
+
+/// Writes `cameras.csv`, `report.json` and `report.md` into `out`; their names.
+pub fn write_register_outputs(out: &Path, run: &RegisterRun) -> std::io::Result<Vec<String>> {
+    let files = [
+        ("cameras.csv", registered_csv(&run.report)),
+        (
+            "report.json",
+            serde_json::to_string_pretty(&run.report).map_err(std::io::Error::other)?,
+        ),
+        ("report.md", register_md(&run.report)),
+    ];
+    let mut written = Vec::new();
+    for (name, text) in files {
+        crate::io::write_atomic(&out.join(name), text.as_bytes())?;
+        written.push(name.to_string());
+    }
+    Ok(written)
+}

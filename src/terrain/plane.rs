@@ -140,13 +140,35 @@ impl HeightSurface for Plane {
 }
 
 /// Ground as a plane fitted, for each query, to the points of a cloud inside a square window
-/// around it. Points are bucketed on a grid of the window's size for lookup.
+/// around it (the paper: 2 m, around each person), robustly: points further from the plane than
+/// three robust σ (people, railings, a mismatched tie point) are left out and the plane fitted
+/// again. With too few points the window doubles, up to `max_window_m`. Points are bucketed on a
+/// grid of the window's size for lookup.
 pub struct LocalPlanes {
     points: Vec<Vector3<f64>>,
     window_m: f64,
     cell: std::collections::HashMap<(i64, i64), Vec<usize>>,
     /// Fewest points a window needs.
     pub min_points: usize,
+    /// The widest window tried when the first holds too few points.
+    pub max_window_m: f64,
+    /// Residuals within this are never outliers (the ground's own roughness), metres.
+    pub floor_m: f64,
+}
+
+/// A local plane and how well it is known.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LocalFit {
+    pub plane: Plane,
+    /// σ of the plane's height at the query position, metres (the residuals' spread over the
+    /// points' number and spread).
+    pub sigma_m: f64,
+    /// RMS distance of the kept points from the plane, metres.
+    pub rms_m: f64,
+    pub points: usize,
+    pub outliers: usize,
+    /// The window that held enough points (wider than asked: a fallback).
+    pub window_m: f64,
 }
 
 impl LocalPlanes {
@@ -163,7 +185,9 @@ impl LocalPlanes {
             points,
             window_m,
             cell,
-            min_points: 3,
+            min_points: 6,
+            max_window_m: 4.0 * window_m,
+            floor_m: 0.02,
         }
     }
 
@@ -171,13 +195,14 @@ impl LocalPlanes {
         ((e / size).floor() as i64, (n / size).floor() as i64)
     }
 
-    /// The plane fitted in the window around a position.
-    pub fn plane_at(&self, en: &Vector2<f64>) -> Option<Plane> {
-        let half = self.window_m / 2.0;
+    /// The points within a square of side `side` around `en`.
+    fn near(&self, en: &Vector2<f64>, side: f64) -> Vec<Vector3<f64>> {
+        let half = side / 2.0;
         let (ci, cj) = Self::key(en.x, en.y, self.window_m);
+        let reach = (half / self.window_m).ceil() as i64 + 1;
         let mut near = Vec::new();
-        for di in -1..=1 {
-            for dj in -1..=1 {
+        for di in -reach..=reach {
+            for dj in -reach..=reach {
                 if let Some(ids) = self.cell.get(&(ci + di, cj + dj)) {
                     near.extend(
                         ids.iter()
@@ -187,11 +212,104 @@ impl LocalPlanes {
                 }
             }
         }
-        if near.len() < self.min_points {
-            return None;
-        }
-        Plane::fit(&near).ok().map(|(p, _)| p)
+        near
     }
+
+    /// The robust plane around a position, with its σ there; `None` where even the widest
+    /// window holds too few points.
+    pub fn fit_at(&self, en: &Vector2<f64>) -> Option<LocalFit> {
+        let mut side = self.window_m;
+        loop {
+            let near = self.near(en, side);
+            if near.len() >= self.min_points
+                && let Some(fit) = robust_fit(&near, en, self.floor_m, self.min_points)
+            {
+                return Some(LocalFit {
+                    window_m: side,
+                    ..fit
+                });
+            }
+            if side >= self.max_window_m {
+                return None;
+            }
+            side = (side * 2.0).min(self.max_window_m);
+        }
+    }
+
+    /// The plane fitted in the window around a position.
+    pub fn plane_at(&self, en: &Vector2<f64>) -> Option<Plane> {
+        self.fit_at(en).map(|f| f.plane)
+    }
+}
+
+/// RANSAC (3 `floor_m`), least squares on its inliers, then again with the points within 3
+/// robust σ (1.4826 × the median absolute residual of the kept points, at least `floor_m`),
+/// three times; the height σ at `en` from the fit's covariance.
+fn robust_fit(
+    points: &[Vector3<f64>],
+    en: &Vector2<f64>,
+    floor_m: f64,
+    min_points: usize,
+) -> Option<LocalFit> {
+    // A consensus start (people and railings can be a third of a window's points), seeded by
+    // the position so that a query always gives the same plane.
+    let seed = en.x.to_bits() ^ en.y.to_bits().rotate_left(17);
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
+    let (_, inliers) = Plane::fit_ransac(points, 3.0 * floor_m, 200, &mut rng).ok()?;
+    let mut kept: Vec<Vector3<f64>> = points
+        .iter()
+        .zip(&inliers)
+        .filter(|(_, k)| **k)
+        .map(|(p, _)| *p)
+        .collect();
+    if kept.len() < min_points.max(3) {
+        return None;
+    }
+    let (mut plane, _) = Plane::fit(&kept).ok()?;
+    for _ in 0..3 {
+        let mut r: Vec<f64> = points.iter().map(|p| plane.distance(p).abs()).collect();
+        let mut sorted: Vec<f64> = kept.iter().map(|p| plane.distance(p).abs()).collect();
+        sorted.sort_by(f64::total_cmp);
+        let mad = sorted[sorted.len() / 2];
+        let limit = (3.0 * 1.4826 * mad).max(floor_m);
+        let next: Vec<Vector3<f64>> = points
+            .iter()
+            .zip(r.iter_mut())
+            .filter(|(_, d)| **d <= limit)
+            .map(|(p, _)| *p)
+            .collect();
+        if next.len() < min_points.max(3) {
+            break;
+        }
+        let same = next.len() == kept.len();
+        kept = next;
+        plane = Plane::fit(&kept).ok()?.0;
+        if same {
+            break;
+        }
+    }
+    // Height σ at `en`: heights z = a + b·(e − e₀) + c·(n − n₀) centred at the query, so σ(a)
+    // from (AᵀA)⁻¹ and the residuals' variance.
+    let n = kept.len();
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut ss = 0.0;
+    for p in &kept {
+        let row = Vector3::new(1.0, p.x - en.x, p.y - en.y);
+        ata += row * row.transpose();
+        ss += plane.distance(p).powi(2);
+    }
+    let dof = n.saturating_sub(3).max(1) as f64;
+    let var = ss / dof;
+    let inv = ata.try_inverse()?;
+    let tilt = plane.normal.z.abs().max(1e-9);
+    Some(LocalFit {
+        plane,
+        sigma_m: (var * inv[(0, 0)]).max(0.0).sqrt() / tilt,
+        rms_m: (ss / n as f64).sqrt(),
+        points: n,
+        outliers: points.len() - n,
+        window_m: 0.0,
+    })
 }
 
 impl HeightSurface for LocalPlanes {
@@ -276,6 +394,44 @@ mod tests {
         assert!(
             local.height(&Vector2::new(40.0, 0.0)).is_none(),
             "no points there"
+        );
+    }
+
+    #[test]
+    fn local_planes_leave_out_people_state_their_sigma_and_widen_where_points_are_few() {
+        // Tie points on a sloping deck (1 cm noise), 30 % of them on people 1–2 m up.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let noise = Normal::new(0.0, 0.01).unwrap();
+        let ground = |e: f64, n: f64| 6.0 + 0.03 * e - 0.01 * n;
+        let mut pts = Vec::new();
+        for _ in 0..4000 {
+            let (e, n) = (rng.random_range(-20.0..20.0), rng.random_range(-5.0..5.0));
+            let mut z = ground(e, n) + noise.sample(&mut rng);
+            if rng.random_range(0.0..1.0) < 0.3 {
+                z += rng.random_range(1.0..2.0);
+            }
+            pts.push(Vector3::new(e, n, z));
+        }
+        // A sparse patch: only a handful of points within 1 m of (15, 0).
+        pts.retain(|p| !((p.x - 15.0).abs() < 2.0 && p.y.abs() < 2.0) || p.x > 16.5);
+        let local = LocalPlanes::new(pts, 2.0);
+        let fit = local.fit_at(&Vector2::new(-5.0, 1.0)).unwrap();
+        let h = fit.plane.height(&Vector2::new(-5.0, 1.0)).unwrap();
+        assert!(
+            (h - ground(-5.0, 1.0)).abs() < 3.0 * fit.sigma_m + 1e-3,
+            "{h} {fit:?}"
+        );
+        assert!(fit.sigma_m > 0.001 && fit.sigma_m < 0.01, "{fit:?}");
+        assert!(fit.outliers > 5 && fit.rms_m < 0.02, "{fit:?}");
+        assert_eq!(fit.window_m, 2.0);
+        // The sparse patch: a wider window, still the ground.
+        let wide = local.fit_at(&Vector2::new(15.0, 0.0)).unwrap();
+        assert!(wide.window_m > 2.0, "{wide:?}");
+        let h = wide.plane.height(&Vector2::new(15.0, 0.0)).unwrap();
+        // Points on one side only: extrapolated, and its σ says so.
+        assert!(
+            (h - ground(15.0, 0.0)).abs() < 3.0 * wide.sigma_m + 1e-3 && wide.sigma_m > fit.sigma_m,
+            "{h} {wide:?}"
         );
     }
 }

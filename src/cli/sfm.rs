@@ -130,11 +130,25 @@ struct RegisterArgs {
     #[arg(value_name = "MODEL")]
     model: PathBuf,
     /// Images, or folders of images, to register
-    #[arg(required = true, value_name = "IMAGES-OR-FOLDERS")]
+    #[arg(required_unless_present = "video", value_name = "IMAGES-OR-FOLDERS")]
     inputs: Vec<PathBuf>,
-    /// Where the model's images are [default: the folder of the first image given]
+    /// Or frames of a video: every --every-th, named VIDEO#FRAME
+    #[arg(long, value_name = "VIDEO", conflicts_with = "inputs")]
+    video: Option<PathBuf>,
+    /// With --video: register every N-th frame (from frame 0)
+    #[arg(long, default_value = "25", value_name = "N", requires = "video")]
+    every: usize,
+    /// The camera of the new images (a video's): a calibration file or a preset [default: the
+    /// model's]
+    #[arg(long, value_name = "CAL")]
+    camera: Option<String>,
+    /// Where the model's images are [default: the folder of the first image given; with
+    /// --video, required]
     #[arg(long, value_name = "DIR")]
     model_images: Option<PathBuf>,
+    /// Features per image at most [default: the model's, from its report.json]
+    #[arg(long, value_name = "N")]
+    max_features: Option<usize>,
     /// Model images each image is matched with, nearest by EXIF GPS (all without GPS)
     #[arg(long, default_value = "8", value_name = "N")]
     neighbours: usize,
@@ -149,15 +163,47 @@ struct RegisterArgs {
     quiet: bool,
 }
 
+/// The features' cap the model was built with (its report.json), else the default.
+fn model_max_features(model: &Path) -> usize {
+    std::fs::read_to_string(model.join("report.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["max_features"].as_u64())
+        .map_or(FeatureSettings::default().max_features, |v| v as usize)
+}
+
 fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
     use geostride::sfm::register_job::{RegisterJob, run_register, write_register_outputs};
-    let images = list_images(&args.inputs)?;
-    let model_images = match &args.model_images {
-        Some(d) => d.clone(),
-        None => images[0]
+    let images = if args.video.is_some() {
+        Vec::new()
+    } else {
+        list_images(&args.inputs)?
+    };
+    let model_images = match (&args.model_images, images.first()) {
+        (Some(d), _) => d.clone(),
+        (None, Some(first)) => first
             .parent()
             .map(Path::to_path_buf)
             .unwrap_or_else(|| PathBuf::from(".")),
+        (None, None) => {
+            return Err(bad_input(anyhow!(
+                "--video needs --model-images DIR: the folder of the model's photos"
+            )));
+        }
+    };
+    if let Some(v) = &args.video
+        && !v.is_file()
+    {
+        return Err(bad_input(anyhow!("{}: no such video", v.display())));
+    }
+    if args.every == 0 {
+        return Err(bad_input(anyhow!(
+            "--every 0: register every N-th frame, N ≥ 1"
+        )));
+    }
+    let camera = match &args.camera {
+        Some(spec) => Some(load_camera(spec)?.0),
+        None => None,
     };
     if !args.model.join("images.txt").is_file() {
         return Err(bad_input(anyhow!(
@@ -169,14 +215,22 @@ fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
         .iter()
         .map(PathBuf::as_path)
         .chain([args.model.as_path()])
+        .chain(args.video.iter().map(PathBuf::as_path))
         .collect();
     create_output_dir(&args.out, inputs)?;
     let job = RegisterJob {
         model_dir: args.model.clone(),
         model_images,
         images,
+        video: args.video.clone().map(|v| (v, args.every)),
+        camera,
         neighbours: args.neighbours,
-        features: FeatureSettings::default(),
+        features: FeatureSettings {
+            max_features: args
+                .max_features
+                .unwrap_or_else(|| model_max_features(&args.model)),
+            ..FeatureSettings::default()
+        },
         matching: MatchSettings::default(),
         settings: Default::default(),
         cache_dir: Some(args.out.join("cache")),

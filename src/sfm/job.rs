@@ -235,6 +235,9 @@ pub struct SfmReport {
     pub per_image: Vec<ImageReport>,
     pub seconds_features: f64,
     pub seconds_matching: f64,
+    /// The features' cap per image (`geostride sfm register` finds the model images' features
+    /// with it again).
+    pub max_features: usize,
     /// Images whose features, and pairs whose matches, came from the cache.
     pub features_cached: usize,
     pub pairs_cached: usize,
@@ -470,6 +473,7 @@ pub fn run_sfm(
         per_image,
         seconds_features,
         seconds_matching,
+        max_features: job.features.max_features,
         features_cached,
         pairs_cached,
         seconds_reconstruction,

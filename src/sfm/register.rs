@@ -238,10 +238,11 @@ impl Default for RegisterSettings {
     }
 }
 
-/// Registers one image from its keypoints (`pixels`) and its matches with model images
-/// (`matches`: model image index, then `(new keypoint, model keypoint)` pairs).
+/// Registers one image taken with `camera` from its keypoints (`pixels`) and its matches with
+/// model images (`matches`: model image index, then `(new keypoint, model keypoint)` pairs).
 pub fn register_image(
     model: &Model,
+    camera: &Camera,
     name: &str,
     pixels: &[Vector2<f64>],
     matches: &[(usize, Vec<(usize, usize)>)],
@@ -271,7 +272,7 @@ pub fn register_image(
     let mut xy = Vec::new();
     let mut uv = Vec::new();
     for &(a, p) in &chosen {
-        let Ok(ray) = model.camera.unproject(&pixels[a]) else {
+        let Ok(ray) = camera.unproject(&pixels[a]) else {
             continue;
         };
         if ray.z <= 1e-9 {
@@ -299,7 +300,7 @@ pub fn register_image(
             0,
         );
     }
-    let est = PnpEstimator::new(&world, &xy, model.camera.fx);
+    let est = PnpEstimator::new(&world, &xy, camera.fx);
     let Ok(r) = msac(
         &est,
         &RansacSettings {
@@ -323,8 +324,7 @@ pub fn register_image(
     let mut pose = gauss_newton_pose(&world, &xy, &inliers, &r.model, 10);
     // Once more with the inliers of the refined pose.
     let err = |pose: &Rigid3, k: usize| -> f64 {
-        model
-            .camera
+        camera
             .project(&pose.apply(&world[k]))
             .map_or(f64::INFINITY, |p| (p - uv[k]).norm())
     };

@@ -17,6 +17,7 @@ use super::matching::{MatchSettings, match_features};
 use super::register::{
     Model, ModelError, RegisterSettings, Registration, read_model, register_image,
 };
+use crate::camera::Camera;
 use crate::progress::Progress;
 
 #[derive(Clone, Debug)]
@@ -25,6 +26,10 @@ pub struct RegisterJob {
     /// Where the model's images are (their files, by the names in `images.txt`).
     pub model_images: PathBuf,
     pub images: Vec<PathBuf>,
+    /// Or every `.1`-th frame of a video (named `VIDEO#FRAME`).
+    pub video: Option<(PathBuf, usize)>,
+    /// The new images' camera (a video's, say); `None`: the model's.
+    pub camera: Option<Camera>,
     /// Model images each new image is matched with, nearest by GPS first; 0: all.
     pub neighbours: usize,
     pub features: FeatureSettings,
@@ -65,7 +70,9 @@ pub enum RegisterError {
         found: usize,
         listed: usize,
     },
-    #[error("{}: the new images are {width}x{height}, the model's camera {mw}x{mh}: register images of the model's camera", path.display())]
+    #[error("{0}")]
+    Video(String),
+    #[error("{}: the new images are {width}x{height}, their camera {mw}x{mh}: give the camera of these images (--camera)", path.display())]
     Size {
         path: PathBuf,
         width: u32,
@@ -118,26 +125,53 @@ pub fn run_register(
         }
     }
     let cache = SfmCache::new(job.cache_dir.as_deref());
-    let (new_features, _, _) = extract_features(&job.images, &job.features, &cache, features)?;
+    let (new_features, new_names) = match &job.video {
+        None => (
+            extract_features(&job.images, &job.features, &cache, features)?.0,
+            job.images.iter().map(|p| file_name(p)).collect::<Vec<_>>(),
+        ),
+        Some((video, every)) => video_features(video, *every, &job.features, features)?,
+    };
+    let mut camera = match &job.camera {
+        Some(c) => c.clone(),
+        None => model.camera.clone(),
+    };
+    // A calibration at another resolution of the same aspect (a video mode) is scaled.
+    if let (Some(f), Some(size)) = (new_features.first(), camera.image_size)
+        && (f.width, f.height) != (size.width, size.height)
+        && let Some(scaled) = camera.scaled_to(f.width, f.height)
+    {
+        camera = scaled;
+    }
+    let size = camera
+        .image_size
+        .map_or((model.width, model.height), |s| (s.width, s.height));
     if let Some(f) = new_features.first()
-        && (f.width, f.height) != (model.width, model.height)
+        && (f.width, f.height) != size
     {
         return Err(RegisterError::Size {
-            path: job.images[0].clone(),
+            path: job
+                .video
+                .as_ref()
+                .map_or_else(|| job.images[0].clone(), |v| v.0.clone()),
             width: f.width,
             height: f.height,
-            mw: model.width,
-            mh: model.height,
+            mw: size.0,
+            mh: size.1,
         });
     }
-    // Which model images each new one is matched with.
-    let gps: Option<Vec<GpsFix>> = all
-        .iter()
-        .map(|p| read_meta(p).ok().and_then(|m| m.gps))
-        .collect();
+    // Which model images each new one is matched with (a video's frames have no EXIF GPS).
+    let gps: Option<Vec<GpsFix>> = if job.video.is_some() {
+        None
+    } else {
+        all.iter()
+            .map(|p| read_meta(p).ok().and_then(|m| m.gps))
+            .collect()
+    };
+    let n_new = new_features.len();
     let m = model.images.len();
     let chosen: Vec<Vec<usize>> = match gps.as_ref().and_then(|g| enu_of(g)) {
-        Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..job.images.len())
+        Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..n_new)
             .map(|i| {
                 let here = enu[m + i];
                 let mut by: Vec<(f64, usize)> =
@@ -149,11 +183,11 @@ pub fn run_register(
                     .collect()
             })
             .collect(),
-        _ => vec![(0..m).collect(); job.images.len()],
+        _ => vec![(0..m).collect(); n_new],
     };
     matching.set_length(chosen.iter().map(Vec::len).sum::<usize>() as u64);
     let mut per_image = Vec::new();
-    for (i, path) in job.images.iter().enumerate() {
+    for (i, name) in new_names.iter().enumerate() {
         let mut matches = Vec::new();
         for &k in &chosen[i] {
             let found = match_features(&new_features[i], &model_features[k], &job.matching);
@@ -167,7 +201,8 @@ pub fn run_register(
             .collect();
         per_image.push(register_image(
             &model,
-            &file_name(path),
+            &camera,
+            name,
             &pixels,
             &matches,
             &job.settings,
@@ -175,13 +210,41 @@ pub fn run_register(
     }
     let report = RegisterReport {
         model_images: m,
-        images: job.images.len(),
+        images: n_new,
         registered: per_image.iter().filter(|r| r.pose.is_some()).count(),
         frame,
         per_image,
         seconds: t.elapsed().as_secs_f64(),
     };
     Ok(RegisterRun { model, report })
+}
+
+/// Features of every `every`-th frame of a video (from frame 0), named `VIDEO#FRAME`.
+fn video_features(
+    video: &Path,
+    every: usize,
+    settings: &FeatureSettings,
+    progress: &dyn Progress,
+) -> Result<(Vec<super::Features>, Vec<String>), RegisterError> {
+    let mut reader = crate::video::source::FrameReader::open(video)
+        .map_err(|e| RegisterError::Video(e.to_string()))?;
+    let name = file_name(video);
+    let (mut found, mut names) = (Vec::new(), Vec::new());
+    while let Some((index, grey)) = reader
+        .next_gray()
+        .map_err(|e| RegisterError::Video(e.to_string()))?
+    {
+        if index % every.max(1) != 0 {
+            continue;
+        }
+        found.push(
+            super::sift::features_of_grey(&grey, settings)
+                .map_err(|e| RegisterError::Video(e.to_string()))?,
+        );
+        names.push(format!("{name}#{index}"));
+        progress.inc(1);
+    }
+    Ok((found, names))
 }
 
 /// `cameras.csv` of the new images, as `geostride sfm` writes it: each image, whether

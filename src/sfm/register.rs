@@ -219,6 +219,36 @@ pub struct Registration {
     /// RMS reprojection error of the inliers, pixels.
     pub rms_px: Option<f64>,
     pub reason: Option<String>,
+    /// The pose is not measured but interpolated between the nearest registered frames before
+    /// and after (a video frame whose features failed: blur, water, sky).
+    pub interpolated: bool,
+}
+
+/// Gives each unregistered frame between two registered ones a pose interpolated by frame
+/// number (centres linearly, rotations along the shortest arc) and flags it; `frames` are the
+/// registrations' frame numbers, increasing. Frames before the first or after the last
+/// registered one stay without a pose.
+pub fn interpolate_failed(regs: &mut [Registration], frames: &[usize]) {
+    let known: Vec<usize> = (0..regs.len())
+        .filter(|&k| regs[k].pose.is_some())
+        .collect();
+    for pair in known.windows(2) {
+        let (a, b) = (pair[0], pair[1]);
+        let (pa, pb) = (regs[a].pose.expect("known"), regs[b].pose.expect("known"));
+        let (qa, qb) = (
+            UnitQuaternion::from_rotation_matrix(&pa.rotation),
+            UnitQuaternion::from_rotation_matrix(&pb.rotation),
+        );
+        let (ca, cb) = (pa.centre(), pb.centre());
+        for k in a + 1..b {
+            let t = (frames[k] - frames[a]) as f64 / (frames[b] - frames[a]) as f64;
+            let q = qa.slerp(&qb, t);
+            let c = ca + (cb - ca) * t;
+            let rotation = q.to_rotation_matrix();
+            regs[k].pose = Some(Rigid3::new(rotation, -(rotation * c)));
+            regs[k].interpolated = true;
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -289,6 +319,7 @@ pub fn register_image(
         inliers,
         rms_px: None,
         reason: Some(reason),
+        interpolated: false,
     };
     if world.len() < s.min_inliers {
         return fail(
@@ -344,5 +375,47 @@ pub fn register_image(
         inliers: inliers.len(),
         rms_px: Some(rms),
         reason: None,
+        interpolated: false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reg(pose: Option<Rigid3>) -> Registration {
+        Registration {
+            name: String::new(),
+            pose,
+            correspondences: 0,
+            inliers: 0,
+            rms_px: None,
+            reason: pose.is_none().then(|| "failed".into()),
+            interpolated: false,
+        }
+    }
+
+    #[test]
+    fn failed_frames_between_registered_ones_are_interpolated_and_flagged() {
+        let pose = |e: f64, yaw_deg: f64| {
+            let r = Rotation3::from_euler_angles(std::f64::consts::PI, 0.0, yaw_deg.to_radians());
+            Rigid3::new(r, -(r * Vector3::new(e, 0.0, 30.0)))
+        };
+        let mut regs = vec![
+            reg(None),
+            reg(Some(pose(0.0, 0.0))),
+            reg(None),
+            reg(None),
+            reg(Some(pose(3.0, 3.0))),
+            reg(None),
+        ];
+        interpolate_failed(&mut regs, &[0, 10, 11, 12, 13, 14]);
+        assert!(regs[0].pose.is_none() && regs[5].pose.is_none());
+        assert!(!regs[1].interpolated && regs[2].interpolated && regs[3].interpolated);
+        let p = regs[3].pose.unwrap();
+        // Frame 12 of 10..13: two thirds of the way.
+        assert!((p.centre() - Vector3::new(2.0, 0.0, 30.0)).norm() < 1e-9);
+        let angle = (p.rotation * pose(2.0, 2.0).rotation.inverse()).angle();
+        assert!(angle < 1e-6, "{angle}");
     }
 }

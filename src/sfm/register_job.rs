@@ -208,10 +208,26 @@ pub fn run_register(
             &job.settings,
         ));
     }
+    // A video's frames that failed, between registered ones: interpolated and flagged.
+    if job.video.is_some() {
+        let frames: Vec<usize> = new_names
+            .iter()
+            .map(|n| {
+                n.rsplit('#')
+                    .next()
+                    .and_then(|f| f.parse().ok())
+                    .unwrap_or(0)
+            })
+            .collect();
+        super::register::interpolate_failed(&mut per_image, &frames);
+    }
     let report = RegisterReport {
         model_images: m,
         images: n_new,
-        registered: per_image.iter().filter(|r| r.pose.is_some()).count(),
+        registered: per_image
+            .iter()
+            .filter(|r| r.pose.is_some() && !r.interpolated)
+            .count(),
         frame,
         per_image,
         seconds: t.elapsed().as_secs_f64(),
@@ -254,10 +270,15 @@ pub fn registered_csv(report: &RegisterReport) -> String {
     for r in &report.per_image {
         match r.pose {
             Some(pose) => {
+                let state = if r.interpolated {
+                    "interpolated"
+                } else {
+                    "yes"
+                };
                 let c = pose.centre();
                 let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
                 s.push_str(&format!(
-                    "{},yes,{},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9},{},{:.3}\n",
+                    "{},{state},{},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9},{},{:.3}\n",
                     r.name,
                     report.frame,
                     c.x,
@@ -294,7 +315,11 @@ pub fn register_md(r: &RegisterReport) -> String {
         s.push_str(&format!(
             "| {} | {} | {} | {} | {} | {} |\n",
             i.name,
-            if i.pose.is_some() { "yes" } else { "no" },
+            match (i.pose.is_some(), i.interpolated) {
+                (true, false) => "yes",
+                (true, true) => "interpolated",
+                _ => "no",
+            },
             i.correspondences,
             i.inliers,
             i.rms_px.map_or("-".into(), |v| format!("{v:.3}")),

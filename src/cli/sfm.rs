@@ -163,6 +163,31 @@ struct RegisterArgs {
     quiet: bool,
 }
 
+/// The progress bars of the features and matching stages.
+fn stage_bars(quiet: bool) -> (indicatif::ProgressBar, indicatif::ProgressBar) {
+    (
+        progress_bar(
+            quiet,
+            0,
+            "{spinner} features {bar:30} {pos}/{len} images ({eta})",
+        ),
+        progress_bar(
+            quiet,
+            0,
+            "{spinner} matching {bar:30} {pos}/{len} pairs ({eta})",
+        ),
+    )
+}
+
+/// An error as the command's: exit 2 when the inputs are at fault.
+fn exit_for<E: std::error::Error + Send + Sync + 'static>(e: E, input: bool) -> anyhow::Error {
+    if input {
+        bad_input(e)
+    } else {
+        anyhow::Error::new(e)
+    }
+}
+
 /// The features' cap the model was built with (its report.json), else the default.
 fn model_max_features(model: &Path) -> usize {
     std::fs::read_to_string(model.join("report.json"))
@@ -235,23 +260,10 @@ fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
         settings: Default::default(),
         cache_dir: Some(args.out.join("cache")),
     };
-    let quiet = args.quiet || args.json;
-    let features = progress_bar(
-        quiet,
-        0,
-        "{spinner} features {bar:30} {pos}/{len} images ({eta})",
-    );
-    let matching = progress_bar(
-        quiet,
-        0,
-        "{spinner} matching {bar:30} {pos}/{len} pairs ({eta})",
-    );
+    let (features, matching) = stage_bars(args.quiet || args.json);
     let run = run_register(&job, &features, &matching).map_err(|e| {
-        if e.is_input() {
-            bad_input(e)
-        } else {
-            anyhow::Error::new(e)
-        }
+        let input = e.is_input();
+        exit_for(e, input)
     })?;
     features.finish_and_clear();
     matching.finish_and_clear();
@@ -361,22 +373,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         georef,
         cache_dir: Some(out.join("cache")),
     };
-    let features = progress_bar(
-        args.quiet || args.json,
-        0,
-        "{spinner} features {bar:30} {pos}/{len} images ({eta})",
-    );
-    let matching = progress_bar(
-        args.quiet || args.json,
-        0,
-        "{spinner} matching {bar:30} {pos}/{len} pairs ({eta})",
-    );
+    let (features, matching) = stage_bars(args.quiet || args.json);
     let run = run_sfm(&job, &features, &matching).map_err(|e: SfmJobError| {
-        if e.is_input() {
-            bad_input(e)
-        } else {
-            anyhow::Error::new(e)
-        }
+        let input = e.is_input();
+        exit_for(e, input)
     })?;
     features.finish_and_clear();
     matching.finish_and_clear();

@@ -752,4 +752,30 @@ fn video_frames_are_placed_in_the_reference_model() {
         // Issue 18's must-show for the camera centres: 5 cm.
         assert!(d <= 0.05 && angle <= 0.1, "frame {f}: {d} m, {angle}°");
     }
+    // The camera over time (the paper's Fig. 10): 30 m over the flat track, nadir within the
+    // scene's 0.03° jitter, moving with the group.
+    let series = common::read_csv(&reg.join("pose_series.csv"));
+    assert_eq!(series.len(), 5);
+    for r in &series {
+        let f: usize = r["frame"].parse().unwrap();
+        let t = truth.iter().find(|t| t["frame"] == f.to_string()).unwrap();
+        let altitude = common::num(r, "altitude_m");
+        assert!(
+            (altitude - common::num(t, "centre_u_m")).abs() < 0.03,
+            "{altitude}"
+        );
+        assert!(common::num(r, "off_nadir_deg") < 0.3);
+    }
+    let moved = common::num(&series[4], "translation_m");
+    assert!(
+        (moved - 3.8 * 40.0 / 25.0).abs() < 0.5,
+        "{moved} m in 1.6 s"
+    );
+    for f in [
+        "pose_translation.png",
+        "pose_altitude.png",
+        "pose_off_nadir.png",
+    ] {
+        assert!(reg.join(f).is_file(), "{f}");
+    }
 }

@@ -18,7 +18,9 @@ use super::register::{
     Model, ModelError, RegisterSettings, Registration, read_model, register_image,
 };
 use crate::camera::Camera;
+use crate::draw::{Chart, Series, Style, line_chart};
 use crate::progress::Progress;
+use crate::terrain::HeightSurface;
 
 #[derive(Clone, Debug)]
 pub struct RegisterJob {
@@ -53,6 +55,86 @@ pub struct RegisterReport {
 pub struct RegisterRun {
     pub model: Model,
     pub report: RegisterReport,
+    /// For a video: the camera over time (the paper's Fig. 10).
+    pub series: Option<Vec<PoseSample>>,
+}
+
+/// A video frame's camera: where it is, how far it has moved, its height above the ground
+/// under it and how far it looks off nadir.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseSample {
+    pub frame: usize,
+    pub time_s: f64,
+    pub centre: nalgebra::Vector3<f64>,
+    /// From the first posed frame, metres.
+    pub translation_m: f64,
+    /// Above the model's ground straight below (a robust local plane of its points, 2 m
+    /// window, wider where sparse); `None` where the model has no ground there or its frame has
+    /// no up.
+    pub altitude_m: Option<f64>,
+    /// Angle between the optical axis and straight down, degrees.
+    pub off_nadir_deg: f64,
+    pub interpolated: bool,
+}
+
+/// The camera over time from the frames' poses, in a model whose frame has `up` as its z.
+pub fn pose_series(
+    model: &Model,
+    regs: &[Registration],
+    frames: &[usize],
+    fps: f64,
+    up: bool,
+) -> Vec<PoseSample> {
+    let ground = up.then(|| crate::terrain::LocalPlanes::new(model.points.clone(), 2.0));
+    let mut first = None;
+    let mut out = Vec::new();
+    for (r, &f) in regs.iter().zip(frames) {
+        let Some(pose) = r.pose else { continue };
+        let c = pose.centre();
+        let start = *first.get_or_insert(c);
+        let axis = pose.rotation.inverse() * nalgebra::Vector3::z();
+        let altitude_m = ground
+            .as_ref()
+            .and_then(|g| g.fit_at(&c.xy()))
+            .and_then(|fit| fit.plane.height(&c.xy()))
+            .map(|z| c.z - z);
+        out.push(PoseSample {
+            frame: f,
+            time_s: f as f64 / fps,
+            centre: c,
+            translation_m: (c - start).norm(),
+            altitude_m,
+            off_nadir_deg: axis
+                .dot(&-nalgebra::Vector3::z())
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees(),
+            interpolated: r.interpolated,
+        });
+    }
+    out
+}
+
+/// `pose_series.csv`.
+pub fn pose_series_csv(series: &[PoseSample]) -> String {
+    let mut s = String::from(
+        "frame,time_s,e_m,n_m,u_m,translation_m,altitude_m,off_nadir_deg,interpolated\n",
+    );
+    for p in series {
+        s.push_str(&format!(
+            "{},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{}\n",
+            p.frame,
+            p.time_s,
+            p.centre.x,
+            p.centre.y,
+            p.centre.z,
+            p.translation_m,
+            p.altitude_m.map_or(String::new(), |a| format!("{a:.4}")),
+            p.off_nadir_deg,
+            u8::from(p.interpolated)
+        ));
+    }
+    s
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -125,10 +207,11 @@ pub fn run_register(
         }
     }
     let cache = SfmCache::new(job.cache_dir.as_deref());
-    let (new_features, new_names) = match &job.video {
+    let (new_features, new_names, fps) = match &job.video {
         None => (
             extract_features(&job.images, &job.features, &cache, features)?.0,
             job.images.iter().map(|p| file_name(p)).collect::<Vec<_>>(),
+            1.0,
         ),
         Some((video, every)) => video_features(video, *every, &job.features, features)?,
     };
@@ -209,6 +292,7 @@ pub fn run_register(
         ));
     }
     // A video's frames that failed, between registered ones: interpolated and flagged.
+    let mut series = None;
     if job.video.is_some() {
         let frames: Vec<usize> = new_names
             .iter()
@@ -220,6 +304,13 @@ pub fn run_register(
             })
             .collect();
         super::register::interpolate_failed(&mut per_image, &frames);
+        series = Some(pose_series(
+            &model,
+            &per_image,
+            &frames,
+            fps,
+            frame != "model",
+        ));
     }
     let report = RegisterReport {
         model_images: m,
@@ -232,7 +323,11 @@ pub fn run_register(
         per_image,
         seconds: t.elapsed().as_secs_f64(),
     };
-    Ok(RegisterRun { model, report })
+    Ok(RegisterRun {
+        model,
+        report,
+        series,
+    })
 }
 
 /// Features of every `every`-th frame of a video (from frame 0), named `VIDEO#FRAME`.
@@ -241,9 +336,10 @@ fn video_features(
     every: usize,
     settings: &FeatureSettings,
     progress: &dyn Progress,
-) -> Result<(Vec<super::Features>, Vec<String>), RegisterError> {
+) -> Result<(Vec<super::Features>, Vec<String>, f64), RegisterError> {
     let mut reader = crate::video::source::FrameReader::open(video)
         .map_err(|e| RegisterError::Video(e.to_string()))?;
+    let fps = reader.fps;
     let name = file_name(video);
     let (mut found, mut names) = (Vec::new(), Vec::new());
     while let Some((index, grey)) = reader
@@ -260,7 +356,7 @@ fn video_features(
         names.push(format!("{name}#{index}"));
         progress.inc(1);
     }
-    Ok((found, names))
+    Ok((found, names, fps))
 }
 
 /// `cameras.csv` of the new images, as `geostride sfm` writes it: each image, whether
@@ -343,6 +439,47 @@ pub fn write_register_outputs(out: &Path, run: &RegisterRun) -> std::io::Result<
     for (name, text) in files {
         crate::io::write_atomic(&out.join(name), text.as_bytes())?;
         written.push(name.to_string());
+    }
+    if let Some(series) = &run.series {
+        crate::io::write_atomic(
+            &out.join("pose_series.csv"),
+            pose_series_csv(series).as_bytes(),
+        )?;
+        written.push("pose_series.csv".into());
+        let panel = |title: &str, y: &str, v: &dyn Fn(&PoseSample) -> Option<f64>| Chart {
+            title: title.into(),
+            x_label: "time, s".into(),
+            y_label: y.into(),
+            series: vec![Series {
+                label: title.into(),
+                xy: series
+                    .iter()
+                    .filter_map(|p| v(p).map(|y| (p.time_s, y)))
+                    .collect(),
+                rgb: [31, 119, 180],
+                style: Style::Line,
+            }],
+            ..Chart::default()
+        };
+        for (file, chart) in [
+            (
+                "pose_translation.png",
+                panel("Camera translation", "m", &|p| Some(p.translation_m)),
+            ),
+            (
+                "pose_altitude.png",
+                panel("Altitude above the ground", "m", &|p| p.altitude_m),
+            ),
+            (
+                "pose_off_nadir.png",
+                panel("Off-nadir angle", "degrees", &|p| Some(p.off_nadir_deg)),
+            ),
+        ] {
+            line_chart(&chart, 900, 360)
+                .and_then(|c| c.save(&out.join(file)))
+                .map_err(std::io::Error::other)?;
+            written.push(file.into());
+        }
     }
     Ok(written)
 }

@@ -511,19 +511,7 @@ pub fn georeference(
     for (k, p) in model.points.iter_mut().enumerate() {
         p.xyz = Vector3::from(problem.points[k]);
     }
-    let (mut sum, mut n) = (0.0, 0usize);
-    for p in &model.points {
-        for &(i, kp) in &p.observations {
-            if let Ok(uv) = model
-                .camera
-                .project(&model.poses[i].expect("registered").apply(&p.xyz))
-            {
-                sum += (uv - pixels[i][kp]).norm();
-                n += 1;
-            }
-        }
-    }
-    model.mean_reprojection_px = sum / n.max(1) as f64;
+    model.mean_reprojection_px = model.mean_reprojection(pixels);
 
     // 3. Residuals.
     let mut residuals = Vec::new();

@@ -389,10 +389,11 @@ pub fn run_sfm(
             )?;
             (None, Some(report))
         }
-        _ => match gps.as_ref().and_then(|g| place_on_gps(&mut r, g)) {
-            Some(mut placement) => {
+        _ => match gps.as_deref().and_then(enu_of).and_then(|(enu, frame)| {
+            place_on_gps(&mut r, &enu, &frame).map(|placement| (enu, placement))
+        }) {
+            Some((enu, mut placement)) => {
                 // Then an adjustment with the GPS positions as priors, at their σ.
-                let (enu, _) = enu_of(gps.as_deref().expect("placed")).expect("placed");
                 let rtk: Option<Vec<[f64; 3]>> = metas.iter().map(|m| m.rtk_sigma_m).collect();
                 let centres: Vec<CentreMeasurement> = (0..n)
                     .map(|i| CentreMeasurement {
@@ -716,10 +717,14 @@ pub fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize)> {
     pairs.into_iter().collect()
 }
 
-/// Scales and places the model on the GPS positions of its registered images (a similarity,
-/// least squares), in an east-north-up frame at their centroid; `None` with fewer than three.
-fn place_on_gps(r: &mut Reconstruction, gps: &[GpsFix]) -> Option<GpsPlacement> {
-    let (enu, frame) = enu_of(gps)?;
+/// Scales and places the model on the GPS positions of its registered images (`enu`, metres in
+/// `frame`, east-north-up at their centroid) by a least-squares similarity; `None` with fewer
+/// than three.
+fn place_on_gps(
+    r: &mut Reconstruction,
+    enu: &[Vector3<f64>],
+    frame: &LocalTangentFrame,
+) -> Option<GpsPlacement> {
     let registered: Vec<usize> = (0..r.poses.len())
         .filter(|&i| r.poses[i].is_some())
         .collect();

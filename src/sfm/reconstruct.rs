@@ -75,6 +75,30 @@ pub struct Reconstruction {
     pub initial_pair: (usize, usize),
 }
 
+impl Reconstruction {
+    /// Mean distance of every observation (`pixels`) from its point's projection, pixels;
+    /// infinite when a point cannot be projected into an image that observes it, NaN without
+    /// observations.
+    pub fn mean_reprojection(&self, pixels: &[Vec<Vector2<f64>>]) -> f64 {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for p in &self.points {
+            for &(i, kp) in &p.observations {
+                let pose = self.poses[i].expect("observed in a registered image");
+                sum += match self.camera.project(&pose.apply(&p.xyz)) {
+                    Ok(uv) => (uv - pixels[i][kp]).norm(),
+                    Err(_) => f64::INFINITY,
+                };
+                count += 1;
+            }
+        }
+        if count > 0 {
+            sum / count as f64
+        } else {
+            f64::NAN
+        }
+    }
+}
+
 /// Why no model could be made.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum SfmError {
@@ -537,28 +561,15 @@ pub fn reconstruct(
     b.adjust(RobustLoss::Squared, s.refine_intrinsics)?;
     let camera = b.camera.clone();
     let points: Vec<ModelPoint> = b.points.into_iter().flatten().collect();
-    let (mut sum, mut count) = (0.0, 0usize);
-    for p in &points {
-        for &f in &p.observations {
-            let pose = b.poses[f.0].expect("registered");
-            sum += match camera.project(&pose.apply(&p.xyz)) {
-                Ok(uv) => (uv - pixels[f.0][f.1]).norm(),
-                Err(_) => f64::INFINITY,
-            };
-            count += 1;
-        }
-    }
-    Ok(Reconstruction {
+    let mut r = Reconstruction {
         poses: b.poses,
         points,
-        mean_reprojection_px: if count > 0 {
-            sum / count as f64
-        } else {
-            f64::NAN
-        },
+        mean_reprojection_px: f64::NAN,
         camera,
         initial_pair,
-    })
+    };
+    r.mean_reprojection_px = r.mean_reprojection(pixels);
+    Ok(r)
 }
 
 #[cfg(test)]

@@ -482,6 +482,55 @@ pub fn simulate(
     })
 }
 
+/// RTK-like noise of a surveyed position: σ horizontal and vertical in metres, the horizontal
+/// noise converted to the CRS's unit.
+struct RtkNoise {
+    horizontal: Normal<f64>,
+    vertical: Normal<f64>,
+    sigma_m: [f64; 2],
+    unit: f64,
+}
+
+impl RtkNoise {
+    fn new(crs: &Crs, sigma_m: [f64; 2]) -> Self {
+        RtkNoise {
+            horizontal: Normal::new(0.0, sigma_m[0].max(1e-12)).expect("sigma"),
+            vertical: Normal::new(0.0, sigma_m[1].max(1e-12)).expect("sigma"),
+            sigma_m,
+            unit: if crs.horizontal == Horizontal::Projected {
+                crs.unit_m
+            } else {
+                1.0
+            },
+        }
+    }
+
+    /// The point at CRS `x`, `y` and height `h` as measured: noisy, with its σ and FIX status.
+    fn measured(
+        &self,
+        name: &str,
+        x: f64,
+        y: f64,
+        h: f64,
+        line: usize,
+        rng: &mut impl rand::Rng,
+    ) -> Gcp {
+        let [sh, sv] = self.sigma_m;
+        let mut g = Gcp::new(
+            name,
+            Vector3::new(
+                x + self.horizontal.sample(rng) / self.unit,
+                y + self.horizontal.sample(rng) / self.unit,
+                h + self.vertical.sample(rng),
+            ),
+            line,
+        );
+        g.sigma_m = Some(Vector3::new(sh, sh, sv));
+        g.status = Some(SolutionStatus::Fix);
+        g
+    }
+}
+
 /// Points in the site CRS (ellipsoidal heights) as an Emlid CSV.
 fn emlid_in_site_crs(scene: &Scene, crs: &Crs, points: &[Gcp]) -> Result<String, SimError> {
     let out_crs = OutCrs {
@@ -519,11 +568,7 @@ fn write_gcps(
     }
     let (crs, tangent) = site_frame(&scene.site)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x6C9_5EED);
-    let [sh, sv] = scene.output.gcp_noise_m;
-    let (nh, nv) = (
-        Normal::new(0.0, sh.max(1e-12)).expect("sigma"),
-        Normal::new(0.0, sv.max(1e-12)).expect("sigma"),
-    );
+    let rtk = RtkNoise::new(&crs, scene.output.gcp_noise_m);
     let pick_noise = Normal::new(0.0, scene.output.pick_noise_px.max(1e-12)).expect("sigma");
     let mut gcps = Vec::new();
     let mut truth = String::from("name,e_m,n_m,u_m,x,y,ellipsoidal_height_m\n");
@@ -543,24 +588,7 @@ fn write_gcps(
             "{name},{:.6},{:.6},{:.6},{x:.6},{y:.6},{:.6}",
             p.x, p.y, p.z, g.h
         );
-        // RTK noise in metres, converted to the CRS's horizontal unit.
-        let unit = if crs.horizontal == Horizontal::Projected {
-            crs.unit_m
-        } else {
-            1.0
-        };
-        let mut gcp = Gcp::new(
-            name.clone(),
-            Vector3::new(
-                x + nh.sample(&mut rng) / unit,
-                y + nh.sample(&mut rng) / unit,
-                g.h + nv.sample(&mut rng),
-            ),
-            line + 2,
-        );
-        gcp.sigma_m = Some(Vector3::new(sh, sh, sv));
-        gcp.status = Some(SolutionStatus::Fix);
-        gcps.push(gcp);
+        gcps.push(rtk.measured(name, x, y, g.h, line + 2, &mut rng));
         if let Some(uv) = first.project(camera, p)
             && uv.x >= 0.0
             && uv.y >= 0.0
@@ -660,17 +688,8 @@ fn write_survey_flight(
     let renderer = Renderer::new(world, photo_camera.clone(), (lo, hi), &settings);
     let (crs, tangent) = site_frame(&scene.site)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5A7E_F117);
-    let [sh, sv] = spec.rtk_noise_m;
-    let (nh, nv) = (
-        Normal::new(0.0, sh.max(1e-12)).expect("sigma"),
-        Normal::new(0.0, sv.max(1e-12)).expect("sigma"),
-    );
+    let rtk = RtkNoise::new(&crs, spec.rtk_noise_m);
     let pick_noise = Normal::new(0.0, scene.output.pick_noise_px.max(1e-12)).expect("sigma");
-    let unit = if crs.horizontal == Horizontal::Projected {
-        crs.unit_m
-    } else {
-        1.0
-    };
     let mut centres = Vec::new();
     let mut picks = String::from("name,image,u,v,sigma\n");
     let mut truth = String::from("image,e_m,n_m,u_m,x,y,ellipsoidal_height_m,qw,qx,qy,qz\n");
@@ -695,18 +714,7 @@ fn write_survey_flight(
             "{name},{:.6},{:.6},{:.6},{x:.6},{y:.6},{:.6},{:.12},{:.12},{:.12},{:.12}",
             pose.centre.x, pose.centre.y, pose.centre.z, g.h, q.w, q.i, q.j, q.k
         );
-        let mut c = Gcp::new(
-            name.clone(),
-            Vector3::new(
-                x + nh.sample(&mut rng) / unit,
-                y + nh.sample(&mut rng) / unit,
-                g.h + nv.sample(&mut rng),
-            ),
-            i + 2,
-        );
-        c.sigma_m = Some(Vector3::new(sh, sh, sv));
-        c.status = Some(SolutionStatus::Fix);
-        centres.push(c);
+        centres.push(rtk.measured(&name, x, y, g.h, i + 2, &mut rng));
         for (gcp, p) in &world.gcps {
             let Some(uv) = pose.project(&photo_camera, p) else {
                 continue;

@@ -121,7 +121,12 @@ pub fn spawn(spec: &PeopleSpec, world: &World, duration_s: f64, seed: u64) -> Ve
         // ten draws find no gap, the runner waits 0.2 s for one, as in a real stream.
         let mut best: Option<Draw> = None;
         for draw in 0..300 {
-            let start_s = start_s + 0.2 * (draw / 10) as f64;
+            // A pack starts together: only a stream's arrival waits for a gap.
+            let start_s = if group {
+                start_s
+            } else {
+                start_s + 0.2 * (draw / 10) as f64
+            };
             let lat = lateral(&mut rng);
             let mut lane_changes = Vec::new();
             let mut tc = start_s;
@@ -134,7 +139,7 @@ pub fn spawn(spec: &PeopleSpec, world: &World, duration_s: f64, seed: u64) -> Ve
                     lane_changes.push((tc, lateral(&mut rng)));
                 }
             }
-            if group || spec.min_spacing_m <= 0.0 {
+            if spec.min_spacing_m <= 0.0 {
                 best = Some((f64::INFINITY, start_s, lat, lane_changes));
                 break;
             }
@@ -514,6 +519,50 @@ mod tests {
         // Without the rule people pass through each other; with it they keep 0.6 m.
         assert!(closest(0.0) < 0.3, "{}", closest(0.0));
         assert!(closest(0.6) >= 0.6 - 1e-6, "{}", closest(0.6));
+    }
+
+    #[test]
+    fn a_pack_keeps_its_distance_too() {
+        let world = World::new(
+            &Ground::Track {
+                centre: [0.0, 0.0],
+                heading_deg: 0.0,
+                lanes: 8,
+                lane_width_m: 1.22,
+                straight_m: 84.4,
+                radius_m: 36.5,
+            },
+            &[],
+            3,
+        );
+        let closest = |spacing: f64| {
+            let spec = PeopleSpec {
+                mode: "group".into(),
+                count: 16,
+                speed_m_s: [3.8, 0.15],
+                lane_changes_per_min: 1.0,
+                min_spacing_m: spacing,
+                ..PeopleSpec::default()
+            };
+            let people = spawn(&spec, &world, 10.0, 7);
+            let mut least = f64::INFINITY;
+            for k in 0..100 {
+                let at: Vec<Vector3<f64>> = people
+                    .iter()
+                    .filter_map(|p| p.pose(&world, k as f64 * 0.1))
+                    .map(|q| q.foot)
+                    .collect();
+                for i in 0..at.len() {
+                    for j in 0..i {
+                        least = least.min((at[i] - at[j]).xy().norm());
+                    }
+                }
+            }
+            least
+        };
+        // Overtaking runners pass through each other without the rule, not with it.
+        assert!(closest(0.0) < 0.3, "{}", closest(0.0));
+        assert!(closest(0.8) >= 0.8 - 1e-3, "{}", closest(0.8));
     }
 
     #[test]

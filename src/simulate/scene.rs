@@ -298,9 +298,10 @@ pub struct PeopleSpec {
     /// Amplitude of the slow brightness changes (clouds), 0 to 1.
     #[serde(default = "PeopleSpec::default_light")]
     pub light_change: f64,
-    /// In a stream, people keep at least this far apart (feet to feet, metres): each arrival's
-    /// lateral position and lane changes are drawn again until it passes everyone at this
-    /// distance, waiting 0.2 s after every ten draws (the widest of 300 draws otherwise).
+    /// People keep at least this far apart (feet to feet, metres): each arrival's lateral
+    /// position and lane changes are drawn again until it passes everyone at this distance (in
+    /// a stream waiting 0.2 s after every ten draws; a group's pack starts together), the
+    /// widest of 300 draws otherwise.
     /// 0: people may pass through each other.
     #[serde(default)]
     pub min_spacing_m: f64,

@@ -86,6 +86,9 @@ pub struct PointResidual {
     pub residual_m: Option<[f64; 3]>,
     /// RMS distance of its picks from the projections of its surveyed position, pixels.
     pub rms_px: Option<f64>,
+    /// Mean distance of its picks from the projections of the model's estimate of it (as
+    /// Metashape reports a marker's error), pixels.
+    pub estimate_mean_px: Option<f64>,
     pub sigma_m: [f64; 3],
 }
 
@@ -109,6 +112,9 @@ pub struct GeorefReport {
     pub check_rms: Option<Rms>,
     pub control_rms_px: Option<f64>,
     pub check_rms_px: Option<f64>,
+    /// Mean distance of the control points' picks from the projections of their adjusted
+    /// positions, over every pick, pixels (the paper's and Metashape's marker error).
+    pub control_mean_px: Option<f64>,
     /// Adjusted camera centres against their measurements.
     pub centres_rms: Option<Rms>,
     /// The model's scale change: site metres per model unit.
@@ -287,6 +293,22 @@ fn rms_of(residuals: &[[f64; 3]]) -> Option<Rms> {
             .sqrt(),
         vertical_m: (residuals.iter().map(|r| r[2] * r[2]).sum::<f64>() / n).sqrt(),
     })
+}
+
+/// The picks' distances from the projections of `x`, pixels.
+fn pick_errors_px(
+    camera: &Camera,
+    poses: &[Option<Rigid3>],
+    picks: &[Pick],
+    x: &Vector3<f64>,
+) -> Vec<f64> {
+    picks
+        .iter()
+        .filter_map(|p| {
+            let uv = camera.project(&poses[p.image]?.apply(x)).ok()?;
+            Some((uv - p.uv).norm())
+        })
+        .collect()
 }
 
 /// RMS of the picks' distances from the projections of `x`.
@@ -538,6 +560,10 @@ pub fn georeference(
             images: p.picks.len(),
             residual_m: estimate.map(|x| (x - p.position).into()),
             rms_px: pick_rms_px(&model.camera, &model.poses, &p.picks, &p.position),
+            estimate_mean_px: estimate.and_then(|x| {
+                let e = pick_errors_px(&model.camera, &model.poses, &p.picks, &x);
+                (!e.is_empty()).then(|| e.iter().sum::<f64>() / e.len() as f64)
+            }),
             sigma_m: p.sigma_m.into(),
         });
     }
@@ -558,6 +584,16 @@ pub fn georeference(
         }
         (m > 0).then(|| (s2 / m as f64).sqrt())
     };
+    let control_mean_px = {
+        let (mut sum, mut m) = (0.0, 0usize);
+        for x in residuals.iter().filter(|x| x.role == PointRole::Control) {
+            if let Some(px) = x.estimate_mean_px {
+                sum += px * x.images as f64;
+                m += x.images;
+            }
+        }
+        (m > 0).then(|| sum / m as f64)
+    };
     let centre_residuals: Vec<[f64; 3]> = centres
         .iter()
         .map(|c| (model.poses[c.image].expect("registered").centre() - c.position).into())
@@ -569,6 +605,7 @@ pub fn georeference(
         check_rms: rms_of(&of_role(PointRole::Check)),
         control_rms_px: px_of_role(PointRole::Control),
         check_rms_px: px_of_role(PointRole::Check),
+        control_mean_px,
         centres_rms: rms_of(&centre_residuals),
         points: residuals,
         scale: sim.scale,

@@ -849,7 +849,7 @@ fn georef_md(g: &GeorefReport, frame: &str) -> String {
         "\n## Georeferencing\n\n\
          - frame: {frame}\n\
          - placed by the {}, then adjusted with the control points' and centres' σ\n\
-         - control points: {}, picks {}\n\
+         - control points: {}, picks {} RMS from the surveyed positions, {} mean from the adjusted ones\n\
          - check points: {}, picks {}\n\
          - camera centres against their measurements: {}\n\n\
          | point | role | images | east m | north m | up m | picks px | σ e/n/u m |\n\
@@ -857,6 +857,7 @@ fn georef_md(g: &GeorefReport, frame: &str) -> String {
         g.placed_by,
         rms(&g.control_rms),
         px(g.control_rms_px),
+        px(g.control_mean_px),
         rms(&g.check_rms),
         px(g.check_rms_px),
         rms(&g.centres_rms),

@@ -21,7 +21,8 @@ pub struct WorldPoint {
     pub position: Vector3<f64>,
     /// Horizontal covariance from the pixel noise, m².
     pub cov_pixel: Matrix2<f64>,
-    /// Horizontal covariance from the height's uncertainty, m² (systematic for a person).
+    /// Horizontal covariance from the height's uncertainty and the ground's, m² (systematic for
+    /// a person).
     pub cov_height: Matrix2<f64>,
     /// Horizontal covariance from the pose's uncertainty, m² (shared within a frame).
     pub cov_pose: Matrix2<f64>,
@@ -97,11 +98,14 @@ pub fn project(
         j_uv.set_column(k, &(a - b));
     }
     let cov_pixel = j_uv * uv_cov * j_uv.transpose();
-    let cov_height = if height_sd_m > 0.0 {
+    // The ground's own σ (a plane fitted to points) shifts the head as the height's does.
+    let ground_sd_m = surface.height_sigma(&position.xy()).unwrap_or(0.0);
+    let sd_m = height_sd_m.hypot(ground_sd_m);
+    let cov_height = if sd_m > 0.0 {
         let dh = 0.05;
         let g = (at(cam_from_world, height_m + dh, uv)? - at(cam_from_world, height_m - dh, uv)?)
             / (2.0 * dh);
-        g * g.transpose() * (height_sd_m * height_sd_m)
+        g * g.transpose() * (sd_m * sd_m)
     } else {
         Matrix2::zeros()
     };

@@ -20,6 +20,12 @@ pub trait HeightSurface {
     /// Height at a horizontal position, or `None` outside the surface.
     fn height(&self, en: &Vector2<f64>) -> Option<f64>;
 
+    /// σ of the height at a horizontal position, metres, where the surface knows it (a plane
+    /// fitted to points); `None`: taken as exact.
+    fn height_sigma(&self, _en: &Vector2<f64>) -> Option<f64> {
+        None
+    }
+
     /// Upward unit normal at a horizontal position. The default differentiates `height`
     /// numerically over 5 cm.
     fn normal(&self, en: &Vector2<f64>) -> Option<Vector3<f64>> {
@@ -51,6 +57,10 @@ impl<S: HeightSurface> HeightSurface for Offset<S> {
 
     fn normal(&self, en: &Vector2<f64>) -> Option<Vector3<f64>> {
         self.base_point(en).map(|(_, n)| n)
+    }
+
+    fn height_sigma(&self, en: &Vector2<f64>) -> Option<f64> {
+        self.base.height_sigma(&self.base_point(en)?.0)
     }
 }
 

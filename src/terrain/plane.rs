@@ -143,9 +143,15 @@ impl HeightSurface for Plane {
 /// around it (the paper: 2 m, around each person), robustly: points further from the plane than
 /// three robust σ (people, railings, a mismatched tie point) are left out and the plane fitted
 /// again. With too few points the window doubles, up to `max_window_m`. Points are bucketed on a
-/// grid of the window's size for lookup.
+/// grid of the window's size for lookup. As a [`HeightSurface`], fits are made at the nodes of a
+/// 5 cm grid, each once (a projection asks a few dozen times around each point; the windows of
+/// neighbouring nodes share nearly all their points), and blended between them.
 pub struct LocalPlanes {
     points: Vec<Vector3<f64>>,
+    memo: std::sync::Mutex<std::collections::HashMap<(i64, i64), Option<LocalFit>>>,
+    /// The robust plane of the whole cloud, for a query where even the widest window is too
+    /// sparse (its σ the cloud's RMS about it); made once, when first needed.
+    whole: std::sync::OnceLock<Option<LocalFit>>,
     window_m: f64,
     cell: std::collections::HashMap<(i64, i64), Vec<usize>>,
     /// Fewest points a window needs.
@@ -183,6 +189,8 @@ impl LocalPlanes {
         }
         LocalPlanes {
             points,
+            memo: Default::default(),
+            whole: Default::default(),
             window_m,
             cell,
             min_points: 6,
@@ -239,6 +247,59 @@ impl LocalPlanes {
     /// The plane fitted in the window around a position.
     pub fn plane_at(&self, en: &Vector2<f64>) -> Option<Plane> {
         self.fit_at(en).map(|f| f.plane)
+    }
+
+    /// The fallback: the robust plane of every point, its σ the kept points' RMS about it (a
+    /// site far from flat gets a σ to match), `window_m` 0.
+    pub fn whole_cloud(&self) -> Option<LocalFit> {
+        self.whole
+            .get_or_init(|| {
+                let n = self.points.len() as f64;
+                let centre = self.points.iter().fold(Vector2::zeros(), |a, p| a + p.xy()) / n;
+                let fit = robust_fit(&self.points, &centre, self.floor_m, self.min_points)?;
+                Some(LocalFit {
+                    sigma_m: fit.rms_m.max(fit.sigma_m),
+                    window_m: 0.0,
+                    ..fit
+                })
+            })
+            .clone()
+    }
+
+    /// The fit at the 5 cm grid node nearest `en`, made once; the whole cloud's plane where
+    /// the widest window is too sparse.
+    pub fn fit_near(&self, en: &Vector2<f64>) -> Option<LocalFit> {
+        self.fit_node(
+            (en.x / NODE_STEP_M).round() as i64,
+            (en.y / NODE_STEP_M).round() as i64,
+        )
+    }
+
+    /// The fit at grid node `(i, j)` (at `(i, j)` × 5 cm), made once.
+    fn fit_node(&self, i: i64, j: i64) -> Option<LocalFit> {
+        if let Some(f) = self.memo.lock().ok().and_then(|m| m.get(&(i, j)).cloned()) {
+            return f;
+        }
+        let node = Vector2::new(i as f64 * NODE_STEP_M, j as f64 * NODE_STEP_M);
+        let fit = self.fit_at(&node).or_else(|| self.whole_cloud());
+        if let Ok(mut m) = self.memo.lock() {
+            m.insert((i, j), fit.clone());
+        }
+        fit
+    }
+
+    /// The four nodes around `en` with their bilinear weights.
+    fn around(en: &Vector2<f64>) -> [((i64, i64), f64); 4] {
+        let (x, y) = (en.x / NODE_STEP_M, en.y / NODE_STEP_M);
+        let (i, j) = (x.floor(), y.floor());
+        let (tx, ty) = (x - i, y - j);
+        let (i, j) = (i as i64, j as i64);
+        [
+            ((i, j), (1.0 - tx) * (1.0 - ty)),
+            ((i + 1, j), tx * (1.0 - ty)),
+            ((i, j + 1), (1.0 - tx) * ty),
+            ((i + 1, j + 1), tx * ty),
+        ]
     }
 }
 
@@ -312,13 +373,35 @@ fn robust_fit(
     })
 }
 
+/// The grid the fits of a [`LocalPlanes`] surface are made on, metres.
+const NODE_STEP_M: f64 = 0.05;
+
+/// As a surface, the heights of the four nodes' planes at the query, blended bilinearly: the
+/// ground is then continuous (a projection's fixed-point iteration and its finite differences
+/// never meet a step between two nodes' planes).
 impl HeightSurface for LocalPlanes {
     fn height(&self, en: &Vector2<f64>) -> Option<f64> {
-        self.plane_at(en)?.height(en)
+        let mut z = 0.0;
+        for ((i, j), w) in Self::around(en) {
+            z += w * self.fit_node(i, j)?.plane.height(en)?;
+        }
+        Some(z)
     }
 
     fn normal(&self, en: &Vector2<f64>) -> Option<Vector3<f64>> {
-        Some(self.plane_at(en)?.normal)
+        let mut n = Vector3::zeros();
+        for ((i, j), w) in Self::around(en) {
+            n += w * self.fit_node(i, j)?.plane.normal;
+        }
+        Some(n.normalize())
+    }
+
+    fn height_sigma(&self, en: &Vector2<f64>) -> Option<f64> {
+        let mut v = 0.0;
+        for ((i, j), w) in Self::around(en) {
+            v += w * self.fit_node(i, j)?.sigma_m.powi(2);
+        }
+        Some(v.sqrt())
     }
 }
 
@@ -350,6 +433,24 @@ mod tests {
         assert_eq!(Plane::fit(&pts[..2]), Err(PlaneError::TooFewPoints(2)));
         let line: Vec<_> = (0..5).map(|i| Vector3::new(i as f64, 0.0, 0.0)).collect();
         assert_eq!(Plane::fit(&line), Err(PlaneError::Degenerate));
+    }
+
+    #[test]
+    fn local_planes_are_a_continuous_surface() {
+        // Across the 5 cm nodes the blended height moves with the slope only (a step between
+        // two nodes' planes stalled the projection's fixed-point iteration).
+        let local = LocalPlanes::new(noisy_plane(3000, 3), 2.0);
+        let mut prev: Option<f64> = None;
+        for k in 0..400 {
+            let en = Vector2::new(1.0 + 0.0005 * k as f64, 2.0 + 0.0003 * k as f64);
+            let h = local.height(&en).unwrap();
+            if let Some(p) = prev {
+                assert!((h - p).abs() < 2e-5, "{k}: {p} -> {h}");
+            }
+            prev = Some(h);
+        }
+        let s = local.height_sigma(&Vector2::new(1.02, 2.01)).unwrap();
+        assert!(s > 0.0 && s < 0.005, "{s}");
     }
 
     #[test]
@@ -391,9 +492,15 @@ mod tests {
             let expected = Vector3::new(-0.01 * e, -0.01 * n, 1.0).normalize();
             assert!((nrm - expected).norm() < 1e-3);
         }
-        assert!(
-            local.height(&Vector2::new(40.0, 0.0)).is_none(),
-            "no points there"
+        // No points near there: no local plane, but the whole cloud's, its σ the cloud's
+        // spread about it (this ground is curved: centimetres, not the local millimetres).
+        assert!(local.fit_at(&Vector2::new(40.0, 0.0)).is_none());
+        let far = local.fit_near(&Vector2::new(40.0, 0.0)).unwrap();
+        assert_eq!(far.window_m, 0.0);
+        assert!(far.sigma_m >= far.rms_m && far.sigma_m > 0.01, "{far:?}");
+        assert_eq!(
+            local.height_sigma(&Vector2::new(40.0, 0.0)),
+            Some(far.sigma_m)
         );
     }
 

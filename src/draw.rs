@@ -289,6 +289,8 @@ pub struct Chart {
     /// Short vertical marks along the bottom of the plot area, with their legend label.
     pub ticks: Vec<f64>,
     pub ticks_label: String,
+    /// The y axis spans the data only (an altitude near 30 m, say), not from 0.
+    pub y_from_data: bool,
 }
 
 /// A "nice" step (1, 2 or 5 times a power of ten) for about `n` intervals over `span`.
@@ -325,10 +327,12 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
         .flat_map(|s| s.xy.iter())
         .filter(|(x, y)| x.is_finite() && y.is_finite());
     let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+    let mut y_min = f64::INFINITY;
     for &(x, y) in pts {
         x0 = x0.min(x);
         x1 = x1.max(x);
         y1 = y1.max(y);
+        y_min = y_min.min(y);
     }
     if !x0.is_finite() {
         (x0, x1) = (0.0, 1.0);
@@ -336,15 +340,31 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
     if x1 <= x0 {
         x1 = x0 + 1.0;
     }
-    let y_step = nice_step(if y1 > 0.0 { y1 } else { 1.0 }, 5.0);
-    let y1 = (y1 / y_step).ceil().max(1.0) * y_step;
-    let to_px =
-        |x: f64, y: f64| Vector2::new(left + (x - x0) / (x1 - x0) * w, top + h - y / y1 * h);
+    let (y0, y_step, y1) = if chart.y_from_data && y_min.is_finite() && y_min > 0.0 {
+        // At least a few millimetres of span, centred on flat data.
+        let span = (y1 - y_min).max(1e-3 * y1.abs()).max(1e-6);
+        let step = nice_step(span, 5.0);
+        let lo = ((y_min - 0.05 * span) / step).floor() * step;
+        (
+            lo,
+            step,
+            ((y1 + 0.05 * span) / step).ceil().max(lo / step + 1.0) * step,
+        )
+    } else {
+        let step = nice_step(if y1 > 0.0 { y1 } else { 1.0 }, 5.0);
+        (0.0, step, (y1 / step).ceil().max(1.0) * step)
+    };
+    let to_px = |x: f64, y: f64| {
+        Vector2::new(
+            left + (x - x0) / (x1 - x0) * w,
+            top + h - (y - y0) / (y1 - y0) * h,
+        )
+    };
     let grey = [200, 200, 200];
     let black = [0, 0, 0];
     // Grid and labels.
-    let mut y = 0.0;
-    while y <= y1 + 1e-9 * y1 {
+    let mut y = y0;
+    while y <= y1 + 1e-9 * y_step {
         let p = to_px(x0, y);
         c.line(&p, &to_px(x1, y), grey, 1)?;
         let s = label(y, y_step);
@@ -363,7 +383,7 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
     let x_step = nice_step(x1 - x0, 8.0);
     let mut x = (x0 / x_step).ceil() * x_step;
     while x <= x1 + 1e-9 * x_step {
-        let p = to_px(x, 0.0);
+        let p = to_px(x, y0);
         c.line(&p, &(p + Vector2::new(0.0, 5.0)), black, 1)?;
         let s = label(x, x_step);
         c.text(
@@ -378,10 +398,10 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
         )?;
         x += x_step;
     }
-    c.line(&to_px(x0, 0.0), &to_px(x1, 0.0), black, 1)?;
-    c.line(&to_px(x0, 0.0), &to_px(x0, y1), black, 1)?;
+    c.line(&to_px(x0, y0), &to_px(x1, y0), black, 1)?;
+    c.line(&to_px(x0, y0), &to_px(x0, y1), black, 1)?;
     for &t in &chart.ticks {
-        let p = to_px(t, 0.0);
+        let p = to_px(t, y0);
         c.line(&p, &(p - Vector2::new(0.0, 10.0)), [30, 120, 200], 2)?;
     }
     for s in &chart.series {

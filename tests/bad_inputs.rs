@@ -411,6 +411,17 @@ fn cases() -> Vec<Case> {
             place: "field 'pose.picks_frame'",
         },
         Case {
+            id: "project-model-pose-without-a-model",
+            category: "nonsense accepted",
+            files: vec![(
+                "project.toml",
+                project_with("[pose]\nkind = \"model\"\nmodel = \"nowhere\"\nmodel_images = \".\"\n"),
+            )],
+            args: run(),
+            expect: "has no cameras.txt",
+            place: "field 'pose.model'",
+        },
+        Case {
             id: "project-picks-image-not-a-frame",
             category: "nonsense accepted",
             files: vec![("picks.csv", picks_on_frame(fixture()).replace("video.mp4#0", "video.mp4#0a"))],

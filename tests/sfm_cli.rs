@@ -778,4 +778,64 @@ fn video_frames_are_placed_in_the_reference_model() {
     ] {
         assert!(reg.join(f).is_file(), "{f}");
     }
+    // The pipeline's `model` pose: every frame of the clip placed in the model (key frames
+    // registered, the frames between carried), the ground the model's local planes.
+    let project = |model_images: &str| {
+        format!(
+            "[camera]\ncalibration = \"mavic3e\"\n[survey]\ngcps = \"sim/gcps.csv\"\nheight = \"ellipsoidal\"\n[video]\npath = \"sim/{video}\"\n[pose]\nkind = \"model\"\nmodel = \"model\"\nmodel_images = \"{model_images}\"\n[ground]\nkind = \"local_planes\"\nmodel = \"model\"\n[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n"
+        )
+    };
+    std::fs::write(tmp.path().join("bad.toml"), project("sim/no-such-folder")).unwrap();
+    let o = geostride(&[
+        "run",
+        &s(&tmp.path().join("bad.toml")),
+        "--out",
+        &s(&tmp.path().join("bad")),
+        "-q",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("pose.model_images") && err.contains("bad.toml:"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("bad").exists());
+    std::fs::write(
+        tmp.path().join("project.toml"),
+        project("sim/survey/photos"),
+    )
+    .unwrap();
+    let run_dir = tmp.path().join("run");
+    run(&[
+        "run",
+        &s(&tmp.path().join("project.toml")),
+        "--out",
+        &s(&run_dir),
+        "-q",
+    ]);
+    let poses = common::read_csv(&run_dir.join("pose/poses.csv"));
+    assert_eq!(poses.len(), 50, "2 s at 25 fps");
+    let mut worst: f64 = 0.0;
+    for p in &poses {
+        assert_eq!(p["interpolated"], "0", "{p:?}");
+        let t = truth.iter().find(|t| t["frame"] == p["frame"]).unwrap();
+        let c = nalgebra::Vector3::new(
+            common::num(p, "centre_e_m"),
+            common::num(p, "centre_n_m"),
+            common::num(p, "centre_u_m"),
+        );
+        let want = nalgebra::Vector3::new(
+            common::num(t, "centre_e_m"),
+            common::num(t, "centre_n_m"),
+            common::num(t, "centre_u_m"),
+        );
+        worst = worst.max((c - offset - want).norm());
+    }
+    eprintln!("run: every frame's centre within {worst:.4} m of the truth");
+    assert!(worst <= 0.05, "{worst}");
+    for f in ["key_frames.csv", "pose_series.csv", "pose_altitude.png"] {
+        assert!(run_dir.join("pose").join(f).is_file(), "{f}");
+    }
+    let tracks = common::read_csv(&run_dir.join("trajectories.csv"));
+    assert!(!tracks.is_empty());
 }

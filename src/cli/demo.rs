@@ -24,7 +24,7 @@ use geostride::evaluate::{
 use geostride::pipeline::project::{Project, load};
 use geostride::pipeline::run::{RunReport, run as run_project};
 use geostride::pipeline::settings::DetectSection;
-use geostride::simulate::project::{crowd_project, hats_project, project_text};
+use geostride::simulate::project::{crowd_project, group_project, hats_project, project_text};
 use geostride::simulate::run::Overrides;
 use geostride::simulate::scene::{Motion, Scene};
 use geostride::simulate::truth::{
@@ -63,6 +63,11 @@ pub struct Args {
     /// EPSG:31370 for Belgian Lambert 72: the scene's origin is converted with PROJ
     #[arg(long, value_name = "CRS")]
     crs: Option<String>,
+    /// A group of 16 runners with hats followed by a moving drone (surveys/track-group): a
+    /// survey flight's photos made into a reference model by structure from motion, every
+    /// video frame placed in it, the ground its local planes
+    #[arg(long, conflicts_with = "crowd")]
+    group: bool,
     /// Simulate only this many seconds (the scene's duration by default)
     #[arg(long, value_parser = super::parse_positive, value_name = "S")]
     duration: Option<f64>,
@@ -115,6 +120,8 @@ macro_rules! say {
         if $json { eprintln!($($t)*) } else { println!($($t)*) }
     };
 }
+
+mod group;
 
 /// The heads of the truth: those in view, and those just outside (not counted either way).
 fn truth_samples(path: &Path) -> anyhow::Result<(Vec<Sample>, Vec<Sample>)> {
@@ -300,6 +307,18 @@ fn write_project(path: &Path, project: &Project, what: &str) -> anyhow::Result<(
 
 /// Loads the demo's scene (a hovering camera): (scene, its scene.toml, output folder).
 fn demo_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, PathBuf)> {
+    let (scene, scene_path, dir) = any_scene(args, default)?;
+    if !matches!(scene.camera.motion, Motion::Hover { .. }) {
+        return Err(super::bad_input(anyhow!(
+            "{}: this demo needs a hovering camera (camera.motion.kind = \"hover\"); a moving one is `geostride demo --group`'s",
+            scene_path.display()
+        )));
+    }
+    Ok((scene, scene_path, dir))
+}
+
+/// Loads a demo's scene (any camera): (scene, its scene.toml, output folder).
+fn any_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, PathBuf)> {
     let survey = args
         .survey
         .clone()
@@ -313,12 +332,6 @@ fn demo_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, Pat
     if let Some(crs) = &args.crs {
         scene.site = geostride::simulate::run::site_in_crs(&scene.site, crs)
             .map_err(|e| super::bad_input(anyhow!(e)))?;
-    }
-    if !matches!(scene.camera.motion, Motion::Hover { .. }) {
-        return Err(super::bad_input(anyhow!(
-            "{}: the demo needs a hovering camera (camera.motion.kind = \"hover\")",
-            scene_path.display()
-        )));
     }
     let name = survey
         .file_name()
@@ -346,9 +359,78 @@ fn simulate_scene(
     Ok(sim)
 }
 
+/// Calibrates the camera from the simulated checkerboards into `DIR/camera.yaml`, and checks
+/// it against the true camera (scaled to `image_size`, the video's); gives the check and the
+/// true camera.
+fn calibrate_scene(
+    args: &Args,
+    scene: &Scene,
+    scene_path: &Path,
+    dir: &Path,
+    image_size: [u32; 2],
+) -> anyhow::Result<(CalibrationCheck, geostride::camera::Camera)> {
+    let json = args.json;
+    say!(
+        json,
+        "\n2. Calibrating from {}",
+        dir.join("checkerboards").display()
+    );
+    let outcome = run_job(&Job {
+        inputs: vec![dir.join("checkerboards")],
+        board: BOARD,
+        options: Options::default(),
+        collect: CollectSettings::default(),
+        drop_outliers: false,
+        quiet: args.quiet,
+    })?;
+    let cal = outcome.result.to_calibration();
+    formats::write(&cal, &dir.join("camera.yaml"), None).map_err(|e| anyhow!(e))?;
+    let truth_cam = {
+        let spec = &scene.camera.calibration;
+        let c = match geostride::camera::presets::preset(spec) {
+            Some(c) => c.camera,
+            None => {
+                formats::read(&scene.calibration_path(&scene_path), None)
+                    .map_err(|e| anyhow!(e))?
+                    .camera
+            }
+        };
+        super::scale_to(c, image_size[0], image_size[1])?
+    };
+    let (est, tru, sd) = (
+        outcome.result.camera.params(),
+        truth_cam.params(),
+        outcome.result.std_devs(),
+    );
+    let mut worst_z: f64 = 0.0;
+    for i in 0..PARAM_NAMES.len() {
+        if sd[i] > 0.0 {
+            worst_z = worst_z.max(((est[i] - tru[i]) / sd[i]).abs());
+        }
+    }
+    let calibration = CalibrationCheck {
+        views: outcome.result.views.len(),
+        rms_px: outcome.result.rms_px,
+        worst_sigmas: worst_z,
+    };
+    say!(
+        json,
+        "   {} views, RMS {:.3} px; fx {:.2} px (truth {:.2}); every parameter within {:.2} σ of the truth",
+        calibration.views,
+        calibration.rms_px,
+        est[0],
+        tru[0],
+        worst_z
+    );
+    Ok((calibration, truth_cam))
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.crowd {
         return run_crowd(args);
+    }
+    if args.group {
+        return group::run_group(args);
     }
     let started = std::time::Instant::now();
     let json = args.json;
@@ -377,58 +459,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
 
     // 2. Calibrate from the simulated checkerboards, and check against the true camera.
-    say!(
-        json,
-        "\n2. Calibrating from {}",
-        dir.join("checkerboards").display()
-    );
-    let outcome = run_job(&Job {
-        inputs: vec![dir.join("checkerboards")],
-        board: BOARD,
-        options: Options::default(),
-        collect: CollectSettings::default(),
-        drop_outliers: false,
-        quiet: args.quiet,
-    })?;
-    let cal = outcome.result.to_calibration();
-    formats::write(&cal, &dir.join("camera.yaml"), None).map_err(|e| anyhow!(e))?;
-    let truth_cam = {
-        let spec = &scene.camera.calibration;
-        let c = match geostride::camera::presets::preset(spec) {
-            Some(c) => c.camera,
-            None => {
-                formats::read(&scene.calibration_path(&scene_path), None)
-                    .map_err(|e| anyhow!(e))?
-                    .camera
-            }
-        };
-        super::scale_to(c, sim.image_size[0], sim.image_size[1])?
-    };
-    let (est, tru, sd) = (
-        outcome.result.camera.params(),
-        truth_cam.params(),
-        outcome.result.std_devs(),
-    );
-    let mut worst_z: f64 = 0.0;
-    for i in 0..PARAM_NAMES.len() {
-        if sd[i] > 0.0 {
-            worst_z = worst_z.max(((est[i] - tru[i]) / sd[i]).abs());
-        }
-    }
-    let calibration = CalibrationCheck {
-        views: outcome.result.views.len(),
-        rms_px: outcome.result.rms_px,
-        worst_sigmas: worst_z,
-    };
-    say!(
-        json,
-        "   {} views, RMS {:.3} px; fx {:.2} px (truth {:.2}); every parameter within {:.2} σ of the truth",
-        calibration.views,
-        calibration.rms_px,
-        est[0],
-        tru[0],
-        worst_z
-    );
+    let (calibration, truth_cam) =
+        calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
 
     // 3. Run the project: default head height.
     let project = dir.join("project.toml");

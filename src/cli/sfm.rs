@@ -188,14 +188,7 @@ fn exit_for<E: std::error::Error + Send + Sync + 'static>(e: E, input: bool) -> 
     }
 }
 
-/// The features' cap the model was built with (its report.json), else the default.
-fn model_max_features(model: &Path) -> usize {
-    std::fs::read_to_string(model.join("report.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .and_then(|v| v["max_features"].as_u64())
-        .map_or(FeatureSettings::default().max_features, |v| v as usize)
-}
+use geostride::sfm::reference::model_max_features;
 
 fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
     use geostride::sfm::register_job::{RegisterJob, run_register, write_register_outputs};
@@ -300,10 +293,16 @@ fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    if let Some(SfmCommand::Register(r)) = args.command {
-        return run_register_cli(r);
-    }
+/// What `geostride sfm` built and wrote.
+pub(super) struct Built {
+    pub run: geostride::sfm::job::SfmRun,
+    pub written: Vec<String>,
+    pub camera_source: String,
+    pub out: PathBuf,
+}
+
+/// `geostride sfm IMAGES...` without its printout: the model built and its files written.
+pub(super) fn build(args: &Args) -> anyhow::Result<Built> {
     let out = args.out.clone().expect("clap requires --out");
     let images = list_images(&args.inputs)?;
     if images.len() < 2 {
@@ -393,6 +392,37 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     geostride::sfm::topview::write_topview(&out.join("topview.png"), &run)
         .map_err(|e| anyhow!("{}: {e}", out.join("topview.png").display()))?;
     written.push("topview.png".into());
+    Ok(Built {
+        run,
+        written,
+        camera_source,
+        out,
+    })
+}
+
+/// `geostride sfm` read from its words (the demo runs it as a user would).
+pub(super) fn args_from<I: IntoIterator<Item = String>>(words: I) -> anyhow::Result<Args> {
+    #[derive(clap::Parser)]
+    struct Words {
+        #[command(flatten)]
+        args: Args,
+    }
+    let w = <Words as clap::Parser>::try_parse_from(
+        std::iter::once("geostride sfm".to_string()).chain(words),
+    )?;
+    Ok(w.args)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(SfmCommand::Register(r)) = args.command {
+        return run_register_cli(r);
+    }
+    let Built {
+        run,
+        written,
+        camera_source,
+        out,
+    } = build(&args)?;
     let r = &run.report;
     if args.json {
         println!("{}", serde_json::to_string_pretty(r)?);

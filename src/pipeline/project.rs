@@ -10,8 +10,8 @@ use crate::io::{FileCtx, FileError};
 use super::settings::with_default_kind;
 pub use super::settings::{
     AssociationSection, BackgroundSection, BodySettings, BoxesSection, ColourSection,
-    DetectSection, HoverSettings, KalmanRtsSection, KltSection, NoSmoothing, PoseSection,
-    SmoothSection, TrackSection,
+    DetectSection, HoverSettings, KalmanRtsSection, KltSection, ModelSettings, NoSmoothing,
+    PoseSection, SmoothSection, TrackSection,
 };
 
 /// The whole project.
@@ -121,6 +121,17 @@ pub enum GroundSection {
     },
     /// A DEM raster in any CRS (heights of the survey's kind).
     Dem { path: String },
+    /// Local planes fitted robustly to a reference model's points (`geostride sfm`'s output)
+    /// in a `window_m` square around each person (the paper: 2 m), wider where too few.
+    LocalPlanes {
+        model: String,
+        #[serde(default = "default_window")]
+        window_m: f64,
+    },
+}
+
+fn default_window() -> f64 {
+    2.0
 }
 
 fn default_degree() -> usize {
@@ -276,6 +287,14 @@ impl Loaded {
         if let GroundSection::Dem { path } = &p.ground {
             files.push(("ground.path", self.resolve(path)));
         }
+        if let GroundSection::LocalPlanes { model, .. } = &p.ground {
+            files.push(("ground.model", self.resolve(model).join("points3D.txt")));
+        }
+        if let PoseSection::Model(m) = &p.pose {
+            for f in ["cameras.txt", "images.txt", "points3D.txt", "cameras.csv"] {
+                files.push(("pose.model", self.resolve(&m.model).join(f)));
+            }
+        }
         files
     }
 
@@ -423,9 +442,43 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         }
         GroundSection::Dem { path } => exists(l, "ground", "path", path)?,
         GroundSection::Plane { .. } => {}
+        GroundSection::LocalPlanes { model, window_m } => {
+            if !(*window_m > 0.0 && *window_m <= 50.0) {
+                return Err(l.error("ground", "window_m", "expected 0 to 50 metres"));
+            }
+            model_exists(l, "ground", "model", model)?;
+        }
+    }
+    if let super::settings::PoseSection::Model(m) = &p.pose {
+        model_exists(l, "pose", "model", &m.model)?;
+        if !l.resolve(&m.model_images).is_dir() {
+            return Err(l.error(
+                "pose",
+                "model_images",
+                format!("{} is not a folder", l.resolve(&m.model_images).display()),
+            ));
+        }
     }
     check_detect(l)?;
     check_later_stages(l)
+}
+
+/// A reference model's folder: `points3D.txt` and its siblings inside.
+fn model_exists(l: &Loaded, section: &str, key: &str, dir: &str) -> Result<(), FileError> {
+    let d = l.resolve(dir);
+    for f in ["cameras.txt", "images.txt", "points3D.txt"] {
+        if !d.join(f).is_file() {
+            return Err(l.error(
+                section,
+                key,
+                format!(
+                    "{} has no {f}: give the folder geostride sfm wrote (geostride sfm PHOTOS --gcps GCPS --out DIR)",
+                    d.display()
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The `[detect]` section's checks.

@@ -33,6 +33,9 @@ where
 pub enum PoseSection {
     /// A hovering camera: key frames from the picked GCPs, carried to every frame.
     Hover(HoverSettings),
+    /// A moving camera: key frames registered in a reference model (`geostride sfm`'s output),
+    /// the frames between them from the key frame's 2D–3D points carried by the stabiliser.
+    Model(ModelSettings),
 }
 
 impl DefaultKind for PoseSection {
@@ -50,6 +53,59 @@ impl PoseSection {
     pub fn picks_frame(&self) -> Option<usize> {
         match self {
             PoseSection::Hover(h) => h.picks_frame,
+            PoseSection::Model(_) => None,
+        }
+    }
+
+    /// The stabiliser's key-frame settings: (fewest features, fraction, seconds).
+    pub fn key_frames(&self) -> (usize, f64, Option<f64>) {
+        match self {
+            PoseSection::Hover(h) => (h.min_features, h.key_fraction, h.key_every_s),
+            PoseSection::Model(m) => (m.min_features, m.key_fraction, m.key_every_s),
+        }
+    }
+}
+
+/// `[pose] kind = "model"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelSettings {
+    /// The reference model's folder (`geostride sfm ... --gcps --out DIR`, georeferenced in
+    /// the same survey); required.
+    pub model: String,
+    /// The folder of the model's photos (their features are matched with the key frames');
+    /// required.
+    pub model_images: String,
+    /// Model photos each key frame is matched with, nearest the last placed frame first
+    /// (0: all of them).
+    pub neighbours: usize,
+    /// Features per key frame [default: the model's].
+    pub max_features: Option<usize>,
+    /// Fewest 2D–3D inliers that place a key frame.
+    pub min_inliers: usize,
+    /// Side of the square around each detection whose features are left out (the person and
+    /// their shadow move), metres.
+    pub mask_m: f64,
+    /// A new key frame when fewer tracked features than this are left.
+    pub min_features: usize,
+    /// ... or fewer than this fraction of the key frame's.
+    pub key_fraction: f64,
+    /// ... or this long after the last one, seconds.
+    pub key_every_s: Option<f64>,
+}
+
+impl Default for ModelSettings {
+    fn default() -> Self {
+        ModelSettings {
+            model: String::new(),
+            model_images: String::new(),
+            neighbours: 6,
+            max_features: None,
+            min_inliers: 30,
+            mask_m: 2.0,
+            min_features: 40,
+            key_fraction: 0.5,
+            key_every_s: Some(1.0),
         }
     }
 }
@@ -474,6 +530,39 @@ impl PoseSection {
                 }
                 if h.min_features < 4 {
                     return bad("min_features", "must be at least 4");
+                }
+                Ok(())
+            }
+            PoseSection::Model(m) => {
+                if m.model.is_empty() {
+                    return bad(
+                        "model",
+                        "the 'model' pose needs the reference model's folder: model = \"model\" (made by geostride sfm PHOTOS --gcps GCPS --out model)",
+                    );
+                }
+                if m.model_images.is_empty() {
+                    return bad(
+                        "model_images",
+                        "the 'model' pose needs the folder of the model's photos: model_images = \"photos\"",
+                    );
+                }
+                if !(0.0..=1.0).contains(&m.key_fraction) {
+                    return bad("key_fraction", "expected a fraction from 0 to 1");
+                }
+                if m.key_every_s.is_some_and(|s| !(s > 0.0)) {
+                    return bad("key_every_s", "must be positive");
+                }
+                if m.min_features < 4 {
+                    return bad("min_features", "must be at least 4");
+                }
+                if m.min_inliers < 6 {
+                    return bad("min_inliers", "must be at least 6");
+                }
+                if !(m.mask_m >= 0.0) {
+                    return bad("mask_m", "must be 0 or more");
+                }
+                if m.max_features.is_some_and(|n| n < 100) {
+                    return bad("max_features", "at least 100");
                 }
                 Ok(())
             }

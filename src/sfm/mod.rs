@@ -13,6 +13,7 @@ pub mod georef;
 pub mod job;
 pub mod matching;
 pub mod reconstruct;
+pub mod reference;
 pub mod register;
 pub mod register_job;
 pub mod sift;

@@ -222,6 +222,9 @@ pub struct Registration {
     /// The pose is not measured but interpolated between the nearest registered frames before
     /// and after (a video frame whose features failed: blur, water, sky).
     pub interpolated: bool,
+    /// The inliers: each keypoint's pixel and its model point (what a tracker carries on).
+    #[serde(skip)]
+    pub matched: Vec<(Vector2<f64>, Vector3<f64>)>,
 }
 
 /// Gives each unregistered frame between two registered ones a pose interpolated by frame
@@ -320,6 +323,7 @@ pub fn register_image(
         rms_px: None,
         reason: Some(reason),
         interpolated: false,
+        matched: Vec::new(),
     };
     if world.len() < s.min_inliers {
         return fail(
@@ -376,6 +380,7 @@ pub fn register_image(
         rms_px: Some(rms),
         reason: None,
         interpolated: false,
+        matched: inliers.iter().map(|&k| (uv[k], world[k])).collect(),
     }
 }
 
@@ -392,6 +397,7 @@ mod tests {
             rms_px: None,
             reason: pose.is_none().then(|| "failed".into()),
             interpolated: false,
+            matched: Vec::new(),
         }
     }
 

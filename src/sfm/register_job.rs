@@ -6,17 +6,15 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nalgebra::Vector2;
 use serde::Serialize;
 
 use super::FeatureSettings;
 use super::cache::SfmCache;
 use super::exif::{GpsFix, read_meta};
 use super::job::{SfmJobError, enu_of, extract_features, file_name};
-use super::matching::{MatchSettings, match_features};
-use super::register::{
-    Model, ModelError, RegisterSettings, Registration, read_model, register_image,
-};
+use super::matching::MatchSettings;
+use super::reference::Reference;
+use super::register::{Model, ModelError, RegisterSettings, Registration};
 use crate::camera::Camera;
 use crate::draw::{Chart, Series, Style, line_chart};
 use crate::progress::Progress;
@@ -86,18 +84,32 @@ pub fn pose_series(
     up: bool,
 ) -> Vec<PoseSample> {
     let ground = up.then(|| crate::terrain::LocalPlanes::new(model.points.clone(), 2.0));
+    let poses: Vec<(usize, crate::geom::Rigid3, bool)> = regs
+        .iter()
+        .zip(frames)
+        .filter_map(|(r, &f)| Some((f, r.pose?, r.interpolated)))
+        .collect();
+    camera_series(
+        ground.as_ref().map(|g| g as &dyn HeightSurface),
+        &poses,
+        fps,
+    )
+}
+
+/// The camera over time from `(frame, cam_from_world, interpolated)`, the altitude above
+/// `ground` (a site frame's, z up) where given.
+pub fn camera_series(
+    ground: Option<&dyn HeightSurface>,
+    poses: &[(usize, crate::geom::Rigid3, bool)],
+    fps: f64,
+) -> Vec<PoseSample> {
     let mut first = None;
     let mut out = Vec::new();
-    for (r, &f) in regs.iter().zip(frames) {
-        let Some(pose) = r.pose else { continue };
+    for &(f, pose, interpolated) in poses {
         let c = pose.centre();
         let start = *first.get_or_insert(c);
         let axis = pose.rotation.inverse() * nalgebra::Vector3::z();
-        let altitude_m = ground
-            .as_ref()
-            .and_then(|g| g.fit_at(&c.xy()))
-            .and_then(|fit| fit.plane.height(&c.xy()))
-            .map(|z| c.z - z);
+        let altitude_m = ground.and_then(|g| g.height(&c.xy())).map(|z| c.z - z);
         out.push(PoseSample {
             frame: f,
             time_s: f as f64 / fps,
@@ -109,7 +121,7 @@ pub fn pose_series(
                 .clamp(-1.0, 1.0)
                 .acos()
                 .to_degrees(),
-            interpolated: r.interpolated,
+            interpolated,
         });
     }
     out
@@ -180,32 +192,15 @@ pub fn run_register(
     matching: &dyn Progress,
 ) -> Result<RegisterRun, RegisterError> {
     let t = Instant::now();
-    let model = read_model(&job.model_dir)?;
-    let model_paths: Vec<PathBuf> = model
+    let reference = Reference::load(&job.model_dir, &job.model_images, &job.features, features)?;
+    let model_paths: Vec<PathBuf> = reference
+        .model
         .images
         .iter()
         .map(|m| job.model_images.join(&m.name))
         .collect();
-    let frame = std::fs::read_to_string(job.model_dir.join("report.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .and_then(|v| v["frame"].as_str().map(str::to_string))
-        .unwrap_or_else(|| "model".into());
-    let model_cache = SfmCache::new(Some(&job.model_dir.join("cache")));
-    let mut all: Vec<PathBuf> = model_paths.clone();
+    let mut all: Vec<PathBuf> = model_paths;
     all.extend(job.images.iter().cloned());
-    // The model's images through its own cache, then the new ones through theirs.
-    let (model_features, _, _) =
-        extract_features(&model_paths, &job.features, &model_cache, features)?;
-    for (k, (f, m)) in model_features.iter().zip(&model.images).enumerate() {
-        if f.len() != m.keypoints.len() {
-            return Err(RegisterError::FeaturesDiffer {
-                path: model_paths[k].clone(),
-                found: f.len(),
-                listed: m.keypoints.len(),
-            });
-        }
-    }
     let cache = SfmCache::new(job.cache_dir.as_deref());
     let (new_features, new_names, fps) = match &job.video {
         None => (
@@ -217,7 +212,7 @@ pub fn run_register(
     };
     let mut camera = match &job.camera {
         Some(c) => c.clone(),
-        None => model.camera.clone(),
+        None => reference.model.camera.clone(),
     };
     // A calibration at another resolution of the same aspect (a video mode) is scaled.
     if let (Some(f), Some(size)) = (new_features.first(), camera.image_size)
@@ -228,7 +223,9 @@ pub fn run_register(
     }
     let size = camera
         .image_size
-        .map_or((model.width, model.height), |s| (s.width, s.height));
+        .map_or((reference.model.width, reference.model.height), |s| {
+            (s.width, s.height)
+        });
     if let Some(f) = new_features.first()
         && (f.width, f.height) != size
     {
@@ -252,7 +249,7 @@ pub fn run_register(
             .collect()
     };
     let n_new = new_features.len();
-    let m = model.images.len();
+    let m = reference.model.images.len();
     let chosen: Vec<Vec<usize>> = match gps.as_ref().and_then(|g| enu_of(g)) {
         Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..n_new)
             .map(|i| {
@@ -271,25 +268,15 @@ pub fn run_register(
     matching.set_length(chosen.iter().map(Vec::len).sum::<usize>() as u64);
     let mut per_image = Vec::new();
     for (i, name) in new_names.iter().enumerate() {
-        let mut matches = Vec::new();
-        for &k in &chosen[i] {
-            let found = match_features(&new_features[i], &model_features[k], &job.matching);
-            matches.push((k, found.iter().map(|x| (x.a, x.b)).collect::<Vec<_>>()));
-            matching.inc(1);
-        }
-        let pixels: Vec<Vector2<f64>> = new_features[i]
-            .keypoints
-            .iter()
-            .map(|k| Vector2::new(k.x, k.y))
-            .collect();
-        per_image.push(register_image(
-            &model,
+        per_image.push(reference.register(
             &camera,
             name,
-            &pixels,
-            &matches,
+            &new_features[i],
+            &chosen[i],
+            &job.matching,
             &job.settings,
         ));
+        matching.inc(chosen[i].len() as u64);
     }
     // A video's frames that failed, between registered ones: interpolated and flagged.
     let mut series = None;
@@ -305,11 +292,11 @@ pub fn run_register(
             .collect();
         super::register::interpolate_failed(&mut per_image, &frames);
         series = Some(pose_series(
-            &model,
+            &reference.model,
             &per_image,
             &frames,
             fps,
-            frame != "model",
+            reference.frame != "model",
         ));
     }
     let report = RegisterReport {
@@ -319,12 +306,12 @@ pub fn run_register(
             .iter()
             .filter(|r| r.pose.is_some() && !r.interpolated)
             .count(),
-        frame,
+        frame: reference.frame.clone(),
         per_image,
         seconds: t.elapsed().as_secs_f64(),
     };
     Ok(RegisterRun {
-        model,
+        model: reference.model,
         report,
         series,
     })
@@ -441,45 +428,54 @@ pub fn write_register_outputs(out: &Path, run: &RegisterRun) -> std::io::Result<
         written.push(name.to_string());
     }
     if let Some(series) = &run.series {
-        crate::io::write_atomic(
-            &out.join("pose_series.csv"),
-            pose_series_csv(series).as_bytes(),
-        )?;
-        written.push("pose_series.csv".into());
-        let panel = |title: &str, y: &str, v: &dyn Fn(&PoseSample) -> Option<f64>| Chart {
-            title: title.into(),
-            x_label: "time, s".into(),
-            y_label: y.into(),
-            series: vec![Series {
-                label: title.into(),
-                xy: series
-                    .iter()
-                    .filter_map(|p| v(p).map(|y| (p.time_s, y)))
-                    .collect(),
-                rgb: [31, 119, 180],
-                style: Style::Line,
-            }],
-            ..Chart::default()
-        };
-        for (file, chart) in [
-            (
-                "pose_translation.png",
-                panel("Camera translation", "m", &|p| Some(p.translation_m)),
-            ),
-            (
-                "pose_altitude.png",
-                panel("Altitude above the ground", "m", &|p| p.altitude_m),
-            ),
-            (
-                "pose_off_nadir.png",
-                panel("Off-nadir angle", "degrees", &|p| Some(p.off_nadir_deg)),
-            ),
-        ] {
-            line_chart(&chart, 900, 360)
-                .and_then(|c| c.save(&out.join(file)))
-                .map_err(std::io::Error::other)?;
-            written.push(file.into());
-        }
+        written.extend(write_pose_series(out, series)?);
+    }
+    Ok(written)
+}
+
+/// `pose_series.csv` and the paper's Fig. 10 as three charts (`pose_translation.png`,
+/// `pose_altitude.png`, `pose_off_nadir.png`) in `out`; gives the names written.
+pub fn write_pose_series(out: &Path, series: &[PoseSample]) -> std::io::Result<Vec<String>> {
+    let mut written = Vec::new();
+    crate::io::write_atomic(
+        &out.join("pose_series.csv"),
+        pose_series_csv(series).as_bytes(),
+    )?;
+    written.push("pose_series.csv".to_string());
+    let panel = |title: &str, y: &str, v: &dyn Fn(&PoseSample) -> Option<f64>| Chart {
+        y_from_data: title.starts_with("Altitude"),
+        title: title.into(),
+        x_label: "time, s".into(),
+        y_label: y.into(),
+        series: vec![Series {
+            label: title.into(),
+            xy: series
+                .iter()
+                .filter_map(|p| v(p).map(|y| (p.time_s, y)))
+                .collect(),
+            rgb: [31, 119, 180],
+            style: Style::Line,
+        }],
+        ..Chart::default()
+    };
+    for (file, chart) in [
+        (
+            "pose_translation.png",
+            panel("Camera translation", "m", &|p| Some(p.translation_m)),
+        ),
+        (
+            "pose_altitude.png",
+            panel("Altitude above the ground", "m", &|p| p.altitude_m),
+        ),
+        (
+            "pose_off_nadir.png",
+            panel("Off-nadir angle", "degrees", &|p| Some(p.off_nadir_deg)),
+        ),
+    ] {
+        line_chart(&chart, 900, 360)
+            .and_then(|c| c.save(&out.join(file)))
+            .map_err(std::io::Error::other)?;
+        written.push(file.into());
     }
     Ok(written)
 }

@@ -34,6 +34,37 @@ pub fn read_features(path: &Path, s: &FeatureSettings) -> Result<Features, Image
     features_of_grey(&grey, s).map_err(ImageError::from)
 }
 
+/// The features of the frames `frames` (increasing) of a video, each given to `each` with its
+/// index as it is decoded (a long video's key frames are not all held at once); stops early
+/// when `each` fails. Frames beyond the video's end are not given.
+pub fn for_video_frames<E: From<String>>(
+    video: &Path,
+    frames: &[usize],
+    s: &FeatureSettings,
+    mut each: impl FnMut(usize, Features) -> Result<(), E>,
+) -> Result<(), E> {
+    let mut reader =
+        crate::video::source::FrameReader::open(video).map_err(|e| E::from(e.to_string()))?;
+    let mut next = 0;
+    while next < frames.len() {
+        let Some((index, grey)) = reader.next_gray().map_err(|e| E::from(e.to_string()))? else {
+            break;
+        };
+        if index != frames[next] {
+            continue;
+        }
+        next += 1;
+        let f = features_of_grey(&grey, s).map_err(|e| {
+            E::from(format!(
+                "{}: features of frame {index}: {e}",
+                video.display()
+            ))
+        })?;
+        each(index, f)?;
+    }
+    Ok(())
+}
+
 /// The features of a greyscale image.
 pub fn features_of_grey(grey: &Mat, s: &FeatureSettings) -> Result<Features, opencv::Error> {
     let (w, h) = (grey.cols(), grey.rows());

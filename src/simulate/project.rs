@@ -9,7 +9,7 @@ use crate::pipeline::project::{
 };
 use crate::pipeline::settings::{
     AssociationSection, BoxesSection, ColourSection, DetectSection, KalmanRtsSection, KltSection,
-    PoseSection, SmoothSection, TrackSection,
+    ModelSettings, PoseSection, SmoothSection, TrackSection,
 };
 use crate::simulate::scene::{Ground, Scene};
 use crate::survey::crs::{Crs, CrsError};
@@ -55,6 +55,35 @@ pub fn hats_project(
         },
         smooth: SmoothSection::KalmanRts(KalmanRtsSection::default()),
         export: ExportSection::default(),
+    })
+}
+
+/// The group scene's project (a moving camera): every frame placed in the reference model
+/// `model` (`geostride sfm` of the survey flight's photos in `model_images`), the ground the
+/// model's local planes (2 m windows), the hats' colour detector and association tracking.
+pub fn group_project(
+    scene: &Scene,
+    calibration: &str,
+    model: &str,
+    model_images: &str,
+    heights: Option<&str>,
+) -> Result<Project, CrsError> {
+    let hats = hats_project(scene, calibration, heights)?;
+    Ok(Project {
+        survey: SurveySection {
+            picks: Vec::new(),
+            ..hats.survey.clone()
+        },
+        pose: PoseSection::Model(ModelSettings {
+            model: model.into(),
+            model_images: model_images.into(),
+            ..ModelSettings::default()
+        }),
+        ground: GroundSection::LocalPlanes {
+            model: model.into(),
+            window_m: 2.0,
+        },
+        ..hats
     })
 }
 

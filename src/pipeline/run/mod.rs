@@ -44,6 +44,7 @@ use crate::terrain::{DeckProfile, HeightSurface, Plane};
 use crate::track::ImageTrack;
 
 mod export_stage;
+mod model_pose;
 mod pose_stage;
 mod project_stage;
 mod scan_stage;
@@ -542,6 +543,12 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
                 }))
             }
         }
+        GroundSection::LocalPlanes { model, window_m } => {
+            let points = model_pose::model_points_in_site(l, &l.resolve(model), framed)?;
+            Ok(Box::new(crate::terrain::LocalPlanes::new(
+                points, *window_m,
+            )))
+        }
         GroundSection::Dem { path } => {
             let (grid, wkt) = crate::terrain::raster::load(&l.resolve(path))
                 .map_err(|e| err("path", e.to_string()))?;
@@ -678,13 +685,32 @@ fn prepare<'a>(
             d.reason
         )
     }));
-    let (pick_frame, control, check) = picked(l, &framed, (width, height), frames_total)?;
+    let model = match &p.pose {
+        super::settings::PoseSection::Model(m) => Some(model_pose::open_model(
+            l,
+            m,
+            &framed,
+            progress.stage("model").as_ref(),
+        )?),
+        _ => None,
+    };
+    let (pick_frame, control, check) = match &model {
+        None => picked(l, &framed, (width, height), frames_total)?,
+        Some(_) => (0, Vec::new(), Vec::new()),
+    };
     let surface = ground(l, &framed)?;
 
-    // The scale of a head in the image, from a pose of the picked frame.
-    let first = solve_pose(&camera, &control, &PoseSettings::default())
-        .map_err(|e| RunError::Unusable(format!("the picks of frame {pick_frame}: {e}")))?;
-    let first_pose = first.cam_from_world;
+    // The scale of a head in the image, from a pose of the first frame (the picked one).
+    let first_pose = match (&p.pose, &model) {
+        (super::settings::PoseSection::Model(m), Some(sm)) => {
+            model_pose::first_frame_pose(l, m, sm, &camera, &video)?
+        }
+        _ => {
+            solve_pose(&camera, &control, &PoseSettings::default())
+                .map_err(|e| RunError::Unusable(format!("the picks of frame {pick_frame}: {e}")))?
+                .cam_from_world
+        }
+    };
     let centre = first_pose.centre();
     let head_z = surface.height(&centre.xy()).ok_or_else(|| {
         RunError::Input(l.error("ground", "", "the ground is not defined below the camera"))
@@ -760,6 +786,8 @@ fn prepare<'a>(
         out_crs,
         transform,
         sums: sums.iter().map(|s| s.to_string()).collect(),
+        model,
+        first_pose,
     };
     Ok(Prepared {
         ctx,
@@ -802,6 +830,10 @@ struct Ctx<'a> {
     transform: Option<Transform>,
     /// The inputs' SHA-256: part of every stage's key.
     sums: Vec<String>,
+    /// The reference model of a `model` pose, in the site frame.
+    model: Option<model_pose::SiteModel>,
+    /// The first frame's pose (the picked frame's for a hovering camera).
+    first_pose: Rigid3,
 }
 
 /// A stage's result: the one cached under `key` when there is one (and `valid`), else

@@ -9,6 +9,9 @@ pub(super) fn pose_stage(
     scan_data: &ScanData,
     warnings: &mut Vec<String>,
 ) -> Result<(PoseData, String, StageRecord), RunError> {
+    if let crate::pipeline::settings::PoseSection::Model(m) = &ctx.l.project.pose {
+        return super::model_pose::model_pose_stage(ctx, m, scan_key, scan_data, warnings);
+    }
     let out = ctx.out;
     let progress = ctx.progress;
     let guard = &ctx.guard;

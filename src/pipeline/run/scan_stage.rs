@@ -34,13 +34,11 @@ pub(super) fn scan_stage(
     let t0 = Instant::now();
     let (scan_data, status) = cached(&ctx.cache, ctx.progress, "scan", &scan_key, true, || {
         let detector = detector;
-        let crate::pipeline::settings::PoseSection::Hover(hover) = &p.pose;
+        let (min_features, key_fraction, key_every_s) = p.pose.key_frames();
         let stabilise = StabiliseSettings {
-            min_features: hover.min_features,
-            min_fraction: hover.key_fraction,
-            max_interval: hover
-                .key_every_s
-                .map(|s| (s * fps).round().max(1.0) as usize),
+            min_features,
+            min_fraction: key_fraction,
+            max_interval: key_every_s.map(|s| (s * fps).round().max(1.0) as usize),
             ..StabiliseSettings::default()
         };
         let picks = control.iter().chain(check).map(|o| o.uv).collect();

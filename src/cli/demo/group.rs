@@ -1,0 +1,417 @@
+//! `geostride demo --group`: the moving camera end to end (the paper's group events). It
+//! simulates `surveys/track-group` (a survey flight's photos with RTK centres and GCP picks,
+//! then the video of a drone following 16 runners with magenta hats), calibrates the camera
+//! from the checkerboards, builds the reference model with `geostride sfm`, runs the project
+//! (every frame placed in the model, local ground planes, colour detection, association
+//! tracking, projection, smoothing) with the default head height and with every runner's
+//! height known, and compares everything with the truth.
+
+use std::collections::BTreeMap;
+
+use super::*;
+
+/// The "must show".
+const RMSE_KNOWN_M: f64 = 0.05;
+const RMSE_DEFAULT_M: f64 = 0.10;
+const CENTRE_M: f64 = 0.05;
+const GCP_MEAN_PX: f64 = 0.9;
+
+#[derive(Serialize)]
+struct ModelCheck {
+    photos: usize,
+    registered: usize,
+    points: usize,
+    mean_reprojection_px: f64,
+    /// Mean distance of the GCP picks from the projections of the adjusted GCPs (the paper's
+    /// 0.9 px).
+    gcp_mean_px: f64,
+    /// Control points against the survey, and camera centres against the RTK ones: RMS
+    /// horizontal, vertical (m).
+    control_rms_m: [f64; 2],
+    centres_rms_m: [f64; 2],
+}
+
+#[derive(Serialize)]
+struct FramesCheck {
+    frames: usize,
+    /// Frames with a pose measured (not interpolated).
+    measured: usize,
+    interpolated: usize,
+    key_frames: usize,
+    /// Camera centre and attitude against the truth: mean and worst, metres and degrees.
+    mean_centre_m: f64,
+    worst_centre_m: f64,
+    worst_attitude_deg: f64,
+}
+
+#[derive(Serialize)]
+struct GroupReport {
+    rmse_m: f64,
+    rmse_known_heights_m: f64,
+    calibration: CalibrationCheck,
+    model: ModelCheck,
+    pose: FramesCheck,
+    /// Runners matched in every frame they are in view, of those in view.
+    runners_every_frame: usize,
+    runners: usize,
+    default_height: Evaluation,
+    known_heights: Evaluation,
+    default_height_uncertainty: Consistency,
+    known_heights_uncertainty: Consistency,
+    seconds: f64,
+    passed: bool,
+}
+
+/// Runners whose every in-view frame has a match.
+fn runners_every_frame(truth: &[Sample], matches: &[(Sample, Sample)]) -> (usize, usize) {
+    let mut frames: BTreeMap<usize, usize> = BTreeMap::new();
+    for t in truth {
+        *frames.entry(t.id).or_default() += 1;
+    }
+    let mut matched: BTreeMap<usize, usize> = BTreeMap::new();
+    for (t, _) in matches {
+        *matched.entry(t.id).or_default() += 1;
+    }
+    let full = frames
+        .iter()
+        .filter(|(id, n)| matched.get(id) == Some(n))
+        .count();
+    (full, frames.len())
+}
+
+/// The run's camera against the truth, frame by frame.
+fn frames_check(dir: &Path, report: &RunReport) -> anyhow::Result<FramesCheck> {
+    let truth = read_poses(&dir.join("truth/camera.csv")).map_err(|e| anyhow!(e))?;
+    let est = read_poses(&dir.join("run/pose/poses.csv")).map_err(|e| anyhow!(e))?;
+    let (mut sum, mut worst, mut worst_deg) = (0.0, 0.0f64, 0.0f64);
+    for ((_, t), (_, e)) in truth.iter().zip(&est) {
+        let d = (t.centre() - e.centre()).norm();
+        sum += d;
+        worst = worst.max(d);
+        worst_deg = worst_deg.max((t.rotation * e.rotation.inverse()).angle().to_degrees());
+    }
+    let count = |k: &str| {
+        report
+            .stages
+            .iter()
+            .find(|s| s.name == "pose")
+            .and_then(|s| s.counts.get(k))
+            .copied()
+            .unwrap_or(0.0) as usize
+    };
+    let interpolated = count("interpolated_frames");
+    Ok(FramesCheck {
+        frames: est.len(),
+        measured: est.len() - interpolated,
+        interpolated,
+        key_frames: count("key_frames"),
+        mean_centre_m: sum / est.len().max(1) as f64,
+        worst_centre_m: worst,
+        worst_attitude_deg: worst_deg,
+    })
+}
+
+pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let json = args.json;
+    let (scene, scene_path, dir) = any_scene(&args, "surveys/track-group")?;
+    if scene.survey_flight.is_none() {
+        return Err(super::super::bad_input(anyhow!(
+            "{}: the group demo needs a [survey_flight] (the photos its reference model is built from)",
+            scene_path.display()
+        )));
+    }
+
+    // 1. Simulate.
+    say!(
+        json,
+        "geostride demo --group: {}\n\n1. Simulating {} into {}",
+        scene.name,
+        scene_path.display(),
+        dir.display()
+    );
+    let sim = simulate_scene(&args, &scene_path, &dir)?;
+    say!(
+        json,
+        "   {} frames of {}x{}, {} runners ({} seen); survey flight in {}",
+        sim.frames,
+        sim.image_size[0],
+        sim.image_size[1],
+        sim.people,
+        sim.people_in_view,
+        dir.join("survey/photos").display()
+    );
+
+    // 2. The camera from the checkerboards (the video's mode; the photos' is the same sensor).
+    let (calibration, _) = calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
+
+    // 3. The reference model from the survey flight.
+    let words: Vec<String> = [
+        "survey/photos",
+        "--camera",
+        "camera.yaml",
+        "--gcps",
+        "gcps.csv",
+        "--picks",
+        "survey/picks.csv",
+        "--centres",
+        "survey/centres.csv",
+        "--max-features",
+        "4096",
+        "--out",
+        "model",
+    ]
+    .iter()
+    .map(|w| w.to_string())
+    .collect();
+    say!(
+        json,
+        "\n3. $ (cd {}; geostride sfm {})",
+        dir.display(),
+        words.join(" ")
+    );
+    let in_dir: Vec<String> = words
+        .iter()
+        .enumerate()
+        .map(|(k, w)| {
+            // Paths are the words not following a value-taking option's number.
+            if k == 0
+                || (k > 0 && words[k - 1].starts_with("--") && words[k - 1] != "--max-features")
+            {
+                dir.join(w).display().to_string()
+            } else {
+                w.clone()
+            }
+        })
+        .chain(["--quiet".to_string()])
+        .collect();
+    let built = super::super::sfm::build(&super::super::sfm::args_from(in_dir)?)?;
+    let r = &built.run.report;
+    let g = r
+        .georef
+        .as_ref()
+        .ok_or_else(|| anyhow!("the model was not georeferenced"))?;
+    let pair = |x: &Option<geostride::sfm::georef::Rms>| {
+        x.as_ref()
+            .map_or([f64::NAN; 2], |x| [x.horizontal_m, x.vertical_m])
+    };
+    let model = ModelCheck {
+        photos: r.images,
+        registered: r.registered,
+        points: r.points,
+        mean_reprojection_px: r.mean_reprojection_px,
+        gcp_mean_px: g.control_mean_px.unwrap_or(f64::NAN),
+        control_rms_m: pair(&g.control_rms),
+        centres_rms_m: pair(&g.centres_rms),
+    };
+    say!(
+        json,
+        "   {} of {} photos, {} points, {:.3} px; GCPs {:.3}/{:.3} m (horizontal/vertical) from the survey, picks {:.2} px from them; camera centres {:.3}/{:.3} m from the RTK ones",
+        model.registered,
+        model.photos,
+        model.points,
+        model.mean_reprojection_px,
+        model.control_rms_m[0],
+        model.control_rms_m[1],
+        model.gcp_mean_px,
+        model.centres_rms_m[0],
+        model.centres_rms_m[1]
+    );
+
+    // 4. The run with the default head height.
+    let project = dir.join("project.toml");
+    let p = group_project(&scene, "camera.yaml", "model", "survey/photos", None)
+        .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
+    write_project(
+        &project,
+        &p,
+        "Group: every frame placed in the reference model (model/, from survey/photos), local ground planes, hats.",
+    )?;
+    say!(
+        json,
+        "\n4. $ geostride run {} --out {}",
+        project.display(),
+        dir.join("run").display()
+    );
+    let bars = super::super::StageBars { quiet: args.quiet };
+    let loaded = load(&project).map_err(|e| anyhow!(e))?;
+    let report = run_project(&loaded, &dir.join("run"), &bars).map_err(|e| anyhow!("{e}"))?;
+    print_stages(json, &report);
+    let pose = frames_check(&dir, &report)?;
+
+    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
+    let (default_eval, default_cons) = check_run(
+        &dir.join("run"),
+        &truth,
+        &ignored,
+        &dir.join("accuracy-default.csv"),
+    )?;
+    let (_, matches) = evaluate_matches(
+        &truth,
+        &track_samples(&dir.join("run/trajectories.csv"))?,
+        &ignored,
+        0.5,
+    );
+    let (full, runners) = runners_every_frame(&truth, &matches);
+
+    // 5. Every runner's height known.
+    let people = read_people_heights(&dir.join("truth/people.csv")).map_err(|e| anyhow!(e))?;
+    let ids = identify_tracks(
+        &truth,
+        &track_samples(&dir.join("run/trajectories.csv"))?,
+        0.5,
+    );
+    let mut heights = String::from("id,height_m,sd_m\n");
+    let mut ids_sorted: Vec<_> = ids.iter().collect();
+    ids_sorted.sort();
+    for (track, person) in ids_sorted {
+        if let Some(h) = people.get(person) {
+            let _ = writeln!(heights, "{track},{h:.4},0.0");
+        }
+    }
+    geostride::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
+    let project_h = dir.join("project-heights.toml");
+    let p_h = group_project(
+        &scene,
+        "camera.yaml",
+        "model",
+        "survey/photos",
+        Some("heights.csv"),
+    )?;
+    write_project(
+        &project_h,
+        &p_h,
+        "Group, with every runner's height known (heights.csv, by track id).",
+    )?;
+    say!(
+        json,
+        "\n5. With every runner's height known: $ geostride run {} --out {}",
+        project_h.display(),
+        dir.join("run-heights").display()
+    );
+    let loaded_h = load(&project_h).map_err(|e| anyhow!(e))?;
+    let report_h =
+        run_project(&loaded_h, &dir.join("run-heights"), &bars).map_err(|e| anyhow!("{e}"))?;
+    print_stages(json, &report_h);
+    let (known_eval, known_cons) = check_run(
+        &dir.join("run-heights"),
+        &truth,
+        &ignored,
+        &dir.join("accuracy-heights.csv"),
+    )?;
+
+    // 6. The accuracy table.
+    let checks = [
+        (
+            known_eval.rmse_m <= RMSE_KNOWN_M,
+            format!("RMSE ≤ {RMSE_KNOWN_M} m with heights known"),
+        ),
+        (
+            default_eval.rmse_m <= RMSE_DEFAULT_M,
+            format!("RMSE ≤ {RMSE_DEFAULT_M} m with the 1.7 m default"),
+        ),
+        (
+            pose.measured == sim.frames && pose.frames == sim.frames,
+            "every frame posed from its own features".to_string(),
+        ),
+        (
+            pose.worst_centre_m <= CENTRE_M,
+            format!("every camera centre within {CENTRE_M} m of the truth"),
+        ),
+        (
+            model.gcp_mean_px <= GCP_MEAN_PX,
+            format!("GCP picks within {GCP_MEAN_PX} px of the model's GCPs on average"),
+        ),
+        (
+            full == runners && runners == scene.people.count as usize,
+            format!(
+                "all {} runners tracked over every frame they are in view",
+                scene.people.count
+            ),
+        ),
+        (
+            default_eval.id_switches == 0 && known_eval.id_switches == 0,
+            "no ID switch".to_string(),
+        ),
+    ];
+    say!(
+        json,
+        "\n6. Accuracy against the truth ({} runners, {} frames; matches within 0.5 m):",
+        default_eval.truth_tracks,
+        pose.frames
+    );
+    let both = |f: &dyn Fn(&Evaluation) -> String| [f(&known_eval), f(&default_eval)];
+    let mut rows = error_rows(&known_eval, &default_eval, "0.05 / 0.10 m");
+    rows.extend([
+        Row::new(
+            "runners tracked over every frame",
+            [format!("{full} of {runners}"), String::new()],
+            "all",
+        ),
+        Row::new("ID switches", both(&|e| format!("{}", e.id_switches)), "0"),
+        Row::new(
+            "MOTA / IDF1",
+            both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
+            "",
+        ),
+    ]);
+    rows.extend(uncertainty_rows(&known_cons, &default_cons));
+    let after = [
+        Row::new(
+            "frames posed (measured / interpolated)",
+            [
+                format!("{} / {}", pose.measured, pose.interpolated),
+                format!("{} key", pose.key_frames),
+            ],
+            "all / 0",
+        ),
+        Row::new(
+            "camera centre vs truth (mean / worst)",
+            [
+                format!("{:.4} m", pose.mean_centre_m),
+                format!("{:.4} m", pose.worst_centre_m),
+            ],
+            "≤ 0.05 m",
+        ),
+        Row::new(
+            "camera attitude vs truth (worst)",
+            [format!("{:.4}°", pose.worst_attitude_deg), String::new()],
+            "",
+        ),
+        Row::new(
+            "GCP picks vs model GCPs (mean)",
+            [format!("{:.3} px", model.gcp_mean_px), String::new()],
+            "≤ 0.9 px",
+        ),
+        Row::new(
+            "calibration (worst |est − truth| / σ)",
+            [format!("{:.2}", calibration.worst_sigmas), String::new()],
+            "",
+        ),
+    ];
+    let head = ["heights known", "1.7 m default", "target"];
+    print_table(json, (40, 12), head, &rows);
+    print_table(json, (40, 12), ["", "", ""], &after);
+    say!(
+        json,
+        "   The camera over time (the paper's Fig. 10): {}",
+        dir.join("run/pose/pose_series.csv").display()
+    );
+    let failed: Vec<&String> = checks.iter().filter(|c| !c.0).map(|c| &c.1).collect();
+    let report = GroupReport {
+        rmse_m: default_eval.rmse_m,
+        rmse_known_heights_m: known_eval.rmse_m,
+        calibration,
+        model,
+        pose,
+        runners_every_frame: full,
+        runners,
+        default_height: default_eval,
+        known_heights: known_eval,
+        default_height_uncertainty: default_cons,
+        known_heights_uncertainty: known_cons,
+        seconds: started.elapsed().as_secs_f64(),
+        passed: failed.is_empty(),
+    };
+    finish("group demo", json, &dir, &report, &failed, report.seconds)
+}

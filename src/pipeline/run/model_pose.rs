@@ -1,0 +1,627 @@
+//! The `model` pose (a moving camera): the reference model moved into the run's site frame, key
+//! frames registered in it, the frames between carried from their key frame's 2D–3D points.
+
+use nalgebra::UnitQuaternion;
+
+use super::*;
+use crate::geom::similarity::{ScaleMode, Similarity, fit as fit_similarity};
+use crate::pipeline::settings::ModelSettings;
+use crate::pose::attitude::Attitude;
+use crate::sfm::FeatureSettings;
+use crate::sfm::matching::MatchSettings;
+use crate::sfm::reference::{
+    Reference, mask_features, model_max_features, pose_from_carried, read_geo_cameras,
+};
+use crate::sfm::register::{RegisterSettings, Registration};
+use crate::sfm::register_job::{camera_series, write_pose_series};
+use crate::sfm::sift::for_video_frames;
+
+/// A reference model in the run's site frame, and how well its georeferencing is known.
+pub(super) struct SiteModel {
+    pub reference: Reference,
+    pub features: FeatureSettings,
+    /// The model cameras' median σ: centre east/north/up (m), attitude (rad). The floor of
+    /// every frame's pose σ: a frame placed in the model is no better placed than the model.
+    pub sigma_centre_m: Vector3<f64>,
+    pub sigma_rotation_rad: f64,
+    /// RMS of the model's cameras from their CRS positions after the move, metres.
+    pub fit_rms_m: f64,
+}
+
+/// The transform from a model's frame to the site frame, from its cameras' CRS positions.
+fn site_from_model(
+    l: &Loaded,
+    section: &str,
+    dir: &Path,
+    framed: &Framed,
+) -> Result<(Similarity, f64, Vec<crate::sfm::reference::GeoCamera>), RunError> {
+    let cams = read_geo_cameras(dir).map_err(RunError::Input)?;
+    let model: Vec<Vector3<f64>> = cams.iter().map(|c| c.centre).collect();
+    let site = cams
+        .iter()
+        .map(|c| framed.frame.local_from_source(&c.crs))
+        .collect::<Result<Vec<_>, _>>()?;
+    let fit = fit_similarity(
+        &model,
+        &site,
+        &vec![1.0; model.len()],
+        ScaleMode::Fixed,
+        false,
+    )
+    .map_err(|e| RunError::Input(l.error(section, "model", format!("placing the model: {e}"))))?;
+    let rms = (fit.residuals.iter().map(|r| r.norm_squared()).sum::<f64>()
+        / fit.residuals.len() as f64)
+        .sqrt();
+    // The model's site frame and the run's differ by their origins only: anything more is a
+    // model of another survey, or another CRS.
+    if rms > 0.01 {
+        return Err(RunError::Input(l.error(
+            section,
+            "model",
+            format!(
+                "the model's cameras are {rms:.3} m RMS from their CRS positions moved into this run's frame: build the model with this project's GCP file and CRS"
+            ),
+        )));
+    }
+    Ok((fit.transform, rms, cams))
+}
+
+/// A model's points in the site frame (for the ground's local planes).
+pub(super) fn model_points_in_site(
+    l: &Loaded,
+    dir: &Path,
+    framed: &Framed,
+) -> Result<Vec<Vector3<f64>>, RunError> {
+    let model = crate::sfm::register::read_model(dir)
+        .map_err(|e| RunError::Input(l.error("ground", "model", e.to_string())))?;
+    let (s, _, _) = site_from_model(l, "ground", dir, framed)?;
+    Ok(model.points.iter().map(|p| s.apply(p)).collect())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// Reads the reference model of `[pose] kind = "model"`, its photos' features, and moves it into
+/// the site frame.
+pub(super) fn open_model(
+    l: &Loaded,
+    m: &ModelSettings,
+    framed: &Framed,
+    progress: &dyn Progress,
+) -> Result<SiteModel, RunError> {
+    let dir = l.resolve(&m.model);
+    let (site_from, fit_rms_m, cams) = site_from_model(l, "pose", &dir, framed)?;
+    let features = FeatureSettings {
+        max_features: m.max_features.unwrap_or_else(|| model_max_features(&dir)),
+        ..FeatureSettings::default()
+    };
+    let mut reference = Reference::load(&dir, &l.resolve(&m.model_images), &features, progress)
+        .map_err(|e| RunError::Input(l.error("pose", "model_images", e.to_string())))?;
+    reference.transform(&site_from);
+    let pick =
+        |f: &dyn Fn(&crate::sfm::reference::GeoCamera) -> f64| median(cams.iter().map(f).collect());
+    Ok(SiteModel {
+        reference,
+        features,
+        sigma_centre_m: Vector3::new(
+            pick(&|c| c.sigma_enu_m.x),
+            pick(&|c| c.sigma_enu_m.y),
+            pick(&|c| c.sigma_enu_m.z),
+        ),
+        sigma_rotation_rad: pick(&|c| c.sigma_rotation_deg).to_radians(),
+        fit_rms_m,
+    })
+}
+
+/// Leaves the people out of a frame's features: squares of `mask_px` around each detection,
+/// and the detections' boxes.
+fn mask_people(f: &mut crate::sfm::Features, detections: &[Detection], mask_px: f64) {
+    let boxes: Vec<[f64; 4]> = detections
+        .iter()
+        .flat_map(|d| {
+            let h = mask_px / 2.0;
+            [[d.uv.x - h, d.uv.y - h, mask_px, mask_px], d.bbox]
+        })
+        .collect();
+    mask_features(f, &boxes);
+}
+
+impl From<String> for RunError {
+    fn from(s: String) -> RunError {
+        RunError::Failed(s)
+    }
+}
+
+fn settings_of(m: &ModelSettings) -> RegisterSettings {
+    RegisterSettings {
+        min_inliers: m.min_inliers,
+        ..RegisterSettings::default()
+    }
+}
+
+/// Registers one frame against the model photos nearest `near` (all when it fails there).
+fn register_frame(
+    model: &SiteModel,
+    camera: &Camera,
+    name: &str,
+    features: &crate::sfm::Features,
+    near: Option<&Vector3<f64>>,
+    m: &ModelSettings,
+) -> Registration {
+    let with = model.reference.nearest_images(near, m.neighbours);
+    let all = model.reference.model.images.len();
+    let r = model.reference.register(
+        camera,
+        name,
+        features,
+        &with,
+        &MatchSettings::default(),
+        &settings_of(m),
+    );
+    if r.pose.is_some() || with.len() == all {
+        return r;
+    }
+    let every: Vec<usize> = (0..all).collect();
+    model.reference.register(
+        camera,
+        name,
+        features,
+        &every,
+        &MatchSettings::default(),
+        &settings_of(m),
+    )
+}
+
+/// The pose of frame 0, registered against every model photo: the detector's scale, and a
+/// check that the video can be placed in the model before the long work.
+pub(super) fn first_frame_pose(
+    l: &Loaded,
+    m: &ModelSettings,
+    model: &SiteModel,
+    camera: &Camera,
+    video: &Path,
+) -> Result<Rigid3, RunError> {
+    let mut first = None;
+    for_video_frames(video, &[0], &model.features, |_, f| {
+        first = Some(f);
+        Ok::<(), RunError>(())
+    })
+    .map_err(|e| RunError::Input(l.error("video", "path", e.to_string())))?;
+    let f = first
+        .ok_or_else(|| RunError::Input(l.error("video", "path", "the video has no frames")))?;
+    let r = register_frame(model, camera, "frame 0", &f, None, m);
+    r.pose.ok_or_else(|| {
+        RunError::Unusable(format!(
+            "{}: frame 0 could not be placed in the model {}: {} (is the model of this site, and the camera's calibration the video's?)",
+            video.display(),
+            l.resolve(&m.model).display(),
+            r.reason.unwrap_or_default()
+        ))
+    })
+}
+
+/// One frame's pose from the model.
+#[derive(Clone, Copy)]
+struct Placed {
+    pose: Rigid3,
+    covariance: Matrix6<f64>,
+    rms_px: f64,
+}
+
+/// The pose covariance (increment `(δθ, δt)`) with the model's georeferencing σ added: centre
+/// σ in the world, attitude σ about each world axis.
+fn with_floor(pose: &Rigid3, cov: &Matrix6<f64>, model: &SiteModel) -> Matrix6<f64> {
+    // δθ = −R δφ_world and δt = −R δC (the inverse of `pose::refine::world_covariance`).
+    let r = *pose.rotation.matrix();
+    let mut j = Matrix6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-r));
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-r));
+    let mut world = Matrix6::zeros();
+    for k in 0..3 {
+        world[(k, k)] = model.sigma_rotation_rad.powi(2);
+        world[(3 + k, 3 + k)] = model.sigma_centre_m[k].powi(2);
+    }
+    cov + j * world * j.transpose()
+}
+
+/// A refined pose's covariance scaled by its residuals (σ taken as `sigma_px` in the fit).
+fn scaled(p: &crate::pose::refine::RefinedPose, rms_px: f64, sigma_px: f64) -> Matrix6<f64> {
+    p.covariance * (rms_px / sigma_px).max(1.0).powi(2)
+}
+
+/// What the `model` pose gives the pose stage.
+pub(super) struct ModelPoses {
+    pub frames: Vec<FramePoseData>,
+    pub key_frames: Vec<usize>,
+    pub key_frames_failed: Vec<usize>,
+    pub registrations: Vec<(usize, Registration, Vec<usize>)>,
+}
+
+/// Every frame's pose: key frames registered in the model, the frames between carried.
+pub(super) fn model_poses(
+    ctx: &Ctx,
+    m: &ModelSettings,
+    model: &SiteModel,
+    scan: &ScanData,
+    progress: &dyn Progress,
+) -> Result<ModelPoses, RunError> {
+    let camera = &ctx.camera;
+    let n = scan.frames;
+    let keys: Vec<usize> = scan
+        .tracks
+        .iter()
+        .filter(|t| t.key.is_some())
+        .map(|t| t.index)
+        .collect();
+    progress.set_length((keys.len() + n) as u64);
+    let mask_px = m.mask_m * scan.px_per_m;
+    let sigma_px = 1.0;
+
+    // 1. Key frames: features (people masked), registered in order near the last one placed.
+    let mut placed_keys: BTreeMap<usize, (Placed, Vec<(Vector2<f64>, Vector3<f64>)>)> =
+        BTreeMap::new();
+    let mut registrations = Vec::new();
+    let mut near = Some(ctx.first_pose.centre());
+    let video_name = ctx
+        .video
+        .file_name()
+        .map_or("video".into(), |f| f.to_string_lossy().into_owned());
+    for_video_frames(&ctx.video, &keys, &model.features, |index, mut f| {
+        let dets = scan.detections.get(index).map_or(&[][..], Vec::as_slice);
+        mask_people(&mut f, dets, mask_px);
+        let name = format!("{video_name}#{index}");
+        let with = model.reference.nearest_images(near.as_ref(), m.neighbours);
+        let r = register_frame(model, camera, &name, &f, near.as_ref(), m);
+        if let Some(start) = r.pose {
+            // The pose and its covariance from the inliers (model points held fixed).
+            let refined = pose_from_carried(
+                camera,
+                &start,
+                &r.matched,
+                &Matrix3::identity(),
+                sigma_px,
+                m.min_inliers,
+            );
+            if let Some((p, rms, _)) = refined {
+                near = Some(p.cam_from_world.centre());
+                let cov = with_floor(&p.cam_from_world, &scaled(&p, rms, sigma_px), model);
+                placed_keys.insert(
+                    index,
+                    (
+                        Placed {
+                            pose: p.cam_from_world,
+                            covariance: cov,
+                            rms_px: rms,
+                        },
+                        r.matched.clone(),
+                    ),
+                );
+            }
+        }
+        registrations.push((index, r, with));
+        progress.inc(1);
+        Ok::<(), RunError>(())
+    })?;
+
+    // 2. Every frame: a key frame's own pose, or its key frame's points carried into it.
+    let mut placed: Vec<Option<Placed>> = Vec::with_capacity(n);
+    for t in scan.tracks.iter().take(n) {
+        let f = t.index;
+        let p = if let Some((k, _)) = placed_keys.get(&f).filter(|_| t.key.is_some()) {
+            Some(*k)
+        } else if let Some((k, pts)) = placed_keys.get(&t.reference) {
+            pose_from_carried(
+                camera,
+                &k.pose,
+                pts,
+                &t.frame_from_ref,
+                sigma_px,
+                m.min_inliers,
+            )
+            .map(|(p, rms, _)| Placed {
+                covariance: with_floor(&p.cam_from_world, &scaled(&p, rms, sigma_px), model),
+                pose: p.cam_from_world,
+                rms_px: rms,
+            })
+        } else {
+            None
+        };
+        placed.push(p);
+        progress.inc(1);
+    }
+
+    // 3. Frames not placed: interpolated between the nearest placed ones (held at the ends),
+    // flagged, with the wider σ of their neighbours.
+    let Some(frames) = fill_unplaced(&placed) else {
+        return Err(RunError::Unusable(format!(
+            "{}: no key frame could be placed in the model ({})",
+            ctx.video.display(),
+            registrations
+                .iter()
+                .filter_map(|(_, r, _)| r.reason.clone())
+                .next()
+                .unwrap_or_default()
+        )));
+    };
+    Ok(ModelPoses {
+        frames,
+        key_frames: keys.clone(),
+        key_frames_failed: keys
+            .iter()
+            .copied()
+            .filter(|k| !placed_keys.contains_key(k))
+            .collect(),
+        registrations,
+    })
+}
+
+/// Every frame's pose: the placed ones as they are, the others interpolated between the
+/// nearest placed ones (held at the ends), flagged, their σ the wider neighbour's plus half the
+/// camera's travel across the gap. `None` when no frame is placed.
+fn fill_unplaced(placed: &[Option<Placed>]) -> Option<Vec<FramePoseData>> {
+    let known: Vec<usize> = (0..placed.len()).filter(|&i| placed[i].is_some()).collect();
+    if known.is_empty() {
+        return None;
+    }
+    let mut frames = Vec::with_capacity(placed.len());
+    for (i, p) in placed.iter().enumerate() {
+        let d = match p {
+            Some(p) => FramePoseData {
+                frame: i,
+                rotation: *p.pose.rotation.matrix(),
+                translation: p.pose.translation,
+                covariance: Some(p.covariance),
+                interpolated: false,
+                mean_reprojection_px: Some(p.rms_px),
+            },
+            None => {
+                let after = known.iter().copied().find(|&k| k > i);
+                let before = known.iter().copied().rev().find(|&k| k < i);
+                let (a, b) = match (before, after) {
+                    (Some(a), Some(b)) => (a, b),
+                    (Some(a), None) => (a, a),
+                    (None, Some(b)) => (b, b),
+                    (None, None) => unreachable!("some frame is placed"),
+                };
+                let (pa, pb) = (
+                    placed[a].as_ref().expect("known"),
+                    placed[b].as_ref().expect("known"),
+                );
+                let t = if a == b {
+                    0.0
+                } else {
+                    (i - a) as f64 / (b - a) as f64
+                };
+                let (qa, qb) = (
+                    UnitQuaternion::from_rotation_matrix(&pa.pose.rotation),
+                    UnitQuaternion::from_rotation_matrix(&pb.pose.rotation),
+                );
+                let rotation = qa.slerp(&qb, t).to_rotation_matrix();
+                let c = pa.pose.centre() * (1.0 - t) + pb.pose.centre() * t;
+                let pose = Rigid3::new(rotation, -(rotation * c));
+                // The gap's own motion is unknown: at least the neighbours' σ, plus how far the
+                // camera moved across it.
+                let gap = (pb.pose.centre() - pa.pose.centre()).norm() * t.min(1.0 - t);
+                let mut cov = if pa.covariance.trace() >= pb.covariance.trace() {
+                    pa.covariance
+                } else {
+                    pb.covariance
+                };
+                for k in 3..6 {
+                    cov[(k, k)] += (0.5 * gap).powi(2);
+                }
+                FramePoseData {
+                    frame: i,
+                    rotation: *pose.rotation.matrix(),
+                    translation: pose.translation,
+                    covariance: Some(cov),
+                    interpolated: true,
+                    mean_reprojection_px: None,
+                }
+            }
+        };
+        frames.push(d);
+    }
+    Some(frames)
+}
+
+/// `pose/` of a `model` run: `poses.csv` (every frame), `key_frames.csv` (each key frame's
+/// registration) and the paper's Fig. 10 (`pose_series.csv`, `pose_translation.png`,
+/// `pose_altitude.png`, `pose_off_nadir.png`).
+pub(super) fn write_model_pose_outputs(
+    dir: &Path,
+    poses: &ModelPoses,
+    scan: &ScanData,
+    framed: &Framed,
+    ground: Option<&dyn HeightSurface>,
+    model: &SiteModel,
+) -> Result<(), RunError> {
+    use std::fmt::Write as _;
+    let fps = scan.fps;
+    let io = |path: PathBuf| move |source| RunError::Io { path, source };
+    let mut csv = String::from(
+        "frame,time_s,key,reference,interpolated,rms_px,centre_e_m,centre_n_m,centre_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z,yaw_deg,pitch_deg,roll_deg,off_nadir_deg,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
+    );
+    for (f, t) in poses.frames.iter().zip(&scan.tracks) {
+        let pose = f.pose();
+        let c = pose.centre();
+        let src = framed.frame.source_from_local(&c)?;
+        let att = Attitude::from_world_from_cam(&pose.rotation.inverse().into_inner());
+        let sg = f.covariance.map(|cv| {
+            let w = crate::pose::refine::world_covariance(&pose, &cv);
+            Vector3::new(w[(3, 3)].sqrt(), w[(4, 4)].sqrt(), w[(5, 5)].sqrt())
+        });
+        let (rv, tv) = (pose.rvec(), pose.translation);
+        let num = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
+        let _ = writeln!(
+            csv,
+            "{},{:.6},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
+            f.frame,
+            f.frame as f64 / fps,
+            u8::from(t.key.is_some()),
+            t.reference,
+            u8::from(f.interpolated),
+            num(f.mean_reprojection_px),
+            c.x,
+            c.y,
+            c.z,
+            num(sg.map(|s| s.x)),
+            num(sg.map(|s| s.y)),
+            num(sg.map(|s| s.z)),
+            src.x,
+            src.y,
+            src.z,
+            att.yaw_deg,
+            att.pitch_deg,
+            att.roll_deg,
+            att.off_nadir_deg,
+            rv.x,
+            rv.y,
+            rv.z,
+            tv.x,
+            tv.y,
+            tv.z
+        );
+    }
+    write_atomic(&dir.join("poses.csv"), csv.as_bytes()).map_err(io(dir.join("poses.csv")))?;
+    let mut keys =
+        String::from("frame,placed,correspondences,inliers,rms_px,model_images,reason\n");
+    for (f, r, with) in &poses.registrations {
+        let names: Vec<&str> = with
+            .iter()
+            .map(|&k| model.reference.model.images[k].name.as_str())
+            .collect();
+        let _ = writeln!(
+            keys,
+            "{f},{},{},{},{},{},\"{}\"",
+            if r.pose.is_some() { "yes" } else { "no" },
+            r.correspondences,
+            r.inliers,
+            r.rms_px.map_or(String::new(), |v| format!("{v:.4}")),
+            names.join(" "),
+            r.reason.clone().unwrap_or_default().replace('"', "'")
+        );
+    }
+    write_atomic(&dir.join("key_frames.csv"), keys.as_bytes())
+        .map_err(io(dir.join("key_frames.csv")))?;
+    let series = camera_series(
+        ground,
+        &poses
+            .frames
+            .iter()
+            .map(|f| (f.frame, f.pose(), f.interpolated))
+            .collect::<Vec<_>>(),
+        fps,
+    );
+    write_pose_series(dir, &series).map_err(io(dir.to_path_buf()))?;
+    Ok(())
+}
+
+/// Stage 2 for `[pose] kind = "model"`.
+pub(super) fn model_pose_stage(
+    ctx: &Ctx,
+    m: &ModelSettings,
+    scan_key: &str,
+    scan_data: &ScanData,
+    warnings: &mut Vec<String>,
+) -> Result<(PoseData, String, StageRecord), RunError> {
+    let p = &ctx.l.project;
+    let model = ctx.model.as_ref().expect("a model pose has its model");
+    let pose_key = stage_key("pose", &[scan_key], &(&p.survey, &p.pose, &p.ground));
+    let t0 = Instant::now();
+    let pose_dir = ctx.out.join("pose");
+    let (pose_data, status) = cached(
+        &ctx.cache,
+        ctx.progress,
+        "pose",
+        &pose_key,
+        pose_dir.join("poses.csv").is_file(),
+        || {
+            let bar = ctx.progress.stage("pose");
+            let poses = model_poses(ctx, m, model, scan_data, bar.as_ref())?;
+            ctx.guard.create_dir(&pose_dir).map_err(output_error)?;
+            write_model_pose_outputs(
+                &pose_dir,
+                &poses,
+                scan_data,
+                &ctx.framed,
+                Some(ctx.surface.as_ref()),
+                model,
+            )?;
+            let rms: Vec<f64> = poses
+                .frames
+                .iter()
+                .filter_map(|f| f.mean_reprojection_px)
+                .collect();
+            Ok(PoseData {
+                mean_reprojection_px: rms.iter().sum::<f64>() / rms.len().max(1) as f64,
+                max_reprojection_px: rms.iter().copied().fold(0.0, f64::max),
+                check_mean_reprojection_px: None,
+                frames: poses.frames,
+                key_frames: poses.key_frames,
+                key_frames_failed: poses.key_frames_failed,
+            })
+        },
+    )?;
+    if !pose_data.key_frames_failed.is_empty() {
+        warnings.push(format!(
+            "key frames not placed in the model (see pose/key_frames.csv): {:?}",
+            pose_data.key_frames_failed
+        ));
+    }
+    let interpolated = pose_data.frames.iter().filter(|f| f.interpolated).count();
+    if interpolated > 0 {
+        warnings.push(format!(
+            "{interpolated} frame(s) have interpolated poses, flagged in pose/poses.csv (their features did not place them in the model)"
+        ));
+    }
+    let record = StageRecord {
+        name: "pose".into(),
+        status: status.into(),
+        seconds: t0.elapsed().as_secs_f64(),
+        counts: BTreeMap::from([
+            ("key_frames".into(), pose_data.key_frames.len() as f64),
+            (
+                "key_frames_failed".into(),
+                pose_data.key_frames_failed.len() as f64,
+            ),
+            (
+                "mean_reprojection_px".into(),
+                pose_data.mean_reprojection_px,
+            ),
+            ("max_reprojection_px".into(), pose_data.max_reprojection_px),
+            ("interpolated_frames".into(), interpolated as f64),
+            ("model_fit_rms_m".into(), model.fit_rms_m),
+        ]),
+    };
+    Ok((pose_data, pose_key, record))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unplaced_frames_are_interpolated_flagged_and_less_certain() {
+        let r = nalgebra::Rotation3::from_euler_angles(std::f64::consts::PI, 0.0, 0.0);
+        let at = |n: f64| Placed {
+            pose: Rigid3::new(r, -(r * Vector3::new(0.0, n, 30.0))),
+            covariance: Matrix6::identity() * 1e-6,
+            rms_px: 0.2,
+        };
+        let placed = vec![None, Some(at(0.0)), None, None, Some(at(3.0)), None];
+        let f = fill_unplaced(&placed).unwrap();
+        let flags: Vec<bool> = f.iter().map(|p| p.interpolated).collect();
+        assert_eq!(flags, [true, false, true, true, false, true]);
+        // Frame 2 a third of the way from frame 1 to 4; the ends held.
+        assert!((f[2].pose().centre() - Vector3::new(0.0, 1.0, 30.0)).norm() < 1e-9);
+        assert!((f[0].pose().centre() - Vector3::new(0.0, 0.0, 30.0)).norm() < 1e-9);
+        assert!((f[5].pose().centre() - Vector3::new(0.0, 3.0, 30.0)).norm() < 1e-9);
+        // Less certain than the measured ones, and no reprojection error claimed.
+        let c = f[2].covariance.unwrap();
+        assert!(c[(4, 4)] > 1e-6 && f[2].mean_reprojection_px.is_none());
+        assert!(fill_unplaced(&[None, None]).is_none());
+    }
+}

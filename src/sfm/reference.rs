@@ -1,0 +1,358 @@
+//! A reference model that new images and video frames are placed in: the model read back, its
+//! images' features (from the model's cache where it holds them), and the registration of one
+//! image against the model images nearest where it is expected. The model is never changed: its
+//! points are the fixed 3D side of every 2D–3D correspondence.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+
+use super::FeatureSettings;
+use super::Features;
+use super::cache::SfmCache;
+use super::job::extract_features;
+use super::matching::{MatchSettings, match_features};
+use super::register::{Model, RegisterSettings, Registration, read_model, register_image};
+use super::register_job::RegisterError;
+use crate::camera::Camera;
+use crate::geom::Rigid3;
+use crate::geom::similarity::Similarity;
+use crate::optim::{LmSettings, RobustLoss};
+use crate::pose::refine::{PointObs, RefinedPose, refine_pose};
+use crate::progress::Progress;
+
+/// A model and its images' features, ready to register images against.
+pub struct Reference {
+    pub model: Model,
+    /// The model images' features, in the model's image order.
+    pub features: Vec<Features>,
+    /// The model's frame as its report says (`site`, `enu`, `model`).
+    pub frame: String,
+}
+
+impl Reference {
+    /// Reads the model in `model_dir` (COLMAP text, `geostride sfm`'s output) and its images'
+    /// features from `model_images` (the model's own cache serves those it holds). The
+    /// settings must be the model's, or the keypoints would not be the model's.
+    pub fn load(
+        model_dir: &Path,
+        model_images: &Path,
+        settings: &FeatureSettings,
+        progress: &dyn Progress,
+    ) -> Result<Reference, RegisterError> {
+        let model = read_model(model_dir)?;
+        let paths: Vec<PathBuf> = model
+            .images
+            .iter()
+            .map(|m| model_images.join(&m.name))
+            .collect();
+        let frame = std::fs::read_to_string(model_dir.join("report.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .and_then(|v| v["frame"].as_str().map(str::to_string))
+            .unwrap_or_else(|| "model".into());
+        let cache = SfmCache::new(Some(&model_dir.join("cache")));
+        let (features, _, _) = extract_features(&paths, settings, &cache, progress)?;
+        for (k, (f, m)) in features.iter().zip(&model.images).enumerate() {
+            if f.len() != m.keypoints.len() {
+                return Err(RegisterError::FeaturesDiffer {
+                    path: paths[k].clone(),
+                    found: f.len(),
+                    listed: m.keypoints.len(),
+                });
+            }
+        }
+        Ok(Reference {
+            model,
+            features,
+            frame,
+        })
+    }
+
+    /// Moves the model into another frame (`dst = s·R·src + t`, a site frame, say): its points
+    /// and its cameras.
+    pub fn transform(&mut self, dst_from_model: &Similarity) {
+        for p in &mut self.model.points {
+            *p = dst_from_model.apply(p);
+        }
+        let r_dst_from_model = dst_from_model.rotation.to_rotation_matrix();
+        for im in &mut self.model.images {
+            let centre = dst_from_model.apply(&im.pose.centre());
+            let rotation = im.pose.rotation * r_dst_from_model.inverse();
+            im.pose = Rigid3::new(rotation, -(rotation * centre));
+        }
+    }
+
+    /// The model images whose centres are horizontally nearest `near`, `k` of them (all when
+    /// `near` is `None` or `k` is 0 or the model's size).
+    pub fn nearest_images(&self, near: Option<&Vector3<f64>>, k: usize) -> Vec<usize> {
+        let m = self.model.images.len();
+        let Some(here) = near.filter(|_| k > 0 && k < m) else {
+            return (0..m).collect();
+        };
+        let mut by: Vec<(f64, usize)> = self
+            .model
+            .images
+            .iter()
+            .enumerate()
+            .map(|(i, im)| ((im.pose.centre() - here).xy().norm(), i))
+            .collect();
+        by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        by.into_iter().take(k).map(|(_, i)| i).collect()
+    }
+
+    /// Registers one image from its features, matched with the model images `with`.
+    pub fn register(
+        &self,
+        camera: &Camera,
+        name: &str,
+        features: &Features,
+        with: &[usize],
+        matching: &MatchSettings,
+        settings: &RegisterSettings,
+    ) -> Registration {
+        let matches: Vec<(usize, Vec<(usize, usize)>)> = with
+            .iter()
+            .map(|&k| {
+                let found = match_features(features, &self.features[k], matching);
+                (k, found.iter().map(|x| (x.a, x.b)).collect())
+            })
+            .collect();
+        let pixels: Vec<Vector2<f64>> = features
+            .keypoints
+            .iter()
+            .map(|k| Vector2::new(k.x, k.y))
+            .collect();
+        register_image(&self.model, camera, name, &pixels, &matches, settings)
+    }
+}
+
+/// One camera of a georeferenced model's `cameras.csv`.
+#[derive(Clone, Debug)]
+pub struct GeoCamera {
+    pub image: String,
+    /// Centre in the model's frame, metres.
+    pub centre: Vector3<f64>,
+    /// Centre in the survey's CRS (`crs_x, crs_y, crs_h`).
+    pub crs: Vector3<f64>,
+    /// σ of the centre east, north, up (metres) and of the attitude (degrees).
+    pub sigma_enu_m: Vector3<f64>,
+    pub sigma_rotation_deg: f64,
+}
+
+/// The registered, georeferenced cameras of a model's `cameras.csv` (as `geostride sfm --gcps`
+/// writes it). An error names the file and line, or says the model is not georeferenced.
+pub fn read_geo_cameras(model_dir: &Path) -> Result<Vec<GeoCamera>, crate::io::FileError> {
+    let path = model_dir.join("cameras.csv");
+    let ctx = crate::io::FileCtx { path: &path };
+    let text = ctx.read_text("a model's cameras.csv")?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines
+        .next()
+        .unwrap_or("")
+        .split(',')
+        .map(str::trim)
+        .collect();
+    let need = [
+        "image",
+        "registered",
+        "x",
+        "y",
+        "z",
+        "crs_x",
+        "crs_y",
+        "crs_h",
+        "sigma_e_m",
+        "sigma_n_m",
+        "sigma_u_m",
+        "sigma_rotation_deg",
+    ];
+    let mut col = [0usize; 12];
+    for (k, n) in need.iter().enumerate() {
+        col[k] = header.iter().position(|h| h == n).ok_or_else(|| {
+            ctx.at(
+                1,
+                format!(
+                    "no column '{n}': the model is not georeferenced (build it with geostride sfm ... --gcps GCPS)"
+                ),
+            )
+        })?;
+    }
+    let mut out = Vec::new();
+    for (i, l) in lines.enumerate() {
+        let line = i + 2;
+        let f: Vec<&str> = l.split(',').map(str::trim).collect();
+        if l.trim().is_empty() || f.get(col[1]) != Some(&"yes") {
+            continue;
+        }
+        let num = |k: usize| -> Result<f64, crate::io::FileError> {
+            ctx.number(f.get(col[k]).copied().unwrap_or(""), line, need[k])
+        };
+        out.push(GeoCamera {
+            image: f[col[0]].to_string(),
+            centre: Vector3::new(num(2)?, num(3)?, num(4)?),
+            crs: Vector3::new(num(5)?, num(6)?, num(7)?),
+            sigma_enu_m: Vector3::new(num(8)?, num(9)?, num(10)?),
+            sigma_rotation_deg: num(11)?,
+        });
+    }
+    if out.len() < 3 {
+        return Err(ctx.at(
+            1,
+            format!(
+                "{} georeferenced camera(s); at least 3 are needed to place the model",
+                out.len()
+            ),
+        ));
+    }
+    Ok(out)
+}
+
+/// The features' cap a model was built with (its report.json), else the default.
+pub fn model_max_features(model_dir: &Path) -> usize {
+    std::fs::read_to_string(model_dir.join("report.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["max_features"].as_u64())
+        .map_or(FeatureSettings::default().max_features, |v| v as usize)
+}
+
+/// Keeps the features outside every `[x, y, width, height]` box (people, who move, and their
+/// shadows); gives how many were dropped.
+pub fn mask_features(features: &mut Features, boxes: &[[f64; 4]]) -> usize {
+    if boxes.is_empty() {
+        return 0;
+    }
+    let n = features.keypoints.len();
+    let len = super::DESCRIPTOR_LEN;
+    let mut keypoints = Vec::with_capacity(n);
+    let mut descriptors = Vec::with_capacity(features.descriptors.len());
+    for (i, k) in features.keypoints.iter().enumerate() {
+        let inside = boxes
+            .iter()
+            .any(|b| k.x >= b[0] && k.x <= b[0] + b[2] && k.y >= b[1] && k.y <= b[1] + b[3]);
+        if !inside {
+            keypoints.push(k.clone());
+            descriptors.extend_from_slice(&features.descriptors[i * len..(i + 1) * len]);
+        }
+    }
+    let dropped = n - keypoints.len();
+    features.keypoints = keypoints;
+    features.descriptors = descriptors;
+    dropped
+}
+
+/// A frame's pose from a key frame's 2D–3D inliers carried into it by `frame_from_key` (the
+/// stabiliser's homography of tracked features), refined from `start` with a Cauchy loss at
+/// `sigma_px` so that a point the homography carries badly (off the ground plane) loses its
+/// pull. Gives the pose and the RMS reprojection error of the points within 3 σ, or `None`
+/// when too few points land in the image or the refinement fails.
+pub fn pose_from_carried(
+    camera: &Camera,
+    start: &Rigid3,
+    key_points: &[(Vector2<f64>, Vector3<f64>)],
+    frame_from_key: &Matrix3<f64>,
+    sigma_px: f64,
+    min_points: usize,
+) -> Option<(RefinedPose, f64, usize)> {
+    let size = camera.image_size;
+    let info = Matrix2::identity() / (sigma_px * sigma_px);
+    let obs: Vec<PointObs> = key_points
+        .iter()
+        .filter_map(|(uv, world)| {
+            let h = frame_from_key * uv.push(1.0);
+            if h.z.abs() < 1e-12 {
+                return None;
+            }
+            let uv = h.xy() / h.z;
+            if let Some(s) = size
+                && (uv.x < 0.0 || uv.y < 0.0 || uv.x > s.width as f64 || uv.y > s.height as f64)
+            {
+                return None;
+            }
+            Some(PointObs {
+                world: *world,
+                uv,
+                info,
+            })
+        })
+        .collect();
+    if obs.len() < min_points {
+        return None;
+    }
+    let refined = refine_pose(
+        camera,
+        start,
+        &obs,
+        RobustLoss::Cauchy(3.0),
+        &LmSettings::default(),
+    )
+    .ok()?;
+    let errs: Vec<f64> = obs
+        .iter()
+        .filter_map(|o| {
+            camera
+                .project(&refined.cam_from_world.apply(&o.world))
+                .ok()
+                .map(|p| (p - o.uv).norm())
+        })
+        .filter(|e| *e <= 3.0 * sigma_px)
+        .collect();
+    if errs.len() < min_points {
+        return None;
+    }
+    let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
+    Some((refined, rms, errs.len()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Rotation3;
+
+    #[test]
+    fn carried_points_give_the_moved_cameras_pose() {
+        // A nadir camera 30 m over flat ground, then 1 m further east: the ground's homography
+        // between the two images carries the key frame's points exactly.
+        let camera = Camera::pinhole(1400.0, 1400.0, 960.0, 540.0).with_image_size(1920, 1080);
+        let r = Rotation3::from_euler_angles(std::f64::consts::PI, 0.0, 0.0);
+        let at = |e: f64| Rigid3::new(r, -(r * Vector3::new(e, 0.0, 30.0)));
+        let (key, moved) = (at(0.0), at(1.0));
+        let mut pts = Vec::new();
+        for i in 0..10 {
+            for j in 0..6 {
+                let w = Vector3::new(-12.0 + 2.5 * i as f64, -7.0 + 2.5 * j as f64, 0.0);
+                pts.push((camera.project(&key.apply(&w)).unwrap(), w));
+            }
+        }
+        // 1 m east is 1400/30 px to the left in this camera (x right = east when looking down
+        // with this rotation: x stays east).
+        let dx = -1400.0 / 30.0;
+        let h = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
+        let (p, rms, n) = pose_from_carried(&camera, &key, &pts, &h, 0.5, 6).unwrap();
+        assert!(rms < 1e-6, "{rms}");
+        assert!(n > 40);
+        assert!((p.cam_from_world.centre() - moved.centre()).norm() < 1e-6);
+    }
+
+    #[test]
+    fn masked_features_inside_boxes_are_dropped_with_their_descriptors() {
+        let kp = |x: f64, y: f64| super::super::Keypoint {
+            x,
+            y,
+            size: 1.0,
+            angle_deg: 0.0,
+            response: 1.0,
+        };
+        let len = super::super::DESCRIPTOR_LEN;
+        let mut f = Features {
+            width: 100,
+            height: 100,
+            keypoints: vec![kp(5.0, 5.0), kp(50.0, 50.0), kp(90.0, 10.0)],
+            descriptors: (0..3 * len).map(|i| (i / len) as f32).collect(),
+        };
+        assert_eq!(mask_features(&mut f, &[[40.0, 40.0, 20.0, 20.0]]), 1);
+        assert_eq!(f.keypoints.len(), 2);
+        assert_eq!(f.descriptor(1)[0], 2.0);
+    }
+}

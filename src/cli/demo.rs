@@ -233,6 +233,30 @@ impl Row {
     }
 }
 
+/// The RMSE checks of the runs with the heights known and with the default: targets in that
+/// order, metres.
+fn rmse_checks(known: &Evaluation, default: &Evaluation, targets: [f64; 2]) -> [(bool, String); 2] {
+    [
+        (
+            known.rmse_m <= targets[0],
+            format!("RMSE ≤ {} m with heights known", targets[0]),
+        ),
+        (
+            default.rmse_m <= targets[1],
+            format!("RMSE ≤ {} m with the 1.7 m default", targets[1]),
+        ),
+    ]
+}
+
+/// The MOTA / IDF1 row of two runs.
+fn mota_row(a: &Evaluation, b: &Evaluation) -> Row {
+    Row::new(
+        "MOTA / IDF1",
+        [a, b].map(|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
+        "",
+    )
+}
+
 /// The error rows of two runs' evaluations (`rmse_target` beside the RMSE).
 fn error_rows(a: &Evaluation, b: &Evaluation, rmse_target: &'static str) -> Vec<Row> {
     let both = |f: &dyn Fn(&Evaluation) -> String| [f(a), f(b)];
@@ -291,6 +315,73 @@ fn coverage_scope_note(json: bool, args: &Args, scene: &Scene) {
             "   (the 95 % share is checked on the whole {} s scene only: a shorter one has too few people for it)",
             scene.duration_s
         );
+    }
+}
+
+/// Each track's person identified against the truth (the one nearest within 0.5 m in most
+/// frames, as measured before an event) and their true height written to `DIR/heights.csv`;
+/// gives the track → person map and every person's height.
+fn write_known_heights(
+    dir: &Path,
+    truth: &[Sample],
+) -> anyhow::Result<(
+    std::collections::HashMap<usize, usize>,
+    std::collections::HashMap<usize, f64>,
+)> {
+    let people = read_people_heights(&dir.join("truth/people.csv")).map_err(|e| anyhow!(e))?;
+    let ids = identify_tracks(
+        truth,
+        &track_samples(&dir.join("run/trajectories.csv"))?,
+        0.5,
+    );
+    let mut heights = String::from("id,height_m,sd_m\n");
+    let mut ids_sorted: Vec<_> = ids.iter().collect();
+    ids_sorted.sort();
+    for (track, person) in ids_sorted {
+        if let Some(h) = people.get(person) {
+            let _ = writeln!(heights, "{track},{h:.4},0.0");
+        }
+    }
+    geostride::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
+    Ok((ids, people))
+}
+
+/// One run of a demo: `project` written to `DIR/FILE` (its header `what`), run into `DIR/OUT`
+/// as `geostride run` does (the command printed after `step`), its stages printed, and checked
+/// against the truth (every point's check in `DIR/ACCURACY`).
+struct DemoRun<'a> {
+    dir: &'a Path,
+    file: &'a str,
+    what: &'a str,
+    step: &'a str,
+    out: &'a str,
+    accuracy: &'a str,
+}
+
+impl DemoRun<'_> {
+    fn run(
+        &self,
+        args: &Args,
+        project: &Project,
+        truth: &[Sample],
+        ignored: &[Sample],
+    ) -> anyhow::Result<(RunReport, Evaluation, Consistency)> {
+        let path = self.dir.join(self.file);
+        write_project(&path, project, self.what)?;
+        let out = self.dir.join(self.out);
+        say!(
+            args.json,
+            "\n{}$ geostride run {} --out {}",
+            self.step,
+            path.display(),
+            out.display()
+        );
+        let bars = super::StageBars { quiet: args.quiet };
+        let loaded = load(&path).map_err(|e| anyhow!(e))?;
+        let report = run_project(&loaded, &out, &bars).map_err(|e| anyhow!("{e}"))?;
+        print_stages(args.json, &report);
+        let (e, c) = check_run(&out, truth, ignored, &self.dir.join(self.accuracy))?;
+        Ok((report, e, c))
     }
 }
 
@@ -463,24 +554,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
 
     // 3. Run the project: default head height.
-    let project = dir.join("project.toml");
     let hats = hats_project(&scene, "camera.yaml", None)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
-    write_project(
-        &project,
-        &hats,
-        "Hats: the colour detector, association tracking.",
-    )?;
-    say!(
-        json,
-        "\n3. $ geostride run {} --out {}",
-        project.display(),
-        dir.join("run").display()
-    );
-    let bars = super::StageBars { quiet: args.quiet };
-    let loaded = load(&project).map_err(|e| anyhow!(e))?;
-    let report = run_project(&loaded, &dir.join("run"), &bars).map_err(|e| anyhow!("{e}"))?;
-    print_stages(json, &report);
+    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
+    let (report, default_eval, default_cons) = DemoRun {
+        dir: &dir,
+        file: "project.toml",
+        what: "Hats: the colour detector, association tracking.",
+        step: "3. ",
+        out: "run",
+        accuracy: "accuracy-default.csv",
+    }
+    .run(&args, &hats, &truth, &ignored)?;
 
     // The poses against the truth.
     let truth_poses = read_poses(&dir.join("truth/camera.csv")).map_err(|e| anyhow!(e))?;
@@ -510,56 +595,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         worst_px,
     };
 
-    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
-    let (default_eval, default_cons) = check_run(
-        &dir.join("run"),
-        &truth,
-        &ignored,
-        &dir.join("accuracy-default.csv"),
-    )?;
-
-    // 4. The same with every person's height known (as measured before an event): each track's
-    // person identified against the truth, their height written to heights.csv.
-    let people = read_people_heights(&dir.join("truth/people.csv")).map_err(|e| anyhow!(e))?;
-    let ids = identify_tracks(
-        &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
-        0.5,
-    );
-    let mut heights = String::from("id,height_m,sd_m\n");
-    let mut ids_sorted: Vec<_> = ids.iter().collect();
-    ids_sorted.sort();
-    for (track, person) in ids_sorted {
-        if let Some(h) = people.get(person) {
-            let _ = writeln!(heights, "{track},{h:.4},0.0");
-        }
-    }
-    geostride::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
-    let project_h = dir.join("project-heights.toml");
+    // 4. The same with every person's height known (as measured before an event).
+    let (ids, people) = write_known_heights(&dir, &truth)?;
     let hats_h = hats_project(&scene, "camera.yaml", Some("heights.csv"))?;
-    write_project(
-        &project_h,
-        &hats_h,
-        "Hats, with every person's height known (heights.csv, by track id).",
-    )?;
-    say!(
-        json,
-        "\n4. With every person's height known: $ geostride run {} --out {}",
-        project_h.display(),
-        dir.join("run-heights").display()
-    );
-    let loaded_h = load(&project_h).map_err(|e| anyhow!(e))?;
-    let report_h =
-        run_project(&loaded_h, &dir.join("run-heights"), &bars).map_err(|e| anyhow!("{e}"))?;
-    print_stages(json, &report_h);
-    let (known_eval, known_cons) = check_run(
-        &dir.join("run-heights"),
-        &truth,
-        &ignored,
-        &dir.join("accuracy-heights.csv"),
-    )?;
+    let (_, known_eval, known_cons) = DemoRun {
+        dir: &dir,
+        file: "project-heights.toml",
+        what: "Hats, with every person's height known (heights.csv, by track id).",
+        step: "4. With every person's height known: ",
+        out: "run-heights",
+        accuracy: "accuracy-heights.csv",
+    }
+    .run(&args, &hats_h, &truth, &ignored)?;
 
     // 5. The accuracy table.
+    let [known_check, default_check] =
+        rmse_checks(&known_eval, &default_eval, [RMSE_KNOWN_M, RMSE_DEFAULT_M]);
     let checks = [
         (
             calibration.worst_sigmas <= CALIBRATION_SIGMAS,
@@ -569,14 +620,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             pose.worst_px <= POSE_PX,
             format!("every frame's pose within {POSE_PX} px of the truth"),
         ),
-        (
-            known_eval.rmse_m <= RMSE_KNOWN_M,
-            format!("RMSE ≤ {RMSE_KNOWN_M} m with heights known"),
-        ),
-        (
-            default_eval.rmse_m <= RMSE_DEFAULT_M,
-            format!("RMSE ≤ {RMSE_DEFAULT_M} m with the 1.7 m default"),
-        ),
+        known_check,
+        default_check,
         (
             default_eval.tracked_90_fraction >= TRACKED_FRACTION,
             format!(
@@ -633,11 +678,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ],
             "≤ 1 %",
         ),
-        Row::new(
-            "MOTA / IDF1",
-            both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
-            "",
-        ),
+        mota_row(&known_eval, &default_eval),
     ]);
     rows.extend(uncertainty_rows(&known_cons, &default_cons));
     let after = [

@@ -21,6 +21,48 @@ pub fn csv_num(v: Option<f64>, decimals: usize) -> String {
         .map_or(String::new(), |v| format!("{v:.decimals$}"))
 }
 
+/// The columns of `poses.csv` that say where a camera is (both pose kinds write them).
+pub const POSE_COLUMNS: &str = "centre_e_m,centre_n_m,centre_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z,yaw_deg,pitch_deg,roll_deg,off_nadir_deg,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z";
+
+/// A camera's [`POSE_COLUMNS`]: its centre (site frame) and σ, the centre in the GCP file's CRS,
+/// its attitude, and `cam_from_world` as OpenCV's rvec/tvec.
+pub fn pose_columns(
+    pose: &Rigid3,
+    centre_sigma_m: Option<nalgebra::Vector3<f64>>,
+    framed: &Framed,
+) -> Result<String, PoseOutputError> {
+    let c = pose.centre();
+    let src = framed
+        .frame
+        .source_from_local(&c)
+        .map_err(|e| PoseOutputError::Crs(format!("camera position to the GCP file's CRS: {e}")))?;
+    let att = Attitude::from_world_from_cam(&pose.rotation.inverse().into_inner());
+    let (rv, tv) = (pose.rvec(), pose.translation);
+    let sg = centre_sigma_m;
+    Ok(format!(
+        "{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
+        c.x,
+        c.y,
+        c.z,
+        csv_num(sg.map(|s| s.x), 4),
+        csv_num(sg.map(|s| s.y), 4),
+        csv_num(sg.map(|s| s.z), 4),
+        src.x,
+        src.y,
+        src.z,
+        att.yaw_deg,
+        att.pitch_deg,
+        att.roll_deg,
+        att.off_nadir_deg,
+        rv.x,
+        rv.y,
+        rv.z,
+        tv.x,
+        tv.y,
+        tv.z
+    ))
+}
+
 /// What a video's pose solution produced, for the output files.
 pub struct PoseRun<'a> {
     pub camera: &'a Camera,
@@ -74,25 +116,17 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> Result<Vec<PathBuf>, Pos
         written.push(p);
         Ok(())
     };
-    let mut poses = String::from(
-        "frame,time_s,key,reference,interpolated,features,feature_inliers,picks_used,mean_reprojection_px,max_reprojection_px,centre_e_m,centre_n_m,centre_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z,yaw_deg,pitch_deg,roll_deg,off_nadir_deg,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
+    let mut poses = format!(
+        "frame,time_s,key,reference,interpolated,features,feature_inliers,picks_used,mean_reprojection_px,max_reprojection_px,{POSE_COLUMNS}\n"
     );
     let mut reproj = String::from(
         "frame,time_s,key,picks_used,mean_reprojection_px,max_reprojection_px,check_mean_reprojection_px\n",
     );
     for ((f, t), chk) in r.frames.iter().zip(tracks).zip(check_mean) {
         let time = f.index as f64 / fps;
-        let c = f.cam_from_world.centre();
-        let src = framed.frame.source_from_local(&c).map_err(|e| {
-            PoseOutputError::Crs(format!("camera position to the GCP file's CRS: {e}"))
-        })?;
-        let att = Attitude::from_world_from_cam(&f.cam_from_world.rotation.inverse().into_inner());
-        let rv = f.cam_from_world.rvec();
-        let tv = f.cam_from_world.translation;
-        let sg = f.centre_sigma_m;
         writeln!(
             poses,
-            "{},{time:.6},{},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
+            "{},{time:.6},{},{},{},{},{},{},{},{},{}",
             f.index,
             u8::from(f.key),
             t.reference,
@@ -102,25 +136,7 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> Result<Vec<PathBuf>, Pos
             f.picks_used,
             csv_num(f.mean_reprojection_px, 4),
             csv_num(f.max_reprojection_px, 4),
-            c.x,
-            c.y,
-            c.z,
-            csv_num(sg.map(|s| s.x), 4),
-            csv_num(sg.map(|s| s.y), 4),
-            csv_num(sg.map(|s| s.z), 4),
-            src.x,
-            src.y,
-            src.z,
-            att.yaw_deg,
-            att.pitch_deg,
-            att.roll_deg,
-            att.off_nadir_deg,
-            rv.x,
-            rv.y,
-            rv.z,
-            tv.x,
-            tv.y,
-            tv.z
+            pose_columns(&f.cam_from_world, f.centre_sigma_m, framed)?
         )?;
         writeln!(
             reproj,

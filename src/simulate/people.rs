@@ -488,6 +488,24 @@ mod tests {
         assert!((m - 1.7).abs() < 0.03, "{m}");
     }
 
+    /// The closest two people's feet come, horizontally, over `steps` of 0.1 s.
+    fn closest_feet(people: &[Person], world: &World, steps: usize) -> f64 {
+        let mut least = f64::INFINITY;
+        for k in 0..steps {
+            let at: Vec<Vector3<f64>> = people
+                .iter()
+                .filter_map(|p| p.pose(world, k as f64 * 0.1))
+                .map(|q| q.foot)
+                .collect();
+            for i in 0..at.len() {
+                for j in 0..i {
+                    least = least.min((at[i] - at[j]).xy().norm());
+                }
+            }
+        }
+        least
+    }
+
     #[test]
     fn stream_arrivals_keep_their_distance() {
         let world = deck_world();
@@ -498,23 +516,7 @@ mod tests {
                 min_spacing_m: spacing,
                 ..PeopleSpec::default()
             };
-            let people = spawn(&spec, &world, 30.0, 5);
-            // Over the horizontal positions every 0.1 s, on the deck.
-            let mut least = f64::INFINITY;
-            for k in 0..300 {
-                let t = k as f64 * 0.1;
-                let at: Vec<Vector3<f64>> = people
-                    .iter()
-                    .filter_map(|p| p.pose(&world, t))
-                    .map(|q| q.foot)
-                    .collect();
-                for i in 0..at.len() {
-                    for j in 0..i {
-                        least = least.min((at[i] - at[j]).xy().norm());
-                    }
-                }
-            }
-            least
+            closest_feet(&spawn(&spec, &world, 30.0, 5), &world, 300)
         };
         // Without the rule people pass through each other; with it they keep 0.6 m.
         assert!(closest(0.0) < 0.3, "{}", closest(0.0));
@@ -544,21 +546,7 @@ mod tests {
                 min_spacing_m: spacing,
                 ..PeopleSpec::default()
             };
-            let people = spawn(&spec, &world, 10.0, 7);
-            let mut least = f64::INFINITY;
-            for k in 0..100 {
-                let at: Vec<Vector3<f64>> = people
-                    .iter()
-                    .filter_map(|p| p.pose(&world, k as f64 * 0.1))
-                    .map(|q| q.foot)
-                    .collect();
-                for i in 0..at.len() {
-                    for j in 0..i {
-                        least = least.min((at[i] - at[j]).xy().norm());
-                    }
-                }
-            }
-            least
+            closest_feet(&spawn(&spec, &world, 10.0, 7), &world, 100)
         };
         // Overtaking runners pass through each other without the rule, not with it.
         assert!(closest(0.0) < 0.3, "{}", closest(0.0));

@@ -219,33 +219,19 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
     );
 
     // 4. The run with the default head height.
-    let project = dir.join("project.toml");
+    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
     let p = group_project(&scene, "camera.yaml", "model", "survey/photos", None)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
-    write_project(
-        &project,
-        &p,
-        "Group: every frame placed in the reference model (model/, from survey/photos), local ground planes, hats.",
-    )?;
-    say!(
-        json,
-        "\n4. $ geostride run {} --out {}",
-        project.display(),
-        dir.join("run").display()
-    );
-    let bars = super::super::StageBars { quiet: args.quiet };
-    let loaded = load(&project).map_err(|e| anyhow!(e))?;
-    let report = run_project(&loaded, &dir.join("run"), &bars).map_err(|e| anyhow!("{e}"))?;
-    print_stages(json, &report);
+    let (report, default_eval, default_cons) = DemoRun {
+        dir: &dir,
+        file: "project.toml",
+        what: "Group: every frame placed in the reference model (model/, from survey/photos), local ground planes, hats.",
+        step: "4. ",
+        out: "run",
+        accuracy: "accuracy-default.csv",
+    }
+    .run(&args, &p, &truth, &ignored)?;
     let pose = frames_check(&dir, &report)?;
-
-    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
-    let (default_eval, default_cons) = check_run(
-        &dir.join("run"),
-        &truth,
-        &ignored,
-        &dir.join("accuracy-default.csv"),
-    )?;
     let (_, matches) = evaluate_matches(
         &truth,
         &track_samples(&dir.join("run/trajectories.csv"))?,
@@ -255,22 +241,7 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
     let (full, runners) = runners_every_frame(&truth, &matches);
 
     // 5. Every runner's height known.
-    let people = read_people_heights(&dir.join("truth/people.csv")).map_err(|e| anyhow!(e))?;
-    let ids = identify_tracks(
-        &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
-        0.5,
-    );
-    let mut heights = String::from("id,height_m,sd_m\n");
-    let mut ids_sorted: Vec<_> = ids.iter().collect();
-    ids_sorted.sort();
-    for (track, person) in ids_sorted {
-        if let Some(h) = people.get(person) {
-            let _ = writeln!(heights, "{track},{h:.4},0.0");
-        }
-    }
-    geostride::io::write_atomic(&dir.join("heights.csv"), heights.as_bytes())?;
-    let project_h = dir.join("project-heights.toml");
+    write_known_heights(&dir, &truth)?;
     let p_h = group_project(
         &scene,
         "camera.yaml",
@@ -278,38 +249,22 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
         "survey/photos",
         Some("heights.csv"),
     )?;
-    write_project(
-        &project_h,
-        &p_h,
-        "Group, with every runner's height known (heights.csv, by track id).",
-    )?;
-    say!(
-        json,
-        "\n5. With every runner's height known: $ geostride run {} --out {}",
-        project_h.display(),
-        dir.join("run-heights").display()
-    );
-    let loaded_h = load(&project_h).map_err(|e| anyhow!(e))?;
-    let report_h =
-        run_project(&loaded_h, &dir.join("run-heights"), &bars).map_err(|e| anyhow!("{e}"))?;
-    print_stages(json, &report_h);
-    let (known_eval, known_cons) = check_run(
-        &dir.join("run-heights"),
-        &truth,
-        &ignored,
-        &dir.join("accuracy-heights.csv"),
-    )?;
+    let (_, known_eval, known_cons) = DemoRun {
+        dir: &dir,
+        file: "project-heights.toml",
+        what: "Group, with every runner's height known (heights.csv, by track id).",
+        step: "5. With every runner's height known: ",
+        out: "run-heights",
+        accuracy: "accuracy-heights.csv",
+    }
+    .run(&args, &p_h, &truth, &ignored)?;
 
     // 6. The accuracy table.
+    let [known_check, default_check] =
+        rmse_checks(&known_eval, &default_eval, [RMSE_KNOWN_M, RMSE_DEFAULT_M]);
     let checks = [
-        (
-            known_eval.rmse_m <= RMSE_KNOWN_M,
-            format!("RMSE ≤ {RMSE_KNOWN_M} m with heights known"),
-        ),
-        (
-            default_eval.rmse_m <= RMSE_DEFAULT_M,
-            format!("RMSE ≤ {RMSE_DEFAULT_M} m with the 1.7 m default"),
-        ),
+        known_check,
+        default_check,
         (
             pose.measured == sim.frames && pose.frames == sim.frames,
             "every frame posed from its own features".to_string(),
@@ -349,11 +304,7 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
             "all",
         ),
         Row::new("ID switches", both(&|e| format!("{}", e.id_switches)), "0"),
-        Row::new(
-            "MOTA / IDF1",
-            both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
-            "",
-        ),
+        mota_row(&known_eval, &default_eval),
     ]);
     rows.extend(uncertainty_rows(&known_cons, &default_cons));
     let after = [

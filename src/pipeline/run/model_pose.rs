@@ -5,8 +5,8 @@ use nalgebra::UnitQuaternion;
 
 use super::*;
 use crate::geom::similarity::{ScaleMode, Similarity, fit as fit_similarity};
+use crate::pipeline::pose_outputs::{POSE_COLUMNS, csv_num, pose_columns};
 use crate::pipeline::settings::ModelSettings;
-use crate::pose::attitude::Attitude;
 use crate::sfm::FeatureSettings;
 use crate::sfm::matching::MatchSettings;
 use crate::sfm::reference::{
@@ -441,48 +441,23 @@ pub(super) fn write_model_pose_outputs(
     use std::fmt::Write as _;
     let fps = scan.fps;
     let io = |path: PathBuf| move |source| RunError::Io { path, source };
-    let mut csv = String::from(
-        "frame,time_s,key,reference,interpolated,rms_px,centre_e_m,centre_n_m,centre_u_m,sigma_e_m,sigma_n_m,sigma_u_m,x,y,z,yaw_deg,pitch_deg,roll_deg,off_nadir_deg,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
-    );
+    let mut csv = format!("frame,time_s,key,reference,interpolated,rms_px,{POSE_COLUMNS}\n");
     for (f, t) in poses.frames.iter().zip(&scan.tracks) {
         let pose = f.pose();
-        let c = pose.centre();
-        let src = framed.frame.source_from_local(&c)?;
-        let att = Attitude::from_world_from_cam(&pose.rotation.inverse().into_inner());
         let sg = f.covariance.map(|cv| {
             let w = crate::pose::refine::world_covariance(&pose, &cv);
             Vector3::new(w[(3, 3)].sqrt(), w[(4, 4)].sqrt(), w[(5, 5)].sqrt())
         });
-        let (rv, tv) = (pose.rvec(), pose.translation);
-        let num = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
         let _ = writeln!(
             csv,
-            "{},{:.6},{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
+            "{},{:.6},{},{},{},{},{}",
             f.frame,
             f.frame as f64 / fps,
             u8::from(t.key.is_some()),
             t.reference,
             u8::from(f.interpolated),
-            num(f.mean_reprojection_px),
-            c.x,
-            c.y,
-            c.z,
-            num(sg.map(|s| s.x)),
-            num(sg.map(|s| s.y)),
-            num(sg.map(|s| s.z)),
-            src.x,
-            src.y,
-            src.z,
-            att.yaw_deg,
-            att.pitch_deg,
-            att.roll_deg,
-            att.off_nadir_deg,
-            rv.x,
-            rv.y,
-            rv.z,
-            tv.x,
-            tv.y,
-            tv.z
+            csv_num(f.mean_reprojection_px, 4),
+            pose_columns(&pose, sg, framed)?
         );
     }
     write_atomic(&dir.join("poses.csv"), csv.as_bytes()).map_err(io(dir.join("poses.csv")))?;

@@ -665,10 +665,21 @@ fn bad_georeferencing_input_is_refused_with_a_reason() {
 fn video_frames_are_placed_in_the_reference_model() {
     let tmp = tempfile::tempdir().unwrap();
     let sim = tmp.path().join("sim");
-    let scene = concat!(
+    // The track scene with frames 20 to 22 lost (plain grey: a frame of sky or fog), which must
+    // be reported and interpolated with a flag, never posed as if measured.
+    let text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/surveys/track-group/scene.toml"
-    );
+    ))
+    .unwrap();
+    assert!(text.contains("[output]\n"));
+    let scene_path = tmp.path().join("scene.toml");
+    std::fs::write(
+        &scene_path,
+        text.replace("[output]\n", "[output]\nlost_frames = [20, 21, 22]\n"),
+    )
+    .unwrap();
+    let scene = scene_path.to_str().unwrap();
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let run = |args: &[&str]| {
         let o = geostride(args);
@@ -713,8 +724,13 @@ fn video_frames_are_placed_in_the_reference_model() {
         "--json",
     ]);
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(report["registered"], 5, "{report}");
+    // Frame 20 is lost: not registered, its reason given, interpolated and flagged.
+    assert_eq!(report["registered"], 4, "{report}");
     assert_eq!(report["frame"], "site");
+    let lost = &report["per_image"][2];
+    assert!(lost["name"].as_str().unwrap().ends_with("#20"), "{lost}");
+    assert_eq!(lost["interpolated"], true, "{lost}");
+    assert!(lost["reason"].as_str().is_some_and(|r| !r.is_empty()), "{lost}");
     // The offset between the frames, from the survey cameras.
     let truth_photos = common::read_csv(&sim.join("truth/survey_cameras.csv"));
     let model_photos = common::read_csv(&model.join("cameras.csv"));
@@ -732,7 +748,9 @@ fn video_frames_are_placed_in_the_reference_model() {
     }
     let truth = common::read_csv(&sim.join("truth/camera.csv"));
     let frames = cameras_of(&reg.join("cameras.csv"));
-    assert_eq!(frames.len(), 5);
+    assert_eq!(frames.len(), 4);
+    let rows = common::read_csv(&reg.join("cameras.csv"));
+    assert_eq!(rows[2]["registered"], "interpolated", "{:?}", rows[2]);
     for (name, (c, r)) in &frames {
         let f: usize = name.rsplit('#').next().unwrap().parse().unwrap();
         let t = truth.iter().find(|t| t["frame"] == f.to_string()).unwrap();
@@ -817,7 +835,9 @@ fn video_frames_are_placed_in_the_reference_model() {
     assert_eq!(poses.len(), 50, "2 s at 25 fps");
     let mut worst: f64 = 0.0;
     for p in &poses {
-        assert_eq!(p["interpolated"], "0", "{p:?}");
+        // Only the lost frames are interpolated (flagged), every other one placed.
+        let lost = ["20", "21", "22"].contains(&p["frame"].as_str());
+        assert_eq!(p["interpolated"], if lost { "1" } else { "0" }, "{p:?}");
         let t = truth.iter().find(|t| t["frame"] == p["frame"]).unwrap();
         let c = nalgebra::Vector3::new(
             common::num(p, "centre_e_m"),
@@ -836,6 +856,13 @@ fn video_frames_are_placed_in_the_reference_model() {
     for f in ["key_frames.csv", "pose_series.csv", "pose_altitude.png"] {
         assert!(run_dir.join("pose").join(f).is_file(), "{f}");
     }
+    // The lost key frames are listed with why, and the run's report says so.
+    let keys = common::read_csv(&run_dir.join("pose/key_frames.csv"));
+    let k20 = keys.iter().find(|k| k["frame"] == "20").expect("frame 20 a key frame");
+    assert_eq!(k20["placed"], "no", "{k20:?}");
+    assert!(!k20["reason"].is_empty());
+    let run_report = std::fs::read_to_string(run_dir.join("report.json")).unwrap();
+    assert!(run_report.contains("interpolated poses"), "{run_report}");
     let tracks = common::read_csv(&run_dir.join("trajectories.csv"));
     assert!(!tracks.is_empty());
 }

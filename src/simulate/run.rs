@@ -283,13 +283,16 @@ pub fn simulate(
             + light_amp
                 * (0.6 * (std::f64::consts::TAU * t / 17.0).sin()
                     + 0.4 * (std::f64::consts::TAU * t / 7.3 + 1.0).sin());
-        let rgb = renderer.render(&FrameInput {
+        let mut rgb = renderer.render(&FrameInput {
             index: i,
             pose,
             bodies: &bodies,
             shadows: &shadows,
             light,
         });
+        if scene.output.lost_frames.contains(&(i as u32)) {
+            rgb.fill(200);
+        }
         if let Some(s) = sink.as_mut() {
             s.write_rgb(&rgb)
                 .map_err(|e| SimError::Output(e.to_string()))?;

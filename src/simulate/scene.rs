@@ -370,6 +370,10 @@ pub struct OutputSpec {
     /// Grey-level noise of the rendered frames (σ, 0-255).
     #[serde(default = "OutputSpec::default_image_noise")]
     pub image_noise: f64,
+    /// Frames rendered as a plain grey instead (a frame of sky, fog or a lens flare: no feature
+    /// to place it by), by index; the truth still has the camera and people there.
+    #[serde(default)]
+    pub lost_frames: Vec<u32>,
 }
 
 impl OutputSpec {

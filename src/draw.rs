@@ -49,6 +49,26 @@ impl Canvas {
         Canvas { mat }
     }
 
+    /// A canvas from tightly packed BGR bytes (a frame as pure code holds it).
+    pub fn from_bgr_bytes(bgr: &[u8], width: u32, height: u32) -> Result<Canvas, ImageError> {
+        let mut mat = Mat::new_rows_cols_with_default(
+            height as i32,
+            width as i32,
+            CV_8UC3,
+            opencv::core::Scalar::all(0.0),
+        )
+        .map_err(err)?;
+        let dst = mat.data_bytes_mut().map_err(err)?;
+        if dst.len() != bgr.len() {
+            return Err(err(opencv::Error::new(
+                opencv::core::StsBadArg,
+                format!("{} bytes for a {width}x{height} BGR image", bgr.len()),
+            )));
+        }
+        dst.copy_from_slice(bgr);
+        Ok(Canvas { mat })
+    }
+
     /// A plain canvas.
     pub fn blank(width: u32, height: u32, rgb: [u8; 3]) -> Result<Canvas, ImageError> {
         let mat =

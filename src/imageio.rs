@@ -223,3 +223,25 @@ pub fn write_heatmap(path: &Path, map: &HeatMap, width_px: i32) -> Result<(), Im
     .map_err(err)?;
     encode_to(path, &canvas)
 }
+
+/// An image file in colour as tightly packed BGR bytes, width and height (pure code's frame).
+pub fn read_bgr_bytes(path: &Path) -> Result<(Vec<u8>, usize, usize), ImageError> {
+    let name = path
+        .to_str()
+        .ok_or_else(|| file_error(path, "the file name is not valid UTF-8"))?;
+    if !path.is_file() {
+        return Err(file_error(path, "no such file"));
+    }
+    let m = opencv::imgcodecs::imread(name, opencv::imgcodecs::IMREAD_COLOR)
+        .map_err(|e| file_error(path, e))?;
+    if m.empty() {
+        return Err(file_error(path, "not an image OpenCV can read"));
+    }
+    let m = if m.is_continuous() {
+        m
+    } else {
+        m.try_clone().map_err(|e| file_error(path, e))?
+    };
+    let bytes = m.data_bytes().map_err(|e| file_error(path, e))?.to_vec();
+    Ok((bytes, m.cols() as usize, m.rows() as usize))
+}

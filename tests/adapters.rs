@@ -14,6 +14,8 @@ const ADAPTERS: &[&str] = &[
     "calibration/oracle.rs",
     "camera/formats/mod.rs",
     "detect/background.rs",
+    "detect/onnx.rs",
+    "detect/opencv_dnn.rs",
     "export/gis.rs",
     "pipeline/scan.rs",
     "pose/oracle.rs",

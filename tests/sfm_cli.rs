@@ -730,7 +730,10 @@ fn video_frames_are_placed_in_the_reference_model() {
     let lost = &report["per_image"][2];
     assert!(lost["name"].as_str().unwrap().ends_with("#20"), "{lost}");
     assert_eq!(lost["interpolated"], true, "{lost}");
-    assert!(lost["reason"].as_str().is_some_and(|r| !r.is_empty()), "{lost}");
+    assert!(
+        lost["reason"].as_str().is_some_and(|r| !r.is_empty()),
+        "{lost}"
+    );
     // The offset between the frames, from the survey cameras.
     let truth_photos = common::read_csv(&sim.join("truth/survey_cameras.csv"));
     let model_photos = common::read_csv(&model.join("cameras.csv"));
@@ -858,7 +861,10 @@ fn video_frames_are_placed_in_the_reference_model() {
     }
     // The lost key frames are listed with why, and the run's report says so.
     let keys = common::read_csv(&run_dir.join("pose/key_frames.csv"));
-    let k20 = keys.iter().find(|k| k["frame"] == "20").expect("frame 20 a key frame");
+    let k20 = keys
+        .iter()
+        .find(|k| k["frame"] == "20")
+        .expect("frame 20 a key frame");
     assert_eq!(k20["placed"], "no", "{k20:?}");
     assert!(!k20["reason"].is_empty());
     let run_report = std::fs::read_to_string(run_dir.join("report.json")).unwrap();

@@ -4,6 +4,7 @@ mod ba;
 mod calibrate;
 mod camera;
 pub mod demo;
+mod detect;
 mod evaluate;
 mod fit_error;
 mod plan;
@@ -66,6 +67,9 @@ enum Command {
     Camera(camera::Command),
     /// Run the bundled example end to end and check it against its ground truth
     Demo(demo::Args),
+    /// Find people with a neural detector (a YOLO-family ONNX model; the bundled YOLOv3-tiny
+    /// by default): MOTChallenge boxes and an annotated preview
+    Detect(detect::Args),
     /// Compare trajectories with the truth: position errors and tracking metrics
     Evaluate(evaluate::Args),
     /// Fit a detector's error model (detect.error_px2) to heads annotated in some frames
@@ -96,6 +100,7 @@ impl Cli {
             Command::Calibrate(args) => calibrate::run(args),
             Command::Camera(cmd) => camera::run(cmd),
             Command::Demo(args) => demo::run(args),
+            Command::Detect(args) => detect::run(args),
             Command::Evaluate(args) => evaluate::run(args),
             Command::FitError(args) => fit_error::run(args),
             Command::Run(args) => run::run(args),

@@ -36,6 +36,10 @@ pub struct Args {
     /// The boxes file for --detect boxes (MOTChallenge txt, JSON Lines or COCO JSON)
     #[arg(long, value_name = "FILE")]
     boxes: Option<PathBuf>,
+    /// With --detect boxes: never split a box into people side by side (an oblique view, where
+    /// a tall box is one person standing, not a row of heads seen from above)
+    #[arg(long)]
+    no_split: bool,
     /// Background subtraction method
     #[arg(long, default_value = "mog2", value_parser = ["mog2", "knn"])]
     method: String,
@@ -84,8 +88,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })?;
             let boxes = read_boxes(path, None::<BoxFormat>).map_err(bad_input)?;
             Box::new(
-                BoxesDetector::new(boxes, BoxFilter::new(args.px_per_m))
-                    .map_err(|e| bad_input(anyhow!(e)))?,
+                BoxesDetector::new(
+                    boxes,
+                    BoxFilter {
+                        max_split: if args.no_split { 1 } else { 4 },
+                        ..BoxFilter::new(args.px_per_m)
+                    },
+                )
+                .map_err(|e| bad_input(anyhow!(e)))?,
             )
         }
         _ => {

@@ -8,8 +8,12 @@ pub mod boxes;
 pub mod colour;
 pub mod error_fit;
 pub mod morph;
+pub mod neural;
+pub mod onnx;
+pub mod opencv_dnn;
 pub mod person;
 pub mod simulated;
+pub mod yolo;
 
 use nalgebra::{Matrix2, Vector2};
 

@@ -195,6 +195,16 @@ impl FrameReader {
         Ok(Some((i, frame)))
     }
 
+    /// [`next_bgr`](Self::next_bgr) as plain data for pure code: the index, tightly packed BGR
+    /// bytes, width and height.
+    pub fn next_bgr_bytes(&mut self) -> Result<Option<(usize, Vec<u8>, usize, usize)>, VideoError> {
+        let Some((i, m)) = self.next_bgr()? else {
+            return Ok(None);
+        };
+        let bytes = m.data_bytes()?.to_vec();
+        Ok(Some((i, bytes, m.cols() as usize, m.rows() as usize)))
+    }
+
     /// Moves to frame `index` (the next frame read is that one); `false` when the backend cannot.
     pub fn seek(&mut self, index: usize) -> bool {
         let ok = self

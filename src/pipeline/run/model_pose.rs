@@ -483,7 +483,10 @@ pub(super) fn write_model_pose_outputs(
             r.rms_px.map_or(String::new(), |v| format!("{v:.4}")),
             names.join(" "),
             // One plain field: no comma, no quote.
-            r.reason.clone().unwrap_or_default().replace([',', '"'], ";")
+            r.reason
+                .clone()
+                .unwrap_or_default()
+                .replace([',', '"'], ";")
         );
     }
     write_atomic(&dir.join("key_frames.csv"), keys.as_bytes())

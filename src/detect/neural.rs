@@ -1,0 +1,446 @@
+//! A neural person detector: any YOLO-family ONNX model (`detect::onnx`), its outputs decoded
+//! (`detect::yolo`), over the whole frame or in tiles (small people seen from 30 m), inside a
+//! region of interest.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::onnx::{OnnxError, OnnxModel, Output};
+use super::opencv_dnn::OpenCvNet;
+use super::yolo::{Fit, Keep, Layout, RawBox, decode, nms, tiles, to_input};
+
+/// How the model is run and read.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NeuralSettings {
+    /// The output layout [default: the model's `darknet_yolo` metadata, else told from its
+    /// outputs' shapes].
+    pub layout: Option<Layout>,
+    /// Input width and height [default: the model's, else 640].
+    pub input_size: Option<[usize; 2]>,
+    /// Letterbox (one scale, grey bars) or stretch to the input.
+    pub letterbox: bool,
+    /// Per channel `(v/255 − mean)/std`, in the model's channel order.
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    /// The model wants BGR (darknet and most YOLO exports want RGB).
+    pub bgr: bool,
+    /// Classes kept, by name (the model's `names` metadata) or by id.
+    pub classes: Vec<String>,
+    /// Lowest score kept (the paper's box threshold: 0.3).
+    pub min_score: f64,
+    /// Non-maximum suppression's overlap.
+    pub nms_iou: f64,
+    pub max_boxes: usize,
+    /// Tiles of this many pixels (0: the whole frame at once), overlapping by `overlap`; each
+    /// tile is fitted to the input, so a tile smaller than the input is enlarged.
+    pub tile: usize,
+    pub overlap: usize,
+    /// Only inside `[x, y, width, height]` (the paper: a strip along the entry edge).
+    pub roi: Option<[usize; 4]>,
+    /// ONNX Runtime's threads (0: its choice).
+    pub threads: usize,
+}
+
+impl Default for NeuralSettings {
+    fn default() -> Self {
+        NeuralSettings {
+            layout: None,
+            input_size: None,
+            letterbox: true,
+            mean: [0.0; 3],
+            std: [1.0; 3],
+            bgr: false,
+            classes: vec!["person".into()],
+            min_score: 0.3,
+            nms_iou: 0.45,
+            max_boxes: 300,
+            tile: 0,
+            overlap: 64,
+            roi: None,
+            threads: 0,
+        }
+    }
+}
+
+/// Why the detector cannot run.
+#[derive(Debug, thiserror::Error)]
+pub enum NeuralError {
+    #[error(transparent)]
+    Onnx(#[from] OnnxError),
+    /// The model and the settings disagree (layout, classes, input size).
+    #[error("{}: {message}", path.display())]
+    Model { path: PathBuf, message: String },
+}
+
+/// One detection in frame pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Detected {
+    pub xywh: [f64; 4],
+    pub score: f64,
+    pub class: usize,
+}
+
+/// The model's class names from its metadata: a JSON list, or Ultralytics' `{0: 'person', ...}`.
+pub fn parse_names(text: &str) -> Option<Vec<String>> {
+    if let Ok(v) = serde_json::from_str::<Vec<String>>(text) {
+        return Some(v);
+    }
+    let inner = text.trim().strip_prefix('{')?.strip_suffix('}')?;
+    let mut names = Vec::new();
+    for (k, item) in inner.split(',').enumerate() {
+        let (id, name) = item.split_once(':')?;
+        if id.trim().parse::<usize>().ok()? != k {
+            return None;
+        }
+        names.push(name.trim().trim_matches(['\'', '"']).to_string());
+    }
+    Some(names)
+}
+
+/// What runs the model: ONNX Runtime, or OpenCV's dnn (the oracle and benchmark peer).
+pub enum Backend {
+    OnnxRuntime(OnnxModel),
+    OpenCv(OpenCvNet),
+}
+
+impl Backend {
+    fn run(&mut self, input: Vec<f32>, wh: [usize; 2]) -> Result<Vec<Output>, OnnxError> {
+        match self {
+            Backend::OnnxRuntime(m) => m.run(input, wh),
+            Backend::OpenCv(n) => n.run(input, wh),
+        }
+    }
+}
+
+/// A loaded detector.
+pub struct NeuralDetector {
+    path: PathBuf,
+    model: Backend,
+    layout: Layout,
+    input_wh: [usize; 2],
+    class_ids: Vec<usize>,
+    pub names: Vec<String>,
+    pub settings: NeuralSettings,
+}
+
+impl NeuralDetector {
+    /// The same detector with OpenCV's dnn running the model (its settings, layout and classes
+    /// as read through ONNX Runtime).
+    pub fn on_opencv(&self) -> Result<NeuralDetector, NeuralError> {
+        Ok(NeuralDetector {
+            path: self.path.clone(),
+            model: Backend::OpenCv(OpenCvNet::load(&self.path)?),
+            layout: self.layout.clone(),
+            input_wh: self.input_wh,
+            class_ids: self.class_ids.clone(),
+            names: self.names.clone(),
+            settings: self.settings.clone(),
+        })
+    }
+
+    /// Loads `path` and checks the settings against it.
+    pub fn load(path: &Path, settings: &NeuralSettings) -> Result<NeuralDetector, NeuralError> {
+        let model = OnnxModel::load(path, settings.threads)?;
+        let bad = |message: String| NeuralError::Model {
+            path: path.to_path_buf(),
+            message,
+        };
+        let names = model
+            .metadata("names")
+            .and_then(|t| parse_names(&t))
+            .unwrap_or_default();
+        let darknet = model.metadata("darknet_yolo");
+        let input_wh = match (settings.input_size, &model.input_shape[..]) {
+            (Some(s), _) => s,
+            (None, [_, _, h, w]) if *h > 0 && *w > 0 => [*w as usize, *h as usize],
+            _ => [640, 640],
+        };
+        if let [_, c, h, w] = model.input_shape[..] {
+            if c > 0 && c != 3 {
+                return Err(bad(format!("the input has {c} channels; an image has 3")));
+            }
+            if (h > 0 && h as usize != input_wh[1]) || (w > 0 && w as usize != input_wh[0]) {
+                return Err(bad(format!(
+                    "the model's input is {w}x{h}; input_size says {}x{}",
+                    input_wh[0], input_wh[1]
+                )));
+            }
+        } else if !model.input_shape.is_empty() {
+            return Err(bad(format!(
+                "the input's shape is {:?}; an image detector takes [1, 3, H, W]",
+                model.input_shape
+            )));
+        }
+        let layout = match (&settings.layout, darknet) {
+            (Some(l), _) => l.clone(),
+            (None, Some(meta)) => darknet_layout(&meta).map_err(bad)?,
+            (None, None) => {
+                // Told from one run's output shapes.
+                let mut m = model;
+                let outs = m.run(vec![0.0; 3 * input_wh[0] * input_wh[1]], input_wh)?;
+                let shapes: Vec<Vec<i64>> = outs.iter().map(|o| o.shape.clone()).collect();
+                let guessed = Layout::guess(&shapes, (!names.is_empty()).then_some(names.len()))
+                    .ok_or_else(|| {
+                        bad(format!(
+                            "cannot tell the output layout from the outputs' shapes {shapes:?}: name it (layout = darknet, yolov5, yolov8 or yolox)"
+                        ))
+                    })?;
+                return Self::finish(
+                    path,
+                    Backend::OnnxRuntime(m),
+                    guessed,
+                    input_wh,
+                    names,
+                    settings,
+                );
+            }
+        };
+        Self::finish(
+            path,
+            Backend::OnnxRuntime(model),
+            layout,
+            input_wh,
+            names,
+            settings,
+        )
+    }
+
+    fn finish(
+        path: &Path,
+        model: Backend,
+        layout: Layout,
+        input_wh: [usize; 2],
+        names: Vec<String>,
+        settings: &NeuralSettings,
+    ) -> Result<NeuralDetector, NeuralError> {
+        let mut class_ids = Vec::new();
+        for c in &settings.classes {
+            if let Ok(id) = c.parse::<usize>() {
+                class_ids.push(id);
+            } else if let Some(id) = names.iter().position(|n| n == c) {
+                class_ids.push(id);
+            } else if names.is_empty() {
+                return Err(NeuralError::Model {
+                    path: path.to_path_buf(),
+                    message: format!(
+                        "the model names no classes, so '{c}' cannot be found: give class ids (classes = [\"0\"])"
+                    ),
+                });
+            } else {
+                return Err(NeuralError::Model {
+                    path: path.to_path_buf(),
+                    message: format!(
+                        "the model has no class '{c}'; its classes: {}",
+                        names
+                            .iter()
+                            .take(12)
+                            .cloned()
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                            + if names.len() > 12 { ", ..." } else { "" }
+                    ),
+                });
+            }
+        }
+        let mut d = NeuralDetector {
+            path: path.to_path_buf(),
+            model,
+            layout,
+            input_wh,
+            class_ids,
+            names,
+            settings: settings.clone(),
+        };
+        // The layout against the outputs, once, before any frame.
+        let outs = d
+            .model
+            .run(vec![0.0; 3 * input_wh[0] * input_wh[1]], input_wh)?;
+        let outputs: Vec<(Vec<i64>, Vec<f32>)> =
+            outs.into_iter().map(|o| (o.shape, o.data)).collect();
+        let keep = Keep {
+            classes: &d.class_ids,
+            min_score: 1.0,
+        };
+        decode(&d.layout, &outputs, input_wh, &keep).map_err(|m| NeuralError::Model {
+            path: path.to_path_buf(),
+            message: format!(
+                "its outputs do not fit the {} layout: {m}",
+                layout_name(&d.layout)
+            ),
+        })?;
+        Ok(d)
+    }
+
+    /// The layout in use.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// The input size in use.
+    pub fn input_size(&self) -> [usize; 2] {
+        self.input_wh
+    }
+
+    /// One region of a frame (`bgr`, `wh`) through the model: its boxes in frame pixels.
+    fn run_region(
+        &mut self,
+        bgr: &[u8],
+        wh: [usize; 2],
+        region: [usize; 4],
+    ) -> Result<Vec<RawBox>, NeuralError> {
+        let s = &self.settings;
+        let [x0, y0, rw, rh] = region;
+        let crop: Vec<u8> = if region == [0, 0, wh[0], wh[1]] {
+            bgr.to_vec()
+        } else {
+            let mut c = Vec::with_capacity(rw * rh * 3);
+            for y in y0..y0 + rh {
+                c.extend_from_slice(&bgr[(y * wh[0] + x0) * 3..(y * wh[0] + x0 + rw) * 3]);
+            }
+            c
+        };
+        let fit = Fit::new([rw, rh], self.input_wh, s.letterbox);
+        let input = to_input(&crop, [rw, rh], self.input_wh, &fit, s.mean, s.std, s.bgr);
+        let outs = self.model.run(input, self.input_wh)?;
+        let outputs: Vec<(Vec<i64>, Vec<f32>)> =
+            outs.into_iter().map(|o| (o.shape, o.data)).collect();
+        let keep = Keep {
+            classes: &self.class_ids,
+            min_score: s.min_score,
+        };
+        let boxes = decode(&self.layout, &outputs, self.input_wh, &keep).map_err(|message| {
+            NeuralError::Model {
+                path: self.path.clone(),
+                message,
+            }
+        })?;
+        Ok(boxes
+            .into_iter()
+            .map(|b| {
+                let m = fit.to_image(&b.xywh);
+                RawBox {
+                    xywh: [m[0] + x0 as f64, m[1] + y0 as f64, m[2], m[3]],
+                    ..b
+                }
+            })
+            .collect())
+    }
+
+    /// The detections of one frame (interleaved BGR, `wh`), best first.
+    pub fn detect(&mut self, bgr: &[u8], wh: [usize; 2]) -> Result<Vec<Detected>, NeuralError> {
+        let region = match self.settings.roi {
+            Some([x, y, w, h]) => {
+                let x = x.min(wh[0]);
+                let y = y.min(wh[1]);
+                [x, y, w.min(wh[0] - x), h.min(wh[1] - y)]
+            }
+            None => [0, 0, wh[0], wh[1]],
+        };
+        if region[2] == 0 || region[3] == 0 {
+            return Ok(Vec::new());
+        }
+        let parts = if self.settings.tile == 0 {
+            vec![region]
+        } else {
+            tiles(region, self.settings.tile, self.settings.overlap)
+        };
+        let mut all = Vec::new();
+        for p in &parts {
+            all.extend(self.run_region(bgr, wh, *p)?);
+        }
+        let mut kept = nms(all, self.settings.nms_iou, self.settings.max_boxes);
+        if parts.len() > 1 {
+            kept = merge_cut(kept);
+        }
+        Ok(kept
+            .into_iter()
+            .map(|b| Detected {
+                xywh: b.xywh,
+                score: b.score,
+                class: b.class,
+            })
+            .collect())
+    }
+}
+
+/// Across tiles: a box mostly inside a better one of its class (a person cut by a tile's edge)
+/// is the same person.
+fn merge_cut(boxes: Vec<RawBox>) -> Vec<RawBox> {
+    let mut kept: Vec<RawBox> = Vec::new();
+    for b in boxes {
+        let inside = kept.iter().any(|k| {
+            let ix = (k.xywh[0] + k.xywh[2]).min(b.xywh[0] + b.xywh[2]) - k.xywh[0].max(b.xywh[0]);
+            let iy = (k.xywh[1] + k.xywh[3]).min(b.xywh[1] + b.xywh[3]) - k.xywh[1].max(b.xywh[1]);
+            k.class == b.class
+                && ix > 0.0
+                && iy > 0.0
+                && ix * iy > 0.7 * (b.xywh[2] * b.xywh[3]).min(k.xywh[2] * k.xywh[3])
+        });
+        if !inside {
+            kept.push(b);
+        }
+    }
+    kept
+}
+
+/// A layout's name as the settings write it.
+pub fn layout_name(l: &Layout) -> &'static str {
+    match l {
+        Layout::Darknet { .. } => "darknet",
+        Layout::Yolov5 => "yolov5",
+        Layout::Yolov8 => "yolov8",
+        Layout::Yolox => "yolox",
+    }
+}
+
+/// The darknet layout from a model's `darknet_yolo` metadata (`scripts/darknet_to_onnx.py`).
+fn darknet_layout(meta: &str) -> Result<Layout, String> {
+    #[derive(Deserialize)]
+    struct Meta {
+        anchors: Vec<[f64; 2]>,
+        masks: Vec<Vec<usize>>,
+        strides: Vec<f64>,
+    }
+    let m: Meta = serde_json::from_str(meta)
+        .map_err(|e| format!("its darknet_yolo metadata is not readable: {e}"))?;
+    Ok(Layout::Darknet {
+        anchors: m.anchors,
+        masks: m.masks,
+        strides: m.strides,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn class_names_read_from_either_metadata_form() {
+        assert_eq!(
+            parse_names(r#"["person", "bicycle"]"#).unwrap(),
+            ["person", "bicycle"]
+        );
+        assert_eq!(
+            parse_names("{0: 'person', 1: 'bicycle'}").unwrap(),
+            ["person", "bicycle"]
+        );
+        assert!(parse_names("{1: 'person'}").is_none());
+    }
+
+    #[test]
+    fn a_cut_person_merges_into_the_whole_one() {
+        let b = |x: f64, w: f64, s: f64| RawBox {
+            xywh: [x, 0.0, w, 20.0],
+            score: s,
+            class: 0,
+        };
+        let m = merge_cut(vec![
+            b(0.0, 10.0, 0.9),
+            b(5.0, 5.0, 0.5),
+            b(30.0, 10.0, 0.4),
+        ]);
+        assert_eq!(m.len(), 2);
+    }
+}

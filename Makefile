@@ -36,6 +36,7 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench pipeline_throughput
 	$(CARGO) bench --locked --bench ba_vs_ceres
 	$(CARGO) bench --locked --bench sfm_vs_colmap
+	$(CARGO) bench --locked --bench detect_vs_opencv
 
 # The long fuzzing run: 10^6 inputs per parser (about 45 minutes on 2 cores, most of it crs through
 # PROJ), then every command on 200 MB inputs with its peak memory measured. `make test` runs a

@@ -7,10 +7,13 @@ use nalgebra::Vector2;
 use super::boxes::{BoxFilter, FilterCounts, FilterError, RawBox, filter_frame};
 use super::{Detection, Detector, ErrorModel, FrameDetections, FrameView, head_from_box};
 
-/// Boxes from a file, filtered frame by frame (the shadow test looks at the frame's pixels).
+/// Boxes from a file or a neural detector, filtered frame by frame (the shadow test looks at the
+/// frame's pixels).
 pub struct BoxesDetector {
     /// The boxes sorted by frame (a map of small vectors took four times the memory).
     boxes: Vec<RawBox>,
+    /// Or the model that finds each frame's.
+    model: Option<super::neural::NeuralDetector>,
     filter: BoxFilter,
     counts: FilterCounts,
     frames: usize,
@@ -23,6 +26,22 @@ impl BoxesDetector {
         boxes.sort_by_key(|b| b.frame);
         Ok(BoxesDetector {
             boxes,
+            model: None,
+            filter,
+            counts: FilterCounts::default(),
+            frames: 0,
+        })
+    }
+
+    /// Boxes found by `model` in each frame as it comes.
+    pub fn from_model(
+        model: super::neural::NeuralDetector,
+        filter: BoxFilter,
+    ) -> Result<BoxesDetector, FilterError> {
+        filter.check()?;
+        Ok(BoxesDetector {
+            boxes: Vec::new(),
+            model: Some(model),
             filter,
             counts: FilterCounts::default(),
             frames: 0,
@@ -33,6 +52,20 @@ impl BoxesDetector {
 impl Detector for BoxesDetector {
     fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
         self.frames += 1;
+        if let Some(m) = self.model.as_mut() {
+            self.boxes = m
+                .detect(frame.bgr, [frame.width, frame.height])
+                .map_err(|e| crate::PluginError::from(e.to_string()))?
+                .into_iter()
+                .map(|d| RawBox {
+                    frame: frame.index,
+                    bbox: d.xywh,
+                    score: d.score,
+                    label: None,
+                    line: 0,
+                })
+                .collect();
+        }
         let from = self.boxes.partition_point(|b| b.frame < frame.index);
         let to = from + self.boxes[from..].partition_point(|b| b.frame == frame.index);
         if from == to {

@@ -7,7 +7,7 @@ use nalgebra::Vector2;
 
 use super::project::Loaded;
 use super::run::RunError;
-use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSection};
+use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSection, OnnxSection};
 use crate::camera::Camera;
 use crate::detect::Detector;
 use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
@@ -96,6 +96,56 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
     };
     let inner = BoxesDetector::new(boxes, filter).map_err(|e| x.input(e.key, e.to_string()))?;
     Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
+}
+
+/// A neural detector's boxes (a YOLO-family ONNX model on every frame), filtered, their heads
+/// found.
+pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
+    use crate::detect::neural::{NeuralDetector, NeuralSettings};
+    use crate::detect::yolo::Layout;
+    let model = match &o.model {
+        Some(m) => x.l.resolve(m),
+        None => crate::detect::onnx::bundled_model().ok_or_else(|| {
+            x.input(
+                "model",
+                "the bundled model (third_party/models/yolov3-tiny.onnx) is not here: run ./scripts/fetch-models.sh, or name a model",
+            )
+        })?,
+    };
+    let settings = NeuralSettings {
+        layout: match o.layout.as_deref() {
+            Some("yolov5") => Some(Layout::Yolov5),
+            Some("yolov8") => Some(Layout::Yolov8),
+            Some("yolox") => Some(Layout::Yolox),
+            _ => None,
+        },
+        input_size: o.input_size,
+        letterbox: o.letterbox,
+        bgr: o.bgr,
+        classes: o.classes.clone(),
+        min_score: o.min_score,
+        nms_iou: o.nms_iou,
+        tile: o.tile,
+        overlap: o.overlap,
+        roi: o.roi,
+        threads: o.threads,
+        ..NeuralSettings::default()
+    };
+    let net =
+        NeuralDetector::load(&model, &settings).map_err(|e| x.input("model", e.to_string()))?;
+    let filter = BoxFilter {
+        min_score: o.min_score,
+        merge_iou: o.merge_iou,
+        nms_iou: o.nms_iou,
+        aspect: o.aspect,
+        size_m: o.size_m,
+        person_m: o.person_m.unwrap_or(1.0),
+        max_split: if o.person_m.is_some() { 4 } else { 1 },
+        ..BoxFilter::new(x.px_per_m)
+    };
+    let inner =
+        BoxesDetector::from_model(net, filter).map_err(|e| x.input(e.key, e.to_string()))?;
+    Ok(heads_from_bodies(Box::new(inner), &o.body(), x))
 }
 
 /// The shadows' colours from patches `[frame, x, y, w, h]` of the video.

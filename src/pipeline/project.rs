@@ -284,6 +284,11 @@ impl Loaded {
         if let Some(b) = p.detect.boxes_file() {
             files.push(("detect.boxes", self.resolve(b)));
         }
+        if let super::settings::DetectSection::Onnx(o) = &p.detect
+            && let Some(m) = &o.model
+        {
+            files.push(("detect.model", self.resolve(m)));
+        }
         if let GroundSection::Dem { path } = &p.ground {
             files.push(("ground.path", self.resolve(path)));
         }

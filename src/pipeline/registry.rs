@@ -16,6 +16,7 @@ pub fn detector(d: &DetectSection, x: &DetectorInputs) -> Result<Box<dyn Detecto
         DetectSection::Colour(c) => Ok(detectors::colour(c, x.px_per_m, x.frames)),
         DetectSection::Boxes(b) => detectors::boxes(b, x),
         DetectSection::Background(b) => detectors::background(b, x),
+        DetectSection::Onnx(o) => detectors::onnx(o, x),
     }
 }
 

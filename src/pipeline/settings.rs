@@ -147,6 +147,9 @@ pub enum DetectSection {
     Boxes(BoxesSection),
     /// Background subtraction for a stationary camera.
     Background(BackgroundSection),
+    /// A neural detector: a YOLO-family ONNX model run on every frame (the bundled YOLOv3-tiny
+    /// by default), its boxes filtered and their heads found as for `boxes`.
+    Onnx(OnnxSection),
 }
 
 impl DefaultKind for DetectSection {
@@ -169,6 +172,7 @@ impl DetectSection {
             DetectSection::Colour(_) => "colour",
             DetectSection::Boxes(_) => "boxes",
             DetectSection::Background(_) => "method",
+            DetectSection::Onnx(_) => "model",
         }
     }
 
@@ -186,6 +190,7 @@ impl DetectSection {
             DetectSection::Colour(_) => None,
             DetectSection::Boxes(b) => b.person_m,
             DetectSection::Background(b) => b.person_m,
+            DetectSection::Onnx(b) => b.person_m,
         }
     }
 
@@ -311,6 +316,70 @@ impl Default for BoxesSection {
     }
 }
 
+/// `[detect] kind = "onnx"`: the model's keys (`detect::neural`), then the box filter's and the
+/// body keys as for `boxes`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct OnnxSection {
+    /// The ONNX model [default: the bundled YOLOv3-tiny, `third_party/models/yolov3-tiny.onnx`].
+    pub model: Option<String>,
+    /// `darknet`, `yolov5`, `yolov8` or `yolox` [default: the model's metadata, else its outputs].
+    pub layout: Option<String>,
+    /// Input `[width, height]` [default: the model's].
+    pub input_size: Option<[usize; 2]>,
+    pub letterbox: bool,
+    /// The model takes BGR.
+    pub bgr: bool,
+    /// Classes kept, by name or id.
+    pub classes: Vec<String>,
+    /// The box threshold (the paper's 0.3).
+    pub min_score: f64,
+    pub nms_iou: f64,
+    /// Tiles of this many pixels (0: whole frames), overlapping by `overlap`.
+    pub tile: usize,
+    pub overlap: usize,
+    /// The model runs only inside `[x, y, width, height]`, pixels (the paper's strip).
+    pub roi: Option<[usize; 4]>,
+    /// ONNX Runtime's threads (0: its choice).
+    pub threads: usize,
+    /// The box filter, as for `boxes`.
+    pub merge_iou: f64,
+    pub aspect: [f64; 2],
+    pub size_m: [f64; 2],
+    pub body_radius_m: f64,
+    pub person_m: Option<f64>,
+    pub error_px2: Option<[f64; 3]>,
+    pub error_profile_px2: Option<Vec<[f64; 3]>>,
+}
+
+impl Default for OnnxSection {
+    fn default() -> Self {
+        let n = crate::detect::neural::NeuralSettings::default();
+        let b = BoxesSection::default();
+        OnnxSection {
+            model: None,
+            layout: None,
+            input_size: None,
+            letterbox: n.letterbox,
+            bgr: n.bgr,
+            classes: n.classes,
+            min_score: n.min_score,
+            nms_iou: n.nms_iou,
+            tile: n.tile,
+            overlap: n.overlap,
+            roi: None,
+            threads: n.threads,
+            merge_iou: b.merge_iou,
+            aspect: b.aspect,
+            size_m: b.size_m,
+            body_radius_m: b.body_radius_m,
+            person_m: None,
+            error_px2: None,
+            error_profile_px2: None,
+        }
+    }
+}
+
 /// `[detect] kind = "background"`: the body keys as for `boxes`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -363,6 +432,7 @@ macro_rules! body_settings {
 }
 body_settings!(BoxesSection);
 body_settings!(BackgroundSection);
+body_settings!(OnnxSection);
 
 // ---- track ----
 
@@ -590,6 +660,29 @@ impl DetectSection {
                 b.body().check()
             }
             DetectSection::Background(b) => b.body().check(),
+            DetectSection::Onnx(o) => {
+                if let Some(l) = &o.layout
+                    && !["darknet", "yolov5", "yolov8", "yolox"].contains(&l.as_str())
+                {
+                    return bad(
+                        "layout",
+                        "expected 'darknet', 'yolov5', 'yolov8' or 'yolox'",
+                    );
+                }
+                if !(0.0..=1.0).contains(&o.min_score) || !(0.0..=1.0).contains(&o.nms_iou) {
+                    return bad(
+                        "min_score",
+                        "min_score and nms_iou are fractions from 0 to 1",
+                    );
+                }
+                if o.tile > 0 && o.overlap >= o.tile {
+                    return bad("overlap", "the overlap must be smaller than the tile");
+                }
+                if o.classes.is_empty() {
+                    return bad("classes", "name at least one class (\"person\")");
+                }
+                o.body().check()
+            }
         }
     }
 }

@@ -411,6 +411,17 @@ fn cases() -> Vec<Case> {
             place: "field 'pose.picks_frame'",
         },
         Case {
+            id: "project-onnx-model-missing",
+            category: "nonsense accepted",
+            files: vec![(
+                "project.toml",
+                project_with("[detect]\nkind = \"onnx\"\nmodel = \"nope.onnx\"\n"),
+            )],
+            args: run(),
+            expect: "no such file",
+            place: "field 'detect.model'",
+        },
+        Case {
             id: "project-model-pose-without-a-model",
             category: "nonsense accepted",
             files: vec![(

@@ -192,3 +192,35 @@ fn a_model_that_cannot_be_used_is_an_input_error() {
         assert!(!Path::new(&out).exists(), "{extra:?} left an output");
     }
 }
+
+#[test]
+fn the_crowd_demo_runs_with_the_onnx_detector_and_reports_what_it_gets() {
+    if bundled().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let o = geostride()
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args([
+            "demo",
+            "--crowd",
+            "--detector",
+            "onnx",
+            "--duration",
+            "1",
+            "--out",
+            &s(tmp.path()),
+            "--json",
+            "-q",
+        ])
+        .output()
+        .unwrap();
+    common::assert_success(&o);
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    eprintln!("{}", r["evaluation"]);
+    // Whatever it finds is reported: the evaluation is there, and the project ran the model.
+    assert!(r["evaluation"]["truth_tracks"].as_u64().unwrap() > 0);
+    let project =
+        std::fs::read_to_string(tmp.path().join("marathon-stream/project-onnx.toml")).unwrap();
+    assert!(project.contains("kind = \"onnx\""));
+}

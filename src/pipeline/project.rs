@@ -490,6 +490,11 @@ fn model_exists(l: &Loaded, section: &str, key: &str, dir: &str) -> Result<(), F
 fn check_detect(l: &Loaded) -> Result<(), FileError> {
     let d = &l.project.detect;
     d.check().map_err(|(key, m)| l.error("detect", key, m))?;
+    if let super::settings::DetectSection::Onnx(o) = d
+        && let Some(m) = &o.model
+    {
+        exists(l, "detect", "model", m)?;
+    }
     match d.boxes_file() {
         Some(b) => exists(l, "detect", "boxes", b),
         None => Ok(()),

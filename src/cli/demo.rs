@@ -452,6 +452,35 @@ fn any_scene(args: &Args, default: &str) -> anyhow::Result<(Scene, PathBuf, Path
     Ok((scene, scene_path, dir))
 }
 
+/// Step 1 of a demo: the header (`command` and the scene's name), the scene simulated into
+/// `dir`, and what was rendered.
+fn simulate_step(
+    args: &Args,
+    command: &str,
+    scene: &Scene,
+    scene_path: &Path,
+    dir: &Path,
+) -> anyhow::Result<geostride::simulate::run::Summary> {
+    say!(
+        args.json,
+        "{command}: {}\n\n1. Simulating {} into {}",
+        scene.name,
+        scene_path.display(),
+        dir.display()
+    );
+    let sim = simulate_scene(args, scene_path, dir)?;
+    say!(
+        args.json,
+        "   {} frames of {}x{}, {} people ({} seen)",
+        sim.frames,
+        sim.image_size[0],
+        sim.image_size[1],
+        sim.people,
+        sim.people_in_view
+    );
+    Ok(sim)
+}
+
 /// Simulates the demo's scene into `dir` (`--duration` shortens it); the demo needs its video.
 fn simulate_scene(
     args: &Args,
@@ -551,22 +580,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/bridge-stream")?;
 
     // 1. Simulate.
+    let sim = simulate_step(&args, "geostride demo", &scene, &scene_path, &dir)?;
     say!(
         json,
-        "geostride demo: {}\n\n1. Simulating {} into {}",
-        scene.name,
-        scene_path.display(),
-        dir.display()
-    );
-    let sim = simulate_scene(&args, &scene_path, &dir)?;
-    say!(
-        json,
-        "   {} frames of {}x{}, {} people ({} seen), video {}",
-        sim.frames,
-        sim.image_size[0],
-        sim.image_size[1],
-        sim.people,
-        sim.people_in_view,
+        "   video {}",
         sim.video
             .as_ref()
             .map_or("none".into(), |v| v.display().to_string())
@@ -823,14 +840,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let json = args.json;
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/marathon-stream")?;
-    say!(
-        json,
-        "geostride demo --crowd: {}\n\n1. Simulating {} into {}",
-        scene.name,
-        scene_path.display(),
-        dir.display()
-    );
-    let sim = simulate_scene(&args, &scene_path, &dir)?;
+    let sim = simulate_step(&args, "geostride demo --crowd", &scene, &scene_path, &dir)?;
     let truth_boxes = read_truth_boxes(&dir.join("truth/boxes.csv")).map_err(|e| anyhow!(e))?;
     let detector = SimulatedDetector {
         seed: scene.seed,
@@ -841,12 +851,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     geostride::io::write_atomic(&dir.join("boxes.txt"), mot_text(&boxes).as_bytes())?;
     say!(
         json,
-        "   {} frames of {}x{}, {} people ({} seen); {} detector boxes (edge σ {} px, {:.0} % misses, {:.0} % false alarms, half of them shadows) in {}",
-        sim.frames,
-        sim.image_size[0],
-        sim.image_size[1],
-        sim.people,
-        sim.people_in_view,
+        "   {} detector boxes (edge σ {} px, {:.0} % misses, {:.0} % false alarms, half of them shadows) in {}",
         boxes.len(),
         detector.edge_sd_px,
         100.0 * detector.miss_rate,

@@ -46,6 +46,15 @@ pub struct Args {
     /// The model takes BGR instead of RGB
     #[arg(long)]
     bgr: bool,
+    /// Per channel mean, subtracted from v/255 (model's channel order)
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [0.0f32, 0.0, 0.0], value_name = "M,M,M")]
+    mean: Vec<f32>,
+    /// Per channel std, dividing (v/255 − mean)
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0], value_name = "S,S,S")]
+    std: Vec<f32>,
+    /// At most N boxes a frame
+    #[arg(long, default_value = "300", value_name = "N")]
+    max_boxes: usize,
     /// Classes kept, by name or id, comma-separated
     #[arg(long, default_value = "person", value_delimiter = ',')]
     classes: Vec<String>,
@@ -139,6 +148,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.every == 0 {
         return Err(bad_input(anyhow!("--every 0: give N ≥ 1")));
     }
+    if args.mean.len() != 3 || args.std.len() != 3 || args.std.iter().any(|v| !(*v > 0.0)) {
+        return Err(bad_input(anyhow!(
+            "--mean and --std take three numbers each, the std positive"
+        )));
+    }
     if !(0.0..=1.0).contains(&args.min_score) || !(0.0..=1.0).contains(&args.nms) {
         return Err(bad_input(anyhow!(
             "--min-score and --nms are fractions from 0 to 1"
@@ -166,6 +180,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         input_size: args.input_size.map(|(w, h)| [w as usize, h as usize]),
         letterbox: !args.stretch,
         bgr: args.bgr,
+        mean: [args.mean[0], args.mean[1], args.mean[2]],
+        std: [args.std[0], args.std[1], args.std[2]],
+        max_boxes: args.max_boxes,
         classes: args.classes.clone(),
         min_score: args.min_score,
         nms_iou: args.nms,

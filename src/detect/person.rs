@@ -12,8 +12,8 @@ use super::{Detection, Detector, ErrorModel, FrameDetections, FrameView, head_fr
 pub struct BoxesDetector {
     /// The boxes sorted by frame (a map of small vectors took four times the memory).
     boxes: Vec<RawBox>,
-    /// Or the model that finds each frame's.
-    model: Option<super::neural::NeuralDetector>,
+    /// Or the model that finds each frame's, on every `.1`-th frame.
+    model: Option<(super::neural::NeuralDetector, usize)>,
     filter: BoxFilter,
     counts: FilterCounts,
     frames: usize,
@@ -36,12 +36,13 @@ impl BoxesDetector {
     /// Boxes found by `model` in each frame as it comes.
     pub fn from_model(
         model: super::neural::NeuralDetector,
+        stride: usize,
         filter: BoxFilter,
     ) -> Result<BoxesDetector, FilterError> {
         filter.check()?;
         Ok(BoxesDetector {
             boxes: Vec::new(),
-            model: Some(model),
+            model: Some((model, stride.max(1))),
             filter,
             counts: FilterCounts::default(),
             frames: 0,
@@ -52,7 +53,10 @@ impl BoxesDetector {
 impl Detector for BoxesDetector {
     fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
         self.frames += 1;
-        if let Some(m) = self.model.as_mut() {
+        if let Some((m, stride)) = self.model.as_mut() {
+            if frame.index % *stride != 0 {
+                return Ok(vec![(frame.index, Vec::new())]);
+            }
             self.boxes = m
                 .detect(frame.bgr, [frame.width, frame.height])
                 .map_err(|e| crate::PluginError::from(e.to_string()))?

@@ -152,21 +152,7 @@ pub fn decode(
             }
         }
         Layout::Yolov5 | Layout::Yolox => {
-            let [(shape, data)] = outputs else {
-                return Err(format!(
-                    "{} outputs, expected one [1, N, 5+C]",
-                    outputs.len()
-                ));
-            };
-            let [1, n, per] = shape[..] else {
-                return Err(format!(
-                    "an output of shape {shape:?}, expected [1, N, 5+C]"
-                ));
-            };
-            let (n, per) = (n as usize, per as usize);
-            if per < 6 {
-                return Err(format!("{per} values per candidate, expected 5 + classes"));
-            }
+            let (data, [n, per]) = single(outputs, "[1, N, 5+C]", 6)?;
             // YOLOX's candidates on the grids of strides 8, 16, 32, in that order.
             let grid = matches!(layout, Layout::Yolox).then(|| yolox_grid(input_wh));
             if let Some(g) = &grid
@@ -221,21 +207,7 @@ pub fn decode(
             }
         }
         Layout::Yolov8 => {
-            let [(shape, data)] = outputs else {
-                return Err(format!(
-                    "{} outputs, expected one [1, 4+C, N]",
-                    outputs.len()
-                ));
-            };
-            let [1, per, n] = shape[..] else {
-                return Err(format!(
-                    "an output of shape {shape:?}, expected [1, 4+C, N]"
-                ));
-            };
-            let (n, per) = (n as usize, per as usize);
-            if per < 5 {
-                return Err(format!("{per} values per candidate, expected 4 + classes"));
-            }
+            let (data, [per, n]) = single(outputs, "[1, 4+C, N]", 5)?;
             let at = |k: usize, i: usize| f64::from(data[k * n + i]);
             for i in 0..n {
                 let Some((best_c, score)) = (0..per - 4)
@@ -258,6 +230,30 @@ pub fn decode(
         }
     }
     Ok(out)
+}
+
+/// The one output `[1, a, b]` of a single-output layout (`form` for messages): its values and
+/// `[a, b]`; the candidates' length (b for `[1, N, 5+C]`, a for `[1, 4+C, N]`) at least `least`.
+fn single<'a>(
+    outputs: &'a [(Vec<i64>, Vec<f32>)],
+    form: &str,
+    least: usize,
+) -> Result<(&'a [f32], [usize; 2]), String> {
+    let [(shape, data)] = outputs else {
+        return Err(format!("{} outputs, expected one {form}", outputs.len()));
+    };
+    let [1, a, b] = shape[..] else {
+        return Err(format!("an output of shape {shape:?}, expected {form}"));
+    };
+    let (a, b) = (a.max(0) as usize, b.max(0) as usize);
+    let per = if form.ends_with("N]") { a } else { b };
+    if per < least {
+        return Err(format!(
+            "{per} values per candidate, expected {} + classes",
+            least - 1
+        ));
+    }
+    Ok((data, [a, b]))
 }
 
 /// YOLOX's candidate cells: (x, y, stride) over strides 8, 16, 32.
@@ -493,6 +489,34 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    #[test]
+    fn a_yolox_candidate_decodes_on_its_grid() {
+        // A 64x64 input: 64 + 16 + 4 = 84 candidates; the 65th is the first of stride 16.
+        let (n, per) = (84usize, 7usize);
+        let mut v = vec![0.0f32; n * per];
+        let c = 64 * per;
+        v[c..c + per].copy_from_slice(&[0.5, 0.25, (2.0f32).ln(), 0.0, 0.9, 0.8, 0.1]);
+        let keep = Keep {
+            classes: &[],
+            min_score: 0.5,
+        };
+        let b = decode(
+            &Layout::Yolox,
+            &[(vec![1, n as i64, per as i64], v)],
+            [64, 64],
+            &keep,
+        )
+        .unwrap();
+        assert_eq!(b.len(), 1);
+        // Cell (0, 0) of stride 16: centre (8, 4), size (32, 16).
+        for (g, w) in b[0].xywh.iter().zip([-8.0, -4.0, 32.0, 16.0]) {
+            assert!((g - w).abs() < 1e-6, "{:?}", b[0].xywh);
+        }
+        assert!((b[0].score - 0.72).abs() < 1e-6);
+        let short = vec![0.0f32; 80 * per];
+        assert!(decode(&Layout::Yolox, &[(vec![1, 80, 7], short)], [64, 64], &keep).is_err());
     }
 
     #[test]

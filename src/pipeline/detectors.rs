@@ -122,9 +122,12 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
         input_size: o.input_size,
         letterbox: o.letterbox,
         bgr: o.bgr,
+        mean: o.mean,
+        std: o.std,
         classes: o.classes.clone(),
         min_score: o.min_score,
         nms_iou: o.nms_iou,
+        max_boxes: o.max_boxes,
         tile: o.tile,
         overlap: o.overlap,
         roi: o.roi,
@@ -143,8 +146,8 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
         max_split: if o.person_m.is_some() { 4 } else { 1 },
         ..BoxFilter::new(x.px_per_m)
     };
-    let inner =
-        BoxesDetector::from_model(net, filter).map_err(|e| x.input(e.key, e.to_string()))?;
+    let inner = BoxesDetector::from_model(net, o.stride, filter)
+        .map_err(|e| x.input(e.key, e.to_string()))?;
     Ok(heads_from_bodies(Box::new(inner), &o.body(), x))
 }
 

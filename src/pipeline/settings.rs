@@ -330,11 +330,18 @@ pub struct OnnxSection {
     pub letterbox: bool,
     /// The model takes BGR.
     pub bgr: bool,
+    /// Per channel `(v/255 − mean)/std`, in the model's channel order.
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
     /// Classes kept, by name or id.
     pub classes: Vec<String>,
     /// The box threshold (the paper's 0.3).
     pub min_score: f64,
     pub nms_iou: f64,
+    /// At most this many boxes a frame.
+    pub max_boxes: usize,
+    /// The model runs on every `stride`-th frame only (the trackers bridge the others).
+    pub stride: usize,
     /// Tiles of this many pixels (0: whole frames), overlapping by `overlap`.
     pub tile: usize,
     pub overlap: usize,
@@ -362,9 +369,13 @@ impl Default for OnnxSection {
             input_size: None,
             letterbox: n.letterbox,
             bgr: n.bgr,
+            mean: n.mean,
+            std: n.std,
             classes: n.classes,
             min_score: n.min_score,
             nms_iou: n.nms_iou,
+            max_boxes: n.max_boxes,
+            stride: 1,
             tile: n.tile,
             overlap: n.overlap,
             roi: None,
@@ -677,6 +688,12 @@ impl DetectSection {
                 }
                 if o.tile > 0 && o.overlap >= o.tile {
                     return bad("overlap", "the overlap must be smaller than the tile");
+                }
+                if o.stride == 0 || o.max_boxes == 0 {
+                    return bad("stride", "stride and max_boxes are at least 1");
+                }
+                if o.std.iter().any(|v| !(*v > 0.0)) {
+                    return bad("std", "each channel's std must be positive");
                 }
                 if o.classes.is_empty() {
                     return bad("classes", "name at least one class (\"person\")");

@@ -21,23 +21,13 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let json = args.json;
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/marathon-stream")?;
-    say!(
-        json,
-        "geostride demo --crowd --detector onnx: {}\n\n1. Simulating {} into {}",
-        scene.name,
-        scene_path.display(),
-        dir.display()
-    );
-    let sim = simulate_scene(&args, &scene_path, &dir)?;
-    say!(
-        json,
-        "   {} frames of {}x{}, {} people ({} seen)",
-        sim.frames,
-        sim.image_size[0],
-        sim.image_size[1],
-        sim.people,
-        sim.people_in_view
-    );
+    simulate_step(
+        &args,
+        "geostride demo --crowd --detector onnx",
+        &scene,
+        &scene_path,
+        &dir,
+    )?;
     // Tiles at the model's own scale: a runner seen from 30 m is some 25 px across.
     let detector = OnnxSection {
         tile: 416,

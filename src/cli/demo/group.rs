@@ -123,22 +123,10 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
     }
 
     // 1. Simulate.
+    let sim = simulate_step(&args, "geostride demo --group", &scene, &scene_path, &dir)?;
     say!(
         json,
-        "geostride demo --group: {}\n\n1. Simulating {} into {}",
-        scene.name,
-        scene_path.display(),
-        dir.display()
-    );
-    let sim = simulate_scene(&args, &scene_path, &dir)?;
-    say!(
-        json,
-        "   {} frames of {}x{}, {} runners ({} seen); survey flight in {}",
-        sim.frames,
-        sim.image_size[0],
-        sim.image_size[1],
-        sim.people,
-        sim.people_in_view,
+        "   survey flight in {}",
         dir.join("survey/photos").display()
     );
 

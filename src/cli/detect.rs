@@ -10,9 +10,7 @@ use anyhow::anyhow;
 use nalgebra::Vector2;
 
 use super::bad_input;
-use geostride::detect::neural::{
-    Detected, NeuralDetector, NeuralError, NeuralSettings, layout_name,
-};
+use geostride::detect::neural::{Detected, NeuralDetector, NeuralError, NeuralSettings};
 use geostride::detect::onnx::{OnnxError, bundled_model};
 use geostride::detect::yolo::Layout;
 
@@ -104,15 +102,6 @@ struct Summary {
     preview: Option<String>,
 }
 
-fn layout_of(name: &str) -> Option<Layout> {
-    match name {
-        "yolov5" => Some(Layout::Yolov5),
-        "yolov8" => Some(Layout::Yolov8),
-        "yolox" => Some(Layout::Yolox),
-        _ => None,
-    }
-}
-
 /// Draws one frame's boxes (green, score above) into a PNG.
 fn write_preview(
     path: &Path,
@@ -173,10 +162,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         super::check_output_file(p, inputs.iter().copied())?;
     }
     let settings = NeuralSettings {
-        layout: match args.layout.as_deref() {
-            None | Some("darknet") => None,
-            Some(n) => layout_of(n),
-        },
+        layout: args.layout.as_deref().and_then(Layout::from_name),
         input_size: args.input_size.map(|(w, h)| [w as usize, h as usize]),
         letterbox: !args.stretch,
         bgr: args.bgr,
@@ -281,7 +267,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let s = Summary {
         model: model.display().to_string(),
-        layout: layout_name(det.layout()).into(),
+        layout: det.layout().name().into(),
         input_size: det.input_size(),
         frames,
         boxes,

@@ -265,10 +265,7 @@ impl NeuralDetector {
         };
         decode(&d.layout, &outputs, input_wh, &keep).map_err(|m| NeuralError::Model {
             path: path.to_path_buf(),
-            message: format!(
-                "its outputs do not fit the {} layout: {m}",
-                layout_name(&d.layout)
-            ),
+            message: format!("its outputs do not fit the {} layout: {m}", d.layout.name()),
         })?;
         Ok(d)
     }
@@ -383,16 +380,6 @@ fn merge_cut(boxes: Vec<RawBox>) -> Vec<RawBox> {
         }
     }
     kept
-}
-
-/// A layout's name as the settings write it.
-pub fn layout_name(l: &Layout) -> &'static str {
-    match l {
-        Layout::Darknet { .. } => "darknet",
-        Layout::Yolov5 => "yolov5",
-        Layout::Yolov8 => "yolov8",
-        Layout::Yolox => "yolox",
-    }
 }
 
 /// The darknet layout from a model's `darknet_yolo` metadata (`scripts/darknet_to_onnx.py`).

@@ -29,6 +29,27 @@ pub enum Layout {
 }
 
 impl Layout {
+    /// A layout without parameters by its settings name (`yolov5`, `yolov8`, `yolox`); darknet's
+    /// anchors come from the model, so `darknet` is `None` too.
+    pub fn from_name(name: &str) -> Option<Layout> {
+        match name {
+            "yolov5" => Some(Layout::Yolov5),
+            "yolov8" => Some(Layout::Yolov8),
+            "yolox" => Some(Layout::Yolox),
+            _ => None,
+        }
+    }
+
+    /// The settings name of a layout.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Layout::Darknet { .. } => "darknet",
+            Layout::Yolov5 => "yolov5",
+            Layout::Yolov8 => "yolov8",
+            Layout::Yolox => "yolox",
+        }
+    }
+
     /// The layout of a model from its outputs' shapes (channels-first darknet heads, or one
     /// output), when it can be told; `None` for YOLOX and darknet, which look like others or
     /// need anchors: name them.

@@ -62,6 +62,19 @@ impl Rigid3 {
         -(self.rotation.inverse() * self.translation)
     }
 
+    /// The camera between this pose and `other` at fraction `t`: rotation by slerp (held at
+    /// this one's where the two are opposite), centre linearly.
+    pub fn interpolate(&self, other: &Rigid3, t: f64) -> Rigid3 {
+        let qa = UnitQuaternion::from_rotation_matrix(&self.rotation);
+        let qb = UnitQuaternion::from_rotation_matrix(&other.rotation);
+        let rotation = qa
+            .try_slerp(&qb, t, 1e-9)
+            .unwrap_or(qa)
+            .to_rotation_matrix();
+        let c = self.centre() * (1.0 - t) + other.centre() * t;
+        Rigid3::new(rotation, -(rotation * c))
+    }
+
     /// `a_from_b` of this `b_from_a`.
     pub fn inverse(&self) -> Self {
         let r = self.rotation.inverse();

@@ -113,12 +113,7 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
         })?,
     };
     let settings = NeuralSettings {
-        layout: match o.layout.as_deref() {
-            Some("yolov5") => Some(Layout::Yolov5),
-            Some("yolov8") => Some(Layout::Yolov8),
-            Some("yolox") => Some(Layout::Yolox),
-            _ => None,
-        },
+        layout: o.layout.as_deref().and_then(Layout::from_name),
         input_size: o.input_size,
         letterbox: o.letterbox,
         bgr: o.bgr,

@@ -5,7 +5,7 @@
 //! starting from its neighbour's. A frame with too few usable picks gets a pose
 //! interpolated between its solved neighbours, and says so.
 
-use nalgebra::{Matrix2, Matrix3, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 
 use super::PoseError;
 use super::joint::{JointObs, JointResult, refine_jointly};
@@ -145,19 +145,6 @@ fn frame_pose(
         used = next;
     }
     None
-}
-
-/// Interpolates between two poses at fraction `t` (rotation by slerp, centre linearly).
-fn interpolate(a: &Rigid3, b: &Rigid3, t: f64) -> Rigid3 {
-    let qa = UnitQuaternion::from_rotation_matrix(&a.rotation);
-    let qb = UnitQuaternion::from_rotation_matrix(&b.rotation);
-    let q = qa.try_slerp(&qb, t, 1e-9).unwrap_or(qa);
-    let c = a.centre() * (1.0 - t) + b.centre() * t;
-    let rotation = q.to_rotation_matrix();
-    Rigid3 {
-        rotation,
-        translation: -(rotation * c),
-    }
 }
 
 /// Solves every frame. `tracks` are the stabiliser's, in frame order.
@@ -331,7 +318,7 @@ pub fn solve_hover(
                     frames[a].as_ref().expect("solved").cam_from_world,
                     frames[b].as_ref().expect("solved").cam_from_world,
                 );
-                interpolate(&pa, &pb, (i - a) as f64 / (b - a) as f64)
+                pa.interpolate(&pb, (i - a) as f64 / (b - a) as f64)
             }
             (Some(a), None) => frames[a].as_ref().expect("solved").cam_from_world,
             (None, Some(b)) => frames[b].as_ref().expect("solved").cam_from_world,
@@ -422,8 +409,8 @@ mod tests {
             rotation: rb,
             translation: -(rb * Vector3::new(1.0, 0.0, -30.0)),
         };
-        let m = interpolate(&a, &b, 0.5);
+        let m = a.interpolate(&b, 0.5);
         assert!((m.centre() - (a.centre() + b.centre()) / 2.0).norm() < 1e-9);
-        assert!((interpolate(&a, &b, 1.0).rotation.matrix() - b.rotation.matrix()).norm() < 1e-9);
+        assert!((a.interpolate(&b, 1.0).rotation.matrix() - b.rotation.matrix()).norm() < 1e-9);
     }
 }

@@ -238,17 +238,9 @@ pub fn interpolate_failed(regs: &mut [Registration], frames: &[usize]) {
     for pair in known.windows(2) {
         let (a, b) = (pair[0], pair[1]);
         let (pa, pb) = (regs[a].pose.expect("known"), regs[b].pose.expect("known"));
-        let (qa, qb) = (
-            UnitQuaternion::from_rotation_matrix(&pa.rotation),
-            UnitQuaternion::from_rotation_matrix(&pb.rotation),
-        );
-        let (ca, cb) = (pa.centre(), pb.centre());
         for k in a + 1..b {
             let t = (frames[k] - frames[a]) as f64 / (frames[b] - frames[a]) as f64;
-            let q = qa.slerp(&qb, t);
-            let c = ca + (cb - ca) * t;
-            let rotation = q.to_rotation_matrix();
-            regs[k].pose = Some(Rigid3::new(rotation, -(rotation * c)));
+            regs[k].pose = Some(pa.interpolate(&pb, t));
             regs[k].interpolated = true;
         }
     }

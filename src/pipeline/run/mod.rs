@@ -106,6 +106,13 @@ impl RunError {
     }
 }
 
+/// A failure described in words (an adapter's, say), while running.
+impl From<String> for RunError {
+    fn from(s: String) -> RunError {
+        RunError::Failed(s)
+    }
+}
+
 /// Shows progress per stage.
 pub trait StageProgress {
     fn stage(&self, name: &str) -> Box<dyn Progress>;

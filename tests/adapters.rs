@@ -17,6 +17,7 @@ const ADAPTERS: &[&str] = &[
     "detect/onnx.rs",
     "detect/opencv_dnn.rs",
     "export/gis.rs",
+    "pipeline/chunk_pass.rs",
     "pipeline/scan.rs",
     "pose/oracle.rs",
     "sfm/sift.rs",

@@ -271,7 +271,8 @@ fn a_killed_runs_temporaries_are_removed_by_the_next() {
         out.join(".trajectories.csv.tmp-4194999"),
         out.join(".trajectories.gpkg.tmp-4194999.gpkg"),
         out.join(".trajectories.gpkg.tmp-4194999.gpkg-journal"),
-        out.join(".stages/.scan.json.tmp-4194999"),
+        out.join(".stages/.track.json.tmp-4194999"),
+        out.join(".stages/chunks/.00000.json.tmp-4194999"),
         out.join("pose/.poses.csv.tmp-4194999"),
     ];
     for s in &stale {

@@ -131,7 +131,7 @@ fn runs_reuses_resumes_and_writes_gis_files() {
         .output()
         .unwrap();
     assert!(!killed.status.success(), "the run was meant to die");
-    assert!(b.join(".stages/scan.json").is_file() && !b.join("trajectories.csv").exists());
+    assert!(b.join(".stages/chunks/00000.json").is_file() && !b.join("trajectories.csv").exists());
     let o = run(&project, &b);
     common::assert_success(&o);
     assert_eq!(report(&b)["stages"][0]["status"], "reused");
@@ -159,7 +159,13 @@ fn runs_reuses_resumes_and_writes_gis_files() {
     for entry in std::fs::read_dir(c.join(".stages"))
         .into_iter()
         .flatten()
+        .chain(
+            std::fs::read_dir(c.join(".stages/chunks"))
+                .into_iter()
+                .flatten(),
+        )
         .flatten()
+        .filter(|e| e.path().is_file())
     {
         let text = std::fs::read_to_string(entry.path()).unwrap();
         assert!(

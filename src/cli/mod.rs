@@ -3,6 +3,7 @@
 mod ba;
 mod calibrate;
 mod camera;
+mod cluster;
 pub mod demo;
 mod detect;
 mod evaluate;
@@ -80,6 +81,15 @@ enum Command {
     Pose(pose::Args),
     /// Run a project: from a video to geolocated trajectories with their accuracy
     Run(run::Args),
+    /// Split a project's run into segments for a cluster (a manifest; then `segment` for each,
+    /// anywhere, and `merge`): the same outputs as `run`
+    Split(cluster::SplitArgs),
+    /// Run one segment of a split run (the index from --index or the batch engine's variable)
+    Segment(cluster::SegmentArgs),
+    /// Merge a split run's segments into the run's outputs (says which segments are missing)
+    Merge(cluster::MergeArgs),
+    /// Split a project's run and write (or submit) a Slurm job array and its dependent merge
+    Slurm(cluster::SlurmArgs),
     /// Track people in the image only (a fixed camera, no survey): background subtraction or
     /// an external detector's boxes, then KLT
     Track(track::Args),
@@ -104,6 +114,10 @@ impl Cli {
             Command::Evaluate(args) => evaluate::run(args),
             Command::FitError(args) => fit_error::run(args),
             Command::Run(args) => run::run(args),
+            Command::Split(args) => cluster::run_split(args),
+            Command::Segment(args) => cluster::run_segment_cmd(args),
+            Command::Merge(args) => cluster::run_merge(args),
+            Command::Slurm(args) => cluster::run_slurm(args),
             Command::Track(args) => track::run(args),
             Command::Survey(cmd) => survey::run(cmd),
             Command::Plan(args) => plan::run(args),

@@ -10,10 +10,12 @@ use super::run::RunError;
 use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSection, OnnxSection};
 use crate::camera::Camera;
 use crate::detect::Detector;
+use crate::detect::FrameView;
 use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
-use crate::detect::colour::{ColourSettings, LearningColourDetector};
+use crate::detect::colour::{ColourDetector, ColourSettings, LearningColourDetector, Palette};
 use crate::detect::person::{BoxesDetector, HeadsFromBodies};
 use crate::geom::Rigid3;
+use crate::video::source::FrameReader;
 
 /// Memory the colour detector may fill with frames held back while it learns its palette.
 pub const COLOUR_BUDGET_BYTES: usize = 1 << 30;
@@ -37,10 +39,8 @@ impl DetectorInputs<'_> {
     }
 }
 
-/// A colour detector that learns its palette from `sample_frames` frames drawn from the
-/// `frames` of the video as it goes by (every 97th pixel of each).
-pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dyn Detector> {
-    let settings = ColourSettings {
+fn colour_settings(c: &ColourSection, px_per_m: f64) -> ColourSettings {
+    ColourSettings {
         target_rgb: c.colour,
         clusters: c.clusters,
         max_hue_difference_deg: c.max_hue_difference_deg,
@@ -49,14 +49,56 @@ pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dy
         px_per_m,
         centroid_sigma_px: c.centroid_sigma_px,
         ..ColourSettings::default()
-    };
+    }
+}
+
+/// A colour detector that learns its palette from `sample_frames` frames drawn from the
+/// `frames` of the video as it goes by (every 97th pixel of each).
+pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dyn Detector> {
     Box::new(LearningColourDetector::new(
-        settings,
+        colour_settings(c, px_per_m),
         frames,
         c.sample_frames,
         97,
         COLOUR_BUDGET_BYTES,
     ))
+}
+
+/// The colour detector with a palette learnt before.
+pub fn colour_with(c: &ColourSection, px_per_m: f64, palette: &Palette) -> Box<dyn Detector> {
+    Box::new(ColourDetector::new(palette, colour_settings(c, px_per_m)))
+}
+
+/// The palette the colour detector learns over the whole video, learnt before the pass: the
+/// frames it samples are read on their own (checked seeks), so that every chunk of the video
+/// is detected with the one palette. Fails, in words, when no hat colour is found.
+pub fn learn_palette(
+    c: &ColourSection,
+    video: &Path,
+    px_per_m: f64,
+    frames: usize,
+) -> Result<Palette, String> {
+    let mut learner = LearningColourDetector::new(
+        colour_settings(c, px_per_m),
+        Some(frames),
+        c.sample_frames,
+        97,
+        COLOUR_BUDGET_BYTES,
+    );
+    let wanted = learner.frames_to_sample().to_vec();
+    FrameReader::visit_frames(video, &wanted, |index, bgr, width, height| {
+        learner.sample(&FrameView {
+            index,
+            width,
+            height,
+            bgr,
+        })
+    })
+    .map_err(|e| e.to_string())?;
+    learner
+        .learn_now()
+        .map(|(_, p)| p)
+        .map_err(|e| e.to_string())
 }
 
 /// An external detector's boxes, filtered, their heads found.

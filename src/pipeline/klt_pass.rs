@@ -26,16 +26,22 @@ pub struct KltPass<'a> {
     pub px_per_m: f64,
 }
 
-/// Tracks people through the video; `motion_at(f, x)` carries a point of frame `f − 1` into
-/// frame `f` (the identity for a fixed camera).
-pub fn klt_over_video(
-    job: &KltPass,
-    motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
-    bar: &dyn Progress,
-) -> Result<Vec<ImageTrack>, String> {
-    let (t, px_per_m) = (job.track, job.px_per_m);
+/// The KLT tracker a pass feeds, and the feature frames it wants (made from gray frames).
+pub struct KltParts {
+    pub tracker: KltTracker<Klt>,
+    pub frames: Klt,
+}
+
+/// The tracker for frames of `size` at `px_per_m` and `fps`, with the project's settings.
+pub fn klt_tracker(
+    t: &KltSection,
+    size: (u32, u32),
+    fps: f64,
+    person_m: Option<f64>,
+    px_per_m: f64,
+) -> KltParts {
     let base = KltSettings::default();
-    let factor = (f64::from(job.size.0) / f64::from(base.max_width))
+    let factor = (f64::from(size.0) / f64::from(base.max_width))
         .ceil()
         .max(1.0);
     // An odd window in the working copy's pixels, no wider than a person (0.6 m): a window
@@ -52,21 +58,33 @@ pub fn klt_over_video(
     });
     let settings = KltTrackSettings {
         gate_px: t.gate_m * px_per_m,
-        person_px: job.person_m.unwrap_or(0.7) * px_per_m,
+        person_px: person_m.unwrap_or(0.7) * px_per_m,
         // One body's features move within about 4 cm per frame of each other.
         flow_px: (0.04 * px_per_m).max(1.5),
         min_features: t.min_features,
         max_features: t.max_features,
-        max_gap: (t.max_gap_s * job.fps).round() as usize,
+        max_gap: (t.max_gap_s * fps).round() as usize,
         min_hits: t.min_hits,
         ..KltTrackSettings::default()
     };
     let frames = Klt::new(klt.settings.clone());
-    let mut tracker = KltTracker::new(
-        settings,
-        klt,
-        (f64::from(job.size.0), f64::from(job.size.1)),
-    );
+    KltParts {
+        tracker: KltTracker::new(settings, klt, (f64::from(size.0), f64::from(size.1))),
+        frames,
+    }
+}
+
+/// Tracks people through the video; `motion_at(f, x)` carries a point of frame `f − 1` into
+/// frame `f` (the identity for a fixed camera).
+pub fn klt_over_video(
+    job: &KltPass,
+    motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
+    bar: &dyn Progress,
+) -> Result<Vec<ImageTrack>, String> {
+    let KltParts {
+        mut tracker,
+        frames,
+    } = klt_tracker(job.track, job.size, job.fps, job.person_m, job.px_per_m);
     let video = job.video.display();
     let mut reader =
         crate::video::source::FrameReader::open(job.video).map_err(|e| e.to_string())?;

@@ -1,5 +1,7 @@
 //! The whole job, from video to trajectories (orchestration over the stages; adapters for I/O).
 
+pub mod chunk_pass;
+pub mod cluster;
 pub mod detectors;
 pub mod klt_pass;
 pub mod pose_outputs;

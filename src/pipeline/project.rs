@@ -97,6 +97,35 @@ pub struct VideoSection {
     /// Process only the first this many seconds.
     #[serde(default)]
     pub duration_s: Option<f64>,
+    /// The video is processed in chunks of this many seconds, each on its own (one machine
+    /// runs them in turn; `geostride split` hands them to a cluster): the same results either
+    /// way.
+    #[serde(default = "default_chunk_s")]
+    pub chunk_s: f64,
+    /// Each chunk is tracked from this many seconds before its start, to join its tracks to
+    /// the chunk before's.
+    #[serde(default = "default_overlap_s")]
+    pub overlap_s: f64,
+}
+
+impl VideoSection {
+    /// The whole video at `path`, in the default chunks.
+    pub fn new(path: impl Into<String>) -> VideoSection {
+        VideoSection {
+            path: path.into(),
+            duration_s: None,
+            chunk_s: default_chunk_s(),
+            overlap_s: default_overlap_s(),
+        }
+    }
+}
+
+fn default_chunk_s() -> f64 {
+    10.0
+}
+
+fn default_overlap_s() -> f64 {
+    1.0
 }
 
 /// The ground under the people.
@@ -404,6 +433,19 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     }
     if p.video.duration_s.is_some_and(|d| !(d > 0.0)) {
         return Err(l.error("video", "duration_s", "must be positive"));
+    }
+    if !(p.video.chunk_s > 0.0 && p.video.chunk_s.is_finite()) {
+        return Err(l.error("video", "chunk_s", "must be a positive number of seconds"));
+    }
+    if !(p.video.overlap_s >= 0.0 && p.video.overlap_s < p.video.chunk_s) {
+        return Err(l.error(
+            "video",
+            "overlap_s",
+            format!(
+                "must be at least 0 and less than chunk_s ({} s)",
+                p.video.chunk_s
+            ),
+        ));
     }
     p.pose.check().map_err(|(key, m)| l.error("pose", key, m))?;
     match &p.ground {

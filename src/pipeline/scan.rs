@@ -33,6 +33,9 @@ pub struct ScanTimes {
     pub decode_s: f64,
     pub stabilise_s: f64,
     pub detect_s: f64,
+    /// The image tracker's, when it runs in the pass.
+    #[serde(default)]
+    pub track_s: f64,
     pub wall_s: f64,
 }
 
@@ -286,6 +289,7 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
                 decode_s,
                 stabilise_s,
                 detect_s,
+                track_s: 0.0,
                 wall_s: started.elapsed().as_secs_f64(),
             },
         })

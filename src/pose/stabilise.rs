@@ -58,6 +58,8 @@ pub enum KeyReason {
     FewFeatures,
     IllConditioned,
     Interval,
+    /// The first frame of a chunk of the video (chunks are processed on their own).
+    Chunk,
 }
 
 impl KeyReason {
@@ -67,6 +69,7 @@ impl KeyReason {
             KeyReason::FewFeatures => "few features agree",
             KeyReason::IllConditioned => "transform ill-conditioned",
             KeyReason::Interval => "interval",
+            KeyReason::Chunk => "start of a chunk",
         }
     }
 }
@@ -132,6 +135,10 @@ pub struct Stabiliser<T: FeatureTracker> {
     /// Each pick's position in the previous frame: tracked, or predicted while it is lost;
     /// `None` before any estimate exists.
     pick_state: Vec<Option<Vector2<f64>>>,
+    /// The last frame's frame-from-previous-frame homography (the camera's motion).
+    last_motion: Matrix3<f64>,
+    /// Make the next frame a key frame whatever the criteria say.
+    force_key: bool,
 }
 
 impl<T: FeatureTracker> Stabiliser<T> {
@@ -160,6 +167,8 @@ impl<T: FeatureTracker> Stabiliser<T> {
             ref_from_first: Matrix3::identity(),
             prev_from_first: Matrix3::identity(),
             pick_state: vec![None; n],
+            last_motion: Matrix3::identity(),
+            force_key: false,
         }
     }
 
@@ -253,7 +262,15 @@ impl<T: FeatureTracker> Stabiliser<T> {
             _ => {
                 frame_from_first = Matrix3::identity();
                 track.key = Some(KeyReason::First);
+                // A start after the picked frame (a chunk of a long video): the picks are
+                // predicted through this frame's homography from the picked frame.
+                if index != self.pick_frame && !self.picks.is_empty() {
+                    self.predict_picks_from_template(index, &frame)?;
+                }
             }
+        }
+        if std::mem::take(&mut self.force_key) && track.key.is_none() {
+            track.key = Some(KeyReason::Chunk);
         }
         if track.key.is_some() {
             self.set_reference(index, &frame)?;
@@ -265,10 +282,62 @@ impl<T: FeatureTracker> Stabiliser<T> {
                 .prev_from_first
                 .try_inverse()
                 .unwrap_or_else(Matrix3::identity);
+        self.last_motion = frame_from_prev;
         track.picks = self.carry_picks(index, &frame, &frame_from_prev)?;
         self.prev_from_first = frame_from_first;
         self.prev = Some(frame);
         Ok(track)
+    }
+
+    /// Makes the next frame pushed a key frame ([`KeyReason::Chunk`]): a chunk of the video
+    /// starts there.
+    pub fn key_next(&mut self) {
+        self.force_key = true;
+    }
+
+    /// Sets each pick's prediction from the homography from the picked frame to `frame`, when
+    /// one fits (features of the picked frame tracked straight into `frame`).
+    fn predict_picks_from_template(
+        &mut self,
+        index: usize,
+        frame: &T::Frame,
+    ) -> Result<(), crate::PluginError> {
+        let pts = self.tracker.detect(&self.template)?;
+        let moved = self.tracker.track(&self.template, frame, &pts, None)?;
+        let (mut src, mut dst) = (Vec::new(), Vec::new());
+        for (r, m) in pts.iter().zip(&moved) {
+            if let Some(m) = m {
+                src.push(*r);
+                dst.push(*m);
+            }
+        }
+        if src.len() < self.settings.min_features.max(8) {
+            return Ok(());
+        }
+        let Ok(fit) = homography_robust(
+            &src,
+            &dst,
+            &RansacSettings {
+                threshold: self.settings.inlier_px,
+                confidence: 0.999,
+                max_iterations: 2000,
+                seed: index as u64,
+                ..RansacSettings::default()
+            },
+        ) else {
+            return Ok(());
+        };
+        if fit.inlier_count < self.settings.min_features {
+            return Ok(());
+        }
+        self.pick_state = self.picks.iter().map(|p| transfer(&fit.model, p)).collect();
+        Ok(())
+    }
+
+    /// Maps pixels of the frame before the last one pushed to the last one (the identity for
+    /// the first frame).
+    pub fn last_motion(&self) -> Matrix3<f64> {
+        self.last_motion
     }
 
     fn carry_picks(

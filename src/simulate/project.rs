@@ -37,10 +37,7 @@ pub fn hats_project(
             origin: Some(format!("{lat:.10},{lon:.10},{}", o[2])),
             ..SurveySection::new("gcps.csv")
         },
-        video: VideoSection {
-            path: "video.mp4".into(),
-            duration_s: None,
-        },
+        video: VideoSection::new("video.mp4"),
         pose: PoseSection::default(),
         ground: ground(scene),
         detect: DetectSection::Colour(ColourSection {

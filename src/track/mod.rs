@@ -3,6 +3,7 @@
 
 pub mod association;
 pub mod klt;
+pub mod link;
 
 use nalgebra::{Matrix2, Vector2};
 

@@ -217,6 +217,81 @@ impl FrameReader {
         ok
     }
 
+    /// The index of the next frame read.
+    pub fn next_index(&self) -> usize {
+        self.next
+    }
+
+    /// Moves so that the next frame read is `index`, and checks that it did: OpenCV's seeking
+    /// is inexact for some codecs, so the frame before `index` is read after the seek and its
+    /// timestamp must be that frame's. When the check fails (or the backend cannot seek) the
+    /// video is read from the start instead. Returns whether the seek was used.
+    pub fn seek_checked(&mut self, path: &Path, index: usize) -> Result<bool, VideoError> {
+        if index == self.next {
+            return Ok(false);
+        }
+        if index > 0 && self.fps > 0.0 && self.seek(index - 1) {
+            let mut bgr = std::mem::take(&mut self.bgr);
+            let read = self.cap.read(&mut bgr).unwrap_or(false) && !bgr.empty();
+            self.bgr = bgr;
+            let msec = self.cap.get(videoio::CAP_PROP_POS_MSEC).unwrap_or(-1.0);
+            let at = msec * self.fps / 1000.0;
+            if read && msec >= 0.0 && (at - (index - 1) as f64).abs() < 0.25 {
+                self.next = index;
+                return Ok(true);
+            }
+        }
+        // From the start: exact whatever the codec.
+        let fresh = FrameReader::open(path)?;
+        *self = fresh;
+        let mut bgr = std::mem::take(&mut self.bgr);
+        for at in 0..index {
+            if !self.cap.read(&mut bgr)? || bgr.empty() {
+                return Err(VideoError::Ended {
+                    path: path.to_path_buf(),
+                    index,
+                    at,
+                });
+            }
+        }
+        self.bgr = bgr;
+        self.next = index;
+        Ok(false)
+    }
+
+    /// Calls `visit(index, bgr, width, height)` with each of the frames `indices` (ascending),
+    /// as tightly packed BGR bytes: frames close together are read on, far ones reached by a
+    /// checked seek ([`seek_checked`](Self::seek_checked)).
+    pub fn visit_frames(
+        path: &Path,
+        indices: &[usize],
+        mut visit: impl FnMut(usize, &[u8], usize, usize),
+    ) -> Result<(), VideoError> {
+        let mut r = FrameReader::open(path)?;
+        let mut bgr = Mat::default();
+        for &f in indices {
+            if f < r.next || f > r.next + 30 {
+                r.seek_checked(path, f)?;
+            }
+            while r.next <= f {
+                if r.read_bgr_into(&mut bgr)?.is_none() {
+                    return Err(VideoError::Ended {
+                        path: path.to_path_buf(),
+                        index: f,
+                        at: r.next,
+                    });
+                }
+            }
+            visit(
+                f,
+                bgr.data_bytes()?,
+                bgr.cols() as usize,
+                bgr.rows() as usize,
+            );
+        }
+        Ok(())
+    }
+
     /// The colour (BGR) frame at `index`, read from the start.
     pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, VideoError> {
         let mut r = FrameReader::open(path)?;

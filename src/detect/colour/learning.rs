@@ -64,6 +64,32 @@ impl LearningColourDetector {
         }
     }
 
+    /// The frames whose pixels the palette is learnt from, ascending.
+    pub fn frames_to_sample(&self) -> &[usize] {
+        &self.sample_frames
+    }
+
+    /// Takes the sampled pixels of one of [`frames_to_sample`](Self::frames_to_sample).
+    pub fn sample(&mut self, f: &FrameView) {
+        // The same pixels whichever way the frames are read: an offset from the index.
+        let mut k = (f.index * 7919) % self.step;
+        while k < f.width * f.height {
+            self.samples.push(f.pixel(k % f.width, k / f.width));
+            k += self.step;
+        }
+    }
+
+    /// The palette learnt from the pixels sampled so far, and the detector it gives: what a
+    /// pass over the whole video learns, when every frame to sample was given to
+    /// [`sample`](Self::sample) first.
+    pub fn learn_now(&self) -> Result<(ColourDetector, Palette), ColourError> {
+        let palette = Palette::learn(&self.samples, &self.settings)?;
+        Ok((
+            ColourDetector::new(&palette, self.settings.clone()),
+            palette,
+        ))
+    }
+
     /// The palette, once learnt.
     pub fn palette(&self) -> Option<&Palette> {
         self.ready.as_ref().map(|r| &r.1)
@@ -128,12 +154,7 @@ impl Detector for LearningColourDetector {
             return Ok(vec![(f.index, det.detect(f))]);
         }
         if self.sample_frames.binary_search(&f.index).is_ok() {
-            // The same pixels whichever way the frames are read: an offset from the index.
-            let mut k = (f.index * 7919) % self.step;
-            while k < f.width * f.height {
-                self.samples.push(f.pixel(k % f.width, k / f.width));
-                k += self.step;
-            }
+            self.sample(f);
         }
         let runs = table_runs(f, &self.screen, hat_radius_px(&self.settings));
         let mut colours = Vec::new();

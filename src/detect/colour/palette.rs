@@ -41,7 +41,7 @@ pub(super) fn bin_rgb(i: usize) -> [u8; 3] {
 }
 
 /// A learnt palette: cluster centres in CIELAB and which are hat colours.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Palette {
     pub centres: Vec<Vector3<f64>>,
     pub hat: Vec<bool>,

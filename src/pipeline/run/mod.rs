@@ -16,10 +16,9 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::klt_pass::KltPass;
 use super::pose_outputs::{PoseRun, write_pose_outputs};
 use super::project::{GroundSection, Loaded};
-use super::scan::{ScanError, ScanJob, ScanTimes, scan};
+use super::scan::{ScanError, ScanTimes};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
 use crate::export::gis::{Layers, write_trajectories};
@@ -86,9 +85,43 @@ pub enum RunError {
     /// A coordinate conversion failed while running.
     #[error(transparent)]
     Crs(#[from] crate::survey::crs::CrsError),
+    /// Chunks of the video are not done (a cluster's segments that failed or did not run).
+    #[error("{} of the video's chunks are missing or were made from other inputs or by another build: {}", .0.len(), chunk_list(.0))]
+    MissingChunks(Vec<usize>),
     /// Anything else that failed while running.
     #[error("{0}")]
     Failed(String),
+}
+
+/// Chunk numbers for a message, runs of them as ranges.
+pub fn chunk_list(chunks: &[usize]) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < chunks.len() {
+        let mut j = i;
+        while j + 1 < chunks.len() && chunks[j + 1] == chunks[j] + 1 {
+            j += 1;
+        }
+        parts.push(if i == j {
+            chunks[i].to_string()
+        } else {
+            format!("{}-{}", chunks[i], chunks[j])
+        });
+        i = j + 1;
+    }
+    parts.join(", ")
+}
+
+/// Which chunks of the video a call computes; the others must be in the output folder's cache
+/// already.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ChunkMode {
+    /// Every chunk not done yet (`geostride run`).
+    All,
+    /// These (a segment of `geostride split`); the later stages do not run.
+    Only(std::ops::Range<usize>),
+    /// None (`geostride merge`): a chunk not done is an error.
+    None,
 }
 
 impl RunError {
@@ -297,8 +330,8 @@ struct Written {
     transformations: Vec<String>,
 }
 
-/// What the scan stage keeps.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// What the scan stage gives: its chunks put together.
+#[derive(Clone, Debug)]
 struct ScanData {
     fps: f64,
     width: u32,
@@ -308,7 +341,18 @@ struct ScanData {
     detector_summary: Vec<(String, f64)>,
     tracks: Vec<FrameTrack>,
     detections: Vec<Vec<Detection>>,
+    /// Each chunk's image tracks, to be linked.
+    chunk_tracks: Vec<ChunkTracksData>,
     times: ScanTimes,
+}
+
+/// One chunk's image tracks and its frames.
+#[derive(Clone, Debug)]
+struct ChunkTracksData {
+    decode_from: usize,
+    start: usize,
+    end: usize,
+    tracks: Vec<ImageTrack>,
 }
 
 /// A frame's pose as the later stages need it.
@@ -578,6 +622,90 @@ fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunErro
 /// Runs a project into `out`. Every input is read and checked before anything is written, so
 /// a bad project leaves nothing behind.
 pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunReport, RunError> {
+    run_with(l, out, progress, &ChunkMode::All)
+}
+
+/// What a segment's run did.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SegmentDone {
+    pub chunks: std::ops::Range<usize>,
+    pub computed: usize,
+    pub reused: usize,
+    pub frames: usize,
+    pub seconds: f64,
+}
+
+/// Computes chunks `chunks` of a project's video into `out`'s cache (a segment of a split run),
+/// reusing those done already; the later stages are left to [`run_with`] and
+/// [`ChunkMode::None`].
+pub fn run_segment(
+    l: &Loaded,
+    out: &Path,
+    progress: &dyn StageProgress,
+    chunks: std::ops::Range<usize>,
+) -> Result<SegmentDone, RunError> {
+    let t0 = Instant::now();
+    let Prepared { ctx, detector, .. } = prepare(l, out, progress)?;
+    let n = ctx.grid.chunks();
+    if chunks.end > n || chunks.is_empty() {
+        return Err(RunError::Unusable(format!(
+            "chunks {}..{} asked for; the video has {n} chunk(s) of {} s",
+            chunks.start, chunks.end, l.project.video.chunk_s
+        )));
+    }
+    let (_, computed, reused) =
+        scan_stage::chunks_of(&ctx, &ChunkMode::Only(chunks.clone()), detector)?;
+    Ok(SegmentDone {
+        frames: chunks.clone().map(|c| ctx.grid.own(c).len()).sum(),
+        chunks,
+        computed,
+        reused,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// What [`plan_chunks`] gives: the chunk grid and every chunk's key.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ChunkPlan {
+    pub grid: super::chunk_pass::ChunkGrid,
+    pub fps: f64,
+    pub chunk_keys: Vec<String>,
+    /// Whether a colour palette was learnt (it is in the output folder's cache).
+    pub palette: bool,
+    /// Chunks done already (in the cache under their key).
+    pub done: Vec<usize>,
+}
+
+/// Checks a project as [`run`] does, makes `out` and decides what is decided once for the whole
+/// video (the chunk grid, the colour palette, the chunks' keys), without processing a chunk.
+pub fn plan_chunks(
+    l: &Loaded,
+    out: &Path,
+    progress: &dyn StageProgress,
+) -> Result<ChunkPlan, RunError> {
+    let Prepared { ctx, .. } = prepare(l, out, progress)?;
+    let keys: Vec<String> = (0..ctx.grid.chunks())
+        .map(|c| scan_stage::chunk_key(&ctx, c))
+        .collect();
+    let done = (0..keys.len())
+        .filter(|&c| scan_stage::chunk_done(&ctx, c))
+        .collect();
+    Ok(ChunkPlan {
+        grid: ctx.grid,
+        fps: ctx.fps,
+        chunk_keys: keys,
+        palette: ctx.palette.is_some(),
+        done,
+    })
+}
+
+/// [`run`], computing only the chunks `mode` says (the rest must be done already).
+pub fn run_with(
+    l: &Loaded,
+    out: &Path,
+    progress: &dyn StageProgress,
+    mode: &ChunkMode,
+) -> Result<RunReport, RunError> {
     let Prepared {
         ctx,
         detector,
@@ -586,13 +714,19 @@ pub fn run(l: &Loaded, out: &Path, progress: &dyn StageProgress) -> Result<RunRe
     } = prepare(l, out, progress)?;
     let p = &l.project;
     let mut stages = Vec::new();
+    // No segment of a split run writes now: a killed run's temporaries can go.
+    let chunks_dir = out.join(".stages").join("chunks");
+    crate::io::remove_stale_temps(&chunks_dir).map_err(|source| RunError::Io {
+        path: chunks_dir,
+        source,
+    })?;
 
-    let (scan_data, scan_key, record) = scan_stage(&ctx, detector)?;
+    let (scan_data, scan_key, record) = scan_stage(&ctx, mode, detector)?;
     stages.push(record);
     let (pose_data, pose_key, record) = pose_stage(&ctx, &scan_key, &scan_data, &mut warnings)?;
     stages.push(record);
     let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
-    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &pose_key, &scan_data, &poses)?;
+    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &scan_data)?;
     stages.push(record);
     let (world, project_key, record) = project_stage(
         &ctx,
@@ -749,29 +883,98 @@ fn prepare<'a>(
         }
         _ => None,
     };
-    let detector = super::registry::detector(
-        &p.detect,
-        &super::detectors::DetectorInputs {
-            l,
-            video: &video,
-            camera: &camera,
-            first_pose: &first_pose,
-            px_per_m,
-            frames: frames_total,
-        },
-    )?;
+    let frames = frames_total.ok_or_else(|| {
+        RunError::Input(l.error(
+            "video",
+            "duration_s",
+            "the video states no frame count: give the seconds to process",
+        ))
+    })?;
+    let grid = super::chunk_pass::ChunkGrid::new(frames, fps, p.video.chunk_s, p.video.overlap_s);
+    let scan_key = stage_key(
+        "scan",
+        &sums,
+        &(
+            &p.camera,
+            &p.survey,
+            &p.video,
+            &p.pose,
+            &p.detect,
+            &p.projection.head_height_m,
+            &p.ground,
+            &grid,
+        ),
+    );
+    let cache = Cache {
+        dir: out.join(".stages"),
+    };
+    // The colour detector's palette is learnt once, before the chunks (each detects with it);
+    // a video of one chunk learns it in its one pass, from the same frames (no frame is
+    // decoded twice).
+    let (detector, palette) = match &p.detect {
+        super::settings::DetectSection::Colour(c)
+            if grid.chunks() == 1 && !matches!(p.track, super::settings::TrackSection::Klt(_)) =>
+        {
+            (
+                Some(super::detectors::colour(c, px_per_m, Some(frames))),
+                None,
+            )
+        }
+        super::settings::DetectSection::Colour(c) => {
+            let key = stage_key("palette", &[&scan_key], &());
+            let palette = match cache.load::<crate::detect::colour::Palette>("palette", &key) {
+                Some(pal) => pal,
+                None => {
+                    let bar = progress.stage("palette");
+                    bar.set_length(c.sample_frames as u64);
+                    let pal = super::detectors::learn_palette(c, &video, px_per_m, frames)
+                        .map_err(|e| {
+                            RunError::Input(l.error("detect", p.detect.failure_key(), e))
+                        })?;
+                    bar.inc(c.sample_frames as u64);
+                    pal
+                }
+            };
+            (None, Some((palette, key)))
+        }
+        _ => (
+            Some(super::registry::detector(
+                &p.detect,
+                &super::detectors::DetectorInputs {
+                    l,
+                    video: &video,
+                    camera: &camera,
+                    first_pose: &first_pose,
+                    px_per_m,
+                    frames: frames_total,
+                },
+            )?),
+            None,
+        ),
+    };
 
     guard.create_dir(out).map_err(output_error)?;
     guard
         .create_dir(&out.join(".stages"))
         .map_err(output_error)?;
+    // Not `create_dir`: segments on other machines may be writing their chunks here (their
+    // temporaries' process ids mean nothing on this one). `run` and `merge` clear it.
+    let chunks_dir = out.join(".stages").join("chunks");
+    std::fs::create_dir_all(&chunks_dir).map_err(|source| RunError::Io {
+        path: chunks_dir.clone(),
+        source,
+    })?;
     // pose/ is written only when the pose stage runs; a killed one's temporaries go now.
     crate::io::remove_stale_temps(&out.join("pose")).map_err(|source| RunError::Io {
         path: out.join("pose"),
         source,
     })?;
-    let cache = Cache {
-        dir: out.join(".stages"),
+    let palette = match palette {
+        Some((pal, key)) => {
+            cache.store("palette", &key, &pal)?;
+            Some(pal)
+        }
+        None => None,
     };
     let ctx = Ctx {
         l,
@@ -781,7 +984,6 @@ fn prepare<'a>(
         cache,
         video,
         fps,
-        max_frames,
         camera,
         framed,
         pick_frame,
@@ -792,9 +994,13 @@ fn prepare<'a>(
         heights,
         out_crs,
         transform,
-        sums: sums.iter().map(|s| s.to_string()).collect(),
         model,
         first_pose,
+        grid,
+        scan_key,
+        palette,
+        frames_total: frames,
+        size: (width, height),
     };
     Ok(Prepared {
         ctx,
@@ -807,7 +1013,9 @@ fn prepare<'a>(
 /// What [`prepare`] gives.
 struct Prepared<'a> {
     ctx: Ctx<'a>,
-    detector: Box<dyn crate::detect::Detector>,
+    /// The detector, made to check its inputs, for the first chunk computed (`None`: made for
+    /// each chunk).
+    detector: Option<Box<dyn crate::detect::Detector>>,
     inputs: Vec<InputRecord>,
     warnings: Vec<String>,
 }
@@ -824,7 +1032,6 @@ struct Ctx<'a> {
     cache: Cache,
     video: PathBuf,
     fps: f64,
-    max_frames: Option<usize>,
     camera: Camera,
     framed: Framed,
     pick_frame: usize,
@@ -835,12 +1042,20 @@ struct Ctx<'a> {
     heights: BTreeMap<usize, (f64, f64)>,
     out_crs: Option<Crs>,
     transform: Option<Transform>,
-    /// The inputs' SHA-256: part of every stage's key.
-    sums: Vec<String>,
     /// The reference model of a `model` pose, in the site frame.
     model: Option<model_pose::SiteModel>,
     /// The first frame's pose (the picked frame's for a hovering camera).
     first_pose: Rigid3,
+    /// The chunks the video is processed in.
+    grid: super::chunk_pass::ChunkGrid,
+    /// The key of the scan: every chunk's key derives from it.
+    scan_key: String,
+    /// The colour detector's palette.
+    palette: Option<crate::detect::colour::Palette>,
+    /// Frames processed.
+    frames_total: usize,
+    /// The video's frame size, pixels.
+    size: (u32, u32),
 }
 
 /// A stage's result: the one cached under `key` when there is one (and `valid`), else

@@ -1,96 +1,269 @@
-//! Stage 1, `scan`.
+//! Stage 1, `scan`: the video's chunks, each in one decoding pass (stabilisation, detection
+//! and image tracking), each cached in its own file.
 
 use super::*;
+use crate::pipeline::chunk_pass::{ChunkData, ChunkJob, ChunkTracker, scan_chunk};
+use crate::pipeline::registry::{TrackScale, TrackerChoice};
 
-/// Stage 1: one decode pass, stabilisation and detection.
+/// A chunk's file in the cache (under `.stages/`).
+fn chunk_stage(c: usize) -> String {
+    format!("chunks/{c:05}")
+}
+
+/// The key of chunk `c`.
+pub(super) fn chunk_key(ctx: &Ctx, c: usize) -> String {
+    stage_key("chunk", &[&ctx.scan_key], &c)
+}
+
+/// Whether chunk `c` is in the cache under its key.
+pub(super) fn chunk_done(ctx: &Ctx, c: usize) -> bool {
+    ctx.cache
+        .load::<serde::de::IgnoredAny>(&chunk_stage(c), &chunk_key(ctx, c))
+        .is_some()
+}
+
+/// The detector for one chunk.
+fn chunk_detector(ctx: &Ctx) -> Result<Box<dyn crate::detect::Detector>, RunError> {
+    let p = &ctx.l.project;
+    match (&p.detect, &ctx.palette) {
+        (crate::pipeline::settings::DetectSection::Colour(c), Some(pal)) => Ok(
+            crate::pipeline::detectors::colour_with(c, ctx.px_per_m, pal),
+        ),
+        _ => crate::pipeline::registry::detector(
+            &p.detect,
+            &crate::pipeline::detectors::DetectorInputs {
+                l: ctx.l,
+                video: &ctx.video,
+                camera: &ctx.camera,
+                first_pose: &ctx.first_pose,
+                px_per_m: ctx.px_per_m,
+                frames: Some(ctx.frames_total),
+            },
+        ),
+    }
+}
+
+/// Computes chunk `c`.
+fn compute_chunk(
+    ctx: &Ctx,
+    c: usize,
+    detector: Box<dyn crate::detect::Detector>,
+    bar: &dyn crate::progress::Progress,
+) -> Result<ChunkData, RunError> {
+    let l = ctx.l;
+    let p = &l.project;
+    let fps = ctx.fps;
+    let (min_features, key_fraction, key_every_s) = p.pose.key_frames();
+    let stabilise = StabiliseSettings {
+        min_features,
+        min_fraction: key_fraction,
+        max_interval: key_every_s.map(|s| (s * fps).round().max(1.0) as usize),
+        ..StabiliseSettings::default()
+    };
+    let picks = ctx.control.iter().chain(&ctx.check).map(|o| o.uv).collect();
+    let scale = TrackScale {
+        px_per_m: ctx.px_per_m,
+        fps,
+        duplicate_px: p.detect.duplicate_m() * ctx.px_per_m,
+    };
+    let tracker = match crate::pipeline::registry::tracker(&p.track, &scale) {
+        TrackerChoice::Frames(t) => ChunkTracker::Frames(t),
+        TrackerChoice::Klt(k) => {
+            let size = ctx.size;
+            ChunkTracker::Klt(Box::new(crate::pipeline::klt_pass::klt_tracker(
+                k,
+                size,
+                fps,
+                p.detect.person_m(),
+                ctx.px_per_m,
+            )))
+        }
+    };
+    scan_chunk(
+        ChunkJob {
+            video: &ctx.video,
+            grid: ctx.grid,
+            index: c,
+            stabilise: (stabilise, ctx.pick_frame, picks),
+            detector,
+            tracker,
+        },
+        bar,
+    )
+    .map_err(|e| match e {
+        ScanError::Detector(e) => RunError::Input(l.error("detect", p.detect.failure_key(), e)),
+        ScanError::Other(e) => RunError::Failed(e),
+    })
+}
+
+/// The chunks `mode` asks for, computed or reused, in order; and how many of each. Under
+/// [`ChunkMode::Only`] the chunks are only stored, not given.
+pub(super) fn chunks_of(
+    ctx: &Ctx,
+    mode: &ChunkMode,
+    mut detector: Option<Box<dyn crate::detect::Detector>>,
+) -> Result<(Vec<ChunkData>, usize, usize), RunError> {
+    let n = ctx.grid.chunks();
+    let range = match mode {
+        ChunkMode::Only(r) => r.clone(),
+        _ => 0..n,
+    };
+    let bar = ctx.progress.stage("scan");
+    let (mut computed, mut reused) = (0, 0);
+    // A segment only needs to know which of its chunks are done; the others load them.
+    let keep = !matches!(mode, ChunkMode::Only(_));
+    let mut done: Vec<Option<Option<ChunkData>>> = Vec::new();
+    let mut missing = Vec::new();
+    for c in range.clone() {
+        let data = if keep {
+            ctx.cache
+                .load::<ChunkData>(&chunk_stage(c), &chunk_key(ctx, c))
+                .map(Some)
+        } else {
+            chunk_done(ctx, c).then_some(None)
+        };
+        if data.is_none() && *mode == ChunkMode::None {
+            missing.push(c);
+        }
+        done.push(data);
+    }
+    if !missing.is_empty() {
+        return Err(RunError::MissingChunks(missing));
+    }
+    let todo: u64 = range
+        .clone()
+        .zip(&done)
+        .filter(|(_, d)| d.is_none())
+        .map(|(c, _)| ctx.grid.own(c).len() as u64)
+        .sum();
+    bar.set_length(todo);
+    let mut out = Vec::with_capacity(if keep { done.len() } else { 0 });
+    for (c, d) in range.zip(done) {
+        match d {
+            Some(d) => {
+                reused += 1;
+                out.extend(d);
+            }
+            None => {
+                let det = match detector.take() {
+                    Some(d) => d,
+                    None => chunk_detector(ctx)?,
+                };
+                let d = compute_chunk(ctx, c, det, bar.as_ref())?;
+                ctx.cache.store(&chunk_stage(c), &chunk_key(ctx, c), &d)?;
+                ctx.progress.stored(&chunk_stage(c));
+                computed += 1;
+                // A segment keeps nothing: its memory is one chunk's, however long it is.
+                if keep {
+                    out.push(d);
+                }
+            }
+        }
+    }
+    Ok((out, computed, reused))
+}
+
+/// Stage 1: every chunk, put together.
 pub(super) fn scan_stage(
     ctx: &Ctx,
-    detector: Box<dyn crate::detect::Detector>,
+    mode: &ChunkMode,
+    detector: Option<Box<dyn crate::detect::Detector>>,
 ) -> Result<(ScanData, String, StageRecord), RunError> {
-    let l = ctx.l;
-    let progress = ctx.progress;
-    let video = &ctx.video;
-    let fps = ctx.fps;
-    let max_frames = ctx.max_frames;
-    let pick_frame = ctx.pick_frame;
-    let control = &ctx.control;
-    let check = &ctx.check;
-    let px_per_m = ctx.px_per_m;
-    let sums: Vec<&str> = ctx.sums.iter().map(String::as_str).collect();
-    let p = &ctx.l.project;
-    let scan_key = stage_key(
-        "scan",
-        &sums,
-        &(
-            &p.camera,
-            &p.survey,
-            &p.video,
-            &p.pose,
-            &p.detect,
-            &p.projection.head_height_m,
-            &p.ground,
-        ),
-    );
     let t0 = Instant::now();
-    let (scan_data, status) = cached(&ctx.cache, ctx.progress, "scan", &scan_key, true, || {
-        let detector = detector;
-        let (min_features, key_fraction, key_every_s) = p.pose.key_frames();
-        let stabilise = StabiliseSettings {
-            min_features,
-            min_fraction: key_fraction,
-            max_interval: key_every_s.map(|s| (s * fps).round().max(1.0) as usize),
-            ..StabiliseSettings::default()
-        };
-        let picks = control.iter().chain(check).map(|o| o.uv).collect();
-        let bar = progress.stage("scan");
-        let s = scan(
-            ScanJob {
-                video,
-                max_frames,
-                stabilise: Some((stabilise, pick_frame, picks)),
-                detector: Some(detector),
-            },
-            bar.as_ref(),
-        )
-        .map_err(|e| match e {
-            ScanError::Detector(e) => RunError::Input(l.error("detect", p.detect.failure_key(), e)),
-            ScanError::Other(e) => RunError::Failed(e),
-        })?;
-        let d = ScanData {
-            fps: s.fps,
-            width: s.width,
-            height: s.height,
-            frames: s.frames,
-            px_per_m,
-            detector_summary: s.detector_summary,
-            tracks: s.tracks,
-            detections: s.detections,
-            times: s.times,
-        };
-        Ok(d)
-    })?;
-    let n_det: usize = scan_data.detections.iter().map(Vec::len).sum();
+    let (chunks, computed, reused) = chunks_of(ctx, mode, detector)?;
+    if computed > 0 {
+        ctx.progress.stored("scan");
+    }
+    let (width, height) = ctx.size;
+    let mut data = ScanData {
+        fps: ctx.fps,
+        width,
+        height,
+        frames: 0,
+        px_per_m: ctx.px_per_m,
+        detector_summary: Vec::new(),
+        tracks: Vec::new(),
+        detections: Vec::new(),
+        chunk_tracks: Vec::new(),
+        times: ScanTimes::default(),
+    };
+    let mut summary: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut seeks = 0;
+    for c in chunks {
+        if c.end > c.start && data.frames != c.start {
+            return Err(RunError::Failed(format!(
+                "{}: chunk {} starts at frame {} but the chunks before end at {} (the video ended early?)",
+                ctx.video.display(),
+                c.index,
+                c.start,
+                data.frames
+            )));
+        }
+        data.frames = data.frames.max(c.end);
+        data.tracks.extend(c.tracks);
+        data.detections.extend(c.detections);
+        data.chunk_tracks.push(ChunkTracksData {
+            decode_from: c.decode_from,
+            start: c.start,
+            end: c.end,
+            tracks: c.image_tracks,
+        });
+        for (k, v) in c.detector_summary {
+            summary.entry(k).or_default().push(v);
+        }
+        let t = &mut data.times;
+        t.decode_s += c.times.decode_s;
+        t.stabilise_s += c.times.stabilise_s;
+        t.detect_s += c.times.detect_s;
+        t.track_s += c.times.track_s;
+        t.wall_s += c.times.wall_s;
+        seeks += usize::from(c.seeked);
+    }
+    if data.frames == 0 {
+        return Err(RunError::Failed(format!(
+            "{}: no frames could be decoded",
+            ctx.video.display()
+        )));
+    }
+    // A number every chunk's detector gives alike is the video's (boxes read from the file,
+    // hat colours); others are summed (an overlap's frames count in both its chunks).
+    data.detector_summary = summary
+        .into_iter()
+        .map(|(k, v)| {
+            let same = v.iter().all(|x| *x == v[0]) && v.len() > 1;
+            (k, if same { v[0] } else { v.iter().sum() })
+        })
+        .collect();
+    let n_det: usize = data.detections.iter().map(Vec::len).sum();
+    let status = match (computed, reused) {
+        (0, _) => "reused",
+        (_, 0) => "computed",
+        _ => "partly reused",
+    };
     let record = StageRecord {
         name: "scan".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([
-            ("frames".into(), scan_data.frames as f64),
-            ("width_px".into(), scan_data.width as f64),
-            ("height_px".into(), scan_data.height as f64),
+            ("frames".into(), data.frames as f64),
+            ("width_px".into(), data.width as f64),
+            ("height_px".into(), data.height as f64),
             ("detections".into(), n_det as f64),
+            ("chunks".into(), ctx.grid.chunks() as f64),
+            ("chunks_computed".into(), computed as f64),
+            ("chunks_seeked".into(), seeks as f64),
             (
                 "key_frames".into(),
-                scan_data.tracks.iter().filter(|t| t.key.is_some()).count() as f64,
+                data.tracks.iter().filter(|t| t.key.is_some()).count() as f64,
             ),
-            ("decode_s".into(), scan_data.times.decode_s),
-            ("stabilise_s".into(), scan_data.times.stabilise_s),
-            ("detect_s".into(), scan_data.times.detect_s),
+            ("decode_s".into(), data.times.decode_s),
+            ("stabilise_s".into(), data.times.stabilise_s),
+            ("detect_s".into(), data.times.detect_s),
+            ("track_s".into(), data.times.track_s),
         ])
         .into_iter()
-        .chain(scan_data.detector_summary.iter().cloned())
+        .chain(data.detector_summary.iter().cloned())
         .collect(),
     };
-
-    Ok((scan_data, scan_key, record))
+    Ok((data, ctx.scan_key.clone(), record))
 }

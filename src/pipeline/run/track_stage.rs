@@ -1,69 +1,43 @@
-//! Stage 3, `track`.
+//! Stage 3, `track`: the chunks' image tracks joined into one set.
 
 use super::*;
-use crate::pipeline::registry::{TrackScale, TrackerChoice};
+use crate::track::link::{ChunkTracks, LinkSettings, link_chunks};
 
 /// Stage 3: image tracks.
 pub(super) fn track_stage(
     ctx: &Ctx,
     scan_key: &str,
-    pose_key: &str,
     scan_data: &ScanData,
-    poses: &[Rigid3],
 ) -> Result<(Vec<ImageTrack>, String, StageRecord), RunError> {
-    let progress = ctx.progress;
-    let video = &ctx.video;
     let fps = ctx.fps;
-    let camera = &ctx.camera;
-    let surface = &ctx.surface;
-    let px_per_m = ctx.px_per_m;
     let p = &ctx.l.project;
-    let track_key = stage_key("track", &[scan_key, pose_key], &p.track);
+    let track_key = stage_key("track", &[scan_key], &p.track);
     let t0 = Instant::now();
-    let head = p.projection.head_height_m;
+    let mut joined = (0.0, 0.0);
     let (tracks, status) = cached(&ctx.cache, ctx.progress, "track", &track_key, true, || {
-        // Camera motion: where a head-height point of the previous frame is now.
-        let motion_at = |f: usize, uv: &Vector2<f64>| -> Vector2<f64> {
-            if f == 0 {
-                return *uv;
-            }
-            crate::projection::intersect(camera, &poses[f - 1], surface.as_ref(), head, uv)
-                .and_then(|x| camera.project(&poses[f].apply(&x)).ok())
-                .unwrap_or(*uv)
-        };
-        let bar = progress.stage("track");
-        bar.set_length(scan_data.detections.len() as u64);
-        let scale = TrackScale {
-            px_per_m,
-            fps,
-            duplicate_px: p.detect.duplicate_m() * px_per_m,
-        };
-        let tracks = match crate::pipeline::registry::tracker(&p.track, &scale) {
-            TrackerChoice::Klt(k) => crate::pipeline::klt_pass::klt_over_video(
-                &KltPass {
-                    video,
-                    detections: &scan_data.detections,
-                    size: (scan_data.width, scan_data.height),
-                    fps: scan_data.fps,
-                    track: k,
-                    person_m: p.detect.person_m(),
-                    px_per_m,
-                },
-                &motion_at,
-                bar.as_ref(),
-            )
-            .map_err(RunError::Failed)?,
-            TrackerChoice::Frames(mut tracker) => {
-                for (f, dets) in scan_data.detections.iter().enumerate() {
-                    tracker.update(f, dets, &|uv: &Vector2<f64>| motion_at(f, uv));
-                    bar.inc(1);
-                }
-                tracker.finish()
-            }
-        };
+        let chunks = scan_data
+            .chunk_tracks
+            .iter()
+            .map(|c| ChunkTracks {
+                decode_from: c.decode_from,
+                start: c.start,
+                end: c.end,
+                tracks: c.tracks.clone(),
+            })
+            .collect();
+        let overlap = ctx.grid.overlap_frames;
+        let (tracks, stats) = link_chunks(
+            chunks,
+            &LinkSettings {
+                // The same detection in both chunks: within 5 cm at head height.
+                same_px: (0.05 * ctx.px_per_m).max(0.5),
+                min_shared: overlap.clamp(1, 3),
+            },
+        );
+        joined = (stats.joined as f64, stats.unmatched as f64);
         // Short tracks are mostly false alarms, unless the video's start or end cut them.
         let min_frames = (p.track.min_length_s() * fps).round() as usize;
-        let last = scan_data.detections.len().saturating_sub(1);
+        let last = scan_data.frames.saturating_sub(1);
         let tracks: Vec<ImageTrack> = tracks
             .into_iter()
             .filter(|t| {
@@ -73,25 +47,35 @@ pub(super) fn track_stage(
                 );
                 b - a + 1 >= min_frames || a == 0 || b == last
             })
+            .enumerate()
+            .map(|(k, mut t)| {
+                t.id = k + 1;
+                t
+            })
             .collect();
         Ok(tracks)
     })?;
     let lengths: Vec<f64> = tracks.iter().map(|t| t.points.len() as f64 / fps).collect();
+    let mut counts = BTreeMap::from([
+        ("tracks".into(), tracks.len() as f64),
+        (
+            "points".into(),
+            tracks.iter().map(|t| t.points.len()).sum::<usize>() as f64,
+        ),
+        (
+            "mean_length_s".into(),
+            lengths.iter().sum::<f64>() / lengths.len().max(1) as f64,
+        ),
+    ]);
+    if status == "computed" {
+        counts.insert("joined_at_chunk_borders".into(), joined.0);
+        counts.insert("unmatched_at_chunk_borders".into(), joined.1);
+    }
     let record = StageRecord {
         name: "track".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
-        counts: BTreeMap::from([
-            ("tracks".into(), tracks.len() as f64),
-            (
-                "points".into(),
-                tracks.iter().map(|t| t.points.len()).sum::<usize>() as f64,
-            ),
-            (
-                "mean_length_s".into(),
-                lengths.iter().sum::<f64>() / lengths.len().max(1) as f64,
-            ),
-        ]),
+        counts,
     };
 
     Ok((tracks, track_key, record))

@@ -1,0 +1,234 @@
+//! A run split across a cluster: the manifest `geostride split` writes, the segments' chunks,
+//! the index a batch engine gives each task, and the Slurm scripts. The work itself is
+//! [`run_segment`](super::run::run_segment) and [`run_with`](super::run::run_with); a split
+//! run's folder is a run's output folder, so `merge` gives what `run` gives, byte for byte.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::run::ChunkPlan;
+
+/// The manifest's file name in a split run's folder.
+pub const MANIFEST: &str = "split.json";
+
+/// The manifest of a split run.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Manifest {
+    /// `geostride-split/1`.
+    pub format: String,
+    /// The project file, absolute, and its SHA-256 when split.
+    pub project: PathBuf,
+    pub project_sha256: String,
+    /// The build that split it (a chunk made by another build is not used).
+    pub geostride: String,
+    pub plan: ChunkPlan,
+    /// Each segment's chunks, in order.
+    pub segments: Vec<Range<usize>>,
+}
+
+pub const FORMAT: &str = "geostride-split/1";
+
+/// `chunks` cut into `n` contiguous segments as even as can be; `None` when there are fewer
+/// chunks than segments.
+pub fn segments(chunks: usize, n: usize) -> Option<Vec<Range<usize>>> {
+    if n == 0 || n > chunks {
+        return None;
+    }
+    Some(
+        (0..n)
+            .map(|i| i * chunks / n..(i + 1) * chunks / n)
+            .collect(),
+    )
+}
+
+impl Manifest {
+    /// The segments holding any of `chunks`, ascending.
+    pub fn segments_of(&self, chunks: &[usize]) -> Vec<usize> {
+        let mut out: Vec<usize> = chunks
+            .iter()
+            .filter_map(|c| self.segments.iter().position(|r| r.contains(c)))
+            .collect();
+        out.dedup();
+        out
+    }
+
+    pub fn read(dir: &Path) -> Result<Manifest, String> {
+        let path = dir.join(MANIFEST);
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            format!(
+                "{}: {e}; is {} a folder made by 'geostride split'?",
+                path.display(),
+                dir.display()
+            )
+        })?;
+        let m: Manifest = serde_json::from_str(&text)
+            .map_err(|e| format!("{}: not a split manifest: {e}", path.display()))?;
+        if m.format != FORMAT {
+            return Err(format!(
+                "{}: format '{}', expected '{FORMAT}' (split again with this geostride)",
+                path.display(),
+                m.format
+            ));
+        }
+        Ok(m)
+    }
+}
+
+/// The variables batch engines give each task of an array its index in: Slurm's job arrays,
+/// Kubernetes Indexed Jobs, AWS Batch array jobs.
+pub const INDEX_VARIABLES: [&str; 3] = [
+    "SLURM_ARRAY_TASK_ID",
+    "JOB_COMPLETION_INDEX",
+    "AWS_BATCH_JOB_ARRAY_INDEX",
+];
+
+/// The task's index from the first of [`INDEX_VARIABLES`] that is set (`get` reads a
+/// variable); an error names them when none is, or the value when it is not a number.
+pub fn index_from(get: impl Fn(&str) -> Option<String>) -> Result<usize, String> {
+    for v in INDEX_VARIABLES {
+        if let Some(s) = get(v) {
+            return s
+                .trim()
+                .parse()
+                .map_err(|_| format!("{v}='{s}' is not a segment index (0, 1, ...)"));
+        }
+    }
+    Err(format!(
+        "no --index and none of {} is set: give the segment's index",
+        INDEX_VARIABLES.join(", ")
+    ))
+}
+
+/// The batch resources of the Slurm jobs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlurmOptions {
+    pub partition: Option<String>,
+    /// `sbatch --time` of a segment and of the merge (e.g. `2:00:00`).
+    pub time: String,
+    pub merge_time: String,
+    /// `sbatch --mem` of a segment and of the merge (e.g. `8G`).
+    pub mem: String,
+    pub merge_mem: String,
+    pub cpus: u32,
+    /// Extra `#SBATCH` lines (an account, a QOS), verbatim.
+    pub extra: Vec<String>,
+}
+
+/// A word for a shell script, quoted.
+pub fn shell_quote(s: &str) -> String {
+    if !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c))
+    {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
+fn header(name: &str, o: &SlurmOptions, time: &str, mem: &str, log: &Path) -> String {
+    let mut s = format!(
+        "#!/bin/bash\n#SBATCH --job-name={name}\n#SBATCH --time={time}\n#SBATCH --mem={mem}\n#SBATCH --cpus-per-task={}\n#SBATCH --ntasks=1\n#SBATCH --output={}\n",
+        o.cpus,
+        shell_quote(&log.display().to_string())
+    );
+    if let Some(p) = &o.partition {
+        s.push_str(&format!("#SBATCH --partition={p}\n"));
+    }
+    for e in &o.extra {
+        s.push_str(&format!("#SBATCH {e}\n"));
+    }
+    s
+}
+
+/// The segments' array script and the merge's script for the split run in `dir`, run with the
+/// executable `exe`.
+pub fn slurm_scripts(
+    exe: &Path,
+    dir: &Path,
+    segments: usize,
+    o: &SlurmOptions,
+) -> (String, String) {
+    let (exe, d) = (
+        shell_quote(&exe.display().to_string()),
+        shell_quote(&dir.display().to_string()),
+    );
+    let logs = dir.join("slurm");
+    let mut seg = header(
+        "geostride-segment",
+        o,
+        &o.time,
+        &o.mem,
+        &logs.join("segment-%a.log"),
+    );
+    seg.push_str(&format!(
+        "#SBATCH --array=0-{}\n# One segment of the video per task; a segment done already is not redone.\nset -euo pipefail\nexec {exe} segment {d} -q\n",
+        segments.saturating_sub(1)
+    ));
+    let mut merge = header(
+        "geostride-merge",
+        o,
+        &o.merge_time,
+        &o.merge_mem,
+        &logs.join("merge.log"),
+    );
+    merge.push_str(&format!(
+        "# After every segment (submitted with --dependency=afterok on the array).\nset -euo pipefail\nexec {exe} merge {d} -q\n"
+    ));
+    (seg, merge)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn segments_cover_the_chunks_in_order_and_evenly() {
+        assert_eq!(segments(7, 3).unwrap(), vec![0..2, 2..4, 4..7]);
+        assert_eq!(segments(5, 5).unwrap(), vec![0..1, 1..2, 2..3, 3..4, 4..5]);
+        assert_eq!(segments(4, 5), None);
+        assert_eq!(segments(4, 0), None);
+    }
+
+    #[test]
+    fn the_index_comes_from_whichever_engine_set_it() {
+        let env = |k: &str, v: &str| {
+            let (k, v) = (k.to_string(), v.to_string());
+            move |q: &str| (q == k).then(|| v.clone())
+        };
+        assert_eq!(index_from(env("SLURM_ARRAY_TASK_ID", "3")), Ok(3));
+        assert_eq!(index_from(env("JOB_COMPLETION_INDEX", "0")), Ok(0));
+        assert_eq!(index_from(env("AWS_BATCH_JOB_ARRAY_INDEX", "12")), Ok(12));
+        assert!(
+            index_from(env("SLURM_ARRAY_TASK_ID", "x"))
+                .unwrap_err()
+                .contains("'x'")
+        );
+        assert!(
+            index_from(|_| None)
+                .unwrap_err()
+                .contains("SLURM_ARRAY_TASK_ID")
+        );
+    }
+
+    #[test]
+    fn slurm_scripts_run_the_array_then_the_merge() {
+        let o = SlurmOptions {
+            partition: Some("short".into()),
+            time: "1:00:00".into(),
+            merge_time: "0:30:00".into(),
+            mem: "4G".into(),
+            merge_mem: "8G".into(),
+            cpus: 2,
+            extra: vec!["--account=crowd".into()],
+        };
+        let (s, m) = slurm_scripts(Path::new("/opt/gs"), Path::new("/scratch/my run"), 5, &o);
+        assert!(s.contains("#SBATCH --array=0-4\n"));
+        assert!(s.contains("exec /opt/gs segment '/scratch/my run' -q"));
+        assert!(s.contains("#SBATCH --partition=short\n#SBATCH --account=crowd\n"));
+        assert!(m.contains("exec /opt/gs merge '/scratch/my run' -q"));
+        assert!(m.contains("#SBATCH --mem=8G"));
+    }
+}

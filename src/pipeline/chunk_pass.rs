@@ -127,7 +127,7 @@ enum Pending {
 
 /// A frame the stabiliser is done with: its index, its gray image for a KLT tracker, and the
 /// camera's motion into it.
-type Stabilised = (usize, Option<Mat>, Matrix3<f64>);
+type Stabilised = (usize, Option<Arc<Mat>>, Matrix3<f64>);
 
 /// The stabiliser's part of the chunk.
 struct StabiliseJob<'a> {
@@ -155,12 +155,12 @@ fn stabilise_frames(
     for (k, bgr) in frames.iter().enumerate() {
         let f = job.first + k;
         let t = Instant::now();
-        let gray = to_gray(&bgr)?;
+        let gray = Arc::new(to_gray(&bgr)?);
         if stab.is_none() {
             // The picked frame is the template: this one, or read on its own from the start
             // (the same pixels whichever chunk reads it).
             let template = if pick_frame == f {
-                gray.clone()
+                (*gray).clone()
             } else {
                 to_gray(&FrameReader::frame_bgr(job.video, pick_frame).map_err(|e| e.to_string())?)?
             };
@@ -179,7 +179,7 @@ fn stabilise_frames(
             s.key_next();
         }
         let for_tracker = job.gray_for_tracker.then(|| gray.clone());
-        let frame = klt.frame(f, gray).map_err(|e| e.to_string())?;
+        let frame = klt.frame_shared(f, gray).map_err(|e| e.to_string())?;
         tracks.push(s.push(f, frame).map_err(|e| format!("frame {f}: {e}"))?);
         spent += t.elapsed().as_secs_f64();
         // The tracker stopped on an error of its own: that error is reported.
@@ -213,7 +213,7 @@ fn track_frames(
         motions.push(motion);
         let item = match (gray, &tracker) {
             (Some(g), ChunkTracker::Klt(parts)) => {
-                Pending::Klt(parts.frames.frame(f, g).map_err(|e| e.to_string())?)
+                Pending::Klt(parts.frames.frame_shared(f, g).map_err(|e| e.to_string())?)
             }
             _ => Pending::None,
         };

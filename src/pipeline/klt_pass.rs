@@ -40,10 +40,18 @@ pub fn klt_tracker(
     person_m: Option<f64>,
     px_per_m: f64,
 ) -> KltParts {
-    let base = KltSettings::default();
-    let factor = (f64::from(size.0) / f64::from(base.max_width))
+    // The working copy: no wider than the features' default, and reduced further to about
+    // `working_px_per_m` at head height (a person stays over a dozen pixels wide; a 4K frame of
+    // people 100 px/m apart costs a ninth of its pixels).
+    let default_width = f64::from(KltSettings::default().max_width);
+    let factor = (f64::from(size.0) / default_width)
         .ceil()
+        .max((px_per_m / t.working_px_per_m).floor())
         .max(1.0);
+    let base = KltSettings {
+        max_width: (f64::from(size.0) / factor).ceil() as i32,
+        ..KltSettings::default()
+    };
     // An odd window in the working copy's pixels, no wider than a person (0.6 m): a window
     // mostly of ground follows the ground.
     let window_px = t.window_px.min(0.6 * px_per_m);

@@ -516,11 +516,19 @@ pub struct KltSection {
     pub window_px: f64,
     /// Pyramid levels.
     pub levels: i32,
+    /// The tracker works on a copy of each frame reduced to about this many pixels per metre
+    /// at head height (and no wider than 1920 pixels).
+    #[serde(default = "default_working_px_per_m")]
+    pub working_px_per_m: f64,
     /// Features per track: fewer and it is topped up, at most this many.
     pub min_features: usize,
     pub max_features: usize,
     /// Tracks with fewer detections than this are dropped.
     pub min_hits: usize,
+}
+
+fn default_working_px_per_m() -> f64 {
+    32.0
 }
 
 impl Default for KltSection {
@@ -530,7 +538,8 @@ impl Default for KltSection {
             max_gap_s: 0.5,
             min_length_s: 0.5,
             window_px: 50.0,
-            levels: 3,
+            levels: 2,
+            working_px_per_m: 32.0,
             min_features: 5,
             max_features: 40,
             min_hits: 5,
@@ -776,6 +785,12 @@ impl TrackSection {
                     return bad(
                         "window_px",
                         "window_px must be at least 5 and levels 0 to 6",
+                    );
+                }
+                if !(k.working_px_per_m >= 5.0 && k.working_px_per_m.is_finite()) {
+                    return bad(
+                        "working_px_per_m",
+                        "must be at least 5 pixels per metre (a person a few pixels wide)",
                     );
                 }
                 if k.min_features == 0 || k.max_features < k.min_features {

@@ -68,7 +68,7 @@ impl Default for KltSettings {
 pub struct GrayFrame {
     pub index: usize,
     /// Full resolution.
-    image: Mat,
+    image: std::sync::Arc<Mat>,
     /// The working copy's pyramid, and frame pixels per working pixel.
     pyramid: Vector<Mat>,
     scale: f64,
@@ -171,27 +171,39 @@ impl Klt {
     }
 
     pub fn frame(&self, index: usize, gray: Mat) -> Result<GrayFrame, opencv::Error> {
+        self.frame_shared(index, std::sync::Arc::new(gray))
+    }
+
+    /// [`frame`](Self::frame) of a gray image shared with others (the stabiliser and the
+    /// people tracker take the same frame): no copy of it is made.
+    pub fn frame_shared(
+        &self,
+        index: usize,
+        gray: std::sync::Arc<Mat>,
+    ) -> Result<GrayFrame, opencv::Error> {
         let (w, h) = (gray.cols(), gray.rows());
         let factor =
             ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
-        let work = if factor > 1 {
-            let mut small = Mat::default();
+        let small;
+        let work: &Mat = if factor > 1 {
+            let mut m = Mat::default();
             imgproc::resize(
-                &gray,
-                &mut small,
+                &*gray,
+                &mut m,
                 Size::new(w / factor, h / factor),
                 0.0,
                 0.0,
                 imgproc::INTER_AREA,
             )?;
-            small
+            small = m;
+            &small
         } else {
-            gray.clone()
+            &gray
         };
         let mut pyramid = Vector::<Mat>::new();
         let win = Size::new(self.settings.window, self.settings.window);
         video::build_optical_flow_pyramid(
-            &work,
+            work,
             &mut pyramid,
             win,
             self.settings.levels,
@@ -200,11 +212,12 @@ impl Klt {
             core::BORDER_CONSTANT,
             true,
         )?;
+        let scale = f64::from(w) / f64::from(work.cols());
         Ok(GrayFrame {
             index,
             image: gray,
             pyramid,
-            scale: f64::from(w) / f64::from(work.cols()),
+            scale,
         })
     }
 }
@@ -376,8 +389,8 @@ impl FeatureTracker for Klt {
                 out.push(None);
                 continue;
             };
-            let a = Mat::roi(&from.image, ra)?;
-            let b = Mat::roi(&to.image, rb)?;
+            let a = Mat::roi(&*from.image, ra)?;
+            let b = Mat::roi(&*to.image, rb)?;
             let start = to_cv(&[Vector2::new(p.x - f64::from(ra.x), p.y - f64::from(ra.y))]);
             let guess = to_cv(&[Vector2::new(g.x - f64::from(rb.x), g.y - f64::from(rb.y))]);
             let (fwd, ok) = forward_backward(

@@ -250,6 +250,7 @@ pub(super) fn scan_stage(
             ("height_px".into(), data.height as f64),
             ("detections".into(), n_det as f64),
             ("chunks".into(), ctx.grid.chunks() as f64),
+            ("px_per_m".into(), ctx.px_per_m),
             ("chunks_computed".into(), computed as f64),
             ("chunks_seeked".into(), seeks as f64),
             (

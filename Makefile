@@ -34,6 +34,7 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench pnp_vs_opencv
 	$(CARGO) bench --locked --bench simulate
 	$(CARGO) bench --locked --bench pipeline_throughput
+	$(CARGO) bench --locked --bench cluster_scaling
 	$(CARGO) bench --locked --bench ba_vs_ceres
 	$(CARGO) bench --locked --bench sfm_vs_colmap
 	$(CARGO) bench --locked --bench detect_vs_opencv

@@ -168,6 +168,93 @@ fn split_segments_and_merge_give_the_bytes_of_run() {
     same_as_run(dir, &crowd);
 }
 
+/// The frame in `lo..hi` where two people in view come closest in the image, from the truth.
+fn crossing(dir: &Path, lo: usize, hi: usize) -> (usize, f64) {
+    let rows = common::read_csv(&dir.join("truth/heads.csv"));
+    let mut by_frame: std::collections::BTreeMap<usize, Vec<(f64, f64)>> = Default::default();
+    for r in rows.iter().filter(|r| r["in_view"] == "1") {
+        let f: usize = r["frame"].parse().unwrap();
+        by_frame
+            .entry(f)
+            .or_default()
+            .push((common::num(r, "px"), common::num(r, "py")));
+    }
+    let mut best = (0, f64::INFINITY);
+    for (f, ps) in by_frame.range(lo..hi) {
+        for i in 0..ps.len() {
+            for j in i + 1..ps.len() {
+                let d = (ps[i].0 - ps[j].0).hypot(ps[i].1 - ps[j].1);
+                if d < best.1 {
+                    best = (*f, d);
+                }
+            }
+        }
+    }
+    best
+}
+
+fn id_switches(dir: &Path, run: &Path) -> u64 {
+    let o = geostride()
+        .arg("evaluate")
+        .arg("--truth")
+        .arg(dir.join("truth/heads.csv"))
+        .arg("--tracks")
+        .arg(run.join("trajectories.csv"))
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["id_switches"]
+        .as_u64()
+        .unwrap_or_else(|| panic!("no id_switches in {v}"))
+}
+
+#[test]
+fn a_segment_border_inside_a_crossing_keeps_both_people() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    simulate(dir);
+    // The closest pass of two people between frames 20 and 48, and chunks of 16 frames or
+    // more that end there: one segment per chunk puts a segment border inside the crossing.
+    let (f, px) = crossing(dir, 20, 48);
+    let len = (16..=24).rev().find(|d| f % d == 0).unwrap_or(f);
+    let hats = "[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n";
+    let p = project(dir, "crossing", hats);
+    let text = std::fs::read_to_string(&p)
+        .unwrap()
+        .replace(
+            "chunk_s = 0.6\n",
+            &format!("chunk_s = {}\n", len as f64 / 15.0),
+        )
+        // The default overlap, a second: the chunk's tracker knows the people's velocities
+        // before the crossing.
+        .replace("overlap_s = 0.3\n", "overlap_s = 1.0\n");
+    std::fs::write(&p, text).unwrap();
+    let chunks = 60usize.div_ceil(len);
+    eprintln!(
+        "two people {px:.0} px apart at frame {f}: chunks of {len} frames, {chunks} segments"
+    );
+    let one = dir.join("run-crossing");
+    run(&p, &one);
+    let d = dir.join("split-crossing");
+    assert_success(&split(&p, chunks, &d));
+    for i in (0..chunks).rev() {
+        assert_success(&segment(&d, i));
+    }
+    assert_success(&merge(&d));
+    assert_same(&one, &d);
+    // The border in the crossing swaps no one: as many identity switches as a run in one piece.
+    let whole = project(dir, "whole", hats);
+    let text = std::fs::read_to_string(&whole)
+        .unwrap()
+        .replace("chunk_s = 0.6\n", "chunk_s = 10\n");
+    std::fs::write(&whole, text).unwrap();
+    let w = dir.join("run-whole");
+    run(&whole, &w);
+    assert_eq!(id_switches(dir, &d), id_switches(dir, &w));
+}
+
 #[test]
 fn merge_names_a_missing_segment_and_a_rerun_redoes_only_it() {
     let tmp = tempfile::tempdir().unwrap();

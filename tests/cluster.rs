@@ -20,14 +20,7 @@ const SAME: [&str; 5] = [
 
 /// Simulates the drifting hover scene (60 frames at 15 fps) into `dir`.
 fn simulate(dir: &Path) {
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/hover-drift.toml");
-    let out = geostride()
-        .args(["simulate", scene.to_str().unwrap(), "--out"])
-        .arg(dir)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert_success(&out);
+    common::simulate_scene("hover-drift", dir);
 }
 
 /// A project of the simulated scene cut into chunks of 0.6 s (9 frames, 7 chunks) tracked from
@@ -50,15 +43,7 @@ fn project(dir: &Path, name: &str, detect_track: &str) -> PathBuf {
 }
 
 fn run(project: &Path, out: &Path) {
-    let o = geostride()
-        .arg("run")
-        .arg(project)
-        .arg("--out")
-        .arg(out)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert_success(&o);
+    assert_success(&common::run_project(project, out));
 }
 
 fn split(project: &Path, n: usize, out: &Path) -> std::process::Output {

@@ -11,18 +11,7 @@ use common::geostride;
 
 /// Simulates the test scene and writes a project file beside it.
 fn setup(dir: &Path) -> PathBuf {
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/hover-drift.toml");
-    let out = geostride()
-        .args([
-            "simulate",
-            scene.to_str().unwrap(),
-            "--out",
-            dir.to_str().unwrap(),
-            "-q",
-        ])
-        .output()
-        .unwrap();
-    common::assert_success(&out);
+    common::simulate_scene("hover-drift", dir);
     let video = common::simulated_video(dir);
     let project = common::hover_project(
         "pipeline test",
@@ -39,14 +28,7 @@ fn setup(dir: &Path) -> PathBuf {
 }
 
 fn run(project: &Path, out: &Path) -> std::process::Output {
-    geostride()
-        .arg("run")
-        .arg(project)
-        .arg("--out")
-        .arg(out)
-        .arg("-q")
-        .output()
-        .unwrap()
+    common::run_project(project, out)
 }
 
 fn report(out: &Path) -> serde_json::Value {

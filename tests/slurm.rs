@@ -201,14 +201,7 @@ fn a_split_run_on_a_slurm_cluster_gives_the_bytes_of_run() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/hover-drift.toml");
-    let o = geostride()
-        .args(["simulate", scene.to_str().unwrap(), "--out"])
-        .arg(dir)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert_success(&o);
+    common::simulate_scene("hover-drift", dir);
     let video = common::simulated_video(dir);
     let text = common::hover_project(
         "slurm test",
@@ -223,15 +216,7 @@ fn a_split_run_on_a_slurm_cluster_gives_the_bytes_of_run() {
     let project = dir.join("project.toml");
     std::fs::write(&project, text).unwrap();
     let one = dir.join("run");
-    let o = geostride()
-        .arg("run")
-        .arg(&project)
-        .arg("--out")
-        .arg(&one)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert_success(&o);
+    assert_success(&common::run_project(&project, &one));
 
     let cluster = start();
     let split = dir.join("split");

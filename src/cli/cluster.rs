@@ -261,18 +261,7 @@ pub fn run_merge(a: MergeArgs) -> anyhow::Result<()> {
         report.project,
         a.dir.display()
     );
-    for s in &report.stages {
-        println!(
-            "{:<8} {:<13} {:>8.2}  {}",
-            s.name,
-            s.status,
-            s.seconds,
-            s.numbers(3)
-        );
-    }
-    for w in &report.warnings {
-        eprintln!("warning: {w}");
-    }
+    super::run::print_stages(&report);
     for o in &report.outputs {
         println!("Written: {}", a.dir.join(o).display());
     }

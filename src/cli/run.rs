@@ -37,10 +37,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "  site frame: {}; output CRS: {}",
         report.site_frame, report.output_crs
     );
-    println!("{:<8} {:<9} {:>8}  numbers", "stage", "status", "seconds");
+    print_stages(&report);
+    for o in report
+        .outputs
+        .iter()
+        .chain(["report.json".to_string(), "report.md".to_string()].iter())
+    {
+        println!("Written: {}", out.join(o).display());
+    }
+    Ok(())
+}
+
+/// The report's stages as a table, and its warnings on stderr.
+pub(crate) fn print_stages(report: &geostride::pipeline::run::RunReport) {
+    println!("{:<8} {:<13} {:>8}  numbers", "stage", "status", "seconds");
     for s in &report.stages {
         println!(
-            "{:<8} {:<9} {:>8.2}  {}",
+            "{:<8} {:<13} {:>8.2}  {}",
             s.name,
             s.status,
             s.seconds,
@@ -50,12 +63,4 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }
-    for o in report
-        .outputs
-        .iter()
-        .chain(["report.json".to_string(), "report.md".to_string()].iter())
-    {
-        println!("Written: {}", out.join(o).display());
-    }
-    Ok(())
 }

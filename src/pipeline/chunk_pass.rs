@@ -28,7 +28,7 @@ use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
 use crate::progress::Progress;
 use crate::track::{ImageTrack, Tracker};
 use crate::video::klt::{Klt, KltSettings};
-use crate::video::source::FrameReader;
+use crate::video::source::{FramePool, FrameReader};
 
 /// The frames of a video cut into chunks: chunk `c` owns frames `[c·len, (c+1)·len)` and
 /// decodes from `overlap` frames before them.
@@ -392,20 +392,13 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
         let mut decode_s = 0.0;
         let mut decoded = 0;
         let mut failure = None;
-        let mut pool: Vec<Arc<Mat>> = Vec::new();
+        let mut pool = FramePool::default();
         while first + decoded < own.end {
-            // Reuse a frame both workers are done with (a 4K frame is 25 MB of fresh pages).
-            let mut bgr = match pool.iter().position(|f| Arc::strong_count(f) == 1) {
-                Some(k) => pool.swap_remove(k),
-                None => Arc::new(Mat::default()),
-            };
             let t = Instant::now();
-            let next =
-                reader.read_bgr_into(Arc::get_mut(&mut bgr).expect("only the pool holds it"));
+            let next = pool.read(&mut reader);
             decode_s += t.elapsed().as_secs_f64();
-            pool.push(bgr.clone());
-            match next {
-                Ok(Some(_)) => {}
+            let bgr = match next {
+                Ok(Some(bgr)) => bgr,
                 Ok(None) => break,
                 Err(e) => {
                     failure = Some(named(e.to_string()));

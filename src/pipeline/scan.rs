@@ -15,7 +15,7 @@ use crate::detect::{Detection, Detector, FrameDetections, FrameView};
 use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
 use crate::progress::Progress;
 use crate::video::klt::{Klt, KltSettings};
-use crate::video::source::FrameReader;
+use crate::video::source::{FramePool, FrameReader};
 
 /// What to do with the frames besides decoding them.
 pub struct ScanJob<'a> {
@@ -222,20 +222,13 @@ pub fn scan(job: ScanJob, progress: &dyn Progress) -> Result<Scanned, ScanError>
         let mut decode_s = 0.0;
         let mut frames = 0;
         let mut failure = None;
-        let mut pool: Vec<Arc<Mat>> = Vec::new();
+        let mut pool = FramePool::default();
         while max_frames.is_none_or(|m| frames < m) {
-            // Reuse a frame both workers are done with (a 4K frame is 25 MB of fresh pages).
-            let mut bgr = match pool.iter().position(|f| Arc::strong_count(f) == 1) {
-                Some(k) => pool.swap_remove(k),
-                None => Arc::new(Mat::default()),
-            };
             let t = Instant::now();
-            let next =
-                reader.read_bgr_into(Arc::get_mut(&mut bgr).expect("only the pool holds it"));
+            let next = pool.read(&mut reader);
             decode_s += t.elapsed().as_secs_f64();
-            pool.push(bgr.clone());
-            match next {
-                Ok(Some(_)) => {}
+            let bgr = match next {
+                Ok(Some(bgr)) => bgr,
                 Ok(None) => break,
                 Err(e) => {
                     failure = Some(named(e.to_string()));

@@ -210,18 +210,7 @@ impl<T: FeatureTracker> Stabiliser<T> {
                 }
                 track.features = src.len();
                 let fit = if src.len() >= 8 {
-                    homography_robust(
-                        &src,
-                        &dst,
-                        &RansacSettings {
-                            threshold: self.settings.inlier_px,
-                            confidence: 0.999,
-                            max_iterations: 2000,
-                            seed: index as u64,
-                            ..RansacSettings::default()
-                        },
-                    )
-                    .ok()
+                    self.fit(&src, &dst, index)
                 } else {
                     None
                 };
@@ -295,6 +284,27 @@ impl<T: FeatureTracker> Stabiliser<T> {
         self.force_key = true;
     }
 
+    /// The homography from `src` to `dst`, robustly (MSAC seeded by the frame's index).
+    fn fit(
+        &self,
+        src: &[Vector2<f64>],
+        dst: &[Vector2<f64>],
+        index: usize,
+    ) -> Option<crate::estimate::ransac::RansacResult<Matrix3<f64>>> {
+        homography_robust(
+            src,
+            dst,
+            &RansacSettings {
+                threshold: self.settings.inlier_px,
+                confidence: 0.999,
+                max_iterations: 2000,
+                seed: index as u64,
+                ..RansacSettings::default()
+            },
+        )
+        .ok()
+    }
+
     /// Sets each pick's prediction from the homography from the picked frame to `frame`, when
     /// one fits (features of the picked frame tracked straight into `frame`).
     fn predict_picks_from_template(
@@ -314,17 +324,7 @@ impl<T: FeatureTracker> Stabiliser<T> {
         if src.len() < self.settings.min_features.max(8) {
             return Ok(());
         }
-        let Ok(fit) = homography_robust(
-            &src,
-            &dst,
-            &RansacSettings {
-                threshold: self.settings.inlier_px,
-                confidence: 0.999,
-                max_iterations: 2000,
-                seed: index as u64,
-                ..RansacSettings::default()
-            },
-        ) else {
+        let Some(fit) = self.fit(&src, &dst, index) else {
             return Ok(());
         };
         if fit.inlier_count < self.settings.min_features {

@@ -48,6 +48,34 @@ fn unreadable(path: &Path, reason: &str) -> VideoError {
     }
 }
 
+/// Decoded frames handed to worker threads, each frame's memory reused once every worker is
+/// done with it (a 4K frame is 25 MB of fresh pages).
+#[derive(Default)]
+pub struct FramePool {
+    frames: Vec<std::sync::Arc<Mat>>,
+}
+
+impl FramePool {
+    /// The next frame of `reader` (BGR, continuous) in a free buffer; `None` at the end.
+    pub fn read(
+        &mut self,
+        reader: &mut FrameReader,
+    ) -> Result<Option<std::sync::Arc<Mat>>, VideoError> {
+        let mut bgr = match self
+            .frames
+            .iter()
+            .position(|f| std::sync::Arc::strong_count(f) == 1)
+        {
+            Some(k) => self.frames.swap_remove(k),
+            None => std::sync::Arc::new(Mat::default()),
+        };
+        let next = reader
+            .read_bgr_into(std::sync::Arc::get_mut(&mut bgr).expect("only the pool holds it"));
+        self.frames.push(bgr.clone());
+        Ok(next?.map(|_| bgr))
+    }
+}
+
 /// Frames of a video file, in order, as 8-bit greyscale.
 pub struct FrameReader {
     cap: videoio::VideoCapture,

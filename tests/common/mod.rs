@@ -86,3 +86,33 @@ pub fn hover_project(name: &str, video: &str, ground: &str, export: &str) -> Str
         "name = \"{name}\"\n[camera]\ncalibration = \"mini3pro\"\n[survey]\ngcps = \"gcps.csv\"\npicks = [\"picks.csv\"]\nheight = \"ellipsoidal\"\n[video]\npath = \"{video}\"\n[ground]\n{ground}\n[export]\n{export}\n"
     )
 }
+
+/// Simulates `tests/scenes/NAME.toml` into `dir`, failing the test on an error.
+#[allow(dead_code)]
+pub fn simulate_scene(name: &str, dir: &std::path::Path) {
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/scenes")
+        .join(format!("{name}.toml"));
+    let out = geostride()
+        .arg("simulate")
+        .arg(&scene)
+        .arg("--out")
+        .arg(dir)
+        .arg("-q")
+        .output()
+        .unwrap();
+    assert_success(&out);
+}
+
+/// `geostride run PROJECT --out OUT -q`.
+#[allow(dead_code)]
+pub fn run_project(project: &std::path::Path, out: &std::path::Path) -> std::process::Output {
+    geostride()
+        .arg("run")
+        .arg(project)
+        .arg("--out")
+        .arg(out)
+        .arg("-q")
+        .output()
+        .unwrap()
+}

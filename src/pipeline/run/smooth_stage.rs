@@ -142,7 +142,7 @@ fn trajectory_points(
                 pose: near.map_or(Matrix2::zeros(), |w| w.cov_pose),
             };
             let total = cov.total();
-            let u = surface.height(&en).map_or(f64::NAN, |z| z + t.height_m);
+            let u = head_up(surface.as_ref(), &en, t.height_m, near);
             let local = Vector3::new(en.x, en.y, u);
             points.push(TrajectoryPoint {
                 frame,
@@ -163,4 +163,48 @@ fn trajectory_points(
         });
     }
     Ok(trajectories)
+}
+
+/// The head's height at a smoothed position: the surface's there plus the person's height; where
+/// the smoothed position lies just off the surface (a deck's edge), the nearest observation's
+/// (an undefined height made GeoJSON's conversion fail and lost the whole run).
+fn head_up(
+    surface: &dyn HeightSurface,
+    en: &Vector2<f64>,
+    height_m: f64,
+    near: Option<&WorldPoint>,
+) -> f64 {
+    surface
+        .height(en)
+        .map(|z| z + height_m)
+        .or_else(|| near.map(|w| w.position.z))
+        .unwrap_or(f64::NAN)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::terrain::deck::VerticalAlignment;
+
+    #[test]
+    fn a_smoothed_position_off_the_deck_takes_its_observations_height() {
+        let deck = DeckProfile {
+            centre_line: vec![Vector2::new(-40.0, 0.0), Vector2::new(40.0, 0.0)],
+            start_s: 0.0,
+            width_m: 10.0,
+            alignment: VerticalAlignment::Stations(vec![(0.0, 6.0), (80.0, 6.0)]),
+        };
+        let seen = WorldPoint {
+            position: Vector3::new(-5.6, -4.98, 7.7),
+            cov_pixel: Matrix2::identity(),
+            cov_height: Matrix2::identity(),
+            cov_pose: Matrix2::identity(),
+        };
+        // On the deck: the deck's height plus the person's.
+        let on = head_up(&deck, &Vector2::new(-5.6, -4.9), 1.7, Some(&seen));
+        assert!((on - 7.7).abs() < 1e-9, "{on}");
+        // 2 cm off its edge: the observation's height, not NaN.
+        let off = head_up(&deck, &Vector2::new(-5.6, -5.02), 1.7, Some(&seen));
+        assert_eq!(off, 7.7);
+    }
 }

@@ -17,6 +17,14 @@ use crate::geom::Rigid3;
 use crate::optim::{LmSettings, RobustLoss};
 use crate::progress::Progress;
 
+/// The most key frames in the joint refinement with the GCPs.
+pub const JOINT_MAX: usize = 120;
+
+/// Whether the `n`-th of `count` items is one of `most` picked evenly (all when they are few).
+fn spread_pick(n: usize, count: usize, most: usize) -> bool {
+    count <= most || n * most / count != (n + 1) * most / count
+}
+
 /// A GCP as the hovering solver needs it.
 #[derive(Clone, Debug)]
 pub struct HoverGcp {
@@ -59,7 +67,8 @@ pub struct FramePose {
 #[derive(Clone, Debug)]
 pub struct HoverResult {
     pub key_frames: Vec<KeyFrame>,
-    /// The joint refinement over the solved key frames (in `key_frames` order, skipping failures).
+    /// The joint refinement over the solved key frames (in `key_frames` order, skipping failures;
+    /// at most [`JOINT_MAX`] of them, evenly spread).
     pub joint: JointResult,
     pub frames: Vec<FramePose>,
 }
@@ -193,7 +202,27 @@ pub fn solve_hover(
     // 2. Joint refinement of the solved key frames with the GCPs.
     let mut poses = Vec::new();
     let mut jobs = Vec::new();
-    for (k, obs) in key_frames.iter().zip(&key_obs) {
+    // At most JOINT_MAX key frames, evenly spread, join the refinement (a crowd covering the
+    // ground renews the reference almost every frame; the GCPs are as well fixed by a hundred
+    // frames as by a thousand, and its cost grows with the cube of the frames); the others are
+    // refined on their own in step 3 like every other frame.
+    let solved_keys = key_frames.iter().filter(|k| k.solution.is_ok()).count();
+    let mut in_joint = vec![false; key_frames.len()];
+    {
+        let mut n = 0;
+        for (i, k) in key_frames.iter().enumerate() {
+            if k.solution.is_ok() {
+                in_joint[i] = spread_pick(n, solved_keys, JOINT_MAX);
+                n += 1;
+            }
+        }
+    }
+    for ((k, obs), _) in key_frames
+        .iter()
+        .zip(&key_obs)
+        .zip(&in_joint)
+        .filter(|(_, joint)| **joint)
+    {
         let Ok(sol) = &k.solution else { continue };
         let pose_index = poses.len();
         poses.push(sol.cam_from_world);
@@ -239,7 +268,11 @@ pub fn solve_hover(
     )?;
     // 3. Every frame from its neighbour's pose, key frames from the joint solution.
     let mut key_pose = std::collections::HashMap::new();
-    let mut solved = key_frames.iter().filter(|k| k.solution.is_ok());
+    let mut solved = key_frames
+        .iter()
+        .zip(&in_joint)
+        .filter(|(k, joint)| **joint && k.solution.is_ok())
+        .map(|(k, _)| k);
     for p in &joint.poses {
         if let Some(k) = solved.next() {
             key_pose.insert(k.index, *p);
@@ -395,6 +428,15 @@ pub fn solve_with_checks(
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn at_most_joint_max_key_frames_are_picked_evenly() {
+        let picked: Vec<usize> = (0..1180).filter(|&n| spread_pick(n, 1180, 120)).collect();
+        assert_eq!(picked.len(), 120);
+        assert!(picked.windows(2).all(|w| (9..=10).contains(&(w[1] - w[0]))));
+        assert!((0..7).all(|n| spread_pick(n, 7, 120)));
+    }
+
     use super::*;
     use nalgebra::Rotation3;
 

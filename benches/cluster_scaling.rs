@@ -9,7 +9,7 @@
 //!    on one machine, then split into 2 and 4 segments run one after another here, each timed on
 //!    its own (the wall time of N machines is the split, the slowest segment and the merge), the
 //!    merge's share of the work (target: at most 5 %), the outputs checked byte for byte
-//!    against `run`'s;
+//!    against `run`'s; every step its own `geostride` process, as on a cluster;
 //! 3. each segment's peak memory against its length (target: bounded by a chunk, not by the
 //!    video).
 //!
@@ -22,31 +22,11 @@ mod common;
 use common::simulated;
 
 use geostride::detect::simulated::{SimulatedDetector, mot_text, read_truth_boxes};
-use geostride::pipeline::cluster::segments;
-use geostride::pipeline::project::{Loaded, load};
-use geostride::pipeline::run::{
-    ChunkMode, RunReport, Silent, plan_chunks, run, run_segment, run_with,
-};
+use geostride::pipeline::project::load;
+use geostride::pipeline::run::{RunReport, Silent, run};
 use geostride::simulate::project::{crowd_project, project_text};
 
 const MERGE_SHARE_TARGET: f64 = 0.05;
-
-/// Forgets this process's peak resident memory (Linux), so the next peak is the next work's.
-fn reset_peak() {
-    let _ = std::fs::write("/proc/self/clear_refs", "5");
-}
-
-/// This process's peak resident memory since the last reset, MiB (Linux).
-fn peak_mib() -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
-        })
-        .map_or(f64::NAN, |kib| kib / 1024.0)
-}
 
 /// The median number of people in view per frame, from the truth.
 fn in_view(dir: &Path) -> usize {
@@ -95,36 +75,69 @@ fn stage<'a>(r: &'a RunReport, name: &str) -> &'a geostride::pipeline::run::Stag
     r.stages.iter().find(|s| s.name == name).expect("stage")
 }
 
-fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+/// Runs `geostride ARGS` as its own process: (wall seconds, peak resident memory in MiB).
+fn process(args: &[&std::ffi::OsStr]) -> (f64, f64) {
     let t = Instant::now();
-    let v = f();
-    (v, t.elapsed().as_secs_f64())
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("geostride");
+    let mut status = 0;
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: wait4 fills the status and the child's resource usage it is given.
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert!(
+        pid > 0 && libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
+        "geostride {args:?} failed"
+    );
+    (t.elapsed().as_secs_f64(), usage.ru_maxrss as f64 / 1024.0)
 }
 
-/// Runs `loaded` split into `n` segments in `dir`; prints and checks against `one`.
-fn split_run(loaded: &Loaded, dir: &Path, n: usize, one: &Path, one_s: f64) {
+/// Runs `project` split into `n` segments in `dir`, each step its own process (as on a
+/// cluster); prints and checks against `one`.
+fn split_run(project: &Path, dir: &Path, n: usize, one: &Path, one_s: f64) {
     let _ = std::fs::remove_dir_all(dir);
-    let (plan, split_s) = timed(|| plan_chunks(loaded, dir, &Silent).expect("split"));
-    let segs = segments(plan.grid.chunks(), n).expect("enough chunks");
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let (split_s, _) = process(&[
+        &os("split"),
+        project.as_os_str(),
+        &os("--segments"),
+        &os(&n.to_string()),
+        &os("--out"),
+        dir.as_os_str(),
+        &os("-q"),
+    ]);
+    let chunks: Vec<usize> = geostride::pipeline::cluster::Manifest::read(dir)
+        .expect("manifest")
+        .segments
+        .iter()
+        .map(|r| r.len())
+        .collect();
     let mut seg_s = Vec::new();
     let mut seg_mib = Vec::new();
-    for r in &segs {
-        reset_peak();
-        let (_, s) = timed(|| run_segment(loaded, dir, &Silent, r.clone()).expect("segment"));
+    for i in 0..n {
+        let (s, m) = process(&[
+            &os("segment"),
+            dir.as_os_str(),
+            &os("--index"),
+            &os(&i.to_string()),
+            &os("-q"),
+        ]);
         seg_s.push(s);
-        seg_mib.push(peak_mib());
+        seg_mib.push(m);
     }
-    reset_peak();
-    let (_, merge_s) = timed(|| run_with(loaded, dir, &Silent, &ChunkMode::None).expect("merge"));
-    let merge_mib = peak_mib();
+    let (merge_s, merge_mib) = process(&[&os("merge"), dir.as_os_str(), &os("-q")]);
     let max = seg_s.iter().copied().fold(0.0, f64::max);
     let sum: f64 = seg_s.iter().sum();
     let wall = split_s + max + merge_s;
     let share = merge_s / (split_s + sum + merge_s);
     println!(
         "  {n} segments of {} chunk(s): split {split_s:.1} s, segments {} s (peak {} MiB), merge {merge_s:.1} s (peak {merge_mib:.0} MiB)",
-        segs.iter()
-            .map(|r| r.len().to_string())
+        chunks
+            .iter()
+            .map(|c| c.to_string())
             .collect::<Vec<_>>()
             .join("/"),
         seg_s
@@ -209,26 +222,37 @@ fn main() {
     // 2. and 3. Two minutes, one machine against segments.
     let dir = base.join("crowd-2min");
     let (project, people) = crowd("crowd-4k-2min.toml", &dir);
-    let loaded = load(&project).expect("project");
     let one = dir.join("run");
     let _ = std::fs::remove_dir_all(&one);
-    reset_peak();
-    let (report, one_s) = timed(|| run(&loaded, &one, &Silent).expect("run"));
-    let one_mib = peak_mib();
-    let scan = stage(&report, "scan");
-    let global: f64 = report
-        .stages
-        .iter()
-        .filter(|s| s.name != "scan")
-        .map(|s| s.seconds)
-        .sum();
+    let (one_s, one_mib) = process(&[
+        std::ffi::OsStr::new("run"),
+        project.as_os_str(),
+        std::ffi::OsStr::new("--out"),
+        one.as_os_str(),
+        std::ffi::OsStr::new("-q"),
+    ]);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(one.join("report.json")).expect("report"))
+            .expect("report");
+    let stages = report["stages"].as_array().expect("stages");
+    let scan = &stages[0]["counts"];
     println!(
-        "  2 minutes, {people} people in view: {} frames in {} chunks; run on one machine {one_s:.1} s (scan {:.1} s, the rest {global:.1} s), peak {one_mib:.0} MiB",
-        scan.counts["frames"], scan.counts["chunks"], scan.seconds
+        "  2 minutes, {people} people in view: {} frames in {} chunks; run on one machine {one_s:.1} s, peak {one_mib:.0} MiB; stages: {}",
+        scan["frames"],
+        scan["chunks"],
+        stages
+            .iter()
+            .map(|s| format!(
+                "{} {:.1} s",
+                s["name"].as_str().unwrap_or("?"),
+                s["seconds"].as_f64().unwrap_or(f64::NAN)
+            ))
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     for n in [2, 4] {
         split_run(
-            &loaded,
+            &project,
             &base.join(format!("crowd-2min-split-{n}")),
             n,
             &one,

@@ -193,116 +193,107 @@ fn stabilise_frames(
 /// The image tracker, beside the stabiliser, in frame order: each frame once the stabiliser
 /// and the detector are done with it. Its tracks, and busy seconds.
 fn track_frames(
-    mut tracker: ChunkTracker,
+    tracker: ChunkTracker,
     first: usize,
     frames: Receiver<Stabilised>,
     detections: Receiver<DetMsg>,
 ) -> Result<(Vec<ImageTrack>, f64), String> {
-    // The camera's motion into each decoded frame, from the frame before.
-    let mut motions: Vec<Matrix3<f64>> = Vec::new();
-    let mut pending: Waiting = Default::default();
-    let mut ready: BTreeMap<usize, Vec<Detection>> = BTreeMap::new();
-    let mut track_s = 0.0;
-    let take = |msg: DetMsg, ready: &mut BTreeMap<usize, Vec<Detection>>| {
-        for (i, d) in msg {
-            ready.insert(i, d);
-        }
+    let mut w = Feeder {
+        tracker,
+        first,
+        motions: Vec::new(),
+        pending: Default::default(),
+        ready: BTreeMap::new(),
+        track_s: 0.0,
     };
     for (f, gray, motion) in frames.iter() {
         let t = Instant::now();
-        motions.push(motion);
-        let item = match (gray, &tracker) {
+        w.motions.push(motion);
+        let item = match (gray, &w.tracker) {
             (Some(g), ChunkTracker::Klt(parts)) => {
                 Pending::Klt(parts.frames.frame_shared(f, g).map_err(|e| e.to_string())?)
             }
             _ => Pending::None,
         };
-        track_s += t.elapsed().as_secs_f64();
-        pending.push_back((f, item));
+        w.track_s += t.elapsed().as_secs_f64();
+        w.pending.push_back((f, item));
         // Never wait for the detector here: one that holds frames back (learning its palette)
         // would stop the decoder, and so itself. The decoder cannot run more than a few frames
         // ahead of the detector, so few frames wait.
         while let Ok(msg) = detections.try_recv() {
-            take(msg, &mut ready);
+            w.take(msg);
         }
-        feed(
-            &mut tracker,
-            first,
-            &mut pending,
-            &mut ready,
-            &motions,
-            &mut track_s,
-        )?;
+        w.feed()?;
     }
     // The decoder is done: the detector's last detections, then the frames waiting for them.
     for msg in detections.iter() {
-        take(msg, &mut ready);
-        feed(
-            &mut tracker,
-            first,
-            &mut pending,
-            &mut ready,
-            &motions,
-            &mut track_s,
-        )?;
+        w.take(msg);
+        w.feed()?;
     }
     // Frames the detector gave nothing for have no detections.
-    while let Some((f, _)) = pending.front() {
+    while let Some((f, _)) = w.pending.front() {
         let f = *f;
-        ready.insert(f, Vec::new());
-        feed(
-            &mut tracker,
-            first,
-            &mut pending,
-            &mut ready,
-            &motions,
-            &mut track_s,
-        )?;
+        w.ready.insert(f, Vec::new());
+        w.feed()?;
     }
     let t = Instant::now();
-    let image_tracks = match tracker {
+    let image_tracks = match w.tracker {
         ChunkTracker::Frames(tr) => tr.finish(),
         ChunkTracker::Klt(parts) => parts.tracker.finish(),
     };
-    track_s += t.elapsed().as_secs_f64();
-    Ok((image_tracks, track_s))
+    Ok((image_tracks, w.track_s + t.elapsed().as_secs_f64()))
 }
 
-/// Frames waiting for their detections, in order.
-type Waiting = std::collections::VecDeque<(usize, Pending)>;
-
-/// Hands the tracker the waiting frames whose detections are ready, in order.
-fn feed(
-    tracker: &mut ChunkTracker,
+/// The tracker and the frames and detections waiting for it.
+struct Feeder {
+    tracker: ChunkTracker,
+    /// The chunk's first decoded frame.
     first: usize,
-    pending: &mut Waiting,
-    ready: &mut BTreeMap<usize, Vec<Detection>>,
-    motions: &[Matrix3<f64>],
-    track_s: &mut f64,
-) -> Result<(), String> {
-    while let Some((f, _)) = pending.front() {
-        let Some(dets) = ready.remove(f) else { break };
-        let (f, frame) = pending.pop_front().expect("looked at");
-        let t = Instant::now();
-        let motion_at = |g: usize, x: &Vector2<f64>| -> Vector2<f64> {
-            g.checked_sub(first)
-                .and_then(|k| motions.get(k))
-                .and_then(|h| transfer(h, x))
-                .unwrap_or(*x)
-        };
-        match (&mut *tracker, frame) {
-            (ChunkTracker::Frames(tr), _) => {
-                tr.update(f, &dets, &|x: &Vector2<f64>| motion_at(f, x));
-            }
-            (ChunkTracker::Klt(parts), Pending::Klt(frame)) => parts
-                .tracker
-                .update(f, frame, &dets, &motion_at)
-                .map_err(|e| format!("frame {f}: {e}"))?,
-            (ChunkTracker::Klt(_), Pending::None) => unreachable!("KLT frames are kept"),
+    /// The camera's motion into each decoded frame, from the frame before.
+    motions: Vec<Matrix3<f64>>,
+    /// Frames waiting for their detections, in order.
+    pending: std::collections::VecDeque<(usize, Pending)>,
+    /// Detections waiting for their frames.
+    ready: BTreeMap<usize, Vec<Detection>>,
+    track_s: f64,
+}
+
+impl Feeder {
+    fn take(&mut self, msg: DetMsg) {
+        for (i, d) in msg {
+            self.ready.insert(i, d);
         }
-        *track_s += t.elapsed().as_secs_f64();
     }
-    Ok(())
+
+    /// Hands the tracker the waiting frames whose detections are ready, in order.
+    fn feed(&mut self) -> Result<(), String> {
+        while let Some((f, _)) = self.pending.front() {
+            let Some(dets) = self.ready.remove(f) else {
+                break;
+            };
+            let (f, frame) = self.pending.pop_front().expect("looked at");
+            let t = Instant::now();
+            let (first, motions) = (self.first, &self.motions);
+            let motion_at = |g: usize, x: &Vector2<f64>| -> Vector2<f64> {
+                g.checked_sub(first)
+                    .and_then(|k| motions.get(k))
+                    .and_then(|h| transfer(h, x))
+                    .unwrap_or(*x)
+            };
+            match (&mut self.tracker, frame) {
+                (ChunkTracker::Frames(tr), _) => {
+                    tr.update(f, &dets, &|x: &Vector2<f64>| motion_at(f, x));
+                }
+                (ChunkTracker::Klt(parts), Pending::Klt(frame)) => parts
+                    .tracker
+                    .update(f, frame, &dets, &motion_at)
+                    .map_err(|e| format!("frame {f}: {e}"))?,
+                (ChunkTracker::Klt(_), Pending::None) => unreachable!("KLT frames are kept"),
+            }
+            self.track_s += t.elapsed().as_secs_f64();
+        }
+        Ok(())
+    }
 }
 
 /// Detections by frame (from the chunk's first decoded frame), busy seconds and the detector's

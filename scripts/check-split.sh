@@ -6,7 +6,7 @@
 #   scripts/check-split.sh PROJECT.toml [N ...]     (N: 2 3 5 by default)
 #
 # Example, after `make demo` (a 30 s video in chunks of 5 s, so 6 chunks):
-#   sed 's/^path = "video.mp4"/&\nchunk_s = 5.0/' out/demo/bridge-stream/project.toml \
+#   sed 's/^chunk_s = 10.0/chunk_s = 5.0/' out/demo/bridge-stream/project.toml \
 #     > out/demo/bridge-stream/project-c5.toml
 #   scripts/check-split.sh out/demo/bridge-stream/project-c5.toml 2 3 5
 set -euo pipefail

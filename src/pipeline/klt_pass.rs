@@ -1,5 +1,7 @@
-//! The KLT tracker over a video's frames (an adapter: it decodes the video again and hands the
-//! gray frames to the pure tracker in `track::klt`).
+//! The KLT tracker set up from a project's `[track]` settings (`klt_tracker`, which the
+//! chunks' decoding pass feeds), and a pass of its own over a video for `geostride track`
+//! (`klt_over_video`: it decodes the video after the detections and hands the gray frames to the
+//! pure tracker in `track::klt`).
 
 use std::path::Path;
 

@@ -349,9 +349,25 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
     let started = Instant::now();
     let mut reader = FrameReader::open(video)?;
     let (width, height) = (reader.width, reader.height);
-    let seeked = reader
-        .seek_checked(video, first)
-        .map_err(|e| named(e.to_string()))?;
+    let seeked = match reader.seek_checked(video, first) {
+        Ok(s) => s,
+        // The container stated more frames than it holds: this chunk is past the end.
+        Err(crate::video::source::VideoError::Ended { .. }) if job.index > 0 => {
+            return Ok(ChunkData {
+                index: job.index,
+                start: own.start,
+                end: own.start,
+                decode_from: first,
+                tracks: Vec::new(),
+                detections: Vec::new(),
+                image_tracks: Vec::new(),
+                detector_summary: Vec::new(),
+                times: ScanTimes::default(),
+                seeked: false,
+            });
+        }
+        Err(e) => return Err(named(e.to_string()).into()),
+    };
     // The decoder, stabiliser, tracker and detector already fill the cores: OpenCV's own
     // worker threads would only compete with them.
     let cv_threads = opencv::core::get_num_threads().unwrap_or(-1);

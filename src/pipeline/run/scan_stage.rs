@@ -199,7 +199,9 @@ pub(super) fn scan_stage(
                 data.frames
             )));
         }
-        data.frames = data.frames.max(c.end);
+        if c.end > c.start {
+            data.frames = c.end;
+        }
         data.tracks.extend(c.tracks);
         data.detections.extend(c.detections);
         data.chunk_tracks.push(ChunkTracksData {

@@ -112,7 +112,7 @@ pub struct ChunkData {
 /// A decoded frame's detections, sent to the tracker as the detector gives them.
 type DetMsg = Vec<FrameDetections>;
 
-fn to_gray(bgr: &Mat) -> Result<Mat, String> {
+pub(super) fn to_gray(bgr: &Mat) -> Result<Mat, String> {
     let mut g = Mat::default();
     opencv::imgproc::cvt_color_def(bgr, &mut g, opencv::imgproc::COLOR_BGR2GRAY)
         .map_err(|e| e.to_string())?;
@@ -298,9 +298,11 @@ impl Feeder {
 
 /// Detections by frame (from the chunk's first decoded frame), busy seconds and the detector's
 /// summary.
-type Detected = (Vec<Vec<Detection>>, f64, Vec<(String, f64)>);
+pub(super) type Detected = (Vec<Vec<Detection>>, f64, Vec<(String, f64)>);
 
-fn detect_frames(
+/// The detector, beside the decoder, in frame order from frame `first`; each frame's detections
+/// are also sent to the tracker as they come.
+pub(super) fn detect_frames(
     mut det: Box<dyn Detector>,
     first: usize,
     frames: Receiver<Arc<Mat>>,

@@ -8,10 +8,9 @@ use std::time::Instant;
 
 use nalgebra::Vector2;
 use opencv::core::Mat;
-use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::detect::{Detection, Detector, FrameDetections, FrameView};
+use crate::detect::{Detection, Detector};
 use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
 use crate::progress::Progress;
 use crate::video::klt::{Klt, KltSettings};
@@ -80,8 +79,7 @@ impl std::fmt::Display for ScanError {
     }
 }
 
-/// Detections by frame, busy seconds and the detector's summary.
-type Detected = (Vec<Vec<Detection>>, f64, Vec<(String, f64)>);
+use super::chunk_pass::{Detected, to_gray};
 
 /// The stabiliser's part of a pass.
 struct StabiliseJob<'a> {
@@ -132,44 +130,11 @@ fn stabilise_frames(
     Ok((tracks, spent))
 }
 
-/// The detector, beside the decoder, in frame order.
-fn detect_frames(
-    mut det: Box<dyn Detector>,
-    frames: Receiver<Arc<Mat>>,
-) -> Result<Detected, String> {
-    let mut out: Vec<Vec<Detection>> = Vec::new();
-    let mut spent = 0.0;
-    let mut put = |done: Vec<FrameDetections>| {
-        for (i, d) in done {
-            if out.len() <= i {
-                out.resize(i + 1, Vec::new());
-            }
-            out[i] = d;
-        }
-    };
-    for (i, bgr) in frames.iter().enumerate() {
-        let t = Instant::now();
-        let bytes = bgr.data_bytes().map_err(|e| e.to_string())?;
-        let view = FrameView {
-            index: i,
-            width: bgr.cols() as usize,
-            height: bgr.rows() as usize,
-            bgr: bytes,
-        };
-        put(det.push(&view).map_err(|e| format!("frame {i}: {e}"))?);
-        spent += t.elapsed().as_secs_f64();
-    }
-    let t = Instant::now();
-    put(det.finish().map_err(|e| e.to_string())?);
-    spent += t.elapsed().as_secs_f64();
-    Ok((out, spent, det.summary()))
-}
-
-fn to_gray(bgr: &Mat) -> Result<Mat, String> {
-    let mut g = Mat::default();
-    opencv::imgproc::cvt_color_def(bgr, &mut g, opencv::imgproc::COLOR_BGR2GRAY)
-        .map_err(|e| e.to_string())?;
-    Ok(g)
+/// The detector, beside the decoder, in frame order (as in a chunk's pass, from frame 0, with
+/// no tracker waiting for its detections).
+fn detect_frames(det: Box<dyn Detector>, frames: Receiver<Arc<Mat>>) -> Result<Detected, String> {
+    let (to_nobody, _) = std::sync::mpsc::channel();
+    super::chunk_pass::detect_frames(det, 0, frames, to_nobody)
 }
 
 /// Runs the pass. Errors name the video.

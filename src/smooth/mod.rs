@@ -124,13 +124,6 @@ pub struct Smoothed {
     pub log_likelihood: f64,
 }
 
-fn transition(dt: f64) -> Matrix4<f64> {
-    let mut f = Matrix4::identity();
-    f[(0, 2)] = dt;
-    f[(1, 3)] = dt;
-    f
-}
-
 fn h() -> Matrix2x4<f64> {
     Matrix2x4::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
 }
@@ -144,13 +137,44 @@ struct Pass {
     log_likelihood: f64,
 }
 
-/// Filters and smooths one track (observations sorted by frame, frames distinct).
-fn smooth_track(obs: &[Observation], q: &Matrix4<f64>, s: &SmoothSettings) -> Option<Pass> {
+/// `F x` for the constant-velocity transition over `dt` (state: east, north, their velocities).
+fn f_x(x: &Vector4<f64>, dt: f64) -> Vector4<f64> {
+    Vector4::new(x[0] + dt * x[2], x[1] + dt * x[3], x[2], x[3])
+}
+
+/// `F P`: row blocks (top + dt·bottom, bottom).
+fn f_p(p: &Matrix4<f64>, dt: f64) -> Matrix4<f64> {
+    let mut out = *p;
+    for c in 0..4 {
+        out[(0, c)] += dt * p[(2, c)];
+        out[(1, c)] += dt * p[(3, c)];
+    }
+    out
+}
+
+/// `P Fᵀ`: column blocks (left + dt·right, right).
+fn p_ft(p: &Matrix4<f64>, dt: f64) -> Matrix4<f64> {
+    let mut out = *p;
+    for r in 0..4 {
+        out[(r, 0)] += dt * p[(r, 2)];
+        out[(r, 1)] += dt * p[(r, 3)];
+    }
+    out
+}
+
+/// Filters and smooths one track (observations sorted by frame, frames distinct). The
+/// transition's and the observation's structure (`F = [I dt·I; 0 I]`, `H = [I 0]`) is written
+/// out: general 4×4 products made smoothing most of a merge's time.
+fn smooth_track(
+    obs: &[Observation],
+    q: &Matrix4<f64>,
+    s: &SmoothSettings,
+    keep_states: bool,
+) -> Option<Pass> {
     let first = obs.first()?;
     let last = obs.last()?;
     let n = last.frame - first.frame + 1;
-    let f = transition(s.dt);
-    let hm = h();
+    let dt = s.dt;
     let mut by_frame: Vec<Option<&Observation>> = vec![None; n];
     for o in obs {
         by_frame[o.frame - first.frame] = Some(o);
@@ -175,26 +199,30 @@ fn smooth_track(obs: &[Observation], q: &Matrix4<f64>, s: &SmoothSettings) -> Op
                 p0,
             )
         } else {
-            (f * xf[k - 1], f * pf[k - 1] * f.transpose() + q)
+            (
+                f_x(&xf[k - 1], dt),
+                p_ft(&f_p(&pf[k - 1], dt), dt) + q,
+            )
         };
         let (x, p) = match by_frame[k] {
             Some(o) => {
-                let innov = o.position - hm * x_pred;
-                let s_cov = hm * p_pred * hm.transpose() + o.cov;
+                let innov = o.position - x_pred.fixed_rows::<2>(0);
+                // H P⁻ Hᵀ + R, and P⁻ Hᵀ (P⁻'s first two columns).
+                let s_cov: Matrix2<f64> = p_pred.fixed_view::<2, 2>(0, 0) + o.cov;
                 let s_inv = s_cov.try_inverse()?;
-                let gain = p_pred * hm.transpose() * s_inv;
+                let pht: nalgebra::Matrix4x2<f64> = p_pred.fixed_columns::<2>(0).into();
+                let gain = pht * s_inv;
                 if k > 0 {
                     ll -= 0.5
                         * (innov.dot(&(s_inv * innov))
                             + s_cov.determinant().ln()
                             + 2.0 * std::f64::consts::TAU.ln());
                 }
-                // Joseph form keeps P symmetric and positive.
-                let ikh = Matrix4::identity() - gain * hm;
-                (
-                    x_pred + gain * innov,
-                    ikh * p_pred * ikh.transpose() + gain * o.cov * gain.transpose(),
-                )
+                // Joseph form, expanded: (I − KH)P(I − KH)ᵀ + KRKᵀ = P − KHP − (KHP)ᵀ + KSKᵀ;
+                // symmetric by construction, and positive as long as Joseph's is.
+                let ikh = Matrix4::identity() - gain * h();
+                let p = ikh * p_pred * ikh.transpose() + gain * o.cov * gain.transpose();
+                (x_pred + gain * innov, p)
             }
             None => (x_pred, p_pred),
         };
@@ -203,31 +231,39 @@ fn smooth_track(obs: &[Observation], q: &Matrix4<f64>, s: &SmoothSettings) -> Op
         xf.push(x);
         pf.push(p);
     }
-    // Backward (RTS): smoothed states, and the lag-one covariances for the M-step.
-    let mut xs = xf.clone();
-    let mut ps = pf.clone();
+    // Backward (RTS), in place: xf and pf become the smoothed states; with the lag-one
+    // covariances for the M-step.
     let mut moment = Matrix4::zeros();
     for k in (0..n.saturating_sub(1)).rev() {
         let pp_inv = pp[k + 1].try_inverse()?;
-        let j = pf[k] * f.transpose() * pp_inv;
-        xs[k] = xf[k] + j * (xs[k + 1] - xp[k + 1]);
-        ps[k] = pf[k] + j * (ps[k + 1] - pp[k + 1]) * j.transpose();
-        ps[k] = (ps[k] + ps[k].transpose()) * 0.5;
+        let j = p_ft(&pf[k], dt) * pp_inv;
+        let x_next = xf[k + 1];
+        let p_next = pf[k + 1];
+        let x = xf[k] + j * (x_next - xp[k + 1]);
+        let mut p = pf[k] + j * (p_next - pp[k + 1]) * j.transpose();
+        p = (p + p.transpose()) * 0.5;
         // Cov(xₖ₊₁, xₖ | all) = Pₖ₊₁ Jₖᵀ.
-        let cross = ps[k + 1] * j.transpose();
-        let d = xs[k + 1] - f * xs[k];
-        moment += d * d.transpose() + ps[k + 1] - cross * f.transpose() - f * cross.transpose()
-            + f * ps[k] * f.transpose();
+        let cross = p_next * j.transpose();
+        let d = x_next - f_x(&x, dt);
+        let f_cross_t = f_p(&cross.transpose(), dt);
+        moment += d * d.transpose() + p_next - f_cross_t.transpose() - f_cross_t
+            + p_ft(&f_p(&p, dt), dt);
+        xf[k] = x;
+        pf[k] = p;
     }
-    let states = (0..n)
-        .map(|k| State {
-            frame: first.frame + k,
-            position: Vector2::new(xs[k][0], xs[k][1]),
-            velocity: Vector2::new(xs[k][2], xs[k][3]),
-            cov: ps[k],
-            observed: by_frame[k].is_some(),
-        })
-        .collect();
+    let states = if keep_states {
+        (0..n)
+            .map(|k| State {
+                frame: first.frame + k,
+                position: Vector2::new(xf[k][0], xf[k][1]),
+                velocity: Vector2::new(xf[k][2], xf[k][3]),
+                cov: pf[k],
+                observed: by_frame[k].is_some(),
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     Some(Pass {
         states,
         residual_moment: moment,
@@ -280,12 +316,17 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
     let mut q = initial_q(s);
     let mut iterations = 0;
     let mut converged = !s.em;
-    let run = |q: &Matrix4<f64>| -> Vec<Option<Pass>> {
+    // EM's passes need only the moments; the states are kept by the last pass, at the final Q.
+    let run_keeping = |q: &Matrix4<f64>, keep_states: bool| -> Vec<Option<Pass>> {
         // Tracks are independent given Q: in parallel, in their order.
         use rayon::prelude::*;
-        tracks.par_iter().map(|t| smooth_track(t, q, s)).collect()
+        tracks
+            .par_iter()
+            .map(|t| smooth_track(t, q, s, keep_states))
+            .collect()
     };
-    let mut passes = run(&q);
+    let run = |q: &Matrix4<f64>| run_keeping(q, false);
+    let mut passes = run_keeping(&q, !s.em);
     // One EM step: the M-step on the moments of the passes at the current Q.
     let em_step = |passes: &[Option<Pass>]| -> Option<Matrix4<f64>> {
         let (mut m, mut n) = (Matrix4::zeros(), 0usize);
@@ -339,6 +380,7 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
                 break;
             }
         }
+        passes = run_keeping(&q, true);
     }
     let log_likelihood = ll(&passes);
     let tracks = passes
@@ -484,6 +526,19 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn structured_transition_products_are_the_matrix_products() {
+        let dt = 0.04;
+        let mut f = Matrix4::identity();
+        f[(0, 2)] = dt;
+        f[(1, 3)] = dt;
+        let p = Matrix4::from_fn(|r, c| (r * 4 + c) as f64 * 0.37 - 1.1);
+        let x = Vector4::new(1.0, -2.0, 3.0, 0.5);
+        assert!((f_x(&x, dt) - f * x).norm() < 1e-15);
+        assert!((f_p(&p, dt) - f * p).norm() < 1e-14);
+        assert!((p_ft(&p, dt) - p * f.transpose()).norm() < 1e-14);
+    }
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
@@ -498,7 +553,6 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let chol = q.cholesky().unwrap().l();
         let std = Normal::new(0.0, 1.0).unwrap();
-        let f = transition(0.04);
         let (mut obs, mut truth) = (Vec::new(), Vec::new());
         for t in 0..tracks {
             let mut x = Vector4::new(t as f64, 0.0, 3.5, 0.2);
@@ -506,7 +560,7 @@ mod tests {
             for k in 0..len {
                 if k > 0 {
                     let w = Vector4::from_fn(|_, _| std.sample(&mut rng));
-                    x = f * x + chol * w;
+                    x = f_x(&x, 0.04) + chol * w;
                 }
                 tr.push(Vector2::new(x[0], x[1]));
                 // Gaps: every 17th frame is missed.

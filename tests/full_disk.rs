@@ -83,8 +83,8 @@ fn files(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// Whether a file left by a run is whole: JSON parses, text ends with a newline, a GeoPackage
-/// opens in GDAL, a PNG has its end chunk.
+/// Whether a file left by a run is whole: JSON parses, a stage cache has its stated length, text
+/// ends with a newline, a GeoPackage opens in GDAL, a PNG has its end chunk.
 fn whole(p: &Path) -> Result<(), String> {
     let name = p.file_name().unwrap().to_string_lossy().into_owned();
     let bytes = std::fs::read(p).map_err(|e| e.to_string())?;
@@ -96,6 +96,9 @@ fn whole(p: &Path) -> Result<(), String> {
         "json" | "geojson" => serde_json::from_slice::<serde_json::Value>(&bytes)
             .map(|_| ())
             .map_err(|e| format!("{name}: {e}")),
+        "bin" => geostride::pipeline::run::cache_file_whole(p)
+            .then_some(())
+            .ok_or(format!("{name}: not a whole stage cache")),
         "gpkg" => {
             let o = Command::new("ogrinfo")
                 .args(["-ro", "-so", "-al"])
@@ -271,8 +274,8 @@ fn a_killed_runs_temporaries_are_removed_by_the_next() {
         out.join(".trajectories.csv.tmp-4194999"),
         out.join(".trajectories.gpkg.tmp-4194999.gpkg"),
         out.join(".trajectories.gpkg.tmp-4194999.gpkg-journal"),
-        out.join(".stages/.track.json.tmp-4194999"),
-        out.join(".stages/chunks/.00000.json.tmp-4194999"),
+        out.join(".stages/.track.bin.tmp-4194999"),
+        out.join(".stages/chunks/.00000.bin.tmp-4194999"),
         out.join("pose/.poses.csv.tmp-4194999"),
     ];
     for s in &stale {

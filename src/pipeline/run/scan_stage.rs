@@ -17,9 +17,7 @@ pub(super) fn chunk_key(ctx: &Ctx, c: usize) -> String {
 
 /// Whether chunk `c` is in the cache under its key.
 pub(super) fn chunk_done(ctx: &Ctx, c: usize) -> bool {
-    ctx.cache
-        .load::<serde::de::IgnoredAny>(&chunk_stage(c), &chunk_key(ctx, c))
-        .is_some()
+    ctx.cache.has(&chunk_stage(c), &chunk_key(ctx, c))
 }
 
 /// The detector for one chunk.

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use gdal::spatial_ref::{AxisMappingStrategy, SpatialRef};
-use gdal::vector::{Feature, OGRFieldType};
+use gdal::vector::{Feature, LayerAccess, OGRFieldType};
 use gdal::{Dataset, DriverManager};
 
 /// Why a vector file could not be written.
@@ -53,11 +53,42 @@ impl GisFormat {
     /// Layer creation options.
     pub fn layer_options(self) -> &'static [&'static str] {
         match self {
-            GisFormat::GeoPackage => &[],
+            // The spatial index is built once the features are in (`write_dataset`): inserting
+            // into it feature by feature took 5.5 s of 6.2 s for 246 000 points, in bulk 1.7 s.
+            GisFormat::GeoPackage => &["SPATIAL_INDEX=NO"],
             // 9 decimals of a degree: 0.1 mm (RFC 7946 mode's default of 7 is up to 5 mm off).
             GisFormat::GeoJson => &["RFC7946=YES", "WRITE_NAME=NO", "COORDINATE_PRECISION=9"],
         }
     }
+}
+
+/// Builds each GeoPackage layer's spatial index (R-tree) in one pass, as GDAL would have built
+/// it feature by feature (QGIS uses it to draw only what is in view).
+fn spatial_indexes(ds: &Dataset) -> Result<(), String> {
+    let layers: Vec<(String, String)> = ds
+        .layers()
+        .filter_map(|l| {
+            let geom = unsafe { gdal_sys::OGR_L_GetGeometryColumn(l.c_layer()) };
+            let geom = unsafe { std::ffi::CStr::from_ptr(geom) }
+                .to_string_lossy()
+                .into_owned();
+            (!geom.is_empty()).then(|| (l.name(), geom))
+        })
+        .collect();
+    for (layer, geom) in layers {
+        let quote = |s: &str| s.replace('\'', "''");
+        ds.execute_sql(
+            format!(
+                "SELECT CreateSpatialIndex('{}', '{}')",
+                quote(&layer),
+                quote(&geom)
+            ),
+            None,
+            gdal::vector::sql::Dialect::DEFAULT,
+        )
+        .map_err(|e| format!("cannot index layer {layer}: {e}"))?;
+    }
+    Ok(())
 }
 
 /// The spatial reference for a layer: `crs_wkt` for a GeoPackage (none when empty), WGS 84 for
@@ -118,6 +149,7 @@ pub fn write_dataset(
             // One transaction: SQLite otherwise commits (and syncs) every feature.
             let mut txn = ds.start_transaction().map_err(|e| cannot("write", &e))?;
             fill(&mut txn)?;
+            spatial_indexes(&txn).map_err(|e| cannot("index", &e))?;
             txn.commit().map_err(|e| cannot("write", &e))?;
         } else {
             fill(&mut ds)?;

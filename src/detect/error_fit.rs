@@ -371,6 +371,7 @@ pub const DETECTIONS_HEADER: &str =
 
 /// `detections.csv`: one row per detection, frames in order.
 pub fn detections_csv(detections: &[Vec<Detection>]) -> String {
+    use crate::export::fixed::Fixed;
     use std::fmt::Write;
     let mut s = String::from(DETECTIONS_HEADER);
     s.push('\n');
@@ -378,17 +379,17 @@ pub fn detections_csv(detections: &[Vec<Detection>]) -> String {
         for d in dets {
             let _ = writeln!(
                 s,
-                "{frame},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.2},{:.2},{:.2}",
-                d.uv.x,
-                d.uv.y,
-                d.cov[(0, 0)],
-                d.cov[(0, 1)],
-                d.cov[(1, 1)],
-                d.score,
-                d.bbox[0],
-                d.bbox[1],
-                d.bbox[2],
-                d.bbox[3]
+                "{frame},{},{},{},{},{},{},{},{},{},{}",
+                Fixed::<3>(d.uv.x),
+                Fixed::<3>(d.uv.y),
+                Fixed::<3>(d.cov[(0, 0)]),
+                Fixed::<3>(d.cov[(0, 1)]),
+                Fixed::<3>(d.cov[(1, 1)]),
+                Fixed::<3>(d.score),
+                Fixed::<2>(d.bbox[0]),
+                Fixed::<2>(d.bbox[1]),
+                Fixed::<2>(d.bbox[2]),
+                Fixed::<2>(d.bbox[3]),
             );
         }
     }

@@ -125,17 +125,7 @@ pub fn write_trajectories(
                     set_real(&mut f, "n_m", Some(p.local.y))?;
                     set_real(&mut f, "u_m", Some(p.local.z))?;
                     set_real(&mut f, "speed_m_s", Some(p.velocity.norm()))?;
-                    set_real(
-                        &mut f,
-                        "heading_deg",
-                        Some(
-                            p.velocity
-                                .x
-                                .atan2(p.velocity.y)
-                                .to_degrees()
-                                .rem_euclid(360.0),
-                        ),
-                    )?;
+                    set_real(&mut f, "heading_deg", Some(super::heading_deg(p)))?;
                     set_real(&mut f, "sigma_e_m", Some(p.sigma_m.x))?;
                     set_real(&mut f, "sigma_n_m", Some(p.sigma_m.y))?;
                     set_integer(&mut f, "observed", i32::from(p.observed))?;

@@ -1,13 +1,26 @@
 //! Trajectory outputs: CSV, PeTrack/JuPedSim text and MOTChallenge text (pure formatting), and
-//! GeoPackage/GeoJSON through GDAL (`gis`, an adapter).
+//! GeoJSON (`geojson`, pure formatting) and GeoPackage through GDAL (`gis`, an adapter).
 
+pub mod fixed;
+pub mod geojson;
 pub mod gis;
 
 use std::fmt::Write as _;
 
+use fixed::Fixed;
+
 use nalgebra::{Matrix2, Vector2, Vector3};
 
 use crate::track::ImageTrack;
+
+/// A point's heading, degrees clockwise from north (east is 90).
+pub fn heading_deg(p: &TrajectoryPoint) -> f64 {
+    p.velocity
+        .x
+        .atan2(p.velocity.y)
+        .to_degrees()
+        .rem_euclid(360.0)
+}
 
 /// One point of a world trajectory.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -84,17 +97,17 @@ pub fn image_tracks_csv(tracks: &[crate::track::ImageTrack]) -> String {
         for q in &t.points {
             let _ = writeln!(
                 s,
-                "{},{},{:.2},{:.2},{:.2},{:.2},{:.1},{:.1},{:.1},{:.1}",
+                "{},{},{},{},{},{},{},{},{},{}",
                 t.id,
                 q.frame,
-                q.uv.x,
-                q.uv.y,
-                q.cov[(0, 0)].max(0.0).sqrt(),
-                q.cov[(1, 1)].max(0.0).sqrt(),
-                q.bbox[0],
-                q.bbox[1],
-                q.bbox[2],
-                q.bbox[3]
+                Fixed::<2>(q.uv.x),
+                Fixed::<2>(q.uv.y),
+                Fixed::<2>(q.cov[(0, 0)].max(0.0).sqrt()),
+                Fixed::<2>(q.cov[(1, 1)].max(0.0).sqrt()),
+                Fixed::<1>(q.bbox[0]),
+                Fixed::<1>(q.bbox[1]),
+                Fixed::<1>(q.bbox[2]),
+                Fixed::<1>(q.bbox[3]),
             );
         }
     }
@@ -110,27 +123,27 @@ pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
         for p in &t.points {
             let _ = writeln!(
                 s,
-                "{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.6},{:.4},{:.4},{:.4},{},{:.3}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 t.id,
                 p.frame,
-                p.time_s,
-                p.local.x,
-                p.local.y,
-                p.local.z,
-                p.crs.x,
-                p.crs.y,
-                p.crs.z,
-                p.velocity.x,
-                p.velocity.y,
-                p.velocity.norm(),
-                p.sigma_m.x,
-                p.sigma_m.y,
-                p.cov.total()[(0, 1)],
-                rms_sigma(&p.cov.random),
-                rms_sigma(&p.cov.height),
-                rms_sigma(&p.cov.pose),
+                Fixed::<4>(p.time_s),
+                Fixed::<4>(p.local.x),
+                Fixed::<4>(p.local.y),
+                Fixed::<4>(p.local.z),
+                Fixed::<4>(p.crs.x),
+                Fixed::<4>(p.crs.y),
+                Fixed::<4>(p.crs.z),
+                Fixed::<4>(p.velocity.x),
+                Fixed::<4>(p.velocity.y),
+                Fixed::<4>(p.velocity.norm()),
+                Fixed::<4>(p.sigma_m.x),
+                Fixed::<4>(p.sigma_m.y),
+                Fixed::<6>(p.cov.total()[(0, 1)]),
+                Fixed::<4>(rms_sigma(&p.cov.random)),
+                Fixed::<4>(rms_sigma(&p.cov.height)),
+                Fixed::<4>(rms_sigma(&p.cov.pose)),
                 u8::from(p.observed),
-                t.height_m
+                Fixed::<3>(t.height_m),
             );
         }
     }
@@ -149,8 +162,12 @@ pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame_note: &str) -> S
         for p in &t.points {
             let _ = writeln!(
                 s,
-                "{}\t{}\t{:.4}\t{:.4}\t{:.4}",
-                t.id, p.frame, p.local.x, p.local.y, p.local.z
+                "{}\t{}\t{}\t{}\t{}",
+                t.id,
+                p.frame,
+                Fixed::<4>(p.local.x),
+                Fixed::<4>(p.local.y),
+                Fixed::<4>(p.local.z)
             );
         }
     }
@@ -170,13 +187,13 @@ pub fn mot_txt(tracks: &[ImageTrack]) -> String {
         // geostride's box corner is the left edge of the first pixel (−0.5 from its centre).
         let _ = writeln!(
             s,
-            "{},{},{:.2},{:.2},{:.2},{:.2},1,-1,-1,-1",
+            "{},{},{},{},{},{},1,-1,-1,-1",
             frame + 1,
             id,
-            b[0] + 1.5,
-            b[1] + 1.5,
-            b[2],
-            b[3]
+            Fixed::<2>(b[0] + 1.5),
+            Fixed::<2>(b[1] + 1.5),
+            Fixed::<2>(b[2]),
+            Fixed::<2>(b[3]),
         );
     }
     s

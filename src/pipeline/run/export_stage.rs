@@ -41,70 +41,84 @@ pub(super) fn export_stage(
         .or(framed.frame.crs.as_ref())
         .map(|c| c.spec.clone());
     let height_kind = &framed.frame.height;
-    let written: Vec<Result<Written, RunError>> = p
-        .export
-        .formats
-        .par_iter()
-        .map(|f| -> Result<Written, RunError> {
-            let mut w = Written::default();
-            let outputs = &mut w.outputs;
-            match f.as_str() {
-                "csv" => put("trajectories.csv", &trajectories_csv(trajs), outputs)?,
-                "petrack" => put(
-                    "trajectories.txt",
-                    &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
-                    outputs,
-                )?,
-                "mot" => put("tracks_mot.txt", &mot_txt(tracks), outputs)?,
-                "detections" => put(
-                    "detections.csv",
-                    &crate::detect::error_fit::detections_csv(&scan_data.detections),
-                    outputs,
-                )?,
-                "gpkg" => {
-                    write_trajectories(
-                        &out.join("trajectories.gpkg"),
-                        GisFormat::GeoPackage,
-                        &crs_wkt,
-                        Layers::Both,
-                        trajs,
-                        &|q| q.crs,
-                    )?;
-                    outputs.push("trajectories.gpkg".into());
-                }
-                "geojson" => {
-                    let Some(spec) = &out_crs_spec else {
-                        w.warnings.push(
-                            "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
-                                .into(),
-                        );
-                        return Ok(w);
-                    };
-                    // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
-                    // (its own handles: this runs on a worker thread).
-                    let wgs = wgs84_trajectories(spec, height_kind, trajs)?;
-                    for (name, layers) in [
-                        ("trajectories.geojson", Layers::Lines),
-                        ("positions.geojson", Layers::Points),
-                    ] {
-                        write_trajectories(
-                            &out.join(name),
-                            GisFormat::GeoJson,
-                            "",
-                            layers,
-                            &wgs.trajectories,
-                            &|q| q.crs,
-                        )?;
-                        outputs.push(name.into());
-                    }
-                    w.warnings.extend(wgs.notes);
-                    w.transformations = wgs.operations;
-                }
-                _ => unreachable!("checked when the project was read"),
+    let write = |f: &String| -> Result<Written, RunError> {
+        let mut w = Written::default();
+        let outputs = &mut w.outputs;
+        match f.as_str() {
+            "csv" => put("trajectories.csv", &trajectories_csv(trajs), outputs)?,
+            "petrack" => put(
+                "trajectories.txt",
+                &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
+                outputs,
+            )?,
+            "mot" => put("tracks_mot.txt", &mot_txt(tracks), outputs)?,
+            "detections" => put(
+                "detections.csv",
+                &crate::detect::error_fit::detections_csv(&scan_data.detections),
+                outputs,
+            )?,
+            "gpkg" => {
+                write_trajectories(
+                    &out.join("trajectories.gpkg"),
+                    GisFormat::GeoPackage,
+                    &crs_wkt,
+                    Layers::Both,
+                    trajs,
+                    &|q| q.crs,
+                )?;
+                outputs.push("trajectories.gpkg".into());
             }
-            Ok(w)
-        })
-        .collect();
+            "geojson" => {
+                let Some(spec) = &out_crs_spec else {
+                    w.warnings.push(
+                        "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
+                            .into(),
+                    );
+                    return Ok(w);
+                };
+                // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
+                // (its own handles: this runs on a worker thread).
+                let wgs = wgs84_trajectories(spec, height_kind, trajs)?;
+                put(
+                    "trajectories.geojson",
+                    &crate::export::geojson::lines(&wgs.trajectories),
+                    outputs,
+                )?;
+                put(
+                    "positions.geojson",
+                    &crate::export::geojson::points(&wgs.trajectories),
+                    outputs,
+                )?;
+                w.warnings.extend(wgs.notes);
+                w.transformations = wgs.operations;
+            }
+            _ => unreachable!("checked when the project was read"),
+        }
+        Ok(w)
+    };
+    // The GeoPackage takes longest (SQLite and its spatial index): it starts at once on a
+    // thread of its own, the other formats share the pool; the results keep the formats' order.
+    let formats = &p.export.formats;
+    let write = &write;
+    let written: Vec<Result<Written, RunError>> = std::thread::scope(|scope| {
+        let gpkg = formats
+            .iter()
+            .position(|f| f == "gpkg")
+            .map(|k| (k, scope.spawn(move || write(&formats[k]))));
+        let mut rest: Vec<Result<Written, RunError>> = formats
+            .par_iter()
+            .enumerate()
+            .filter(|(k, _)| gpkg.as_ref().is_none_or(|(g, _)| g != k))
+            .map(|(_, f)| write(f))
+            .collect();
+        if let Some((k, handle)) = gpkg {
+            let w = handle
+                .join()
+                .unwrap_or_else(|_| Err(RunError::Failed("the GeoPackage writer failed".into())));
+            rest.insert(k, w);
+        }
+        rest
+    });
     let mut transformations = Vec::new();
     for w in written {
         let w = w?;

@@ -199,10 +199,7 @@ fn smooth_track(
                 p0,
             )
         } else {
-            (
-                f_x(&xf[k - 1], dt),
-                p_ft(&f_p(&pf[k - 1], dt), dt) + q,
-            )
+            (f_x(&xf[k - 1], dt), p_ft(&f_p(&pf[k - 1], dt), dt) + q)
         };
         let (x, p) = match by_frame[k] {
             Some(o) => {
@@ -246,8 +243,8 @@ fn smooth_track(
         let cross = p_next * j.transpose();
         let d = x_next - f_x(&x, dt);
         let f_cross_t = f_p(&cross.transpose(), dt);
-        moment += d * d.transpose() + p_next - f_cross_t.transpose() - f_cross_t
-            + p_ft(&f_p(&p, dt), dt);
+        moment +=
+            d * d.transpose() + p_next - f_cross_t.transpose() - f_cross_t + p_ft(&f_p(&p, dt), dt);
         xf[k] = x;
         pf[k] = p;
     }

@@ -28,7 +28,7 @@ use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
 use crate::progress::Progress;
 use crate::track::{ImageTrack, Tracker};
 use crate::video::klt::{Klt, KltSettings};
-use crate::video::source::{FramePool, FrameReader};
+use crate::video::source::{FramePool, FrameReader, MatPool};
 
 /// The frames of a video cut into chunks: chunk `c` owns frames `[c·len, (c+1)·len)` and
 /// decodes from `overlap` frames before them.
@@ -119,15 +119,24 @@ pub(super) fn to_gray(bgr: &Mat) -> Result<Mat, String> {
     Ok(g)
 }
 
+/// `from` reduced (or copied) to `size` into `to`, by pixel area.
+fn reduce(from: &Mat, to: &mut Mat, size: opencv::core::Size) -> Result<(), opencv::Error> {
+    if from.size()? == size {
+        from.copy_to(to)
+    } else {
+        opencv::imgproc::resize(from, to, size, 0.0, 0.0, opencv::imgproc::INTER_AREA)
+    }
+}
+
 /// Frames waiting for their detections before the tracker can take them.
 enum Pending {
     Klt(<Klt as crate::features::FeatureTracker>::Frame),
     None,
 }
 
-/// A frame the stabiliser is done with: its index, its gray image for a KLT tracker, and the
-/// camera's motion into it.
-type Stabilised = (usize, Option<Arc<Mat>>, Matrix3<f64>);
+/// A frame the stabiliser is done with: its index, for a KLT tracker its gray image and the
+/// tracker's working copy of it, and the camera's motion into it.
+type Stabilised = (usize, Option<(Arc<Mat>, Arc<Mat>)>, Matrix3<f64>);
 
 /// The stabiliser's part of the chunk.
 struct StabiliseJob<'a> {
@@ -136,8 +145,9 @@ struct StabiliseJob<'a> {
     first: usize,
     own_start: usize,
     stabilise: (StabiliseSettings, usize, Vec<Vector2<f64>>),
-    /// Whether the tracker wants the gray frames.
-    gray_for_tracker: bool,
+    /// The size of a KLT tracker's working copy, when it wants the gray frames: made here from
+    /// the stabiliser's own (smaller than the frame, so the cheaper to reduce).
+    tracker_work: Option<opencv::core::Size>,
 }
 
 /// The stabiliser, beside the decoder, in frame order: each frame's track (from the chunk's
@@ -150,12 +160,17 @@ fn stabilise_frames(
     let (settings, pick_frame, picks) = job.stabilise;
     let klt = Klt::new(KltSettings::default());
     let mut stab: Option<Stabiliser<Klt>> = None;
+    // Gray frames and the tracker's working copies in reused memory (fresh pages for each 4K
+    // frame cost a tenth of a crowd scan).
+    let (mut grays, mut working) = (MatPool::default(), MatPool::default());
     let mut tracks = Vec::new();
     let mut spent = 0.0;
     for (k, bgr) in frames.iter().enumerate() {
         let f = job.first + k;
         let t = Instant::now();
-        let gray = Arc::new(to_gray(&bgr)?);
+        let (gray, ()) = grays
+            .fill(|g| opencv::imgproc::cvt_color_def(&*bgr, g, opencv::imgproc::COLOR_BGR2GRAY))
+            .map_err(|e| e.to_string())?;
         if stab.is_none() {
             // The picked frame is the template: this one, or read on its own from the start
             // (the same pixels whichever chunk reads it).
@@ -178,8 +193,17 @@ fn stabilise_frames(
             // The frames the chunk owns start with a key frame.
             s.key_next();
         }
-        let for_tracker = job.gray_for_tracker.then(|| gray.clone());
+        let for_tracker = job.tracker_work.map(|size| (gray.clone(), size));
         let frame = klt.frame_shared(f, gray).map_err(|e| e.to_string())?;
+        let for_tracker = match for_tracker {
+            Some((g, size)) => {
+                let (work, ()) = working
+                    .fill(|m| reduce(&frame.working()?, m, size))
+                    .map_err(|e| e.to_string())?;
+                Some((g, work))
+            }
+            None => None,
+        };
         tracks.push(s.push(f, frame).map_err(|e| format!("frame {f}: {e}"))?);
         spent += t.elapsed().as_secs_f64();
         // The tracker stopped on an error of its own: that error is reported.
@@ -210,9 +234,12 @@ fn track_frames(
         let t = Instant::now();
         w.motions.push(motion);
         let item = match (gray, &w.tracker) {
-            (Some(g), ChunkTracker::Klt(parts)) => {
-                Pending::Klt(parts.frames.frame_shared(f, g).map_err(|e| e.to_string())?)
-            }
+            (Some((g, work)), ChunkTracker::Klt(parts)) => Pending::Klt(
+                parts
+                    .frames
+                    .frame_with_working(f, g, &work)
+                    .map_err(|e| e.to_string())?,
+            ),
             _ => Pending::None,
         };
         w.track_s += t.elapsed().as_secs_f64();
@@ -385,14 +412,19 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
     } = job;
     let result = std::thread::scope(|scope| -> Result<ChunkData, ScanError> {
         let (to_tracker, for_tracker) = sync_channel::<Stabilised>(4);
-        let gray_for_tracker = matches!(tracker, ChunkTracker::Klt(_));
+        let tracker_work = match &tracker {
+            ChunkTracker::Klt(parts) => {
+                Some(parts.frames.working_size(width as i32, height as i32))
+            }
+            ChunkTracker::Frames(_) => None,
+        };
         let stab_job = StabiliseJob {
             video,
             size: (width, height),
             first,
             own_start: own.start,
             stabilise,
-            gray_for_tracker,
+            tracker_work,
         };
         let stab_thread = scope.spawn(move || stabilise_frames(stab_job, for_track, to_tracker));
         let track_thread = scope.spawn(move || track_frames(tracker, first, for_tracker, dets_in));

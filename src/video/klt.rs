@@ -72,11 +72,15 @@ pub struct GrayFrame {
     /// The working copy's pyramid, and frame pixels per working pixel.
     pyramid: Vector<Mat>,
     scale: f64,
+    /// Where the pyramid goes when the frame is dropped. Nothing outside the frame keeps a
+    /// header of its pyramid's images (`working` is read and let go at once).
+    recycle: Option<PyramidPool>,
 }
 
 /// OpenCV's `goodFeaturesToTrack` and `calcOpticalFlowPyrLK` with a forward–backward check.
 pub struct Klt {
     pub settings: KltSettings,
+    pyramids: PyramidPool,
 }
 
 /// Pixel coordinates between resolutions, pixel centres at integers: `x' = (x + 0.5)·s − 0.5`.
@@ -167,7 +171,10 @@ fn forward_backward(
 
 impl Klt {
     pub fn new(settings: KltSettings) -> Klt {
-        Klt { settings }
+        Klt {
+            settings,
+            pyramids: PyramidPool::default(),
+        }
     }
 
     pub fn frame(&self, index: usize, gray: Mat) -> Result<GrayFrame, opencv::Error> {
@@ -181,27 +188,41 @@ impl Klt {
         index: usize,
         gray: std::sync::Arc<Mat>,
     ) -> Result<GrayFrame, opencv::Error> {
-        let (w, h) = (gray.cols(), gray.rows());
+        let target = self.working_size(gray.cols(), gray.rows());
+        if gray.size()? == target {
+            return self.frame_with_working(index, gray.clone(), &gray);
+        }
+        let mut small = Mat::default();
+        imgproc::resize(&*gray, &mut small, target, 0.0, 0.0, imgproc::INTER_AREA)?;
+        self.frame_with_working(index, gray, &small)
+    }
+
+    /// The size of the working copy of a `w` × `h` frame: reduced by a whole factor to at most
+    /// `max_width`.
+    pub fn working_size(&self, w: i32, h: i32) -> Size {
         let factor =
             ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
-        let small;
-        let work: &Mat = if factor > 1 {
-            let mut m = Mat::default();
-            imgproc::resize(
-                &*gray,
-                &mut m,
-                Size::new(w / factor, h / factor),
-                0.0,
-                0.0,
-                imgproc::INTER_AREA,
-            )?;
-            small = m;
-            &small
-        } else {
-            &gray
-        };
-        let mut pyramid = Vector::<Mat>::new();
+        Size::new(w / factor, h / factor)
+    }
+
+    /// The frame of `gray` with `work`, its working copy made elsewhere (of
+    /// [`working_size`](Self::working_size), from another tracker's working copy, say).
+    pub fn frame_with_working(
+        &self,
+        index: usize,
+        gray: std::sync::Arc<Mat>,
+        work: &Mat,
+    ) -> Result<GrayFrame, opencv::Error> {
+        // A pyramid of a frame no longer used: its memory is rewritten rather than allocated
+        // again (fresh pages cost a tenth of a 4K crowd scan).
+        let mut pyramid = self
+            .pyramids
+            .lock()
+            .ok()
+            .and_then(|mut p| p.pop())
+            .unwrap_or_default();
         let win = Size::new(self.settings.window, self.settings.window);
+        // Never with the input as its first level: the pyramid is rewritten when reused.
         video::build_optical_flow_pyramid(
             work,
             &mut pyramid,
@@ -210,15 +231,40 @@ impl Klt {
             true,
             core::BORDER_REFLECT_101,
             core::BORDER_CONSTANT,
-            true,
+            false,
         )?;
-        let scale = f64::from(w) / f64::from(work.cols());
+        let scale = f64::from(gray.cols()) / f64::from(work.cols());
         Ok(GrayFrame {
             index,
             image: gray,
             pyramid,
             scale,
+            recycle: Some(self.pyramids.clone()),
         })
+    }
+}
+
+/// Pyramids of dropped frames, for the next frames (at most `PYRAMIDS_KEPT`).
+type PyramidPool = std::sync::Arc<std::sync::Mutex<Vec<Vector<Mat>>>>;
+
+const PYRAMIDS_KEPT: usize = 4;
+
+impl Drop for GrayFrame {
+    fn drop(&mut self) {
+        if let Some(pool) = &self.recycle
+            && let Ok(mut kept) = pool.lock()
+            && kept.len() < PYRAMIDS_KEPT
+        {
+            kept.push(std::mem::take(&mut self.pyramid));
+        }
+    }
+}
+
+impl GrayFrame {
+    /// The working copy (the pyramid's first level), sharing its pixels: to be read at once,
+    /// not kept (the pyramid is rewritten once the frame is dropped).
+    pub fn working(&self) -> Result<Mat, opencv::Error> {
+        self.pyramid.get(0)
     }
 }
 

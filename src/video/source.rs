@@ -48,11 +48,37 @@ fn unreadable(path: &Path, reason: &str) -> VideoError {
     }
 }
 
-/// Decoded frames handed to worker threads, each frame's memory reused once every worker is
-/// done with it (a 4K frame is 25 MB of fresh pages).
+/// Images handed to other threads, each one's memory reused once every other thread let it
+/// go (a 4K frame is 25 MB of fresh pages).
+#[derive(Default)]
+pub struct MatPool {
+    mats: Vec<std::sync::Arc<Mat>>,
+}
+
+impl MatPool {
+    /// A free buffer filled by `fill`, and what `fill` returned.
+    pub fn fill<T, E>(
+        &mut self,
+        fill: impl FnOnce(&mut Mat) -> Result<T, E>,
+    ) -> Result<(std::sync::Arc<Mat>, T), E> {
+        let mut m = match self
+            .mats
+            .iter()
+            .position(|m| std::sync::Arc::strong_count(m) == 1)
+        {
+            Some(k) => self.mats.swap_remove(k),
+            None => std::sync::Arc::new(Mat::default()),
+        };
+        let out = fill(std::sync::Arc::get_mut(&mut m).expect("only the pool holds it"));
+        self.mats.push(m.clone());
+        Ok((m, out?))
+    }
+}
+
+/// Decoded frames handed to worker threads, in reused buffers.
 #[derive(Default)]
 pub struct FramePool {
-    frames: Vec<std::sync::Arc<Mat>>,
+    pool: MatPool,
 }
 
 impl FramePool {
@@ -61,18 +87,8 @@ impl FramePool {
         &mut self,
         reader: &mut FrameReader,
     ) -> Result<Option<std::sync::Arc<Mat>>, VideoError> {
-        let mut bgr = match self
-            .frames
-            .iter()
-            .position(|f| std::sync::Arc::strong_count(f) == 1)
-        {
-            Some(k) => self.frames.swap_remove(k),
-            None => std::sync::Arc::new(Mat::default()),
-        };
-        let next = reader
-            .read_bgr_into(std::sync::Arc::get_mut(&mut bgr).expect("only the pool holds it"));
-        self.frames.push(bgr.clone());
-        Ok(next?.map(|_| bgr))
+        let (bgr, next) = self.pool.fill(|m| reader.read_bgr_into(m))?;
+        Ok(next.map(|_| bgr))
     }
 }
 

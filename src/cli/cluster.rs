@@ -126,15 +126,20 @@ fn load_split(dir: &Path) -> anyhow::Result<(Manifest, Loaded)> {
             build_id()
         )));
     }
-    let l = load(&m.project).map_err(bad_input)?;
+    let mut l = load(&m.project).map_err(bad_input)?;
+    // The video was hashed once, by split: a file whose size or time changed is hashed again
+    // (and then no chunk matches its key).
+    l.known_inputs = m.plan.inputs.clone();
     Ok((m, l))
 }
 
 /// Splits and writes the manifest; the manifest.
 fn split(project: &Path, n: usize, out: &Path, quiet: bool) -> anyhow::Result<Manifest> {
-    let l = load(project).map_err(bad_input)?;
     let project = std::fs::canonicalize(project)
         .map_err(|e| bad_input(anyhow!("{}: {e}", project.display())))?;
+    // Loaded from the path the segments load it from: the inputs' paths (and the checksums
+    // known for them) are the same.
+    let l = load(&project).map_err(bad_input)?;
     let plan = plan_chunks(&l, out, &super::StageBars { quiet }).map_err(run_error)?;
     let chunks = plan.grid.chunks();
     let segs = segments(chunks, n).ok_or_else(|| {

@@ -280,6 +280,8 @@ pub struct Loaded {
     pub project: Project,
     pub path: PathBuf,
     pub text: String,
+    /// Input checksums known already (a split's), taken while each file's size and time match.
+    pub known_inputs: Vec<crate::pipeline::run::KnownInput>,
 }
 
 impl Loaded {
@@ -372,6 +374,7 @@ pub fn parse(path: &Path, text: String) -> Result<Loaded, FileError> {
         project,
         path: path.to_path_buf(),
         text,
+        known_inputs: Vec::new(),
     };
     check_finite(&l)?;
     check(&l)?;

@@ -224,7 +224,56 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-fn file_record(role: &str, path: &Path) -> Result<InputRecord, RunError> {
+/// An input's checksum as recorded by an earlier process with the file's size and modification
+/// time: a later one takes it while both still match, without reading the file again (`split`
+/// hashes the video once for all its segments and the merge: hours of 4K are tens of GB).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct KnownInput {
+    pub path: String,
+    pub bytes: u64,
+    /// Modification time, nanoseconds since 1970.
+    pub modified_ns: u64,
+    pub sha256: String,
+}
+
+/// A file's size and modification time (nanoseconds since 1970).
+fn size_and_time(path: &Path) -> Option<(u64, u64)> {
+    let m = std::fs::metadata(path).ok()?;
+    let t = m
+        .modified()
+        .ok()?
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()?;
+    Some((m.len(), u64::try_from(t.as_nanos()).ok()?))
+}
+
+impl KnownInput {
+    /// The record of `r` with its file's size and time now; None when they cannot be read.
+    pub fn of(r: &InputRecord) -> Option<KnownInput> {
+        let (bytes, modified_ns) = size_and_time(Path::new(&r.path))?;
+        (bytes == r.bytes).then(|| KnownInput {
+            path: r.path.clone(),
+            bytes,
+            modified_ns,
+            sha256: r.sha256.clone(),
+        })
+    }
+}
+
+fn file_record(role: &str, path: &Path, known: &[KnownInput]) -> Result<InputRecord, RunError> {
+    let shown = path.display().to_string();
+    if let Some((bytes, modified_ns)) = size_and_time(path)
+        && let Some(k) = known
+            .iter()
+            .find(|k| k.path == shown && k.bytes == bytes && k.modified_ns == modified_ns)
+    {
+        return Ok(InputRecord {
+            role: role.into(),
+            path: shown,
+            bytes,
+            sha256: k.sha256.clone(),
+        });
+    }
     let mut f = std::fs::File::open(path)
         .map_err(|e| RunError::Unusable(format!("{}: {e}", path.display())))?;
     let mut h = Sha256::new();
@@ -731,6 +780,8 @@ pub struct ChunkPlan {
     pub palette: bool,
     /// Chunks done already (in the cache under their key).
     pub done: Vec<usize>,
+    /// The inputs' checksums, for the segments and the merge.
+    pub inputs: Vec<KnownInput>,
 }
 
 /// Checks a project as [`run`] does, makes `out` and decides what is decided once for the whole
@@ -740,7 +791,7 @@ pub fn plan_chunks(
     out: &Path,
     progress: &dyn StageProgress,
 ) -> Result<ChunkPlan, RunError> {
-    let Prepared { ctx, .. } = prepare(l, out, progress)?;
+    let Prepared { ctx, inputs, .. } = prepare(l, out, progress)?;
     let keys: Vec<String> = (0..ctx.grid.chunks())
         .map(|c| scan_stage::chunk_key(&ctx, c))
         .collect();
@@ -753,6 +804,7 @@ pub fn plan_chunks(
         chunk_keys: keys,
         palette: ctx.palette.is_some(),
         done,
+        inputs: inputs.iter().filter_map(KnownInput::of).collect(),
     })
 }
 
@@ -850,7 +902,7 @@ fn prepare<'a>(
     // Inputs and their checksums: every one is part of every stage's key.
     let inputs = files
         .iter()
-        .map(|(key, path)| file_record(key, path))
+        .map(|(key, path)| file_record(key, path, &l.known_inputs))
         .collect::<Result<Vec<_>, _>>()?;
     let sums: Vec<&str> = inputs.iter().map(|i| i.sha256.as_str()).collect();
 
@@ -1323,4 +1375,31 @@ pub fn report_markdown(r: &RunReport) -> String {
         toml::to_string(&r.parameters).unwrap_or_default()
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_known_checksum_is_taken_only_while_size_and_time_match() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("video.bin");
+        std::fs::write(&path, b"frames").unwrap();
+        let hashed = file_record("video", &path, &[]).unwrap();
+        let mut known = KnownInput::of(&hashed).unwrap();
+        // Taken as recorded, without reading the file: a made-up checksum shows it.
+        known.sha256 = "recorded".into();
+        let r = file_record("video", &path, std::slice::from_ref(&known)).unwrap();
+        assert_eq!(r.sha256, "recorded");
+        // Another modification time: the file is read again.
+        known.modified_ns += 1;
+        let r = file_record("video", &path, std::slice::from_ref(&known)).unwrap();
+        assert_eq!(r.sha256, hashed.sha256);
+        // Another size (the same time): read again.
+        known.modified_ns -= 1;
+        known.bytes += 1;
+        let r = file_record("video", &path, &[known]).unwrap();
+        assert_eq!(r.sha256, hashed.sha256);
+    }
 }

@@ -249,6 +249,10 @@ impl DeckProfile {
 }
 
 impl HeightSurface for DeckProfile {
+    fn shareable(&self) -> Option<&(dyn HeightSurface + Sync)> {
+        Some(self)
+    }
+
     fn height(&self, en: &Vector2<f64>) -> Option<f64> {
         let (s, off, _) = self.station(en)?;
         if off.abs() > self.width_m / 2.0 {

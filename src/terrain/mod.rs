@@ -26,6 +26,12 @@ pub trait HeightSurface {
         None
     }
 
+    /// The surface as one that threads may share, when it is (a DEM reached through PROJ is
+    /// not): the projection then runs side by side.
+    fn shareable(&self) -> Option<&(dyn HeightSurface + Sync)> {
+        None
+    }
+
     /// Upward unit normal at a horizontal position. The default differentiates `height`
     /// numerically over 5 cm.
     fn normal(&self, en: &Vector2<f64>) -> Option<Vector3<f64>> {

@@ -129,6 +129,10 @@ impl Plane {
 }
 
 impl HeightSurface for Plane {
+    fn shareable(&self) -> Option<&(dyn HeightSurface + Sync)> {
+        Some(self)
+    }
+
     fn height(&self, en: &Vector2<f64>) -> Option<f64> {
         (self.normal.z.abs() > 1e-9)
             .then(|| (self.d - self.normal.x * en.x - self.normal.y * en.y) / self.normal.z)
@@ -380,6 +384,10 @@ const NODE_STEP_M: f64 = 0.05;
 /// ground is then continuous (a projection's fixed-point iteration and its finite differences
 /// never meet a step between two nodes' planes).
 impl HeightSurface for LocalPlanes {
+    fn shareable(&self) -> Option<&(dyn HeightSurface + Sync)> {
+        Some(self)
+    }
+
     fn height(&self, en: &Vector2<f64>) -> Option<f64> {
         let mut z = 0.0;
         for ((i, j), w) in Self::around(en) {

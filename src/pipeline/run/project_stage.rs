@@ -35,9 +35,7 @@ pub(super) fn project_stage(
         &project_key,
         true,
         || {
-            let mut world = Vec::new();
-            let mut dropped = 0;
-            for t in tracks {
+            let one = |t: &ImageTrack, surface: &dyn HeightSurface| -> (WorldTrack, usize) {
                 let (h, sd, source) = match heights.get(&t.id) {
                     Some((h, sd)) => (*h, *sd, "given"),
                     None => (
@@ -47,13 +45,14 @@ pub(super) fn project_stage(
                     ),
                 };
                 let mut points = Vec::new();
+                let mut dropped = 0;
                 for q in &t.points {
                     let fp = &pose_data.frames[q.frame];
                     match project(
                         camera,
                         &poses[q.frame],
                         fp.covariance.as_ref(),
-                        surface.as_ref(),
+                        surface,
                         &q.uv,
                         &q.cov,
                         h,
@@ -63,14 +62,25 @@ pub(super) fn project_stage(
                         None => dropped += 1,
                     }
                 }
-                world.push(WorldTrack {
+                let track = WorldTrack {
                     id: t.id,
                     height_m: h,
                     height_sd_m: sd,
                     height_source: source.into(),
                     points,
-                });
-            }
+                };
+                (track, dropped)
+            };
+            // Tracks are independent: side by side where the surface can be shared, in order.
+            let projected: Vec<(WorldTrack, usize)> = match surface.shareable() {
+                Some(shared) => {
+                    use rayon::prelude::*;
+                    tracks.par_iter().map(|t| one(t, shared)).collect()
+                }
+                None => tracks.iter().map(|t| one(t, surface.as_ref())).collect(),
+            };
+            let dropped: usize = projected.iter().map(|(_, d)| d).sum();
+            let world: Vec<WorldTrack> = projected.into_iter().map(|(t, _)| t).collect();
             if dropped > 0 {
                 warnings.push(format!(
                     "{dropped} detection(s) could not be projected (off the ground surface)"

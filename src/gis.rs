@@ -140,6 +140,10 @@ pub fn write_dataset(
             // identical runs give identical files.
             gdal::config::set_config_option("OGR_CURRENT_DATE", FIXED_DATE)
                 .map_err(|e| cannot("write", &e))?;
+            // SQLite's page cache, MB (its default, 2 MB, made building the spatial index of
+            // 246 000 points 2.2 s instead of 1.75 s while other outputs were being written).
+            gdal::config::set_config_option("OGR_SQLITE_CACHE", "128")
+                .map_err(|e| cannot("write", &e))?;
         }
         unsafe { gdal_sys::CPLErrorReset() };
         let mut ds = driver
@@ -204,6 +208,16 @@ pub fn set_real(f: &mut Feature, name: &str, v: Option<f64>) -> Result<(), GisEr
     match v.filter(|x| x.is_finite()) {
         Some(x) => f.set_field_double(i, x)?,
         None => f.set_field_null(i)?,
+    }
+    Ok(())
+}
+
+/// Sets a real field by index (a NaN or infinite value as null).
+pub fn set_real_at(f: &mut Feature, i: usize, v: f64) -> Result<(), GisError> {
+    if v.is_finite() {
+        f.set_field_double(i, v)?;
+    } else {
+        f.set_field_null(i)?;
     }
     Ok(())
 }

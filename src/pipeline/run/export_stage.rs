@@ -97,7 +97,7 @@ pub(super) fn export_stage(
         Ok(w)
     };
     // The GeoPackage takes longest (SQLite and its spatial index): it starts at once on a
-    // thread of its own, the other formats share the pool; the results keep the formats' order.
+    // thread of its own; the results keep the formats' order.
     let formats = &p.export.formats;
     let write = &write;
     let written: Vec<Result<Written, RunError>> = std::thread::scope(|scope| {
@@ -105,12 +105,25 @@ pub(super) fn export_stage(
             .iter()
             .position(|f| f == "gpkg")
             .map(|k| (k, scope.spawn(move || write(&formats[k]))));
-        let mut rest: Vec<Result<Written, RunError>> = formats
-            .par_iter()
-            .enumerate()
-            .filter(|(k, _)| gpkg.as_ref().is_none_or(|(g, _)| g != k))
-            .map(|(_, f)| write(f))
-            .collect();
+        // The others on the threads left beside the GeoPackage's (three threads on two cores
+        // slowed the GeoPackage, the longest).
+        let on_own = gpkg.as_ref().map(|(k, _)| *k);
+        let others = || -> Vec<Result<Written, RunError>> {
+            formats
+                .par_iter()
+                .enumerate()
+                .filter(|(k, _)| on_own != Some(*k))
+                .map(|(_, f)| write(f))
+                .collect()
+        };
+        let threads = rayon::current_num_threads().saturating_sub(1).max(1);
+        let mut rest = match (
+            &gpkg,
+            rayon::ThreadPoolBuilder::new().num_threads(threads).build(),
+        ) {
+            (Some(_), Ok(pool)) => pool.install(others),
+            _ => others(),
+        };
         if let Some((k, handle)) = gpkg {
             let w = handle
                 .join()

@@ -150,6 +150,32 @@ struct StabiliseJob<'a> {
     tracker_work: Option<opencv::core::Size>,
 }
 
+/// The stabiliser of a pass whose first frame is `first` (its index and gray image), its
+/// template the picked frame: that one, or read on its own from the start (the same pixels
+/// whichever pass reads it).
+pub(super) fn stabiliser(
+    video: &Path,
+    size: (u32, u32),
+    (settings, pick_frame, picks): (&StabiliseSettings, usize, &[Vector2<f64>]),
+    (first, gray): (usize, &Mat),
+) -> Result<Stabiliser<Klt>, String> {
+    let template = if pick_frame == first {
+        gray.clone()
+    } else {
+        to_gray(&FrameReader::frame_bgr(video, pick_frame).map_err(|e| e.to_string())?)?
+    };
+    let klt = Klt::new(KltSettings::default());
+    let template = klt.frame(pick_frame, template).map_err(|e| e.to_string())?;
+    Ok(Stabiliser::new(
+        klt,
+        settings.clone(),
+        size,
+        template,
+        pick_frame,
+        picks.to_vec(),
+    ))
+}
+
 /// The stabiliser, beside the decoder, in frame order: each frame's track (from the chunk's
 /// first decoded frame), passing each frame on to the tracker; and busy seconds.
 fn stabilise_frames(
@@ -172,21 +198,12 @@ fn stabilise_frames(
             .fill(|g| opencv::imgproc::cvt_color_def(&*bgr, g, opencv::imgproc::COLOR_BGR2GRAY))
             .map_err(|e| e.to_string())?;
         if stab.is_none() {
-            // The picked frame is the template: this one, or read on its own from the start
-            // (the same pixels whichever chunk reads it).
-            let template = if pick_frame == f {
-                (*gray).clone()
-            } else {
-                to_gray(&FrameReader::frame_bgr(job.video, pick_frame).map_err(|e| e.to_string())?)?
-            };
-            stab = Some(Stabiliser::new(
-                Klt::new(KltSettings::default()),
-                settings.clone(),
+            stab = Some(stabiliser(
+                job.video,
                 job.size,
-                klt.frame(pick_frame, template).map_err(|e| e.to_string())?,
-                pick_frame,
-                picks.clone(),
-            ));
+                (&settings, pick_frame, &picks),
+                (f, &gray),
+            )?);
         }
         let s = stab.as_mut().expect("made above");
         if f == job.own_start && f > job.first {

@@ -11,7 +11,7 @@ use opencv::core::Mat;
 use serde::{Deserialize, Serialize};
 
 use crate::detect::{Detection, Detector};
-use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
+use crate::pose::stabilise::{FrameTrack, StabiliseSettings};
 use crate::progress::Progress;
 use crate::video::klt::{Klt, KltSettings};
 use crate::video::source::{FramePool, FrameReader};
@@ -79,7 +79,7 @@ impl std::fmt::Display for ScanError {
     }
 }
 
-use super::chunk_pass::{Detected, to_gray};
+use super::chunk_pass::{Detected, stabiliser, to_gray};
 
 /// The stabiliser's part of a pass.
 struct StabiliseJob<'a> {
@@ -101,29 +101,17 @@ fn stabilise_frames(
     let mut stab = None;
     for (i, bgr) in frames.iter().enumerate() {
         let t = Instant::now();
+        let gray = to_gray(&bgr)?;
         if stab.is_none() {
-            // The picked frame is the template: the first frame, or read on its own (here,
-            // beside the decoder).
-            let template = if job.pick_frame == i {
-                to_gray(&bgr)?
-            } else {
-                to_gray(
-                    &FrameReader::frame_bgr(job.video, job.pick_frame)
-                        .map_err(|e| e.to_string())?,
-                )?
-            };
-            stab = Some(Stabiliser::new(
-                Klt::new(KltSettings::default()),
-                job.settings.clone(),
+            stab = Some(stabiliser(
+                job.video,
                 job.size,
-                klt.frame(job.pick_frame, template)
-                    .map_err(|e| e.to_string())?,
-                job.pick_frame,
-                job.picks.clone(),
-            ));
+                (&job.settings, job.pick_frame, &job.picks),
+                (i, &gray),
+            )?);
         }
         let stab = stab.as_mut().expect("made above");
-        let frame = klt.frame(i, to_gray(&bgr)?).map_err(|e| e.to_string())?;
+        let frame = klt.frame(i, gray).map_err(|e| e.to_string())?;
         tracks.push(stab.push(i, frame).map_err(|e| format!("frame {i}: {e}"))?);
         spent += t.elapsed().as_secs_f64();
     }

@@ -26,20 +26,13 @@ fn simulate(dir: &Path) {
 /// A project of the simulated scene cut into chunks of 0.6 s (9 frames, 7 chunks) tracked from
 /// 0.3 s before: `detect` and `track` sections as given.
 fn project(dir: &Path, name: &str, detect_track: &str) -> PathBuf {
-    let video = common::simulated_video(dir);
-    let text = common::hover_project(
+    common::chunked_deck_project(
+        dir,
+        &format!("{name}.toml"),
         name,
-        video,
-        "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
-        "formats = [\"csv\", \"petrack\", \"mot\", \"detections\"]",
+        "[\"csv\", \"petrack\", \"mot\", \"detections\"]",
+        detect_track,
     )
-    .replace(
-        &format!("path = \"{video}\"\n"),
-        &format!("path = \"{video}\"\nchunk_s = 0.6\noverlap_s = 0.3\n"),
-    ) + detect_track;
-    let path = dir.join(format!("{name}.toml"));
-    std::fs::write(&path, text).unwrap();
-    path
 }
 
 fn run(project: &Path, out: &Path) {

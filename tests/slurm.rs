@@ -202,19 +202,13 @@ fn a_split_run_on_a_slurm_cluster_gives_the_bytes_of_run() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     common::simulate_scene("hover-drift", dir);
-    let video = common::simulated_video(dir);
-    let text = common::hover_project(
+    let project = common::chunked_deck_project(
+        dir,
+        "project.toml",
         "slurm test",
-        video,
-        "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
-        "formats = [\"csv\", \"petrack\", \"mot\"]",
-    )
-    .replace(
-        &format!("path = \"{video}\"\n"),
-        &format!("path = \"{video}\"\nchunk_s = 0.6\noverlap_s = 0.3\n"),
-    ) + "[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n";
-    let project = dir.join("project.toml");
-    std::fs::write(&project, text).unwrap();
+        "[\"csv\", \"petrack\", \"mot\"]",
+        "[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n",
+    );
     let one = dir.join("run");
     assert_success(&common::run_project(&project, &one));
 

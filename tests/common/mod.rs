@@ -87,6 +87,32 @@ pub fn hover_project(name: &str, video: &str, ground: &str, export: &str) -> Str
     )
 }
 
+/// The drifting hover scene's project in `dir` (simulated there already) on its deck, run in
+/// chunks of 0.6 s with 0.3 s of overlap (short enough for a split into segments), exporting
+/// `formats`, with `detect_track` (`[detect]` and `[track]` sections) appended: `dir/FILE`.
+pub fn chunked_deck_project(
+    dir: &std::path::Path,
+    file: &str,
+    name: &str,
+    formats: &str,
+    detect_track: &str,
+) -> std::path::PathBuf {
+    let video = simulated_video(dir);
+    let text = hover_project(
+        name,
+        video,
+        "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
+        &format!("formats = {formats}"),
+    )
+    .replace(
+        &format!("path = \"{video}\"\n"),
+        &format!("path = \"{video}\"\nchunk_s = 0.6\noverlap_s = 0.3\n"),
+    ) + detect_track;
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 /// Simulates `tests/scenes/NAME.toml` into `dir`, failing the test on an error.
 #[allow(dead_code)]
 pub fn simulate_scene(name: &str, dir: &std::path::Path) {

@@ -1,5 +1,5 @@
-//! Trajectories as GeoPackage or GeoJSON through GDAL (adapter): a line per person and a point
-//! per position, in the output CRS (GeoPackage) or WGS 84 (GeoJSON, RFC 7946).
+//! Trajectories as a GeoPackage through GDAL (adapter): a line per person and a point per
+//! position, in the output CRS. (GeoJSON is written by `export::geojson`.)
 
 use std::path::Path;
 
@@ -8,18 +8,10 @@ use gdal::vector::{
 };
 use nalgebra::Vector3;
 
-use super::{Trajectory, TrajectoryPoint};
+use super::Trajectory;
 use crate::gis::{
     FieldDef, GisFormat, layer_srs, set_integer, set_real, set_real_at, write_dataset,
 };
-
-/// Which layers to write.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Layers {
-    Lines,
-    Points,
-    Both,
-}
 
 const LINE_FIELDS: [FieldDef; 7] = [
     ("id", OGRFieldType::OFTInteger),
@@ -54,20 +46,18 @@ fn add_point(g: &mut Geometry, c: &Vector3<f64>, flat: bool) {
     }
 }
 
-/// Writes the trajectories. `coords` gives each point's position in the file's CRS (the output
-/// CRS for a GeoPackage, longitude/latitude/height for GeoJSON; a NaN height makes the geometry
-/// 2D); `crs_wkt` is the GeoPackage's.
-pub fn write_trajectories(
+/// Writes the trajectories as a GeoPackage in the CRS `crs_wkt` (none when empty): each point
+/// at its `crs` coordinates (a NaN height makes the geometry 2D).
+pub fn write_geopackage(
     path: &Path,
-    format: GisFormat,
     crs_wkt: &str,
-    layers: Layers,
     trajectories: &[Trajectory],
-    coords: &dyn Fn(&TrajectoryPoint) -> Vector3<f64>,
 ) -> Result<(), crate::gis::GisError> {
+    let format = GisFormat::GeoPackage;
     let srs = layer_srs(format, crs_wkt)?;
     write_dataset(path, format, |ds| {
-        if layers != Layers::Points {
+        // A line per person.
+        {
             let layer = ds
                 .create_layer(LayerOptions {
                     name: "trajectories",
@@ -89,7 +79,7 @@ pub fn write_trajectories(
                 set_real(&mut f, "length_m", Some(t.length_m()))?;
                 set_real(&mut f, "mean_speed_m_s", Some(t.mean_speed()))?;
                 set_real(&mut f, "height_m", Some(t.height_m))?;
-                let cs: Vec<Vector3<f64>> = t.points.iter().map(coords).collect();
+                let cs: Vec<Vector3<f64>> = t.points.iter().map(|q| q.crs).collect();
                 let flat = cs.iter().any(|c| c.z.is_nan());
                 let mut g = Geometry::empty(if flat {
                     OGRwkbGeometryType::wkbLineString
@@ -105,7 +95,8 @@ pub fn write_trajectories(
                     .map_err(|e| format!("cannot write trajectory {}: {e}", t.id))?;
             }
         }
-        if layers != Layers::Lines {
+        // A point per position.
+        {
             let layer = ds
                 .create_layer(LayerOptions {
                     name: "positions",
@@ -159,7 +150,7 @@ pub fn write_trajectories(
                     set_real_at(&mut f, sigma_e, p.sigma_m.x)?;
                     set_real_at(&mut f, sigma_n, p.sigma_m.y)?;
                     f.set_field_integer(observed, i32::from(p.observed))?;
-                    let c = coords(p);
+                    let c = p.crs;
                     let flat = c.z.is_nan();
                     let mut g = Geometry::empty(if flat {
                         OGRwkbGeometryType::wkbPoint

@@ -58,14 +58,7 @@ pub(super) fn export_stage(
                 outputs,
             )?,
             "gpkg" => {
-                write_trajectories(
-                    &out.join("trajectories.gpkg"),
-                    GisFormat::GeoPackage,
-                    &crs_wkt,
-                    Layers::Both,
-                    trajs,
-                    &|q| q.crs,
-                )?;
+                write_geopackage(&out.join("trajectories.gpkg"), &crs_wkt, trajs)?;
                 outputs.push("trajectories.gpkg".into());
             }
             "geojson" => {

@@ -21,12 +21,11 @@ use super::project::{GroundSection, Loaded};
 use super::scan::{ScanError, ScanTimes};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
-use crate::export::gis::{Layers, write_trajectories};
+use crate::export::gis::write_geopackage;
 use crate::export::{
     PointCov, Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv,
 };
 use crate::geom::Rigid3;
-use crate::gis::GisFormat;
 use crate::io::write_atomic;
 use crate::pose::hover::solve_with_checks;
 use crate::pose::stabilise::{FrameTrack, StabiliseSettings};
@@ -308,11 +307,18 @@ struct Cache {
 
 const CACHE_MAGIC: &[u8; 8] = b"GSCACHE1";
 
-/// The payload of a cache file when the file is whole (its magic and its stated length).
-fn cache_payload(bytes: &[u8]) -> Option<&[u8]> {
+/// A cache file's stated payload length and what follows its header (all of the payload, or
+/// its start); None without the magic.
+fn cache_header(bytes: &[u8]) -> Option<(u64, &[u8])> {
     let rest = bytes.strip_prefix(CACHE_MAGIC)?;
     let (len, payload) = rest.split_first_chunk::<8>()?;
-    (u64::from_le_bytes(*len) == payload.len() as u64).then_some(payload)
+    Some((u64::from_le_bytes(*len), payload))
+}
+
+/// The payload of a cache file when the file is whole (its magic and its stated length).
+fn cache_payload(bytes: &[u8]) -> Option<&[u8]> {
+    let (len, payload) = cache_header(bytes)?;
+    (len == payload.len() as u64).then_some(payload)
 }
 
 /// Whether `path` is a whole stage cache file (a test that a killed run left none half-written).
@@ -358,16 +364,13 @@ impl Cache {
         if f.by_ref().take(16 + 4096).read_to_end(&mut head).is_err() {
             return false;
         }
-        let Some(rest) = head.strip_prefix(CACHE_MAGIC) else {
-            return false;
-        };
-        let Some((len, mut reader)) = rest.split_first_chunk::<8>() else {
+        let Some((len, mut reader)) = cache_header(&head) else {
             return false;
         };
         let codec = bincode::DefaultOptions::new()
             .with_limit(4096)
             .allow_trailing_bytes();
-        u64::from_le_bytes(*len) == size.saturating_sub(16)
+        len == size.saturating_sub(16)
             && codec
                 .deserialize_from::<_, String>(&mut reader)
                 .is_ok_and(|k| k == key)

@@ -67,8 +67,9 @@ impl Default for KltSettings {
 /// out of it.
 pub struct GrayFrame {
     pub index: usize,
-    /// Full resolution.
-    image: std::sync::Arc<Mat>,
+    /// Full resolution, for the local refinement of picks; none for a tracker that never
+    /// refines (a people tracker keeps 25 frames: 200 MB of 4K frames it never reads).
+    image: Option<std::sync::Arc<Mat>>,
     /// The working copy's pyramid, and frame pixels per working pixel.
     pyramid: Vector<Mat>,
     scale: f64,
@@ -81,6 +82,10 @@ pub struct GrayFrame {
 pub struct Klt {
     pub settings: KltSettings,
     pyramids: PyramidPool,
+    /// The working copy before its pyramid is built (the pyramid copies it): one buffer
+    /// rewritten for every frame (a fresh 4K-halved image each frame was a third of a crowd
+    /// scan's page faults).
+    scratch: std::sync::Mutex<Mat>,
 }
 
 /// Pixel coordinates between resolutions, pixel centres at integers: `x' = (x + 0.5)·s − 0.5`.
@@ -174,6 +179,7 @@ impl Klt {
         Klt {
             settings,
             pyramids: PyramidPool::default(),
+            scratch: std::sync::Mutex::new(Mat::default()),
         }
     }
 
@@ -192,9 +198,9 @@ impl Klt {
         if gray.size()? == target {
             return self.frame_with_working(index, gray.clone(), &gray);
         }
-        let mut small = Mat::default();
-        imgproc::resize(&*gray, &mut small, target, 0.0, 0.0, imgproc::INTER_AREA)?;
-        self.frame_with_working(index, gray, &small)
+        let mut scratch = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+        super::reduce::area_reduce(&*gray, &mut scratch, target)?;
+        self.frame_with_working(index, gray, &scratch)
     }
 
     /// The size of the working copy of a `w` × `h` frame: reduced by a whole factor to at most
@@ -211,6 +217,28 @@ impl Klt {
         &self,
         index: usize,
         gray: std::sync::Arc<Mat>,
+        work: &Mat,
+    ) -> Result<GrayFrame, opencv::Error> {
+        let width = gray.cols();
+        self.frame_of(index, Some(gray), width, work)
+    }
+
+    /// The frame of a working copy alone, of a frame `full_width` pixels wide: for a tracker
+    /// that never refines at full resolution.
+    pub fn frame_of_working(
+        &self,
+        index: usize,
+        full_width: i32,
+        work: &Mat,
+    ) -> Result<GrayFrame, opencv::Error> {
+        self.frame_of(index, None, full_width, work)
+    }
+
+    fn frame_of(
+        &self,
+        index: usize,
+        image: Option<std::sync::Arc<Mat>>,
+        full_width: i32,
         work: &Mat,
     ) -> Result<GrayFrame, opencv::Error> {
         // A pyramid of a frame no longer used: its memory is rewritten rather than allocated
@@ -233,10 +261,10 @@ impl Klt {
             core::BORDER_CONSTANT,
             false,
         )?;
-        let scale = f64::from(gray.cols()) / f64::from(work.cols());
+        let scale = f64::from(full_width) / f64::from(work.cols());
         Ok(GrayFrame {
             index,
-            image: gray,
+            image,
             pyramid,
             scale,
             recycle: Some(self.pyramids.clone()),
@@ -409,8 +437,11 @@ impl FeatureTracker for Klt {
         let s = &self.settings;
         // Windows wide enough for the search: the LK window, its pyramid, and slack.
         let half = (s.refine_window * (1 << s.refine_levels)) + 8;
-        let (wa, ha) = (from.image.cols(), from.image.rows());
-        let (wb, hb) = (to.image.cols(), to.image.rows());
+        let (Some(from_image), Some(to_image)) = (&from.image, &to.image) else {
+            return Err("KLT refinement needs full-resolution frames".into());
+        };
+        let (wa, ha) = (from_image.cols(), from_image.rows());
+        let (wb, hb) = (to_image.cols(), to_image.rows());
         // Both windows have the same size (Lucas–Kanade compares equal images): near an edge a
         // window slides inwards rather than shrinking.
         let side = 2 * half + 1;
@@ -435,8 +466,8 @@ impl FeatureTracker for Klt {
                 out.push(None);
                 continue;
             };
-            let a = Mat::roi(&*from.image, ra)?;
-            let b = Mat::roi(&*to.image, rb)?;
+            let a = Mat::roi(&**from_image, ra)?;
+            let b = Mat::roi(&**to_image, rb)?;
             let start = to_cv(&[Vector2::new(p.x - f64::from(ra.x), p.y - f64::from(ra.y))]);
             let guess = to_cv(&[Vector2::new(g.x - f64::from(rb.x), g.y - f64::from(rb.y))]);
             let (fwd, ok) = forward_backward(

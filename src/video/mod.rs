@@ -1,6 +1,7 @@
 //! Video I/O and feature tracking (OpenCV adapters).
 
 pub mod klt;
+pub mod reduce;
 pub mod source;
 
 use std::path::{Path, PathBuf};

@@ -226,6 +226,72 @@ impl Canvas {
         .map_err(err)
     }
 
+    /// An ellipse: centre, semi-axes and the first axis's angle from +x (degrees, clockwise in
+    /// the image); `thickness` −1 fills it.
+    pub fn ellipse(
+        &mut self,
+        centre: &Vector2<f64>,
+        semi_axes: (f64, f64),
+        angle_deg: f64,
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), ImageError> {
+        let s = f64::from(1 << SHIFT);
+        imgproc::ellipse(
+            &mut self.mat,
+            pt(centre),
+            Size::new(
+                (semi_axes.0 * s).round() as i32,
+                (semi_axes.1 * s).round() as i32,
+            ),
+            angle_deg,
+            0.0,
+            360.0,
+            colour(rgb),
+            thickness,
+            imgproc::LINE_AA,
+            SHIFT,
+        )
+        .map_err(err)
+    }
+
+    /// Connected line segments through `points`.
+    pub fn polyline(
+        &mut self,
+        points: &[Vector2<f64>],
+        rgb: [u8; 3],
+        thickness: i32,
+    ) -> Result<(), ImageError> {
+        if points.len() < 2 {
+            return Ok(());
+        }
+        let pts: opencv::core::Vector<Point> = points.iter().map(pt).collect();
+        let mut curves = opencv::core::Vector::<opencv::core::Vector<Point>>::new();
+        curves.push(pts);
+        imgproc::polylines(
+            &mut self.mat,
+            &curves,
+            false,
+            colour(rgb),
+            thickness,
+            imgproc::LINE_AA,
+            SHIFT,
+        )
+        .map_err(err)
+    }
+
+    /// Copies `other` onto this canvas with its top-left pixel at (`x`, `y`) (it must fit).
+    pub fn paste(&mut self, other: &Canvas, x: i32, y: i32) -> Result<(), ImageError> {
+        let rect = Rect::new(x, y, other.mat.cols(), other.mat.rows());
+        let mut roi = Mat::roi_mut(&mut self.mat, rect).map_err(err)?;
+        other.mat.copy_to(&mut roi).map_err(err)
+    }
+
+    /// The image (8-bit BGR).
+    pub fn mat(&self) -> &Mat {
+        &self.mat
+    }
+
     /// A filled rectangle (integer pixels), clipped to the canvas.
     pub fn fill_rect(
         &mut self,
@@ -288,6 +354,8 @@ pub enum Style {
     Line,
     Dashed,
     Dots,
+    /// A bar from 0 at each x, as wide as the series' closest x values (a histogram).
+    Bars,
 }
 
 /// One series of a chart.
@@ -311,6 +379,8 @@ pub struct Chart {
     pub ticks_label: String,
     /// The y axis spans the data only (an altitude near 30 m, say), not from 0.
     pub y_from_data: bool,
+    /// The x axis starts at 0 (a density, a speed), not at the smallest x.
+    pub x_from_zero: bool,
 }
 
 /// A "nice" step (1, 2 or 5 times a power of ten) for about `n` intervals over `span`.
@@ -356,6 +426,9 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
     }
     if !x0.is_finite() {
         (x0, x1) = (0.0, 1.0);
+    }
+    if chart.x_from_zero {
+        x0 = x0.min(0.0);
     }
     if x1 <= x0 {
         x1 = x0 + 1.0;
@@ -425,6 +498,26 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
         c.line(&p, &(p - Vector2::new(0.0, 10.0)), [30, 120, 200], 2)?;
     }
     for s in &chart.series {
+        if s.style == Style::Bars {
+            let dx =
+                s.xy.windows(2)
+                    .map(|w| (w[1].0 - w[0].0).abs())
+                    .filter(|d| *d > 0.0)
+                    .fold(f64::INFINITY, f64::min);
+            let dx = if dx.is_finite() { dx } else { (x1 - x0) / 10.0 };
+            for &(x, y) in s.xy.iter().filter(|(x, y)| x.is_finite() && y.is_finite()) {
+                let (a, b) = (to_px(x - 0.45 * dx, y.max(y0)), to_px(x + 0.45 * dx, y0));
+                let (ax, ay) = (a.x.round() as i32, a.y.round() as i32);
+                c.fill_rect(
+                    ax,
+                    ay,
+                    (b.x.round() as i32 - ax).max(1),
+                    b.y.round() as i32 - ay,
+                    s.rgb,
+                )?;
+            }
+            continue;
+        }
         let mut prev: Option<Vector2<f64>> = None;
         for &(x, y) in &s.xy {
             if !(x.is_finite() && y.is_finite()) {
@@ -434,6 +527,7 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
             let p = to_px(x, y);
             match s.style {
                 Style::Dots => c.circle(&p, 1.5, s.rgb, -1)?,
+                Style::Bars => {}
                 Style::Line => {
                     if let Some(q) = prev {
                         c.line(&q, &p, s.rgb, 1)?;

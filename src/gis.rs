@@ -180,6 +180,75 @@ pub fn write_dataset(
     result
 }
 
+/// Writes an 8-bit RGBA image as a GeoTIFF (deflate, tiled; the alpha band marks where there
+/// is no image): `geo_transform` GDAL's `[x0, dx, 0, y0, 0, -dy]` of the top-left corner,
+/// `crs_wkt` empty for a local frame. Written to a temporary file and moved into place.
+pub fn write_geotiff(
+    path: &Path,
+    rgba: &[u8],
+    (width, height): (usize, usize),
+    geo_transform: [f64; 6],
+    crs_wkt: &str,
+) -> Result<(), GisError> {
+    use gdal::raster::{Buffer, ColorInterpretation, RasterCreationOptions};
+    let cannot = |what: &'static str, e: &dyn std::fmt::Display| GisError::File {
+        what,
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    if rgba.len() != width * height * 4 {
+        return Err(cannot(
+            "write",
+            &"the image is not width × height RGBA pixels",
+        ));
+    }
+    let driver =
+        DriverManager::get_driver_by_name("GTiff").map_err(|source| GisError::NoDriver {
+            driver: "GTiff",
+            source,
+        })?;
+    let tmp = crate::io::temp_path(path, ".tif");
+    let _ = std::fs::remove_file(&tmp);
+    let result = (|| -> Result<(), GisError> {
+        let options = RasterCreationOptions::from_iter([
+            "COMPRESS=DEFLATE",
+            "TILED=YES",
+            "PHOTOMETRIC=RGB",
+            "ALPHA=YES",
+        ]);
+        let mut ds = driver
+            .create_with_band_type_with_options::<u8, _>(&tmp, width, height, 4, &options)
+            .map_err(|e| cannot("create", &e))?;
+        ds.set_geo_transform(&geo_transform)
+            .map_err(|e| cannot("write", &e))?;
+        if !crs_wkt.is_empty() {
+            let srs = SpatialRef::from_wkt(crs_wkt).map_err(GisError::Crs)?;
+            ds.set_spatial_ref(&srs).map_err(|e| cannot("write", &e))?;
+        }
+        let interp = [
+            ColorInterpretation::RedBand,
+            ColorInterpretation::GreenBand,
+            ColorInterpretation::BlueBand,
+            ColorInterpretation::AlphaBand,
+        ];
+        for (k, ci) in interp.into_iter().enumerate() {
+            let plane: Vec<u8> = rgba.iter().skip(k).step_by(4).copied().collect();
+            let mut band = ds.rasterband(k + 1).map_err(|e| cannot("write", &e))?;
+            band.set_color_interpretation(ci)
+                .map_err(|e| cannot("write", &e))?;
+            let mut buf = Buffer::new((width, height), plane);
+            band.write((0, 0), (width, height), &mut buf)
+                .map_err(|e| cannot("write", &e))?;
+        }
+        ds.close().map_err(|e| cannot("finish", &e))?;
+        crate::io::commit_temp(&tmp, path).map_err(|e| cannot("write", &e))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
 /// The time stamp written into GeoPackages (see [`write_dataset`]).
 pub const FIXED_DATE: &str = "2000-01-01T00:00:00.000Z";
 

@@ -17,6 +17,7 @@
 /// go on: any error, boxed, so that an implementation outside geostride keeps its own type.
 pub type PluginError = Box<dyn std::error::Error + Send + Sync>;
 
+pub mod analysis;
 pub mod calibration;
 pub mod camera;
 pub mod detect;

@@ -10,3 +10,4 @@ pub mod registry;
 pub mod run;
 pub mod scan;
 pub mod settings;
+pub mod views;

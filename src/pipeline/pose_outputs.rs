@@ -206,6 +206,7 @@ pub fn write_pose_outputs(out: &Path, run: &PoseRun) -> Result<Vec<PathBuf>, Pos
         ticks: r.key_frames.iter().map(|k| k.index as f64 / fps).collect(),
         ticks_label: "key frames".into(),
         y_from_data: false,
+        x_from_zero: false,
     };
     let png = out.join("reprojection.png");
     line_chart(&chart, 1200, 500)

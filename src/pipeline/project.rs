@@ -36,6 +36,10 @@ pub struct Project {
     pub smooth: SmoothSection,
     #[serde(default)]
     pub export: ExportSection,
+    #[serde(default)]
+    pub output: OutputSection,
+    #[serde(default)]
+    pub analysis: AnalysisSection,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -205,6 +209,94 @@ impl Default for ExportSection {
             crs: None,
             formats: EXPORT_FORMATS.map(String::from).to_vec(),
         }
+    }
+}
+
+/// What a run shows besides its data files: the annotated video, the rectified site image and
+/// the report's plots.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct OutputSection {
+    /// `annotated.mp4`: heads, identities, tracks and their 95 % ellipses over the video
+    /// (a second decoding pass: off by default; `geostride render RUN_DIR` makes it later).
+    pub video: bool,
+    /// The annotated video's largest width, pixels (the video's own when narrower).
+    pub video_width: u32,
+    /// Seconds of each track drawn behind its head.
+    pub trail_s: f64,
+    /// `site.tif` (in the output CRS) and `site.png` with the trajectories.
+    pub site_image: bool,
+    /// The site image's ground sample distance, metres [default: the video's at the ground,
+    /// rounded up to 1, 2 or 5 times a power of ten].
+    pub site_gsd_m: Option<f64>,
+    /// The report's plots (`plots/*.png`) and the measures they show (`measures.csv`).
+    pub plots: bool,
+}
+
+impl Default for OutputSection {
+    fn default() -> Self {
+        OutputSection {
+            video: false,
+            video_width: 1920,
+            trail_s: 3.0,
+            site_image: true,
+            site_gsd_m: None,
+            plots: true,
+        }
+    }
+}
+
+/// Where the density and speed of the fundamental diagram are measured (PedPy's definitions).
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct AnalysisSection {
+    /// A convex polygon in the site frame, `[[e, n], ...]` metres; none: no fundamental diagram.
+    pub measurement_area: Vec<[f64; 2]>,
+    /// The convex area people can walk in (Voronoi cells end at its edge) [default: the
+    /// trajectories' bounding box, 1 m wider on every side].
+    pub walkable_area: Vec<[f64; 2]>,
+}
+
+impl AnalysisSection {
+    /// The measurement and walkable areas as polygons (either may be absent); the key and what
+    /// is wrong otherwise.
+    pub fn polygons(
+        &self,
+    ) -> Result<
+        (
+            Option<crate::analysis::ConvexPolygon>,
+            Option<crate::analysis::ConvexPolygon>,
+        ),
+        (&'static str, String),
+    > {
+        let poly = |key: &'static str, v: &[[f64; 2]]| {
+            if v.is_empty() {
+                return Ok(None);
+            }
+            crate::analysis::ConvexPolygon::new(
+                v.iter()
+                    .map(|p| nalgebra::Vector2::new(p[0], p[1]))
+                    .collect(),
+            )
+            .map(Some)
+            .map_err(|m| {
+                (
+                    key,
+                    format!("{m} (a convex polygon [[e, n], ...] in the site frame, metres)"),
+                )
+            })
+        };
+        let m = poly("measurement_area", &self.measurement_area)?;
+        let w = poly("walkable_area", &self.walkable_area)?;
+        if let (Some(m), Some(w)) = (&m, &w)
+            && m.vertices().iter().any(|v| !w.contains(v))
+        {
+            return Err((
+                "measurement_area",
+                "the measurement area must lie inside the walkable area".into(),
+            ));
+        }
+        Ok((m, w))
     }
 }
 
@@ -578,6 +670,21 @@ fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
             ));
         }
     }
+    let o = &p.output;
+    if !(o.video_width >= 160 && o.video_width <= 7680) {
+        return Err(l.error("output", "video_width", "expected 160 to 7680 pixels"));
+    }
+    if !(o.trail_s >= 0.0 && o.trail_s <= 60.0) {
+        return Err(l.error("output", "trail_s", "expected 0 to 60 seconds"));
+    }
+    if let Some(g) = o.site_gsd_m
+        && !(g >= 0.001 && g <= 10.0)
+    {
+        return Err(l.error("output", "site_gsd_m", "expected 0.001 to 10 metres"));
+    }
+    p.analysis
+        .polygons()
+        .map_err(|(key, m)| l.error("analysis", key, m))?;
     Ok(())
 }
 

@@ -4,8 +4,8 @@
 //! compare with the simulator's truth.
 
 use crate::pipeline::project::{
-    CameraSection, ExportSection, GroundSection, Project, ProjectionSection, SurveySection,
-    VideoSection,
+    AnalysisSection, CameraSection, ExportSection, GroundSection, OutputSection, Project,
+    ProjectionSection, SurveySection, VideoSection,
 };
 use crate::pipeline::settings::{
     AssociationSection, BoxesSection, ColourSection, DetectSection, KalmanRtsSection, KltSection,
@@ -52,7 +52,71 @@ pub fn hats_project(
         },
         smooth: SmoothSection::KalmanRts(KalmanRtsSection::default()),
         export: ExportSection::default(),
+        output: OutputSection::default(),
+        analysis: analysis_areas(scene),
     })
+}
+
+/// The scene's measurement and walkable areas (site frame): on a deck, its middle 8 m and the
+/// whole deck; on a track, 10 m of the right-hand straight (15 to 25 m before its middle,
+/// where the group demo's runners pass) and that straight's lanes.
+pub fn analysis_areas(scene: &Scene) -> AnalysisSection {
+    let rect = |centre: [f64; 2], heading_deg: f64, along: [f64; 2], lateral: [f64; 2]| {
+        let h = heading_deg.to_radians();
+        let (a, l) = ([h.sin(), h.cos()], [-h.cos(), h.sin()]);
+        let at = |u: f64, v: f64| {
+            let p = [
+                centre[0] + a[0] * u + l[0] * v,
+                centre[1] + a[1] * u + l[1] * v,
+            ];
+            p.map(|x| (x * 1000.0).round() / 1000.0)
+        };
+        vec![
+            at(along[0], lateral[0]),
+            at(along[1], lateral[0]),
+            at(along[1], lateral[1]),
+            at(along[0], lateral[1]),
+        ]
+    };
+    match &scene.ground {
+        Ground::Deck {
+            centre,
+            heading_deg,
+            width_m,
+            length_m,
+            ..
+        } => {
+            let lateral = [-width_m / 2.0, width_m / 2.0];
+            AnalysisSection {
+                measurement_area: rect(*centre, *heading_deg, [-4.0, 4.0], lateral),
+                walkable_area: rect(
+                    *centre,
+                    *heading_deg,
+                    [-length_m / 2.0, length_m / 2.0],
+                    lateral,
+                ),
+            }
+        }
+        Ground::Track {
+            centre,
+            heading_deg,
+            lanes,
+            lane_width_m,
+            straight_m,
+            radius_m,
+        } => {
+            let lateral = [-(radius_m + f64::from(*lanes) * lane_width_m), -radius_m];
+            AnalysisSection {
+                measurement_area: rect(*centre, *heading_deg, [-25.0, -15.0], lateral),
+                walkable_area: rect(
+                    *centre,
+                    *heading_deg,
+                    [-straight_m / 2.0, straight_m / 2.0],
+                    lateral,
+                ),
+            }
+        }
+    }
 }
 
 /// The group scene's project (a moving camera): every frame placed in the reference model

@@ -80,6 +80,14 @@ impl VideoSink {
         Ok(())
     }
 
+    /// Appends a frame of 8-bit BGR of the sink's size.
+    pub fn write_bgr(&mut self, bgr: &Mat) -> Result<(), VideoError> {
+        debug_assert_eq!(bgr.typ(), CV_8UC3);
+        self.writer.write(bgr)?;
+        self.frames += 1;
+        Ok(())
+    }
+
     /// Finishes the file and moves it into place.
     pub fn finish(mut self) -> Result<PathBuf, VideoError> {
         self.writer.release()?;

@@ -48,6 +48,7 @@ mod project_stage;
 mod scan_stage;
 mod smooth_stage;
 mod track_stage;
+mod views_stage;
 
 use export_stage::export_stage;
 use pose_stage::pose_stage;
@@ -55,6 +56,7 @@ use project_stage::project_stage;
 use scan_stage::scan_stage;
 use smooth_stage::smooth_stage;
 use track_stage::track_stage;
+use views_stage::views_stage;
 /// A failure of a run: bad input (the user's to fix: [`RunError::is_input`]) or a failure while
 /// running.
 #[derive(Debug, thiserror::Error)]
@@ -213,6 +215,12 @@ pub struct RunReport {
     pub wgs84_transformations: Vec<String>,
     pub stages: Vec<StageRecord>,
     pub outputs: Vec<String>,
+    /// The plots, site images and video: (title, file in the output folder).
+    #[serde(default)]
+    pub views: Vec<(String, String)>,
+    /// The project file the run read (`geostride render` reads it again).
+    #[serde(default)]
+    pub project_file: String,
     pub warnings: Vec<String>,
 }
 
@@ -851,9 +859,14 @@ pub fn run_with(
     stages.push(record);
     let (smoothed, record) = smooth_stage(&ctx, &project_key, &world, &mut warnings)?;
     stages.push(record);
-    let (outputs, transformations, record) =
+    let (mut outputs, transformations, record) =
         export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;
     stages.push(record);
+    let (views, record) = views_stage(&ctx, &pose_data, &smoothed, &mut warnings)?;
+    if let Some(record) = record {
+        stages.push(record);
+    }
+    outputs.extend(views.iter().map(|(_, f)| f.clone()));
 
     let framed = &ctx.framed;
     let out_crs_label = ctx
@@ -875,6 +888,8 @@ pub fn run_with(
         wgs84_transformations: transformations,
         stages,
         outputs,
+        views,
+        project_file: l.path.display().to_string(),
         warnings,
     };
     let json =
@@ -1364,6 +1379,16 @@ pub fn report_markdown(r: &RunReport) -> String {
         let _ = writeln!(s, "\nWGS 84 (GeoJSON) through PROJ:\n");
         for t in &r.wgs84_transformations {
             let _ = writeln!(s, "- {t}");
+        }
+    }
+    if !r.views.is_empty() {
+        let _ = writeln!(s, "\n## Views\n");
+        for (title, file) in &r.views {
+            if file.ends_with(".png") {
+                let _ = writeln!(s, "### {title}\n\n![{title}]({file})\n");
+            } else {
+                let _ = writeln!(s, "- {title}: [`{file}`]({file})");
+            }
         }
     }
     if !r.warnings.is_empty() {

@@ -6,6 +6,9 @@
 #   (proj-bin: cs2cs, the tests' reference for WGS 84 outputs)
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
+#   ffmpeg: the annotated video is piped into its x264 encoder (OpenCV's writer, the fallback,
+#   takes no encoder options and is four times slower). python3-venv: the PedPy test's
+#   throwaway environment.
 #   Slurm (slurmctld, slurmd, sbatch) and munge: the test suite starts a one-node cluster on
 #   localhost (tests/slurm.rs) and runs `geostride slurm --submit` on it.
 #
@@ -20,7 +23,7 @@ set -euo pipefail
 
 packages=(
   pkg-config cmake clang libclang-dev
-  libopencv-dev
+  libopencv-dev ffmpeg
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
   python3 python3-venv python3-pip
   slurmctld slurmd slurm-client munge

@@ -19,6 +19,8 @@ const ADAPTERS: &[&str] = &[
     "export/gis.rs",
     "pipeline/chunk_pass.rs",
     "pipeline/scan.rs",
+    "pipeline/views/annotate.rs",
+    "pipeline/views/site.rs",
     "pose/oracle.rs",
     "sfm/sift.rs",
     "survey/crs.rs",

@@ -594,8 +594,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
 
     // 3. Run the project: default head height.
-    let hats = hats_project(&scene, "camera.yaml", None)
+    let mut hats = hats_project(&scene, "camera.yaml", None)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
+    // The annotated video of the main run (`annotated.mp4`).
+    hats.output.video = true;
     let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
     let (report, default_eval, default_cons) = DemoRun {
         dir: &dir,
@@ -934,6 +936,8 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     if let DetectSection::Boxes(b) = &mut fitted.detect {
         (b.error_px2, b.error_profile_px2) = error_fit.setting();
     }
+    // The annotated video of the main run (`run/annotated.mp4`).
+    fitted.output.video = true;
     write_project(
         &fitted_project,
         &fitted,

@@ -11,6 +11,7 @@ mod fit_error;
 mod plan;
 mod pose;
 mod pose_video;
+mod render;
 mod run;
 mod sfm;
 mod simulate;
@@ -81,6 +82,8 @@ enum Command {
     Pose(pose::Args),
     /// Run a project: from a video to geolocated trajectories with their accuracy
     Run(run::Args),
+    /// A finished run's views again: plots, rectified site image and the annotated video
+    Render(render::Args),
     /// Split a project's run into segments for a cluster (a manifest; then `segment` for each,
     /// anywhere, and `merge`): the same outputs as `run`
     Split(cluster::SplitArgs),
@@ -114,6 +117,7 @@ impl Cli {
             Command::Evaluate(args) => evaluate::run(args),
             Command::FitError(args) => fit_error::run(args),
             Command::Run(args) => run::run(args),
+            Command::Render(args) => render::run(args),
             Command::Split(args) => cluster::run_split(args),
             Command::Segment(args) => cluster::run_segment_cmd(args),
             Command::Merge(args) => cluster::run_merge(args),

@@ -208,8 +208,9 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
 
     // 4. The run with the default head height.
     let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
-    let p = group_project(&scene, "camera.yaml", "model", "survey/photos", None)
+    let mut p = group_project(&scene, "camera.yaml", "model", "survey/photos", None)
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
+    p.output.video = true;
     let (report, default_eval, default_cons) = DemoRun {
         dir: &dir,
         file: "project.toml",

@@ -31,7 +31,7 @@ pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, St
     }
     let trail = (v.settings.trail_s * v.fps).round() as usize;
     let keys: std::collections::BTreeSet<usize> = v.key_frames.iter().copied().collect();
-    let mut sink = crate::video::VideoSink::create(&v.out.join("annotated"), ow, oh, v.fps, true)?;
+    let mut sink = crate::video::FrameSink::create(&v.out.join("annotated"), ow, oh, v.fps)?;
     let mut reader = crate::video::source::FrameReader::open(v.video)?;
     let mut small = Mat::default();
     let thick = ((f64::from(ow) / 960.0).round() as i32).max(1);

@@ -37,12 +37,6 @@ pub enum ViewError {
     Failed(String),
 }
 
-impl From<opencv::Error> for ViewError {
-    fn from(e: opencv::Error) -> ViewError {
-        ViewError::Failed(e.to_string())
-    }
-}
-
 /// A ground control point to mark.
 #[derive(Clone, Debug)]
 pub struct GcpMark {

@@ -12,6 +12,12 @@ use super::{ViewError, Views, colour_scale, id_colour};
 use crate::draw::Canvas;
 use crate::projection::intersect;
 
+impl From<opencv::Error> for ViewError {
+    fn from(e: opencv::Error) -> ViewError {
+        ViewError::Failed(e.to_string())
+    }
+}
+
 /// The largest side of the site image, pixels: a coarser GSD is taken beyond it.
 const MAX_SIDE: usize = 8000;
 /// Frames whose median is the site image.
@@ -151,8 +157,10 @@ fn chosen_frames(v: &Views) -> Vec<usize> {
     if posed.is_empty() {
         return Vec::new();
     }
+    // Centred in equal parts of the run: not the last frame, which OpenCV's seeking misses
+    // (the whole video is then read to reach it).
     let mut out: Vec<usize> = (0..FRAMES)
-        .map(|k| posed[k * (posed.len() - 1) / (FRAMES - 1).max(1)])
+        .map(|k| posed[((2 * k + 1) * posed.len() / (2 * FRAMES)).min(posed.len() - 1)])
         .collect();
     if let Some(k) = v.key_frames.first()
         && posed.contains(k)
@@ -275,13 +283,25 @@ pub fn site_image(v: &Views) -> Result<(Vec<(String, String)>, Vec<String>), Vie
             v.ground.height(&en).map(|z| Vector3::new(en.x, en.y, z))
         })
         .collect();
-    // Each frame on the grid, then the median.
+    // Each frame on the grid (read by checked seeks), then the median.
     let mut layers = Vec::new();
-    for &f in &frames {
-        let bgr =
-            crate::video::source::FrameReader::frame_bgr(v.video, f).map_err(ViewError::Video)?;
+    let mut failed = None;
+    crate::video::source::FrameReader::visit_frames(v.video, &frames, |f, bytes, fw, fh| {
+        if failed.is_some() {
+            return;
+        }
         let pose = v.poses[f].as_ref().expect("chosen frames have poses");
-        layers.push(rectify(v.camera, pose, v.size, &bgr, &grid, &heights)?);
+        let layer = Mat::new_rows_cols_with_data(fh as i32, (fw * 3) as i32, bytes)
+            .and_then(|m| m.reshape(3, fh as i32).and_then(|m| m.try_clone()))
+            .map_err(ViewError::from)
+            .and_then(|bgr| rectify(v.camera, pose, v.size, &bgr, &grid, &heights));
+        match layer {
+            Ok(l) => layers.push(l),
+            Err(e) => failed = Some(e),
+        }
+    })?;
+    if let Some(e) = failed {
+        return Err(e);
     }
     let (bgr, alpha) = median(&layers, grid.width * grid.height);
     let rgba: Vec<u8> = bgr

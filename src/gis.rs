@@ -91,6 +91,39 @@ fn spatial_indexes(ds: &Dataset) -> Result<(), String> {
     Ok(())
 }
 
+/// Adds QGIS's `layer_styles` table to a GeoPackage being written: each `(layer, QML)` the
+/// style QGIS applies when the layer is opened. Registered as an attributes table; its time
+/// stamps fixed like the GeoPackage's.
+pub fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), String> {
+    let q = |s: &str| s.replace('\'', "''");
+    let mut sql = vec![
+        "CREATE TABLE layer_styles (id INTEGER PRIMARY KEY AUTOINCREMENT, f_table_catalog TEXT(256), \
+         f_table_schema TEXT(256), f_table_name TEXT(256), f_geometry_column TEXT(256), \
+         styleName TEXT(30), styleQML TEXT, styleSLD TEXT, useAsDefault BOOLEAN, description TEXT, \
+         owner TEXT(30), ui TEXT(30), update_time DATETIME)"
+            .to_string(),
+        format!(
+            "INSERT INTO gpkg_contents (table_name, data_type, identifier, description, last_change) \
+             VALUES ('layer_styles', 'attributes', 'layer_styles', 'QGIS layer styles', '{FIXED_DATE}')"
+        ),
+    ];
+    for (layer, qml) in styles {
+        sql.push(format!(
+            "INSERT INTO layer_styles (f_table_catalog, f_table_schema, f_table_name, f_geometry_column, \
+             styleName, styleQML, styleSLD, useAsDefault, description, owner, ui, update_time) \
+             VALUES ('', '', '{}', 'geom', '{}', '{}', '', 1, 'geostride', '', NULL, '{FIXED_DATE}')",
+            q(layer),
+            q(layer),
+            q(qml)
+        ));
+    }
+    for s in sql {
+        ds.execute_sql(&s, None, gdal::vector::sql::Dialect::DEFAULT)
+            .map_err(|e| format!("cannot write the QGIS styles: {e}"))?;
+    }
+    Ok(())
+}
+
 /// The spatial reference for a layer: `crs_wkt` for a GeoPackage (none when empty), WGS 84 for
 /// GeoJSON; axes in GIS order (easting/longitude first).
 pub fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>, GisError> {

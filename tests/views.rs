@@ -234,6 +234,33 @@ fn plots_site_images_and_the_annotated_video_are_written_and_linked() {
         cap.get(opencv::videoio::CAP_PROP_FRAME_WIDTH).unwrap(),
         960.0
     );
+    // QGIS's default styles inside the GeoPackage: lines by identity, points by time.
+    let gpkg = gdal::Dataset::open(out.join("trajectories.gpkg")).unwrap();
+    let rs = gpkg
+        .execute_sql(
+            "SELECT f_table_name, styleQML, useAsDefault FROM layer_styles ORDER BY f_table_name",
+            None,
+            gdal::vector::sql::Dialect::DEFAULT,
+        )
+        .unwrap()
+        .unwrap();
+    use gdal::vector::LayerAccess;
+    let mut rs = rs;
+    let styles: Vec<(String, String, i64)> = rs
+        .features()
+        .map(|f| {
+            (
+                f.field_as_string(0).unwrap().unwrap(),
+                f.field_as_string(1).unwrap().unwrap(),
+                f.field_as_integer64(2).unwrap().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(styles.len(), 2, "{styles:?}");
+    assert_eq!((styles[0].0.as_str(), styles[0].2), ("positions", 1));
+    assert!(styles[0].1.contains("time_s") && styles[0].1.contains("<qgis"));
+    assert_eq!((styles[1].0.as_str(), styles[1].2), ("trajectories", 1));
+    assert!(styles[1].1.contains("&quot;id&quot;"));
     // Frames with people in the measurement area.
     let rows = common::read_csv(&out.join("measures.csv"));
     assert_eq!(rows.len(), 60);

@@ -34,9 +34,12 @@ pub struct FrameMeasures {
     pub voronoi_speed: f64,
 }
 
-/// The people of each frame: (frame, [(position, speed m/s)]), frames in order.
-pub fn people_by_frame(trajs: &[Trajectory]) -> Vec<(usize, Vec<(Vector2<f64>, f64)>)> {
-    let mut by: std::collections::BTreeMap<usize, Vec<(Vector2<f64>, f64)>> = Default::default();
+/// A frame's people: (position in the site frame, speed m/s).
+pub type FramePeople = Vec<(Vector2<f64>, f64)>;
+
+/// The people of each frame, frames in order.
+pub fn people_by_frame(trajs: &[Trajectory]) -> Vec<(usize, FramePeople)> {
+    let mut by: std::collections::BTreeMap<usize, FramePeople> = Default::default();
     for t in trajs {
         for p in &t.points {
             by.entry(p.frame)

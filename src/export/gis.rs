@@ -165,6 +165,21 @@ pub fn write_geopackage(
                 }
             }
         }
+        // QGIS's styles: lines by identity, points by time.
+        let times = trajectories
+            .iter()
+            .flat_map(|t| t.points.iter().map(|p| p.time_s));
+        let (t0, t1) = times.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
+            (a.min(t), b.max(t))
+        });
+        let (t0, t1) = if t0.is_finite() { (t0, t1) } else { (0.0, 1.0) };
+        crate::gis::add_qgis_styles(
+            ds,
+            &[
+                ("trajectories", super::qgis_style::lines_by_identity()),
+                ("positions", super::qgis_style::points_by_time(t0, t1)),
+            ],
+        )?;
         Ok(())
     })
 }

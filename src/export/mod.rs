@@ -4,6 +4,7 @@
 pub mod fixed;
 pub mod geojson;
 pub mod gis;
+pub mod qgis_style;
 
 use std::fmt::Write as _;
 

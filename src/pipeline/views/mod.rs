@@ -46,6 +46,9 @@ pub struct GcpMark {
     pub control: bool,
 }
 
+/// The site frame's horizontal position to the output CRS's (exact: PROJ).
+pub type SiteToCrs<'b> = dyn Fn(&Vector2<f64>) -> Option<Vector2<f64>> + 'b;
+
 /// Everything the views draw from.
 pub struct Views<'a> {
     pub out: &'a Path,
@@ -64,7 +67,7 @@ pub struct Views<'a> {
     /// The ground (heads are above it).
     pub ground: &'a dyn HeightSurface,
     /// Site frame to the output CRS, near the site; None without a CRS.
-    pub to_crs: Option<&'a dyn Fn(&Vector2<f64>) -> Option<Vector2<f64>>>,
+    pub to_crs: Option<&'a SiteToCrs<'a>>,
     pub crs_wkt: String,
     pub crs_label: String,
     pub settings: &'a OutputSection,

@@ -57,9 +57,10 @@ pub fn measures(
     walkable: &ConvexPolygon,
     measurement: &ConvexPolygon,
 ) -> Vec<FrameMeasures> {
+    use rayon::prelude::*;
     let area_m = measurement.area();
     people_by_frame(trajs)
-        .into_iter()
+        .into_par_iter()
         .map(|(frame, people)| {
             let sites: Vec<Vector2<f64>> = people.iter().map(|p| p.0).collect();
             let cells = voronoi_cells(&sites, walkable);

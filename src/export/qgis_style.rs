@@ -101,7 +101,11 @@ mod tests {
                 "scale_linear(\"time_s\", 0, 29.96",
             ),
         ] {
-            let doc = roxmltree::Document::parse(&q).unwrap();
+            let options = roxmltree::ParsingOptions {
+                allow_dtd: true,
+                ..Default::default()
+            };
+            let doc = roxmltree::Document::parse_with_options(&q, options).unwrap();
             let e = doc
                 .descendants()
                 .find(|n| n.attribute("name") == Some("expression"))

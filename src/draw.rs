@@ -348,6 +348,19 @@ impl Canvas {
     }
 }
 
+/// The colour at `t` (0 to 1, clamped; NaN as 0) of a ramp through equally spaced `stops`.
+pub fn ramp_colour(stops: &[[f64; 3]], t: f64) -> [u8; 3] {
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let f = t * (stops.len() - 1) as f64;
+    let k = (f.floor() as usize).min(stops.len() - 2);
+    let w = f - k as f64;
+    std::array::from_fn(|c| (stops[k][c] * (1.0 - w) + stops[k + 1][c] * w).round() as u8)
+}
+
 /// How a series is drawn.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Style {

@@ -273,7 +273,34 @@ pub fn write_geotiff(
             band.write((0, 0), (width, height), &mut buf)
                 .map_err(|e| cannot("write", &e))?;
         }
+        unsafe { gdal_sys::CPLErrorReset() };
         ds.close().map_err(|e| cannot("finish", &e))?;
+        // GDAL 3.6 does not return errors from closing (a full disk while the last tiles are
+        // flushed): its error state, and reading every pixel back, say whether it is whole.
+        if unsafe { gdal_sys::CPLGetLastErrorType() } >= gdal_sys::CPLErr::CE_Failure {
+            let msg = unsafe { std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg()) };
+            return Err(cannot("write", &msg.to_string_lossy()));
+        }
+        let back = Dataset::open(&tmp).map_err(|e| cannot("read back", &e))?;
+        for k in 1..=4 {
+            let band = back.rasterband(k).map_err(|e| cannot("read back", &e))?;
+            let data = band
+                .read_as::<u8>((0, 0), (width, height), (width, height), None)
+                .map_err(|e| cannot("read back", &e))?;
+            if data
+                .data()
+                .iter()
+                .step_by(97)
+                .zip(rgba.iter().skip(k - 1).step_by(4 * 97))
+                .any(|(a, b)| a != b)
+            {
+                return Err(cannot(
+                    "write",
+                    &"the file reads back other pixels (is the disk full?)",
+                ));
+            }
+        }
+        drop(back);
         crate::io::commit_temp(&tmp, path).map_err(|e| cannot("write", &e))
     })();
     if result.is_err() {

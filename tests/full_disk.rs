@@ -110,6 +110,20 @@ fn whole(p: &Path) -> Result<(), String> {
                 Err(e) => Err(format!("ogrinfo: {e}")),
             }
         }
+        "tif" => {
+            // Every tile read: a cut-short GeoTIFF fails here.
+            let o = Command::new("gdalinfo").arg("-checksum").arg(p).output();
+            match o {
+                Ok(o)
+                    if o.status.success()
+                        && !String::from_utf8_lossy(&o.stderr).contains("ERROR") =>
+                {
+                    Ok(())
+                }
+                Ok(o) => Err(format!("{name}: {}", String::from_utf8_lossy(&o.stderr))),
+                Err(e) => Err(format!("gdalinfo: {e}")),
+            }
+        }
         "png" => {
             if bytes.ends_with(&[0xAE, 0x42, 0x60, 0x82]) {
                 Ok(())

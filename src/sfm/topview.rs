@@ -55,19 +55,17 @@ fn view_axes(run: &SfmRun) -> Matrix3<f64> {
 
 /// A blue (low) to red (high) ramp.
 fn ramp(t: f64) -> [u8; 3] {
-    let t = t.clamp(0.0, 1.0);
-    let stops = [
-        [49.0, 54.0, 149.0],
-        [69.0, 117.0, 180.0],
-        [171.0, 217.0, 233.0],
-        [254.0, 224.0, 144.0],
-        [244.0, 109.0, 67.0],
-        [165.0, 0.0, 38.0],
-    ];
-    let f = t * (stops.len() - 1) as f64;
-    let k = (f.floor() as usize).min(stops.len() - 2);
-    let w = f - k as f64;
-    std::array::from_fn(|c| (stops[k][c] * (1.0 - w) + stops[k + 1][c] * w).round() as u8)
+    crate::draw::ramp_colour(
+        &[
+            [49.0, 54.0, 149.0],
+            [69.0, 117.0, 180.0],
+            [171.0, 217.0, 233.0],
+            [254.0, 224.0, 144.0],
+            [244.0, 109.0, 67.0],
+            [165.0, 0.0, 38.0],
+        ],
+        t,
+    )
 }
 
 fn percentile(v: &mut [f64], q: f64) -> f64 {

@@ -183,25 +183,28 @@ pub fn default_walkable(
 
 /// A colour for `t` from 0 (dark blue) through green to 1 (yellow-red): perceptually ordered.
 pub fn colour_scale(t: f64) -> [u8; 3] {
-    let t = if t.is_finite() {
-        t.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
     // Stops of a viridis-like ramp, then to red for the top.
-    const STOPS: [[f64; 3]; 6] = [
-        [68.0, 1.0, 84.0],
-        [59.0, 82.0, 139.0],
-        [33.0, 145.0, 140.0],
-        [94.0, 201.0, 98.0],
-        [253.0, 231.0, 37.0],
-        [220.0, 50.0, 32.0],
-    ];
-    let x = t * (STOPS.len() - 1) as f64;
-    let k = (x.floor() as usize).min(STOPS.len() - 2);
-    let f = x - k as f64;
-    let c = |i: usize| (STOPS[k][i] * (1.0 - f) + STOPS[k + 1][i] * f).round() as u8;
-    [c(0), c(1), c(2)]
+    crate::draw::ramp_colour(
+        &[
+            [68.0, 1.0, 84.0],
+            [59.0, 82.0, 139.0],
+            [33.0, 145.0, 140.0],
+            [94.0, 201.0, 98.0],
+            [253.0, 231.0, 37.0],
+            [220.0, 50.0, 32.0],
+        ],
+        t,
+    )
+}
+
+/// The speed that the site image's and video's speed colours reach: the 99th percentile of the
+/// trajectory points' speeds (at least 0.5 m/s).
+pub fn top_speed(trajs: &[Trajectory]) -> f64 {
+    let mut speeds: Vec<f64> = trajs
+        .iter()
+        .flat_map(|t| t.points.iter().map(|p| p.velocity.norm()))
+        .collect();
+    crate::analysis::quantile(&mut speeds, 0.99).max(0.5)
 }
 
 /// A distinct, bright colour for an identity (golden-ratio hues).

@@ -456,15 +456,8 @@ fn overlay(
 ) -> Result<(), ViewError> {
     let im = |e| ViewError::Image("site".into(), e);
     let px = |local: &Vector3<f64>| grid.pixel(&affine.to_crs(&local.xy()));
-    let size = grid.width.max(grid.height) as f64;
-    let thick = ((size / 1000.0).round() as i32).max(1);
-    let mut speeds: Vec<f64> = v
-        .trajs
-        .iter()
-        .flat_map(|t| t.points.iter().map(|p| p.velocity.norm()))
-        .collect();
-    let top_speed = crate::analysis::quantile(&mut speeds, 0.99).max(0.5);
-    let _ = size;
+    let thick = ((grid.width.max(grid.height) as f64 / 1000.0).round() as i32).max(1);
+    let top_speed = super::top_speed(v.trajs);
     for t in v.trajs {
         if by_speed {
             for w in t.points.windows(2) {
@@ -518,12 +511,7 @@ fn framed(v: &Views, image: Canvas, grid: &Grid, by_speed: bool) -> Result<Canva
     let mut c =
         Canvas::blank(width, grid.height as u32 + top + bottom, [255, 255, 255]).map_err(im)?;
     c.paste(&image, 0, top as i32).map_err(im)?;
-    let mut speeds: Vec<f64> = v
-        .trajs
-        .iter()
-        .flat_map(|t| t.points.iter().map(|p| p.velocity.norm()))
-        .collect();
-    let top_speed = crate::analysis::quantile(&mut speeds, 0.99).max(0.5);
+    let top_speed = super::top_speed(v.trajs);
     let title = format!(
         "{}: {} trajectories on the ground, {} m a pixel",
         v.title,

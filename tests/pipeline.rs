@@ -71,7 +71,9 @@ fn runs_reuses_resumes_and_writes_gis_files() {
         .collect();
     assert_eq!(
         stages,
-        ["scan", "pose", "track", "project", "smooth", "export", "views"]
+        [
+            "scan", "pose", "track", "project", "smooth", "export", "views"
+        ]
     );
     assert!(
         r["stages"][2]["counts"]["tracks"].as_f64().unwrap() >= 5.0,

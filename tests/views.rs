@@ -290,6 +290,22 @@ fn render_makes_the_views_again_from_the_stages_and_refuses_a_folder_without_a_r
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(copy.join("report.json")).unwrap()).unwrap();
     assert!(report["views"].as_array().unwrap().len() >= 7);
+    // A run given its project file by a relative path records it absolute: render may run
+    // from any folder.
+    let o = geostride()
+        .current_dir(dir.path())
+        .args(["run", "project.toml", "--out", "relative", "-q"])
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("relative/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        Path::new(report["project_file"].as_str().unwrap()),
+        dir.path().join("project.toml").canonicalize().unwrap()
+    );
     // A folder without a run: exit status 2 and what to give.
     let o = geostride()
         .args(["render"])

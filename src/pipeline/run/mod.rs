@@ -889,7 +889,11 @@ pub fn run_with(
         stages,
         outputs,
         views,
-        project_file: l.path.display().to_string(),
+        // Absolute: `geostride render` may run from elsewhere.
+        project_file: std::fs::canonicalize(&l.path)
+            .unwrap_or_else(|_| l.path.clone())
+            .display()
+            .to_string(),
         warnings,
     };
     let json =

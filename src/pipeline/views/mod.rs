@@ -197,14 +197,18 @@ pub fn colour_scale(t: f64) -> [u8; 3] {
     )
 }
 
-/// The speed that the site image's and video's speed colours reach: the 99th percentile of the
-/// trajectory points' speeds (at least 0.5 m/s).
-pub fn top_speed(trajs: &[Trajectory]) -> f64 {
+/// The speeds the site image's colours span: the 1st to the 99th percentile of the trajectory
+/// points' speeds (at least 0.5 m/s apart), so that a stream's differences show.
+pub fn speed_range(trajs: &[Trajectory]) -> (f64, f64) {
     let mut speeds: Vec<f64> = trajs
         .iter()
         .flat_map(|t| t.points.iter().map(|p| p.velocity.norm()))
+        .filter(|s| s.is_finite())
         .collect();
-    crate::analysis::quantile(&mut speeds, 0.99).max(0.5)
+    let lo = crate::analysis::quantile(&mut speeds, 0.01);
+    let hi = crate::analysis::quantile(&mut speeds, 0.99);
+    let lo = if lo.is_finite() { lo } else { 0.0 };
+    (lo, hi.max(lo + 0.5))
 }
 
 /// A distinct, bright colour for an identity (golden-ratio hues).

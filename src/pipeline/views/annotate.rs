@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 use opencv::core::{Mat, Size};
+use opencv::prelude::*;
 
 use super::{ViewError, Views, id_colour};
 use crate::draw::Canvas;
@@ -32,29 +33,86 @@ pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, St
     let trail = (v.settings.trail_s * v.fps).round() as usize;
     let keys: std::collections::BTreeSet<usize> = v.key_frames.iter().copied().collect();
     let mut sink = crate::video::FrameSink::create(&v.out.join("annotated"), ow, oh, v.fps)?;
-    let mut reader = crate::video::source::FrameReader::open(v.video)?;
-    let mut small = Mat::default();
     let thick = ((f64::from(ow) / 960.0).round() as i32).max(1);
     let text = 0.45 * f64::from(ow) / 1280.0;
     let text = text.max(0.35);
     let mut f = 0usize;
-    while f < v.frames {
-        let Some((index, bgr)) = reader.next_bgr()? else {
-            break;
-        };
-        if scale < 1.0 {
-            opencv::imgproc::resize(
-                &bgr,
-                &mut small,
-                Size::new(ow as i32, oh as i32),
-                0.0,
-                0.0,
-                opencv::imgproc::INTER_AREA,
+    // Decoding and reducing on a thread of their own, drawing here, encoding in ffmpeg's
+    // process: the three side by side.
+    let (frames_tx, frames_rx) =
+        std::sync::mpsc::sync_channel::<Result<(usize, Mat), ViewError>>(3);
+    let (video, total) = (v.video, v.frames);
+    std::thread::scope(|scope| -> Result<(), ViewError> {
+        scope.spawn(move || {
+            let read = || -> Result<(), ViewError> {
+                let mut reader = crate::video::source::FrameReader::open(video)?;
+                for _ in 0..total {
+                    let Some((index, bgr)) = reader.next_bgr()? else {
+                        return Ok(());
+                    };
+                    // Reduced, or trimmed to the encoder's even size.
+                    let frame = if (bgr.cols(), bgr.rows()) != (ow as i32, oh as i32) {
+                        let mut small = Mat::default();
+                        opencv::imgproc::resize(
+                            &bgr,
+                            &mut small,
+                            Size::new(ow as i32, oh as i32),
+                            0.0,
+                            0.0,
+                            opencv::imgproc::INTER_AREA,
+                        )?;
+                        small
+                    } else {
+                        bgr
+                    };
+                    if frames_tx.send(Ok((index, frame))).is_err() {
+                        return Ok(());
+                    }
+                }
+                Ok(())
+            };
+            if let Err(e) = read() {
+                let _ = frames_tx.send(Err(e));
+            }
+        });
+        for item in frames_rx.iter() {
+            let (index, frame) = item?;
+            draw_frame(
+                v,
+                index,
+                frame,
+                &mut sink,
+                (scale, thick, text),
+                (&at, trail, &keys),
             )?;
-        } else {
-            small = bgr;
+            progress.inc(1);
+            f += 1;
         }
-        let mut c = Canvas::from_bgr(std::mem::take(&mut small));
+        Ok(())
+    })?;
+    let path = sink.finish()?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok((format!("Annotated video ({f} frames, {ow}x{oh})"), name))
+}
+
+/// The frame numbers' trajectory points, by frame.
+type PointsAt = BTreeMap<usize, Vec<(usize, usize)>>;
+
+/// Draws frame `index` (already at the output size) and appends it to `sink`.
+fn draw_frame(
+    v: &Views,
+    index: usize,
+    frame: Mat,
+    sink: &mut crate::video::FrameSink,
+    (scale, thick, text): (f64, i32, f64),
+    (at, trail, keys): (&PointsAt, usize, &std::collections::BTreeSet<usize>),
+) -> Result<(), ViewError> {
+    let ow = frame.cols() as u32;
+    {
+        let mut c = Canvas::from_bgr(frame);
         let im = |e| ViewError::Image(format!("frame {index}"), e);
         let to_out = |uv: Vector2<f64>| (uv + Vector2::repeat(0.5)) * scale - Vector2::repeat(0.5);
         let people = at.get(&index).map_or(0, Vec::len);
@@ -152,15 +210,8 @@ pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, St
             .map_err(im)?;
         }
         sink.write_bgr(c.mat())?;
-        progress.inc(1);
-        f += 1;
     }
-    let path = sink.finish()?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    Ok((format!("Annotated video ({f} frames, {ow}x{oh})"), name))
+    Ok(())
 }
 
 /// The image ellipse (semi-axes in pixels, angle in degrees) holding 95 % of a site-frame point's

@@ -7,7 +7,7 @@
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
 #   ffmpeg: the annotated video is piped into its x264 encoder (OpenCV's writer, the fallback,
-#   takes no encoder options and is four times slower). python3-venv: the PedPy test's
+#   takes no encoder options and was 1.6 times slower for the annotated video). python3-venv: the PedPy test's
 #   throwaway environment.
 #   Slurm (slurmctld, slurmd, sbatch) and munge: the test suite starts a one-node cluster on
 #   localhost (tests/slurm.rs) and runs `geostride slurm --submit` on it.

@@ -222,10 +222,12 @@ fn image_ellipse(
     local: &Vector3<f64>,
     cov: &Matrix2<f64>,
 ) -> Option<((f64, f64), f64)> {
-    let d = 0.05;
-    let uv = |e: f64, n: f64| v.image_point(frame, &(local + Vector3::new(e, n, 0.0)));
-    let (pe, me, pn, mn) = (uv(d, 0.0)?, uv(-d, 0.0)?, uv(0.0, d)?, uv(0.0, -d)?);
-    let j = Matrix2::from_columns(&[(pe - me) / (2.0 * d), (pn - mn) / (2.0 * d)]);
+    // d(u, v)/d(e, n): the camera's point Jacobian through the pose's rotation.
+    let pose = v.poses.get(frame)?.as_ref()?;
+    let (_, j_cam, _) = v.camera.project_with_jacobians(&pose.apply(local)).ok()?;
+    let j = (j_cam * pose.rotation.matrix())
+        .fixed_columns::<2>(0)
+        .into_owned();
     let c = j * cov * j.transpose() * CHI2_95;
     let eig = nalgebra::SymmetricEigen::new(c);
     let (k0, k1) = if eig.eigenvalues[0] >= eig.eigenvalues[1] {

@@ -328,26 +328,22 @@ pub fn site_image(v: &Views) -> Result<(Vec<(String, String)>, Vec<String>), Vie
             }
         })
         .collect();
-    for by_speed in [false, true] {
+    // By identity, then by speed over the speeds' range.
+    for speeds in [None, Some(super::speed_range(v.trajs))] {
         let mut image = Canvas::from_bgr_bytes(&white, grid.width as u32, grid.height as u32)
             .map_err(|e| ViewError::Image("site".into(), e))?;
-        overlay(v, &mut image, &grid, &affine, by_speed)?;
-        let c = framed(v, image, &grid, by_speed)?;
-        let name = if by_speed {
-            "site_speed.png"
-        } else {
-            "site.png"
+        overlay(v, &mut image, &grid, &affine, speeds)?;
+        let c = framed(v, image, &grid, speeds)?;
+        let (name, title) = match speeds {
+            None => ("site.png", "Trajectories on the site, coloured by identity"),
+            Some(_) => (
+                "site_speed.png",
+                "Trajectories on the site, coloured by speed",
+            ),
         };
         c.save(&v.out.join(name))
             .map_err(|e| ViewError::Image(name.into(), e))?;
-        files.push((
-            if by_speed {
-                "Trajectories on the site, coloured by speed".into()
-            } else {
-                "Trajectories on the site, coloured by identity".into()
-            },
-            name.into(),
-        ));
+        files.push((title.into(), name.into()));
     }
     Ok((files, warnings))
 }
@@ -505,20 +501,19 @@ fn median(layers: &[(Vec<u8>, Vec<bool>)], n: usize) -> (Vec<u8>, Vec<u8>) {
     (bgr, alpha)
 }
 
-/// Trajectories (by identity or speed), GCPs, a scale bar, a north arrow and a title.
+/// Trajectories (by identity, or by speed over `speeds`: slowest and fastest, m/s) and GCPs.
 fn overlay(
     v: &Views,
     c: &mut Canvas,
     grid: &Grid,
     affine: &SiteAffine,
-    by_speed: bool,
+    speeds: Option<(f64, f64)>,
 ) -> Result<(), ViewError> {
     let im = |e| ViewError::Image("site".into(), e);
     let px = |local: &Vector3<f64>| grid.pixel(&affine.to_crs(&local.xy()));
     let thick = ((grid.width.max(grid.height) as f64 / 1000.0).round() as i32).max(1);
-    let (slow, fast) = super::speed_range(v.trajs);
     for t in v.trajs {
-        if by_speed {
+        if let Some((slow, fast)) = speeds {
             for w in t.points.windows(2) {
                 let s = (w[1].velocity.norm() - slow) / (fast - slow);
                 c.line(&px(&w[0].local), &px(&w[1].local), colour_scale(s), thick)
@@ -563,14 +558,18 @@ fn overlay(
 
 /// The image with a title above it and a scale bar and north arrow below it (outside the
 /// image, which a narrow deck would not leave room for).
-fn framed(v: &Views, image: Canvas, grid: &Grid, by_speed: bool) -> Result<Canvas, ViewError> {
+fn framed(
+    v: &Views,
+    image: Canvas,
+    grid: &Grid,
+    speeds: Option<(f64, f64)>,
+) -> Result<Canvas, ViewError> {
     let im = |e| ViewError::Image("site".into(), e);
     let (top, bottom) = (34, 70);
     let width = grid.width.max(700) as u32;
     let mut c =
         Canvas::blank(width, grid.height as u32 + top + bottom, [255, 255, 255]).map_err(im)?;
     c.paste(&image, 0, top as i32).map_err(im)?;
-    let (slow, fast) = super::speed_range(v.trajs);
     let title = format!(
         "{}: {} trajectories on the ground, {} m a pixel",
         v.title,
@@ -616,7 +615,7 @@ fn framed(v: &Views, image: Canvas, grid: &Grid, by_speed: bool) -> Result<Canva
     .map_err(im)?;
     c.text(&Vector2::new(x + 8.0, y - 2.0), "N", 0.6, [0, 0, 0], 2)
         .map_err(im)?;
-    let note = if by_speed {
+    let note = if let Some((slow, fast)) = speeds {
         format!(
             "speed: {slow:.1} m/s (dark) to {fast:.1} m/s (red); grid north of {}",
             v.crs_label

@@ -339,6 +339,15 @@ pub fn commit_temp(tmp: &Path, path: &Path) -> std::io::Result<()> {
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over the target. A failed write leaves no partial file and never touches the target.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_atomic_with(path, |w| w.write_all(bytes))
+}
+
+/// [`write_atomic`] for a file written piece by piece through `fill` (buffered): a long video's
+/// outputs never stand whole in memory.
+pub fn write_atomic_with(
+    path: &Path,
+    fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     if path.file_name().is_none() {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
@@ -347,9 +356,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     }
     let tmp = temp_path(path, "");
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        drop(f);
+        let mut f = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&tmp)?);
+        fill(&mut f)?;
+        f.into_inner().map_err(|e| e.into_error())?;
         commit_temp(&tmp, path)
     })();
     if result.is_err() {
@@ -644,6 +653,29 @@ mod tests {
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "two");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
         assert!(write_atomic(&dir.path().join("missing/dir/x"), b"x").is_err());
+    }
+
+    #[test]
+    fn a_file_written_in_pieces_that_fails_leaves_the_old_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("out.txt");
+        write_atomic(&p, b"old").unwrap();
+        let big = vec![b'x'; 3 << 20];
+        let failed = write_atomic_with(&p, |w| {
+            w.write_all(&big)?;
+            Err(std::io::Error::other("the writer stopped"))
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "old");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        write_atomic_with(&p, |w| {
+            for _ in 0..3 {
+                w.write_all(&big)?;
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(std::fs::metadata(&p).unwrap().len(), 9 << 20);
     }
 
     #[test]

@@ -371,6 +371,14 @@ pub const DETECTIONS_HEADER: &str =
 
 /// `detections.csv`: one row per detection, frames in order.
 pub fn detections_csv(detections: &[Vec<Detection>]) -> String {
+    crate::export::text_of(|w| write_detections_csv(w, detections))
+}
+
+/// [`detections_csv`] written to `w`, a frame's rows at a time.
+pub fn write_detections_csv(
+    w: &mut dyn std::io::Write,
+    detections: &[Vec<Detection>],
+) -> std::io::Result<()> {
     use crate::export::fixed::Fixed;
     use std::fmt::Write;
     let mut s = String::from(DETECTIONS_HEADER);
@@ -392,8 +400,12 @@ pub fn detections_csv(detections: &[Vec<Detection>]) -> String {
                 Fixed::<2>(d.bbox[3]),
             );
         }
+        if s.len() >= 1 << 16 {
+            w.write_all(s.as_bytes())?;
+            s.clear();
+        }
     }
-    s
+    w.write_all(s.as_bytes())
 }
 
 /// The most heads in one frame (a 4K frame of a dense crowd holds a few hundred): pairing is

@@ -59,89 +59,140 @@ fn integer(s: &mut String, name: &str, v: i64) {
 const HEAD: &str = "{\"type\":\"FeatureCollection\",\"features\":[\n";
 const TAIL: &str = "\n]}\n";
 
-/// One feature per trajectory of at least two points: a LineString with the trajectory's id,
-/// frames, duration, length, mean speed and head height.
-pub fn lines(trajectories: &[Trajectory]) -> String {
-    let mut s = String::from(HEAD);
-    let mut first = true;
-    for t in trajectories.iter().filter(|t| t.points.len() >= 2) {
-        if !first {
-            s.push_str(",\n");
+/// A FeatureCollection written to `w` one trajectory at a time (an hour's positions never stand
+/// whole in memory); `wgs` gives each trajectory's positions in WGS 84, point by point.
+pub struct Features<'w> {
+    w: &'w mut dyn std::io::Write,
+    s: String,
+    first: bool,
+}
+
+impl<'w> Features<'w> {
+    pub fn new(w: &'w mut dyn std::io::Write) -> Features<'w> {
+        Features {
+            w,
+            s: String::from(HEAD),
+            first: true,
         }
-        first = false;
+    }
+
+    fn next(&mut self) {
+        if !self.first {
+            self.s.push_str(",\n");
+        }
+        self.first = false;
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.w.write_all(self.s.as_bytes())?;
+        self.s.clear();
+        Ok(())
+    }
+
+    /// The trajectory as a LineString feature (none under two points) with its id, frames,
+    /// duration, length, mean speed and head height.
+    pub fn line(&mut self, t: &Trajectory, wgs: &[Vector3<f64>]) -> std::io::Result<()> {
+        if t.points.len() < 2 {
+            return Ok(());
+        }
+        self.next();
+        let s = &mut self.s;
         let (a, b) = (&t.points[0], &t.points[t.points.len() - 1]);
         s.push_str("{\"type\":\"Feature\",\"properties\":{");
-        integer(&mut s, "id", t.id as i64);
+        integer(s, "id", t.id as i64);
         s.push(',');
-        integer(&mut s, "first_frame", a.frame as i64);
+        integer(s, "first_frame", a.frame as i64);
         s.push(',');
-        integer(&mut s, "last_frame", b.frame as i64);
+        integer(s, "last_frame", b.frame as i64);
         s.push(',');
-        real(&mut s, "duration_s", b.time_s - a.time_s);
+        real(s, "duration_s", b.time_s - a.time_s);
         s.push(',');
-        real(&mut s, "length_m", t.length_m());
+        real(s, "length_m", t.length_m());
         s.push(',');
-        real(&mut s, "mean_speed_m_s", t.mean_speed());
+        real(s, "mean_speed_m_s", t.mean_speed());
         s.push(',');
-        real(&mut s, "height_m", t.height_m);
+        real(s, "height_m", t.height_m);
         s.push_str("},\"geometry\":{\"type\":\"LineString\",\"coordinates\":[");
-        let flat = t.points.iter().any(|q| q.crs.z.is_nan());
-        for (k, c) in t.points.iter().map(|q| &q.crs).enumerate() {
+        let flat = wgs.iter().any(|c| c.z.is_nan());
+        for (k, c) in wgs.iter().enumerate() {
             if k > 0 {
                 s.push(',');
             }
-            position(&mut s, c, flat);
+            position(s, c, flat);
         }
         s.push_str("]}}");
+        self.flush()
     }
-    s.push_str(TAIL);
-    s
-}
 
-/// One Point feature per trajectory point, with the fields of the GeoPackage's `positions` layer.
-pub fn points(trajectories: &[Trajectory]) -> String {
-    let mut s = String::from(HEAD);
-    let mut first = true;
-    for t in trajectories {
-        for p in &t.points {
-            if !first {
-                s.push_str(",\n");
-            }
-            first = false;
+    /// One Point feature per trajectory point, with the fields of the GeoPackage's `positions`
+    /// layer.
+    pub fn points(&mut self, t: &Trajectory, wgs: &[Vector3<f64>]) -> std::io::Result<()> {
+        for (p, c) in t.points.iter().zip(wgs) {
+            self.next();
+            let s = &mut self.s;
             s.push_str("{\"type\":\"Feature\",\"properties\":{");
-            integer(&mut s, "id", t.id as i64);
+            integer(s, "id", t.id as i64);
             s.push(',');
-            integer(&mut s, "frame", p.frame as i64);
+            integer(s, "frame", p.frame as i64);
             s.push(',');
-            real(&mut s, "time_s", p.time_s);
+            real(s, "time_s", p.time_s);
             s.push(',');
-            real(&mut s, "e_m", p.local.x);
+            real(s, "e_m", p.local.x);
             s.push(',');
-            real(&mut s, "n_m", p.local.y);
+            real(s, "n_m", p.local.y);
             s.push(',');
-            real(&mut s, "u_m", p.local.z);
+            real(s, "u_m", p.local.z);
             s.push(',');
-            real(&mut s, "speed_m_s", p.velocity.norm());
+            real(s, "speed_m_s", p.velocity.norm());
             s.push(',');
-            real(&mut s, "heading_deg", super::heading_deg(p));
+            real(s, "heading_deg", super::heading_deg(p));
             s.push(',');
-            real(&mut s, "sigma_e_m", p.sigma_m.x);
+            real(s, "sigma_e_m", p.sigma_m.x);
             s.push(',');
-            real(&mut s, "sigma_n_m", p.sigma_m.y);
+            real(s, "sigma_n_m", p.sigma_m.y);
             s.push(',');
-            integer(&mut s, "observed", i64::from(p.observed));
+            integer(s, "observed", i64::from(p.observed));
             s.push_str("},\"geometry\":{\"type\":\"Point\",\"coordinates\":");
-            position(&mut s, &p.crs, p.crs.z.is_nan());
+            position(s, c, c.z.is_nan());
             s.push_str("}}");
         }
+        self.flush()
     }
-    s.push_str(TAIL);
-    s
+
+    /// Closes the collection.
+    pub fn finish(mut self) -> std::io::Result<()> {
+        self.s.push_str(TAIL);
+        self.flush()
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The collections of `trajectories`, their `crs` taken as WGS 84.
+    fn collection(trajectories: &[Trajectory], lines: bool) -> String {
+        let mut v = Vec::new();
+        let mut f = Features::new(&mut v);
+        for t in trajectories {
+            let wgs: Vec<Vector3<f64>> = t.points.iter().map(|q| q.crs).collect();
+            if lines {
+                f.line(t, &wgs).unwrap();
+            } else {
+                f.points(t, &wgs).unwrap();
+            }
+        }
+        f.finish().unwrap();
+        String::from_utf8(v).unwrap()
+    }
+
+    fn lines(trajectories: &[Trajectory]) -> String {
+        collection(trajectories, true)
+    }
+
+    fn points(trajectories: &[Trajectory]) -> String {
+        collection(trajectories, false)
+    }
     use crate::export::{PointCov, TrajectoryPoint};
     use nalgebra::Vector2;
 

@@ -115,12 +115,59 @@ pub fn image_tracks_csv(tracks: &[crate::track::ImageTrack]) -> String {
     s
 }
 
+/// The text `fill` writes, as a string (small outputs and tests; writing to memory cannot fail).
+pub fn text_of(fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>) -> String {
+    let mut v = Vec::new();
+    let _ = fill(&mut v);
+    String::from_utf8_lossy(&v).into_owned()
+}
+
+/// Text made in pieces and passed to `w` once a piece is large: a long video's outputs never
+/// stand whole in memory, and `w` is not called for every row.
+struct Pieces<'w> {
+    w: &'w mut dyn std::io::Write,
+    s: String,
+}
+
+impl<'w> Pieces<'w> {
+    fn new(w: &'w mut dyn std::io::Write) -> Pieces<'w> {
+        Pieces {
+            w,
+            s: String::new(),
+        }
+    }
+
+    /// Passes the text on once it is 64 KiB or more.
+    fn done_piece(&mut self) -> std::io::Result<()> {
+        if self.s.len() >= 1 << 16 {
+            self.finish()?;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self) -> std::io::Result<()> {
+        self.w.write_all(self.s.as_bytes())?;
+        self.s.clear();
+        Ok(())
+    }
+}
+
 /// The trajectories as CSV: one row per point.
 pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
-    let mut s = String::from(
+    text_of(|w| write_trajectories_csv(w, trajectories))
+}
+
+/// [`trajectories_csv`] written to `w`.
+pub fn write_trajectories_csv(
+    w: &mut dyn std::io::Write,
+    trajectories: &[Trajectory],
+) -> std::io::Result<()> {
+    let mut out = Pieces::new(w);
+    out.s.push_str(
         "id,frame,time_s,e_m,n_m,u_m,x,y,z,ve_m_s,vn_m_s,speed_m_s,sigma_e_m,sigma_n_m,cov_en_m2,sigma_random_m,sigma_height_m,sigma_pose_m,observed,height_m\n",
     );
     for t in trajectories {
+        let s = &mut out.s;
         for p in &t.points {
             let _ = writeln!(
                 s,
@@ -147,19 +194,32 @@ pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
                 Fixed::<3>(t.height_m),
             );
         }
+        out.done_piece()?;
     }
-    s
+    out.finish()
 }
 
 /// PeTrack's and JuPedSim's trajectory text: comment lines, then `id frame x y z` in metres of
 /// the site frame (a local metric frame, as those tools expect).
 pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame_note: &str) -> String {
-    let mut s = String::new();
+    text_of(|w| write_petrack_txt(w, trajectories, fps, frame_note))
+}
+
+/// [`petrack_txt`] written to `w`.
+pub fn write_petrack_txt(
+    w: &mut dyn std::io::Write,
+    trajectories: &[Trajectory],
+    fps: f64,
+    frame_note: &str,
+) -> std::io::Result<()> {
+    let mut out = Pieces::new(w);
+    let s = &mut out.s;
     let _ = writeln!(s, "# geostride trajectories: head positions, smoothed");
     let _ = writeln!(s, "# framerate: {fps}");
     let _ = writeln!(s, "# coordinates: {frame_note}");
     let _ = writeln!(s, "# id\tframe\tx/m\ty/m\tz/m");
     for t in trajectories {
+        let s = &mut out.s;
         for p in &t.points {
             let _ = writeln!(
                 s,
@@ -171,23 +231,34 @@ pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame_note: &str) -> S
                 Fixed::<4>(p.local.z)
             );
         }
+        out.done_piece()?;
     }
-    s
+    out.finish()
 }
 
 /// MOTChallenge text of the image tracks: `frame,id,left,top,width,height,conf,-1,-1,-1`, frames
 /// from 1, boxes in pixels with the first pixel numbered 1.
 pub fn mot_txt(tracks: &[ImageTrack]) -> String {
-    let mut rows: Vec<(usize, usize, [f64; 4])> = tracks
+    text_of(|w| write_mot_txt(w, tracks))
+}
+
+/// [`mot_txt`] written to `w`. Rows by frame, then identity: the tracks' points (each track's in
+/// frame order) are merged through a heap of one entry per track, not sorted all together.
+pub fn write_mot_txt(w: &mut dyn std::io::Write, tracks: &[ImageTrack]) -> std::io::Result<()> {
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
+    // (frame, id, track, point): the next point of each track.
+    let mut next: BinaryHeap<Reverse<(usize, usize, usize, usize)>> = tracks
         .iter()
-        .flat_map(|t| t.points.iter().map(move |p| (p.frame, t.id, p.bbox)))
+        .enumerate()
+        .filter_map(|(k, t)| t.points.first().map(|p| Reverse((p.frame, t.id, k, 0))))
         .collect();
-    rows.sort_by_key(|r| (r.0, r.1));
-    let mut s = String::new();
-    for (frame, id, b) in rows {
+    let mut out = Pieces::new(w);
+    while let Some(Reverse((frame, id, k, i))) = next.pop() {
+        let b = tracks[k].points[i].bbox;
         // geostride's box corner is the left edge of the first pixel (−0.5 from its centre).
         let _ = writeln!(
-            s,
+            out.s,
             "{},{},{},{},{},{},1,-1,-1,-1",
             frame + 1,
             id,
@@ -196,8 +267,12 @@ pub fn mot_txt(tracks: &[ImageTrack]) -> String {
             Fixed::<2>(b[2]),
             Fixed::<2>(b[3]),
         );
+        if let Some(p) = tracks[k].points.get(i + 1) {
+            next.push(Reverse((p.frame, id, k, i + 1)));
+        }
+        out.done_piece()?;
     }
-    s
+    out.finish()
 }
 
 #[cfg(test)]
@@ -258,6 +333,50 @@ mod tests {
         assert_eq!(
             mot_txt(&[it]).trim(),
             "1,3,6.00,16.00,11.00,11.00,1,-1,-1,-1"
+        );
+    }
+
+    #[test]
+    fn mot_rows_go_by_frame_then_identity_across_tracks() {
+        let track = |id: usize, frames: &[usize]| ImageTrack {
+            id,
+            points: frames
+                .iter()
+                .map(|&frame| TrackPoint {
+                    frame,
+                    uv: Vector2::zeros(),
+                    cov: Matrix2::identity(),
+                    bbox: [0.0; 4],
+                })
+                .collect(),
+        };
+        // Tracks out of identity order, overlapping, one with a gap, one empty.
+        let tracks = [
+            track(9, &[2, 3, 4]),
+            track(2, &[0, 1, 3, 6]),
+            track(5, &[]),
+            track(4, &[1, 2]),
+        ];
+        let rows: Vec<(usize, usize)> = mot_txt(&tracks)
+            .lines()
+            .map(|l| {
+                let mut f = l.split(',').map(|v| v.parse::<usize>().unwrap());
+                (f.next().unwrap(), f.next().unwrap())
+            })
+            .collect();
+        assert_eq!(
+            rows,
+            [
+                (1, 2),
+                (2, 2),
+                (2, 4),
+                (3, 4),
+                (3, 9),
+                (4, 2),
+                (4, 9),
+                (5, 9),
+                (7, 2)
+            ]
         );
     }
 }

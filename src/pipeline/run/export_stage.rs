@@ -23,9 +23,14 @@ pub(super) fn export_stage(
         .or(framed.frame.crs.as_ref())
         .map(|c| c.wkt.clone())
         .unwrap_or_default();
-    let put = |name: &str, text: &str, outputs: &mut Vec<String>| -> Result<(), RunError> {
+    // Each file written piece by piece into its temporary (an hour's outputs never stand whole
+    // in memory); a failed write leaves no file.
+    let put = |name: &str,
+               fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>,
+               outputs: &mut Vec<String>|
+     -> Result<(), RunError> {
         let path = out.join(name);
-        write_atomic(&path, text.as_bytes()).map_err(|source| RunError::Io {
+        crate::io::write_atomic_with(&path, |w| fill(w)).map_err(|source| RunError::Io {
             path: path.clone(),
             source,
         })?;
@@ -45,16 +50,27 @@ pub(super) fn export_stage(
         let mut w = Written::default();
         let outputs = &mut w.outputs;
         match f.as_str() {
-            "csv" => put("trajectories.csv", &trajectories_csv(trajs), outputs)?,
-            "petrack" => put(
-                "trajectories.txt",
-                &petrack_txt(trajs, fps, &format!("site frame ({origin_note}), metres")),
+            "csv" => put(
+                "trajectories.csv",
+                &mut |w| crate::export::write_trajectories_csv(w, trajs),
                 outputs,
             )?,
-            "mot" => put("tracks_mot.txt", &mot_txt(tracks), outputs)?,
+            "petrack" => {
+                let note = format!("site frame ({origin_note}), metres");
+                put(
+                    "trajectories.txt",
+                    &mut |w| crate::export::write_petrack_txt(w, trajs, fps, &note),
+                    outputs,
+                )?
+            }
+            "mot" => put(
+                "tracks_mot.txt",
+                &mut |w| crate::export::write_mot_txt(w, tracks),
+                outputs,
+            )?,
             "detections" => put(
                 "detections.csv",
-                &crate::detect::error_fit::detections_csv(&scan_data.detections),
+                &mut |w| crate::detect::error_fit::write_detections_csv(w, &scan_data.detections),
                 outputs,
             )?,
             "gpkg" => {
@@ -70,20 +86,49 @@ pub(super) fn export_stage(
                     return Ok(w);
                 };
                 // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
-                // (its own handles: this runs on a worker thread).
-                let wgs = wgs84_trajectories(spec, height_kind, trajs)?;
-                put(
-                    "trajectories.geojson",
-                    &crate::export::geojson::lines(&wgs.trajectories),
-                    outputs,
-                )?;
-                put(
-                    "positions.geojson",
-                    &crate::export::geojson::points(&wgs.trajectories),
-                    outputs,
-                )?;
-                w.warnings.extend(wgs.notes);
-                w.transformations = wgs.operations;
+                // (its own handles: this runs on a worker thread). Both files are written
+                // together, a trajectory at a time, each converted once.
+                let mut wgs = Wgs84::new(spec, height_kind)?;
+                let mut failed: Option<RunError> = None;
+                let mut both = |lines: &mut dyn std::io::Write,
+                                points: &mut dyn std::io::Write|
+                 -> std::io::Result<()> {
+                    let mut l = crate::export::geojson::Features::new(lines);
+                    let mut p = crate::export::geojson::Features::new(points);
+                    for t in trajs {
+                        let c = match wgs.convert(t) {
+                            Ok(c) => c,
+                            Err(e) => {
+                                failed = Some(e);
+                                return Err(std::io::Error::other("conversion to WGS 84"));
+                            }
+                        };
+                        l.line(t, &c)?;
+                        p.points(t, &c)?;
+                    }
+                    l.finish()?;
+                    p.finish()
+                };
+                let lines_path = out.join("trajectories.geojson");
+                let points_path = out.join("positions.geojson");
+                let written = crate::io::write_atomic_with(&lines_path, |lw| {
+                    // The message names the file at fault.
+                    crate::io::write_atomic_with(&points_path, |pw| both(lw, pw)).map_err(|e| {
+                        std::io::Error::new(e.kind(), format!("{}: {e}", points_path.display()))
+                    })
+                });
+                if let Some(e) = failed {
+                    return Err(e);
+                }
+                written.map_err(|source| RunError::Io {
+                    path: lines_path.clone(),
+                    source,
+                })?;
+                outputs.push("trajectories.geojson".into());
+                outputs.push("positions.geojson".into());
+                let (operations, notes) = wgs.report();
+                w.warnings.extend(notes);
+                w.transformations = operations;
             }
             _ => unreachable!("checked when the project was read"),
         }

@@ -22,9 +22,7 @@ use super::scan::{ScanError, ScanTimes};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
 use crate::export::gis::write_geopackage;
-use crate::export::{
-    PointCov, Trajectory, TrajectoryPoint, mot_txt, petrack_txt, trajectories_csv,
-};
+use crate::export::{PointCov, Trajectory, TrajectoryPoint};
 use crate::geom::Rigid3;
 use crate::io::write_atomic;
 use crate::pose::hover::solve_with_checks;
@@ -343,19 +341,28 @@ impl Cache {
     /// it cannot be read back (cut short, or written by another build).
     fn load<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<T> {
         use bincode::Options;
-        let bytes = std::fs::read(self.path(stage)).ok()?;
-        let payload = cache_payload(&bytes)?;
+        use std::io::Read;
+        // Read through a buffer, not whole: an hour's stage would stand in memory twice.
+        let f = std::fs::File::open(self.path(stage)).ok()?;
+        let size = f.metadata().ok()?.len();
+        let mut reader = std::io::BufReader::with_capacity(1 << 20, f);
+        let mut head = [0u8; 16];
+        reader.read_exact(&mut head).ok()?;
+        let (len, _) = cache_header(&head)?;
+        if len != size.saturating_sub(16) {
+            return None;
+        }
         // No length in a damaged file can ask for more memory than the file holds.
         let codec = bincode::DefaultOptions::new()
-            .with_limit(payload.len() as u64)
+            .with_limit(len)
             .allow_trailing_bytes();
-        let mut reader = payload;
         let stored_key: String = codec.deserialize_from(&mut reader).ok()?;
         if stored_key != key {
             return None;
         }
         let data: T = codec.deserialize_from(&mut reader).ok()?;
-        reader.is_empty().then_some(data)
+        let mut rest = [0u8; 1];
+        matches!(reader.read(&mut rest), Ok(0)).then_some(data)
     }
 
     /// Whether a whole artifact made under `key` is cached, without reading its data.
@@ -388,17 +395,18 @@ impl Cache {
         use bincode::Options;
         let failed = |e: bincode::Error| RunError::Failed(format!("cannot cache {stage}: {e}"));
         let codec = bincode::DefaultOptions::new();
-        let mut bytes = CACHE_MAGIC.to_vec();
-        bytes.extend_from_slice(&[0; 8]);
-        codec.serialize_into(&mut bytes, key).map_err(failed)?;
-        codec.serialize_into(&mut bytes, data).map_err(failed)?;
-        let len = (bytes.len() - 16) as u64;
-        bytes[8..16].copy_from_slice(&len.to_le_bytes());
-        write_atomic(&self.path(stage), &bytes).map_err(|source| RunError::Io {
-            path: self.path(stage),
-            source,
-        })?;
-        Ok(())
+        // Sized first and then written through a buffer: never whole in memory.
+        let len = codec.serialized_size(key).map_err(failed)?
+            + codec.serialized_size(data).map_err(failed)?;
+        let path = self.path(stage);
+        crate::io::write_atomic_with(&path, |w| {
+            w.write_all(CACHE_MAGIC)?;
+            w.write_all(&len.to_le_bytes())?;
+            let io = |e: bincode::Error| std::io::Error::other(e.to_string());
+            codec.serialize_into(&mut *w, key).map_err(io)?;
+            codec.serialize_into(&mut *w, data).map_err(io)
+        })
+        .map_err(|source| RunError::Io { path, source })
     }
 }
 
@@ -841,12 +849,14 @@ pub fn run_with(
         source,
     })?;
 
-    let (scan_data, scan_key, record) = scan_stage(&ctx, mode, detector)?;
+    // What a stage's successors no longer need is dropped at once: the merge of a long video
+    // holds the whole video's tracks.
+    let (mut scan_data, scan_key, record) = scan_stage(&ctx, mode, detector)?;
     stages.push(record);
     let (pose_data, pose_key, record) = pose_stage(&ctx, &scan_key, &scan_data, &mut warnings)?;
     stages.push(record);
     let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
-    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &scan_data)?;
+    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &mut scan_data)?;
     stages.push(record);
     let (world, project_key, record) = project_stage(
         &ctx,
@@ -858,9 +868,11 @@ pub fn run_with(
     )?;
     stages.push(record);
     let (smoothed, record) = smooth_stage(&ctx, &project_key, &world, &mut warnings)?;
+    drop(world);
     stages.push(record);
     let (mut outputs, transformations, record) =
         export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;
+    drop((tracks, scan_data));
     stages.push(record);
     let (views, record) = views_stage(&ctx, &pose_data, &smoothed, &mut warnings)?;
     if let Some(record) = record {
@@ -1208,59 +1220,83 @@ fn cached<T: Serialize + DeserializeOwned>(
     Ok((d, "computed"))
 }
 
-/// Trajectories in WGS 84 for GeoJSON, and what the report should say about them.
-struct Wgs84Trajectories {
-    /// The same trajectories with `crs` = (longitude, latitude, ellipsoidal height or NaN).
-    trajectories: Vec<Trajectory>,
-    /// PROJ's operations used, with their accuracy.
-    operations: Vec<String>,
-    notes: Vec<String>,
+/// Trajectories to WGS 84 for GeoJSON, one at a time, and what the report should say about them.
+struct Wgs84 {
+    crs: Crs,
+    to_wgs84: Transform,
+    used: UsedOperations,
+    heights_ellipsoidal: bool,
+    /// The survey's kind of height, for the report.
+    heights: String,
 }
 
-/// Converts every point's output-CRS coordinates (`crs`, in the CRS `spec`) to WGS 84 with the
-/// transformation PROJ picks for it (datum change included; the one `cs2cs` uses). Heights are
-/// kept, as WGS 84 ellipsoidal heights, only when the survey's are ellipsoidal: RFC 7946 allows
-/// no other kind.
-fn wgs84_trajectories(
-    spec: &str,
-    heights: &HeightKind,
-    trajectories: &[Trajectory],
-) -> Result<Wgs84Trajectories, RunError> {
-    let heights_ellipsoidal = *heights == HeightKind::Ellipsoidal;
-    let failed = RunError::Crs;
-    let crs = Crs::new(spec).map_err(failed)?;
-    let to_wgs84 = Transform::new(&crs, &Crs::new("EPSG:4326").map_err(failed)?).map_err(failed)?;
-    let mut used = UsedOperations::default();
-    let mut out = trajectories.to_vec();
-    for t in &mut out {
-        for q in &mut t.points {
-            let (lon, lat, h) = to_wgs84
-                .apply_3d_noting(q.crs.x, q.crs.y, q.crs.z, &mut used)
-                .map_err(failed)?;
-            q.crs = Vector3::new(lon, lat, if heights_ellipsoidal { h } else { f64::NAN });
-        }
-    }
-    let operations = used
-        .infos()
-        .iter()
-        .map(|op| {
-            let acc = op.accuracy_m.map_or("accuracy unknown".to_string(), |a| {
-                format!("accuracy {a} m")
-            });
-            format!("{} to WGS 84: PROJ's '{}' ({acc})", crs.label(), op.name)
+impl Wgs84 {
+    /// Converts output-CRS coordinates (`crs`, in the CRS `spec`) to WGS 84 with the
+    /// transformation PROJ picks for each point (datum change included; the one `cs2cs` uses).
+    /// Heights are kept, as WGS 84 ellipsoidal heights, only when the survey's are ellipsoidal:
+    /// RFC 7946 allows no other kind.
+    fn new(spec: &str, heights: &HeightKind) -> Result<Wgs84, RunError> {
+        let failed = RunError::Crs;
+        let crs = Crs::new(spec).map_err(failed)?;
+        let to_wgs84 =
+            Transform::new(&crs, &Crs::new("EPSG:4326").map_err(failed)?).map_err(failed)?;
+        Ok(Wgs84 {
+            crs,
+            to_wgs84,
+            used: UsedOperations::default(),
+            heights_ellipsoidal: *heights == HeightKind::Ellipsoidal,
+            heights: heights.to_string(),
         })
-        .collect();
-    let mut notes = Vec::new();
-    if !heights_ellipsoidal {
-        notes.push(format!(
-            "GeoJSON positions are 2D: RFC 7946 heights are ellipsoidal on WGS 84 and the survey's are {heights}; the heights are in trajectories.csv and the GeoPackage"
-        ));
     }
-    Ok(Wgs84Trajectories {
-        trajectories: out,
-        operations,
-        notes,
-    })
+
+    /// The trajectory's points as (longitude, latitude, ellipsoidal height or NaN).
+    fn convert(&mut self, t: &Trajectory) -> Result<Vec<Vector3<f64>>, RunError> {
+        t.points
+            .iter()
+            .map(|q| {
+                let (lon, lat, h) = self
+                    .to_wgs84
+                    .apply_3d_noting(q.crs.x, q.crs.y, q.crs.z, &mut self.used)
+                    .map_err(RunError::Crs)?;
+                Ok(Vector3::new(
+                    lon,
+                    lat,
+                    if self.heights_ellipsoidal {
+                        h
+                    } else {
+                        f64::NAN
+                    },
+                ))
+            })
+            .collect()
+    }
+
+    /// PROJ's operations used, with their accuracy, and the notes for the report.
+    fn report(&self) -> (Vec<String>, Vec<String>) {
+        let operations = self
+            .used
+            .infos()
+            .iter()
+            .map(|op| {
+                let acc = op.accuracy_m.map_or("accuracy unknown".to_string(), |a| {
+                    format!("accuracy {a} m")
+                });
+                format!(
+                    "{} to WGS 84: PROJ's '{}' ({acc})",
+                    self.crs.label(),
+                    op.name
+                )
+            })
+            .collect();
+        let mut notes = Vec::new();
+        if !self.heights_ellipsoidal {
+            notes.push(format!(
+                "GeoJSON positions are 2D: RFC 7946 heights are ellipsoidal on WGS 84 and the survey's are {}; the heights are in trajectories.csv and the GeoPackage",
+                self.heights
+            ));
+        }
+        (operations, notes)
+    }
 }
 
 /// An output path that cannot be used is the project's to fix; an I/O failure is not.
@@ -1433,5 +1469,37 @@ mod tests {
         known.bytes += 1;
         let r = file_record("video", &path, &[known]).unwrap();
         assert_eq!(r.sha256, hashed.sha256);
+    }
+
+    #[test]
+    fn a_stage_cache_reads_back_only_whole_and_under_its_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache {
+            dir: dir.path().to_path_buf(),
+        };
+        // Larger than the writer's and the reader's buffers.
+        let data: Vec<(usize, f64)> = (0..300_000).map(|k| (k, k as f64 * 0.5)).collect();
+        cache.store("smooth", "key-1", &data).unwrap();
+        let path = cache.path("smooth");
+        assert!(cache_file_whole(&path) && cache.has("smooth", "key-1"));
+        assert_eq!(
+            cache.load::<Vec<(usize, f64)>>("smooth", "key-1"),
+            Some(data)
+        );
+        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-2"), None);
+        let bytes = std::fs::read(&path).unwrap();
+        // Cut short, or a byte more: not read.
+        std::fs::write(&path, &bytes[..bytes.len() - 1]).unwrap();
+        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
+        let mut longer = bytes.clone();
+        longer.push(0);
+        std::fs::write(&path, &longer).unwrap();
+        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
+        // A length inside that asks for more than the file holds: refused, not allocated.
+        let mut lying = bytes.clone();
+        let at = 16 + 1 + "key-1".len();
+        lying[at..at + 9].copy_from_slice(&[253, 255, 255, 255, 255, 255, 255, 255, 15]);
+        std::fs::write(&path, &lying).unwrap();
+        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
     }
 }

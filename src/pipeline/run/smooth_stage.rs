@@ -122,11 +122,12 @@ fn trajectory_points(
     to_out: &ToOut,
 ) -> Result<Vec<Trajectory>, RunError> {
     let (fps, surface) = (ctx.fps, &ctx.surface);
-    let mut trajectories = Vec::new();
+    let mut trajectories = Vec::with_capacity(world.len());
     for (k, t) in world.iter().enumerate() {
         let by_frame: BTreeMap<usize, &WorldPoint> =
             t.points.iter().map(|(f, w)| (*f, w)).collect();
-        let mut points = Vec::new();
+        // Sized once: a long video's points are most of the merge's memory.
+        let mut points = Vec::with_capacity(states[k].len());
         for st in &states[k] {
             let (frame, en, vel, observed) = (st.frame, st.position, st.velocity, st.observed);
             let cov_random: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();

@@ -3,26 +3,28 @@
 use super::*;
 use crate::track::link::{ChunkTracks, LinkSettings, link_chunks};
 
-/// Stage 3: image tracks.
+/// Stage 3: image tracks. The chunks' tracks are taken from `scan_data` (nothing later needs
+/// them: the merge of a long video holds each point once).
 pub(super) fn track_stage(
     ctx: &Ctx,
     scan_key: &str,
-    scan_data: &ScanData,
+    scan_data: &mut ScanData,
 ) -> Result<(Vec<ImageTrack>, String, StageRecord), RunError> {
     let fps = ctx.fps;
     let p = &ctx.l.project;
     let track_key = stage_key("track", &[scan_key], &p.track);
     let t0 = Instant::now();
     let mut joined = (0.0, 0.0);
+    let chunk_tracks = std::mem::take(&mut scan_data.chunk_tracks);
+    let frames = scan_data.frames;
     let (tracks, status) = cached(&ctx.cache, ctx.progress, "track", &track_key, true, || {
-        let chunks = scan_data
-            .chunk_tracks
-            .iter()
+        let chunks = chunk_tracks
+            .into_iter()
             .map(|c| ChunkTracks {
                 decode_from: c.decode_from,
                 start: c.start,
                 end: c.end,
-                tracks: c.tracks.clone(),
+                tracks: c.tracks,
             })
             .collect();
         let overlap = ctx.grid.overlap_frames;
@@ -37,7 +39,7 @@ pub(super) fn track_stage(
         joined = (stats.joined as f64, stats.unmatched as f64);
         // Short tracks are mostly false alarms, unless the video's start or end cut them.
         let min_frames = (p.track.min_length_s() * fps).round() as usize;
-        let last = scan_data.frames.saturating_sub(1);
+        let last = frames.saturating_sub(1);
         let tracks: Vec<ImageTrack> = tracks
             .into_iter()
             .filter(|t| {

@@ -11,7 +11,9 @@
 //!    merge's share of the work (target: at most 5 %), the outputs checked byte for byte
 //!    against `run`'s; every step its own `geostride` process, as on a cluster;
 //! 3. each segment's peak memory against its length (target: bounded by a chunk, not by the
-//!    video).
+//!    video);
+//! 4. the merge's peak memory for the video's first minute and for both: what a trajectory
+//!    point costs it.
 //!
 //! `GEOSTRIDE_BENCH_DIR=DIR` keeps the simulated scenes in DIR and reuses them on the next run.
 
@@ -80,29 +82,46 @@ fn stage<'a>(r: &'a RunReport, name: &str) -> &'a geostride::pipeline::run::Stag
     r.stages.iter().find(|s| s.name == name).expect("stage")
 }
 
+/// A process's peak resident memory since its `exec` (`VmHWM`), in MiB; None once it has ended.
+fn peak_mib(pid: u32) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
 /// Runs `geostride ARGS` as its own process: (wall seconds, peak resident memory in MiB).
+///
+/// The peak is the child's `VmHWM`, read every 10 ms until it ends (a high-water mark: the last
+/// reading holds all but its last few milliseconds). Not `wait4`'s `ru_maxrss`: `exec` carries
+/// the parent's peak into it, and this bench's own (977 MiB after part 1's runs in-process) was
+/// reported as the merge's.
 fn process(args: &[&std::ffi::OsStr]) -> (f64, f64) {
     let t = Instant::now();
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))
         .args(args)
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
         .expect("geostride");
-    let mut status = 0;
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: wait4 fills the status and the child's resource usage it is given.
-    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
-    assert!(
-        pid > 0 && libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
-        "geostride {args:?} failed"
-    );
-    (t.elapsed().as_secs_f64(), usage.ru_maxrss as f64 / 1024.0)
+    let mut peak = 0.0f64;
+    let status = loop {
+        if let Some(m) = peak_mib(child.id()) {
+            peak = peak.max(m);
+        }
+        if let Some(status) = child.try_wait().expect("waiting for geostride") {
+            break status;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    };
+    assert!(status.success(), "geostride {args:?} failed");
+    (t.elapsed().as_secs_f64(), peak)
 }
 
 /// Runs `project` split into `n` segments in `dir`, each step its own process (as on a
-/// cluster); prints and checks against `one`.
-fn split_run(project: &Path, dir: &Path, n: usize, one: &Path, one_s: f64) {
+/// cluster); prints and checks against `one` (its folder and seconds) when given. Returns the
+/// merge's peak memory in MiB and the trajectory points it held.
+fn split_run(project: &Path, dir: &Path, n: usize, one: Option<(&Path, f64)>) -> (f64, f64) {
     let _ = std::fs::remove_dir_all(dir);
     let os = |s: &str| std::ffi::OsString::from(s);
     let (split_s, _) = process(&[
@@ -134,6 +153,16 @@ fn split_run(project: &Path, dir: &Path, n: usize, one: &Path, one_s: f64) {
         seg_mib.push(m);
     }
     let (merge_s, merge_mib) = process(&[&os("merge"), dir.as_os_str(), &os("-q")]);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).expect("report"))
+            .expect("report");
+    let points = report["stages"]
+        .as_array()
+        .expect("stages")
+        .iter()
+        .find(|s| s["name"] == "project")
+        .and_then(|s| s["counts"]["points"].as_f64())
+        .expect("points");
     let max = seg_s.iter().copied().fold(0.0, f64::max);
     let sum: f64 = seg_s.iter().sum();
     let wall = split_s + max + merge_s;
@@ -156,6 +185,9 @@ fn split_run(project: &Path, dir: &Path, n: usize, one: &Path, one_s: f64) {
             .collect::<Vec<_>>()
             .join("/")
     );
+    let Some((one, one_s)) = one else {
+        return (merge_mib, points);
+    };
     println!(
         "    on {n} machines: {wall:.1} s against {one_s:.1} s on one ({:.2}x); work {:.1} s ({:.2} of one machine's); merge {:.1} % of the work: target <= {:.0} %: {}",
         one_s / wall,
@@ -181,6 +213,7 @@ fn split_run(project: &Path, dir: &Path, n: usize, one: &Path, one_s: f64) {
     println!(
         "    trajectories.csv, tracks_mot.txt, trajectories.txt, pose/poses.csv: the bytes of run"
     );
+    (merge_mib, points)
 }
 
 fn main() {
@@ -255,13 +288,29 @@ fn main() {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    let mut merges = Vec::new();
     for n in [2, 4] {
-        split_run(
+        merges.push(split_run(
             &project,
             &base.join(format!("crowd-2min-split-{n}")),
             n,
-            &one,
-            one_s,
-        );
+            Some((&one, one_s)),
+        ));
     }
+
+    // 4. The merge's memory against the video's length: its first minute alone.
+    let mut first = load(&project).expect("project").project;
+    first.video.duration_s = Some(60.0);
+    let minute = dir.join("project-1min.toml");
+    std::fs::write(
+        &minute,
+        project_text(&first, "the crowd's first minute").expect("text"),
+    )
+    .expect("project file");
+    let (mib_1, points_1) = split_run(&minute, &base.join("crowd-1min-split-2"), 2, None);
+    let (mib_2, points_2) = merges[0];
+    println!(
+        "  the merge against the video's length: 1 min {mib_1:.0} MiB ({points_1} trajectory points), 2 min {mib_2:.0} MiB ({points_2}): {:.0} bytes more a point",
+        (mib_2 - mib_1) * (1 << 20) as f64 / (points_2 - points_1)
+    );
 }

@@ -867,8 +867,7 @@ pub fn run_with(
         &mut warnings,
     )?;
     stages.push(record);
-    let (smoothed, record) = smooth_stage(&ctx, &project_key, &world, &mut warnings)?;
-    drop(world);
+    let (smoothed, record) = smooth_stage(&ctx, &project_key, world, &mut warnings)?;
     stages.push(record);
     let (mut outputs, transformations, record) =
         export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;

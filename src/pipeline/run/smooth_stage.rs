@@ -7,7 +7,7 @@ use crate::pipeline::settings::SmoothSection;
 pub(super) fn smooth_stage(
     ctx: &Ctx,
     project_key: &str,
-    world: &[WorldTrack],
+    world: Vec<WorldTrack>,
     warnings: &mut Vec<String>,
 ) -> Result<(SmoothData, StageRecord), RunError> {
     let fps = ctx.fps;
@@ -65,7 +65,10 @@ pub(super) fn smooth_stage(
             } else {
                 r.q.iter().copied().collect()
             };
-            let trajectories = trajectory_points(ctx, world, &states, persistent, &to_out)?;
+            // What is used is freed as the trajectories are made: a long video's merge holds
+            // its points once, not four times.
+            drop(obs);
+            let trajectories = trajectory_points(ctx, world, states, persistent, &to_out)?;
             let d = SmoothData {
                 trajectories,
                 em_iterations: iterations,
@@ -116,19 +119,19 @@ pub(super) fn smooth_stage(
 /// observation) and its coordinates in the output CRS.
 fn trajectory_points(
     ctx: &Ctx,
-    world: &[WorldTrack],
-    states: &[Vec<crate::smooth::State>],
+    world: Vec<WorldTrack>,
+    states: Vec<Vec<crate::smooth::State>>,
     persistent: f64,
     to_out: &ToOut,
 ) -> Result<Vec<Trajectory>, RunError> {
     let (fps, surface) = (ctx.fps, &ctx.surface);
     let mut trajectories = Vec::with_capacity(world.len());
-    for (k, t) in world.iter().enumerate() {
+    for (t, states) in world.into_iter().zip(states) {
         let by_frame: BTreeMap<usize, &WorldPoint> =
             t.points.iter().map(|(f, w)| (*f, w)).collect();
         // Sized once: a long video's points are most of the merge's memory.
-        let mut points = Vec::with_capacity(states[k].len());
-        for st in &states[k] {
+        let mut points = Vec::with_capacity(states.len());
+        for st in &states {
             let (frame, en, vel, observed) = (st.frame, st.position, st.velocity, st.observed);
             let cov_random: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();
             // Systematic parts: the height's and the pose's, from the nearest observation.
@@ -156,10 +159,11 @@ fn trajectory_points(
                 observed,
             });
         }
+        drop(by_frame);
         trajectories.push(Trajectory {
             id: t.id,
             height_m: t.height_m,
-            height_source: t.height_source.clone(),
+            height_source: t.height_source,
             points,
         });
     }

@@ -379,11 +379,21 @@ pub fn write_detections_csv(
     w: &mut dyn std::io::Write,
     detections: &[Vec<Detection>],
 ) -> std::io::Result<()> {
+    writeln!(w, "{DETECTIONS_HEADER}")?;
+    write_detection_rows(w, 0, detections)
+}
+
+/// The rows of `detections.csv` for consecutive frames from `first_frame` (a chunk's).
+pub fn write_detection_rows(
+    w: &mut dyn std::io::Write,
+    first_frame: usize,
+    detections: &[Vec<Detection>],
+) -> std::io::Result<()> {
     use crate::export::fixed::Fixed;
     use std::fmt::Write;
-    let mut s = String::from(DETECTIONS_HEADER);
-    s.push('\n');
-    for (frame, dets) in detections.iter().enumerate() {
+    let mut s = String::new();
+    for (k, dets) in detections.iter().enumerate() {
+        let frame = first_frame + k;
         for d in dets {
             let _ = writeln!(
                 s,

@@ -242,20 +242,62 @@ pub fn mot_txt(tracks: &[ImageTrack]) -> String {
     text_of(|w| write_mot_txt(w, tracks))
 }
 
-/// [`mot_txt`] written to `w`. Rows by frame, then identity: the tracks' points (each track's in
-/// frame order) are merged through a heap of one entry per track, not sorted all together.
+/// [`mot_txt`] written to `w`.
 pub fn write_mot_txt(w: &mut dyn std::io::Write, tracks: &[ImageTrack]) -> std::io::Result<()> {
+    let mut order: Vec<&ImageTrack> = tracks.iter().collect();
+    order.sort_by_key(|t| t.points.first().map_or(0, |p| p.frame));
+    write_mot_in_order(w, order.into_iter().map(Ok))
+}
+
+/// [`mot_txt`] written to `w` from tracks that come in the order of their first frames (a
+/// track stage's cache, read a track at a time): rows by frame, then identity, holding only
+/// the tracks that have started and not ended. Tracks out of that order are an error.
+pub fn write_mot_in_order<T: std::borrow::Borrow<ImageTrack>>(
+    w: &mut dyn std::io::Write,
+    tracks: impl Iterator<Item = std::io::Result<T>>,
+) -> std::io::Result<()> {
     use std::cmp::Reverse;
-    use std::collections::BinaryHeap;
-    // (frame, id, track, point): the next point of each track.
-    let mut next: BinaryHeap<Reverse<(usize, usize, usize, usize)>> = tracks
-        .iter()
-        .enumerate()
-        .filter_map(|(k, t)| t.points.first().map(|p| Reverse((p.frame, t.id, k, 0))))
-        .collect();
+    use std::collections::{BinaryHeap, HashMap};
+    let mut tracks = tracks;
+    // (frame, id, slot, point): the next row of each track taken in.
+    let mut next: BinaryHeap<Reverse<(usize, usize, usize, usize)>> = BinaryHeap::new();
+    let mut live: HashMap<usize, T> = HashMap::new();
+    let (mut slot, mut last_first) = (0, 0);
+    let mut pending: Option<T> = None;
     let mut out = Pieces::new(w);
-    while let Some(Reverse((frame, id, k, i))) = next.pop() {
-        let b = tracks[k].points[i].bbox;
+    loop {
+        if pending.is_none() {
+            pending = tracks.next().transpose()?;
+        }
+        let row_frame = next.peek().map(|Reverse(r)| r.0);
+        // A track starting no later than the next row is taken in first: rows of one frame go
+        // by identity across tracks.
+        if let Some(t) = pending.take_if(|t| {
+            t.borrow()
+                .points
+                .first()
+                .is_none_or(|p| row_frame.is_none_or(|f| p.frame <= f))
+        }) {
+            let Some(first) = t.borrow().points.first().map(|p| p.frame) else {
+                continue;
+            };
+            if first < last_first {
+                return Err(std::io::Error::other(format!(
+                    "image track {} starts at frame {first}, before one taken earlier ({last_first}): not in order of first frames",
+                    t.borrow().id
+                )));
+            }
+            last_first = first;
+            next.push(Reverse((first, t.borrow().id, slot, 0)));
+            live.insert(slot, t);
+            slot += 1;
+            continue;
+        }
+        let Some(Reverse((frame, id, k, i))) = next.pop() else {
+            break;
+        };
+        let t = live[&k].borrow();
+        let b = t.points[i].bbox;
         // geostride's box corner is the left edge of the first pixel (−0.5 from its centre).
         let _ = writeln!(
             out.s,
@@ -267,8 +309,11 @@ pub fn write_mot_txt(w: &mut dyn std::io::Write, tracks: &[ImageTrack]) -> std::
             Fixed::<2>(b[2]),
             Fixed::<2>(b[3]),
         );
-        if let Some(p) = tracks[k].points.get(i + 1) {
-            next.push(Reverse((p.frame, id, k, i + 1)));
+        match t.points.get(i + 1) {
+            Some(p) => next.push(Reverse((p.frame, id, k, i + 1))),
+            None => {
+                live.remove(&k);
+            }
         }
         out.done_piece()?;
     }

@@ -2,13 +2,20 @@
 
 use super::*;
 
+/// A stage cache that a later stage found missing or damaged (removed while the run went on).
+fn cache_gone(cache: &Cache, stage: &str) -> std::io::Error {
+    std::io::Error::other(format!(
+        "{}: gone or damaged while the run went on: run again",
+        cache.path(stage).display()
+    ))
+}
+
 /// Stage 6: the output files (always written: cheap, and the files must be there). Returns
 /// the files written and the WGS 84 transformations used.
 pub(super) fn export_stage(
     ctx: &Ctx,
     smoothed: &SmoothData,
-    tracks: &[ImageTrack],
-    scan_data: &ScanData,
+    track_key: &str,
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
     let out = ctx.out;
@@ -46,6 +53,16 @@ pub(super) fn export_stage(
         .or(framed.frame.crs.as_ref())
         .map(|c| c.spec.clone());
     let height_kind = &framed.frame.height;
+    // What the writers read back from the stage caches (the context is not shared by threads).
+    let cache = &ctx.cache;
+    let chunks: Vec<(String, String)> = (0..ctx.grid.chunks())
+        .map(|c| {
+            (
+                super::scan_stage::chunk_stage(c),
+                super::scan_stage::chunk_key(ctx, c),
+            )
+        })
+        .collect();
     let write = |f: &String| -> Result<Written, RunError> {
         let mut w = Written::default();
         let outputs = &mut w.outputs;
@@ -63,14 +80,33 @@ pub(super) fn export_stage(
                     outputs,
                 )?
             }
+            // The image tracks and the detections are read back from the stage caches a track
+            // and a chunk at a time: a long video's are not held in memory for these files.
             "mot" => put(
                 "tracks_mot.txt",
-                &mut |w| crate::export::write_mot_txt(w, tracks),
+                &mut |w| {
+                    let tracks = cache
+                        .load_seq::<ImageTrack>("track", track_key)
+                        .ok_or_else(|| cache_gone(cache, "track"))?;
+                    crate::export::write_mot_in_order(w, tracks)
+                },
                 outputs,
             )?,
             "detections" => put(
                 "detections.csv",
-                &mut |w| crate::detect::error_fit::write_detections_csv(w, &scan_data.detections),
+                &mut |w| {
+                    use crate::detect::error_fit::{DETECTIONS_HEADER, write_detection_rows};
+                    writeln!(w, "{DETECTIONS_HEADER}")?;
+                    for (stage, key) in &chunks {
+                        let chunk = cache
+                            .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
+                            .ok_or_else(|| cache_gone(cache, stage))?;
+                        if chunk.end > chunk.start {
+                            write_detection_rows(w, chunk.start, &chunk.detections)?;
+                        }
+                    }
+                    Ok(())
+                },
                 outputs,
             )?,
             "gpkg" => {

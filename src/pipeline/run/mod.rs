@@ -321,6 +321,34 @@ fn cache_header(bytes: &[u8]) -> Option<(u64, &[u8])> {
     Some((u64::from_le_bytes(*len), payload))
 }
 
+/// The elements of a cached sequence, read as they are asked for ([`Cache::load_seq`]).
+struct CachedSeq<T> {
+    reader: std::io::BufReader<std::fs::File>,
+    /// No element can ask for more memory than the file holds.
+    limit: u64,
+    left: u64,
+    path: PathBuf,
+    element: std::marker::PhantomData<T>,
+}
+
+impl<T: DeserializeOwned> Iterator for CachedSeq<T> {
+    type Item = std::io::Result<T>;
+
+    fn next(&mut self) -> Option<std::io::Result<T>> {
+        use bincode::Options;
+        if self.left == 0 {
+            return None;
+        }
+        self.left -= 1;
+        let codec = bincode::DefaultOptions::new()
+            .with_limit(self.limit)
+            .allow_trailing_bytes();
+        Some(codec.deserialize_from(&mut self.reader).map_err(|e| {
+            std::io::Error::other(format!("{}: unreadable: {e}", self.path.display()))
+        }))
+    }
+}
+
 /// The payload of a cache file when the file is whole (its magic and its stated length).
 fn cache_payload(bytes: &[u8]) -> Option<&[u8]> {
     let (len, payload) = cache_header(bytes)?;
@@ -363,6 +391,39 @@ impl Cache {
         let data: T = codec.deserialize_from(&mut reader).ok()?;
         let mut rest = [0u8; 1];
         matches!(reader.read(&mut rest), Ok(0)).then_some(data)
+    }
+
+    /// A cached sequence (a `Vec<T>` stored whole) read back one element at a time: what reads
+    /// a long video's tracks this way never holds them all. None as for [`Cache::load`] (a
+    /// damaged element shows as an error when it is reached).
+    fn load_seq<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<CachedSeq<T>> {
+        use bincode::Options;
+        use std::io::Read;
+        let f = std::fs::File::open(self.path(stage)).ok()?;
+        let size = f.metadata().ok()?.len();
+        let mut reader = std::io::BufReader::with_capacity(1 << 20, f);
+        let mut head = [0u8; 16];
+        reader.read_exact(&mut head).ok()?;
+        let (len, _) = cache_header(&head)?;
+        if len != size.saturating_sub(16) {
+            return None;
+        }
+        let codec = bincode::DefaultOptions::new()
+            .with_limit(len)
+            .allow_trailing_bytes();
+        let stored_key: String = codec.deserialize_from(&mut reader).ok()?;
+        if stored_key != key {
+            return None;
+        }
+        // bincode writes a sequence as its length, then its elements.
+        let left: u64 = codec.deserialize_from(&mut reader).ok()?;
+        Some(CachedSeq {
+            reader,
+            limit: len,
+            left,
+            path: self.path(stage),
+            element: std::marker::PhantomData,
+        })
     }
 
     /// Whether a whole artifact made under `key` is cached, without reading its data.
@@ -465,7 +526,8 @@ struct ScanData {
     px_per_m: f64,
     detector_summary: Vec<(String, f64)>,
     tracks: Vec<FrameTrack>,
-    detections: Vec<Vec<Detection>>,
+    /// How many detections the chunks hold.
+    detections: usize,
     /// Each chunk's image tracks, to be linked.
     chunk_tracks: Vec<ChunkTracksData>,
     times: ScanTimes,
@@ -866,12 +928,14 @@ pub fn run_with(
         &poses,
         &mut warnings,
     )?;
+    // The export reads the image tracks back from the track stage's cache.
+    drop(tracks);
     stages.push(record);
     let (smoothed, record) = smooth_stage(&ctx, &project_key, world, &mut warnings)?;
     stages.push(record);
     let (mut outputs, transformations, record) =
-        export_stage(&ctx, &smoothed, &tracks, &scan_data, &mut warnings)?;
-    drop((tracks, scan_data));
+        export_stage(&ctx, &smoothed, &track_key, &mut warnings)?;
+    drop(scan_data);
     stages.push(record);
     let (views, record) = views_stage(&ctx, &pose_data, &smoothed, &mut warnings)?;
     if let Some(record) = record {
@@ -1490,6 +1554,7 @@ mod tests {
         // Cut short, or a byte more: not read.
         std::fs::write(&path, &bytes[..bytes.len() - 1]).unwrap();
         assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
+        assert!(cache.load_seq::<(usize, f64)>("smooth", "key-1").is_none());
         let mut longer = bytes.clone();
         longer.push(0);
         std::fs::write(&path, &longer).unwrap();

@@ -262,8 +262,22 @@ pub(super) fn model_poses(
         .video
         .file_name()
         .map_or("video".into(), |f| f.to_string_lossy().into_owned());
+    // The key frames' detections, read back a chunk at a time (a long video's are not held).
+    let mut chunk: Option<crate::pipeline::chunk_pass::ChunkData> = None;
     for_video_frames(&ctx.video, &keys, &model.features, |index, mut f| {
-        let dets = scan.detections.get(index).map_or(&[][..], Vec::as_slice);
+        let c = index / ctx.grid.chunk_frames;
+        if chunk.as_ref().is_none_or(|d| d.index != c) {
+            chunk = Some(super::scan_stage::load_chunk(ctx, c).ok_or_else(|| {
+                RunError::Failed(format!(
+                    "{}: chunk {c}'s file is gone or damaged: run again",
+                    ctx.out.display()
+                ))
+            })?);
+        }
+        let dets = chunk
+            .as_ref()
+            .and_then(|d| d.detections.get(index.checked_sub(d.start)?))
+            .map_or(&[][..], Vec::as_slice);
         mask_people(&mut f, dets, mask_px);
         let name = format!("{video_name}#{index}");
         let (mut r, with) = register_frame(model, camera, &name, &f, near.as_ref(), m);

@@ -6,8 +6,13 @@ use crate::pipeline::chunk_pass::{ChunkData, ChunkJob, ChunkTracker, scan_chunk}
 use crate::pipeline::registry::{TrackScale, TrackerChoice};
 
 /// A chunk's file in the cache (under `.stages/`).
-fn chunk_stage(c: usize) -> String {
+pub(super) fn chunk_stage(c: usize) -> String {
     format!("chunks/{c:05}")
+}
+
+/// Chunk `c` as cached; None when it is not there whole under its key.
+pub(super) fn load_chunk(ctx: &Ctx, c: usize) -> Option<ChunkData> {
+    ctx.cache.load(&chunk_stage(c), &chunk_key(ctx, c))
 }
 
 /// The key of chunk `c`.
@@ -181,7 +186,7 @@ pub(super) fn scan_stage(
         px_per_m: ctx.px_per_m,
         detector_summary: Vec::new(),
         tracks: Vec::new(),
-        detections: Vec::new(),
+        detections: 0,
         chunk_tracks: Vec::new(),
         times: ScanTimes::default(),
     };
@@ -201,7 +206,8 @@ pub(super) fn scan_stage(
             data.frames = c.end;
         }
         data.tracks.extend(c.tracks);
-        data.detections.extend(c.detections);
+        // Not kept: `detections.csv` reads them back from the chunk's file.
+        data.detections += c.detections.iter().map(Vec::len).sum::<usize>();
         data.chunk_tracks.push(ChunkTracksData {
             decode_from: c.decode_from,
             start: c.start,
@@ -234,7 +240,7 @@ pub(super) fn scan_stage(
             (k, if same { v[0] } else { v.iter().sum() })
         })
         .collect();
-    let n_det: usize = data.detections.iter().map(Vec::len).sum();
+    let n_det = data.detections;
     let status = match (computed, reused) {
         (0, _) => "reused",
         (_, 0) => "computed",

@@ -370,24 +370,10 @@ impl Cache {
     fn load<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<T> {
         use bincode::Options;
         use std::io::Read;
-        // Read through a buffer, not whole: an hour's stage would stand in memory twice.
-        let f = std::fs::File::open(self.path(stage)).ok()?;
-        let size = f.metadata().ok()?.len();
-        let mut reader = std::io::BufReader::with_capacity(1 << 20, f);
-        let mut head = [0u8; 16];
-        reader.read_exact(&mut head).ok()?;
-        let (len, _) = cache_header(&head)?;
-        if len != size.saturating_sub(16) {
-            return None;
-        }
-        // No length in a damaged file can ask for more memory than the file holds.
+        let (mut reader, limit) = self.open_under(stage, key)?;
         let codec = bincode::DefaultOptions::new()
-            .with_limit(len)
+            .with_limit(limit)
             .allow_trailing_bytes();
-        let stored_key: String = codec.deserialize_from(&mut reader).ok()?;
-        if stored_key != key {
-            return None;
-        }
         let data: T = codec.deserialize_from(&mut reader).ok()?;
         let mut rest = [0u8; 1];
         matches!(reader.read(&mut rest), Ok(0)).then_some(data)
@@ -397,6 +383,32 @@ impl Cache {
     /// a long video's tracks this way never holds them all. None as for [`Cache::load`] (a
     /// damaged element shows as an error when it is reached).
     fn load_seq<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<CachedSeq<T>> {
+        use bincode::Options;
+        let (mut reader, limit) = self.open_under(stage, key)?;
+        // bincode writes a sequence as its length, then its elements.
+        let left: u64 = bincode::DefaultOptions::new()
+            .with_limit(limit)
+            .allow_trailing_bytes()
+            .deserialize_from(&mut reader)
+            .ok()?;
+        Some(CachedSeq {
+            reader,
+            limit,
+            left,
+            path: self.path(stage),
+            element: std::marker::PhantomData,
+        })
+    }
+
+    /// The stage's file, whole (its stated length) and made under `key`: a buffered reader at
+    /// its data (read through a buffer, not whole: an hour's stage would stand in memory twice)
+    /// and the most any length in it may ask for (the file's size: no damaged length can ask
+    /// for more memory than the file holds).
+    fn open_under(
+        &self,
+        stage: &str,
+        key: &str,
+    ) -> Option<(std::io::BufReader<std::fs::File>, u64)> {
         use bincode::Options;
         use std::io::Read;
         let f = std::fs::File::open(self.path(stage)).ok()?;
@@ -408,22 +420,12 @@ impl Cache {
         if len != size.saturating_sub(16) {
             return None;
         }
-        let codec = bincode::DefaultOptions::new()
+        let stored_key: String = bincode::DefaultOptions::new()
             .with_limit(len)
-            .allow_trailing_bytes();
-        let stored_key: String = codec.deserialize_from(&mut reader).ok()?;
-        if stored_key != key {
-            return None;
-        }
-        // bincode writes a sequence as its length, then its elements.
-        let left: u64 = codec.deserialize_from(&mut reader).ok()?;
-        Some(CachedSeq {
-            reader,
-            limit: len,
-            left,
-            path: self.path(stage),
-            element: std::marker::PhantomData,
-        })
+            .allow_trailing_bytes()
+            .deserialize_from(&mut reader)
+            .ok()?;
+        (stored_key == key).then_some((reader, len))
     }
 
     /// Whether a whole artifact made under `key` is cached, without reading its data.

@@ -369,20 +369,6 @@ fn fit_paper(pairs: &[&Pair], ts: &[f64], dv2: &[f64], du2: &[f64], floor: f64) 
 pub const DETECTIONS_HEADER: &str =
     "frame,u_px,v_px,var_u_px2,cov_uv_px2,var_v_px2,score,box_x_px,box_y_px,box_w_px,box_h_px";
 
-/// `detections.csv`: one row per detection, frames in order.
-pub fn detections_csv(detections: &[Vec<Detection>]) -> String {
-    crate::export::text_of(|w| write_detections_csv(w, detections))
-}
-
-/// [`detections_csv`] written to `w`, a frame's rows at a time.
-pub fn write_detections_csv(
-    w: &mut dyn std::io::Write,
-    detections: &[Vec<Detection>],
-) -> std::io::Result<()> {
-    writeln!(w, "{DETECTIONS_HEADER}")?;
-    write_detection_rows(w, 0, detections)
-}
-
 /// The rows of `detections.csv` for consecutive frames from `first_frame` (a chunk's).
 pub fn write_detection_rows(
     w: &mut dyn std::io::Write,
@@ -391,12 +377,12 @@ pub fn write_detection_rows(
 ) -> std::io::Result<()> {
     use crate::export::fixed::Fixed;
     use std::fmt::Write;
-    let mut s = String::new();
+    let mut out = crate::export::Pieces::new(w);
     for (k, dets) in detections.iter().enumerate() {
         let frame = first_frame + k;
         for d in dets {
             let _ = writeln!(
-                s,
+                out.s,
                 "{frame},{},{},{},{},{},{},{},{},{},{}",
                 Fixed::<3>(d.uv.x),
                 Fixed::<3>(d.uv.y),
@@ -410,12 +396,9 @@ pub fn write_detection_rows(
                 Fixed::<2>(d.bbox[3]),
             );
         }
-        if s.len() >= 1 << 16 {
-            w.write_all(s.as_bytes())?;
-            s.clear();
-        }
+        out.done_piece()?;
     }
-    w.write_all(s.as_bytes())
+    out.finish()
 }
 
 /// The most heads in one frame (a 4K frame of a dense crowd holds a few hundred): pairing is
@@ -637,7 +620,12 @@ mod tests {
             area_px: 12.0,
             score: 1.0,
         };
-        let text = detections_csv(&[vec![d.clone()], vec![], vec![d.clone(), d]]);
+        // As the export writes it: the header, then chunk by chunk from each one's first frame.
+        let text = crate::export::text_of(|w| {
+            writeln!(w, "{DETECTIONS_HEADER}")?;
+            write_detection_rows(w, 0, &[vec![d.clone()], vec![]])?;
+            write_detection_rows(w, 2, &[vec![d.clone(), d]])
+        });
         let pts = parse_frame_points(
             Path::new("d.csv"),
             &text,

@@ -62,31 +62,24 @@ const TAIL: &str = "\n]}\n";
 /// A FeatureCollection written to `w` one trajectory at a time (an hour's positions never stand
 /// whole in memory); `wgs` gives each trajectory's positions in WGS 84, point by point.
 pub struct Features<'w> {
-    w: &'w mut dyn std::io::Write,
-    s: String,
+    out: super::Pieces<'w>,
     first: bool,
 }
 
 impl<'w> Features<'w> {
     pub fn new(w: &'w mut dyn std::io::Write) -> Features<'w> {
-        Features {
-            w,
-            s: String::from(HEAD),
-            first: true,
-        }
+        let mut out = super::Pieces::new(w);
+        out.s.push_str(HEAD);
+        Features { out, first: true }
     }
 
-    fn next(&mut self) {
+    /// The text of the next feature, after its separator.
+    fn next(&mut self) -> &mut String {
         if !self.first {
-            self.s.push_str(",\n");
+            self.out.s.push_str(",\n");
         }
         self.first = false;
-    }
-
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.w.write_all(self.s.as_bytes())?;
-        self.s.clear();
-        Ok(())
+        &mut self.out.s
     }
 
     /// The trajectory as a LineString feature (none under two points) with its id, frames,
@@ -95,8 +88,7 @@ impl<'w> Features<'w> {
         if t.points.len() < 2 {
             return Ok(());
         }
-        self.next();
-        let s = &mut self.s;
+        let s = self.next();
         let (a, b) = (&t.points[0], &t.points[t.points.len() - 1]);
         s.push_str("{\"type\":\"Feature\",\"properties\":{");
         integer(s, "id", t.id as i64);
@@ -121,15 +113,14 @@ impl<'w> Features<'w> {
             position(s, c, flat);
         }
         s.push_str("]}}");
-        self.flush()
+        self.out.done_piece()
     }
 
     /// One Point feature per trajectory point, with the fields of the GeoPackage's `positions`
     /// layer.
     pub fn points(&mut self, t: &Trajectory, wgs: &[Vector3<f64>]) -> std::io::Result<()> {
         for (p, c) in t.points.iter().zip(wgs) {
-            self.next();
-            let s = &mut self.s;
+            let s = self.next();
             s.push_str("{\"type\":\"Feature\",\"properties\":{");
             integer(s, "id", t.id as i64);
             s.push(',');
@@ -156,13 +147,13 @@ impl<'w> Features<'w> {
             position(s, c, c.z.is_nan());
             s.push_str("}}");
         }
-        self.flush()
+        self.out.done_piece()
     }
 
     /// Closes the collection.
     pub fn finish(mut self) -> std::io::Result<()> {
-        self.s.push_str(TAIL);
-        self.flush()
+        self.out.s.push_str(TAIL);
+        self.out.finish()
     }
 }
 

@@ -124,13 +124,13 @@ pub fn text_of(fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>
 
 /// Text made in pieces and passed to `w` once a piece is large: a long video's outputs never
 /// stand whole in memory, and `w` is not called for every row.
-struct Pieces<'w> {
+pub(crate) struct Pieces<'w> {
     w: &'w mut dyn std::io::Write,
-    s: String,
+    pub(crate) s: String,
 }
 
 impl<'w> Pieces<'w> {
-    fn new(w: &'w mut dyn std::io::Write) -> Pieces<'w> {
+    pub(crate) fn new(w: &'w mut dyn std::io::Write) -> Pieces<'w> {
         Pieces {
             w,
             s: String::new(),
@@ -138,14 +138,15 @@ impl<'w> Pieces<'w> {
     }
 
     /// Passes the text on once it is 64 KiB or more.
-    fn done_piece(&mut self) -> std::io::Result<()> {
+    pub(crate) fn done_piece(&mut self) -> std::io::Result<()> {
         if self.s.len() >= 1 << 16 {
             self.finish()?;
         }
         Ok(())
     }
 
-    fn finish(&mut self) -> std::io::Result<()> {
+    /// Passes the rest of the text on.
+    pub(crate) fn finish(&mut self) -> std::io::Result<()> {
         self.w.write_all(self.s.as_bytes())?;
         self.s.clear();
         Ok(())
@@ -239,14 +240,9 @@ pub fn write_petrack_txt(
 /// MOTChallenge text of the image tracks: `frame,id,left,top,width,height,conf,-1,-1,-1`, frames
 /// from 1, boxes in pixels with the first pixel numbered 1.
 pub fn mot_txt(tracks: &[ImageTrack]) -> String {
-    text_of(|w| write_mot_txt(w, tracks))
-}
-
-/// [`mot_txt`] written to `w`.
-pub fn write_mot_txt(w: &mut dyn std::io::Write, tracks: &[ImageTrack]) -> std::io::Result<()> {
     let mut order: Vec<&ImageTrack> = tracks.iter().collect();
     order.sort_by_key(|t| t.points.first().map_or(0, |p| p.frame));
-    write_mot_in_order(w, order.into_iter().map(Ok))
+    text_of(|w| write_mot_in_order(w, order.into_iter().map(Ok)))
 }
 
 /// [`mot_txt`] written to `w` from tracks that come in the order of their first frames (a
@@ -254,11 +250,10 @@ pub fn write_mot_txt(w: &mut dyn std::io::Write, tracks: &[ImageTrack]) -> std::
 /// the tracks that have started and not ended. Tracks out of that order are an error.
 pub fn write_mot_in_order<T: std::borrow::Borrow<ImageTrack>>(
     w: &mut dyn std::io::Write,
-    tracks: impl Iterator<Item = std::io::Result<T>>,
+    mut tracks: impl Iterator<Item = std::io::Result<T>>,
 ) -> std::io::Result<()> {
     use std::cmp::Reverse;
     use std::collections::{BinaryHeap, HashMap};
-    let mut tracks = tracks;
     // (frame, id, slot, point): the next row of each track taken in.
     let mut next: BinaryHeap<Reverse<(usize, usize, usize, usize)>> = BinaryHeap::new();
     let mut live: HashMap<usize, T> = HashMap::new();

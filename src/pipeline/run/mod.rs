@@ -370,7 +370,7 @@ impl Cache {
     fn load<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<T> {
         use bincode::Options;
         use std::io::Read;
-        let (mut reader, limit) = self.open_under(stage, key)?;
+        let (mut reader, limit) = self.open_under(stage, key, 1 << 20)?;
         let codec = bincode::DefaultOptions::new()
             .with_limit(limit)
             .allow_trailing_bytes();
@@ -384,7 +384,7 @@ impl Cache {
     /// damaged element shows as an error when it is reached).
     fn load_seq<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<CachedSeq<T>> {
         use bincode::Options;
-        let (mut reader, limit) = self.open_under(stage, key)?;
+        let (mut reader, limit) = self.open_under(stage, key, 1 << 20)?;
         // bincode writes a sequence as its length, then its elements.
         let left: u64 = bincode::DefaultOptions::new()
             .with_limit(limit)
@@ -400,20 +400,21 @@ impl Cache {
         })
     }
 
-    /// The stage's file, whole (its stated length) and made under `key`: a buffered reader at
-    /// its data (read through a buffer, not whole: an hour's stage would stand in memory twice)
-    /// and the most any length in it may ask for (the file's size: no damaged length can ask
-    /// for more memory than the file holds).
+    /// The stage's file, whole (its stated length) and made under `key`: a reader at its data
+    /// with a buffer of `buffer` bytes (read through a buffer, not whole: an hour's stage would
+    /// stand in memory twice) and the most any length in it may ask for (the file's size: no
+    /// damaged length can ask for more memory than the file holds).
     fn open_under(
         &self,
         stage: &str,
         key: &str,
+        buffer: usize,
     ) -> Option<(std::io::BufReader<std::fs::File>, u64)> {
         use bincode::Options;
         use std::io::Read;
         let f = std::fs::File::open(self.path(stage)).ok()?;
         let size = f.metadata().ok()?.len();
-        let mut reader = std::io::BufReader::with_capacity(1 << 20, f);
+        let mut reader = std::io::BufReader::with_capacity(buffer, f);
         let mut head = [0u8; 16];
         reader.read_exact(&mut head).ok()?;
         let (len, _) = cache_header(&head)?;
@@ -430,28 +431,8 @@ impl Cache {
 
     /// Whether a whole artifact made under `key` is cached, without reading its data.
     fn has(&self, stage: &str, key: &str) -> bool {
-        use bincode::Options;
-        use std::io::Read;
-        let Ok(mut f) = std::fs::File::open(self.path(stage)) else {
-            return false;
-        };
-        let Ok(size) = f.metadata().map(|m| m.len()) else {
-            return false;
-        };
-        let mut head = Vec::new();
-        if f.by_ref().take(16 + 4096).read_to_end(&mut head).is_err() {
-            return false;
-        }
-        let Some((len, mut reader)) = cache_header(&head) else {
-            return false;
-        };
-        let codec = bincode::DefaultOptions::new()
-            .with_limit(4096)
-            .allow_trailing_bytes();
-        len == size.saturating_sub(16)
-            && codec
-                .deserialize_from::<_, String>(&mut reader)
-                .is_ok_and(|k| k == key)
+        // A buffer the size of a header and a key: the data are not read.
+        self.open_under(stage, key, 16 + 4096).is_some()
     }
 
     fn store<T: Serialize>(&self, stage: &str, key: &str, data: &T) -> Result<(), RunError> {

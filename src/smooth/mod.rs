@@ -307,23 +307,51 @@ fn m_step(m: &Matrix4<f64>, model: NoiseModel, dt: f64) -> Matrix4<f64> {
     q
 }
 
-/// Smooths every track (each sorted by frame, one observation per frame), estimating `Q` by EM
-/// when asked. Tracks with a single observation pass through unsmoothed (velocity unknown).
-pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
+/// Tracks' observations (each sorted by frame, one observation per frame), given in their
+/// order a batch at a time, as often as asked: EM passes over all of them many times, and a
+/// long video's are read back from disk each time rather than held.
+pub trait ObservationSource {
+    fn each_batch(&self, f: &mut dyn FnMut(&[Vec<Observation>])) -> std::io::Result<()>;
+}
+
+impl ObservationSource for &[Vec<Observation>] {
+    fn each_batch(&self, f: &mut dyn FnMut(&[Vec<Observation>])) -> std::io::Result<()> {
+        f(self);
+        Ok(())
+    }
+}
+
+/// The model a smoother fitted to all the tracks: what smoothing a batch needs.
+#[derive(Clone, Debug)]
+pub struct Fit {
+    /// The process noise (estimated when EM ran), per frame step.
+    pub q: Matrix4<f64>,
+    pub em_iterations: usize,
+    pub converged: bool,
+    /// Log-likelihood of the observations under the final model.
+    pub log_likelihood: f64,
+}
+
+/// Estimates `Q` by EM over all the tracks when asked (else keeps the initial one). EM's passes
+/// need only each track's moments, summed in the tracks' order whatever the batches.
+pub fn fit(src: &dyn ObservationSource, s: &SmoothSettings) -> std::io::Result<Fit> {
     let mut q = initial_q(s);
     let mut iterations = 0;
     let mut converged = !s.em;
-    // EM's passes need only the moments; the states are kept by the last pass, at the final Q.
-    let run_keeping = |q: &Matrix4<f64>, keep_states: bool| -> Vec<Option<Pass>> {
+    let run = |q: &Matrix4<f64>| -> std::io::Result<Vec<Option<Pass>>> {
         // Tracks are independent given Q: in parallel, in their order.
         use rayon::prelude::*;
-        tracks
-            .par_iter()
-            .map(|t| smooth_track(t, q, s, keep_states))
-            .collect()
+        let mut passes = Vec::new();
+        src.each_batch(&mut |batch| {
+            let p: Vec<Option<Pass>> = batch
+                .par_iter()
+                .map(|t| smooth_track(t, q, s, false))
+                .collect();
+            passes.extend(p);
+        })?;
+        Ok(passes)
     };
-    let run = |q: &Matrix4<f64>| run_keeping(q, false);
-    let mut passes = run_keeping(&q, !s.em);
+    let mut passes = run(&q)?;
     // One EM step: the M-step on the moments of the passes at the current Q.
     let em_step = |passes: &[Option<Pass>]| -> Option<Matrix4<f64>> {
         let (mut m, mut n) = (Matrix4::zeros(), 0usize);
@@ -344,9 +372,9 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
                 converged = true;
                 break;
             };
-            let p1 = run(&q1);
+            let p1 = run(&q1)?;
             let Some(q2) = em_step(&p1) else { break };
-            let p2 = run(&q2);
+            let p2 = run(&q2)?;
             iterations += 2;
             let r = q1 - q;
             let v = q2 - q1 - r;
@@ -360,9 +388,9 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
                 && (extrapolated - extrapolated.transpose()).norm() < 1e-9 * extrapolated.norm();
             let (mut next, mut next_passes) = (q2, p2);
             if valid && alpha < -1.0 {
-                let pe = run(&extrapolated);
+                let pe = run(&extrapolated)?;
                 if let Some(qe) = em_step(&pe) {
-                    let pq = run(&qe);
+                    let pq = run(&qe)?;
                     iterations += 1;
                     if ll(&pq) >= ll(&next_passes) {
                         (next, next_passes) = (qe, pq);
@@ -377,13 +405,23 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
                 break;
             }
         }
-        passes = run_keeping(&q, true);
     }
-    let log_likelihood = ll(&passes);
-    let tracks = passes
-        .into_iter()
-        .zip(tracks)
-        .map(|(p, t)| match p {
+    Ok(Fit {
+        q,
+        em_iterations: iterations,
+        converged,
+        // The passes were made at the final Q.
+        log_likelihood: ll(&passes),
+    })
+}
+
+/// Smooths a batch of tracks under a fitted model. Tracks with a single observation pass
+/// through unsmoothed (velocity unknown).
+pub fn smooth_batch(tracks: &[Vec<Observation>], fit: &Fit, s: &SmoothSettings) -> Vec<Vec<State>> {
+    use rayon::prelude::*;
+    tracks
+        .par_iter()
+        .map(|t| match smooth_track(t, &fit.q, s, true) {
             Some(p) => p.states,
             None => t
                 .iter()
@@ -402,27 +440,46 @@ pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
                 })
                 .collect(),
         })
-        .collect();
-    Smoothed {
-        tracks,
-        q,
-        em_iterations: iterations,
-        converged,
-        log_likelihood,
-    }
+        .collect()
 }
 
-/// Turns observed tracks into smoothed states; chosen by name in a project.
-pub trait Smoother: Send {
-    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed;
+/// Smooths every track held in memory (each sorted by frame, one observation per frame),
+/// estimating `Q` by EM when asked: [`fit`], then [`smooth_batch`].
+pub fn smooth(tracks: &[Vec<Observation>], s: &SmoothSettings) -> Smoothed {
+    KalmanRts(s.clone()).smooth(tracks)
+}
+
+/// Turns observed tracks into smoothed states; chosen by name in a project. The model is
+/// fitted over all the tracks first, then the tracks are smoothed a batch at a time.
+pub trait Smoother: Send + Sync {
+    fn fit(&self, src: &dyn ObservationSource) -> std::io::Result<Fit>;
+    fn smooth_batch(&self, fit: &Fit, tracks: &[Vec<Observation>]) -> Vec<Vec<State>>;
+
+    /// Both, for tracks held in memory.
+    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed {
+        let fit = match self.fit(&tracks) {
+            Ok(f) => f,
+            Err(e) => unreachable!("tracks in memory are read without error: {e}"),
+        };
+        Smoothed {
+            tracks: self.smooth_batch(&fit, tracks),
+            q: fit.q,
+            em_iterations: fit.em_iterations,
+            converged: fit.converged,
+            log_likelihood: fit.log_likelihood,
+        }
+    }
 }
 
 /// The constant-velocity Kalman filter and RTS smoother, with EM.
 pub struct KalmanRts(pub SmoothSettings);
 
 impl Smoother for KalmanRts {
-    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed {
-        smooth(tracks, &self.0)
+    fn fit(&self, src: &dyn ObservationSource) -> std::io::Result<Fit> {
+        fit(src, &self.0)
+    }
+    fn smooth_batch(&self, fit: &Fit, tracks: &[Vec<Observation>]) -> Vec<Vec<State>> {
+        smooth_batch(tracks, fit, &self.0)
     }
 }
 
@@ -432,8 +489,17 @@ pub struct Unsmoothed {
 }
 
 impl Smoother for Unsmoothed {
-    fn smooth(&self, tracks: &[Vec<Observation>]) -> Smoothed {
-        let tracks = tracks
+    fn fit(&self, _: &dyn ObservationSource) -> std::io::Result<Fit> {
+        Ok(Fit {
+            q: Matrix4::zeros(),
+            em_iterations: 0,
+            converged: true,
+            log_likelihood: f64::NAN,
+        })
+    }
+
+    fn smooth_batch(&self, _: &Fit, tracks: &[Vec<Observation>]) -> Vec<Vec<State>> {
+        tracks
             .iter()
             .map(|t| {
                 (0..t.len())
@@ -457,14 +523,7 @@ impl Smoother for Unsmoothed {
                     })
                     .collect()
             })
-            .collect();
-        Smoothed {
-            tracks,
-            q: Matrix4::zeros(),
-            em_iterations: 0,
-            converged: true,
-            log_likelihood: f64::NAN,
-        }
+            .collect()
     }
 }
 
@@ -479,15 +538,11 @@ impl Smoother for Unsmoothed {
 /// `Δrᵀ (Cₖ + Cₖ₊₁)⁻¹ Δr / 2` over consecutive observed frames, and the share is `1 − s`. (The
 /// residuals themselves would also count the motion a stiff smoother misses as white.)
 pub fn persistent_share(observations: &[Vec<Observation>], tracks: &[Vec<State>]) -> Option<f64> {
-    let residuals = observations.iter().zip(tracks).map(|(obs, states)| {
-        obs.iter()
-            .filter_map(|o| {
-                let i = states.binary_search_by_key(&o.frame, |s| s.frame).ok()?;
-                Some((o.frame, o.position - states[i].position, o.cov))
-            })
-            .collect::<Vec<_>>()
-    });
-    white_share(residuals).map(|w| 1.0 - w)
+    let mut w = WhiteShare::default();
+    for (obs, states) in observations.iter().zip(tracks) {
+        w.add_smoothed(obs, states);
+    }
+    w.persistent()
 }
 
 /// The white share `s` of stated observation covariances, from residuals against a smoothed
@@ -499,9 +554,25 @@ where
     I: IntoIterator<Item = T>,
     T: AsRef<[(usize, Vector2<f64>, Matrix2<f64>)]>,
 {
-    let (mut sum, mut n) = (0.0, 0usize);
+    let mut w = WhiteShare::default();
     for t in tracks {
-        for w in t.as_ref().windows(2) {
+        w.add(t.as_ref());
+    }
+    w.share()
+}
+
+/// [`white_share`] summed a track at a time (a long video's tracks are smoothed a batch at a
+/// time).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WhiteShare {
+    sum: f64,
+    n: usize,
+}
+
+impl WhiteShare {
+    /// One track's residuals `(frame, residual, stated covariance)` in frame order.
+    pub fn add(&mut self, residuals: &[(usize, Vector2<f64>, Matrix2<f64>)]) {
+        for w in residuals.windows(2) {
             let ((f0, r0, c0), (f1, r1, c1)) = (w[0], w[1]);
             if f1 != f0 + 1 {
                 continue;
@@ -510,14 +581,35 @@ where
                 continue;
             };
             let d = r1 - r0;
-            sum += (d.transpose() * inv * d)[(0, 0)] / 2.0;
-            n += 1;
+            self.sum += (d.transpose() * inv * d)[(0, 0)] / 2.0;
+            self.n += 1;
         }
     }
-    if n < 20 || !sum.is_finite() {
-        return None;
+
+    /// One track's observations against its smoothed states.
+    pub fn add_smoothed(&mut self, obs: &[Observation], states: &[State]) {
+        let residuals: Vec<_> = obs
+            .iter()
+            .filter_map(|o| {
+                let i = states.binary_search_by_key(&o.frame, |s| s.frame).ok()?;
+                Some((o.frame, o.position - states[i].position, o.cov))
+            })
+            .collect();
+        self.add(&residuals);
     }
-    Some((sum / n as f64).min(1.0))
+
+    /// The white share; `None` with fewer than 20 pairs.
+    pub fn share(&self) -> Option<f64> {
+        if self.n < 20 || !self.sum.is_finite() {
+            return None;
+        }
+        Some((self.sum / self.n as f64).min(1.0))
+    }
+
+    /// `1 −` the white share: the persistent share ([`persistent_share`]).
+    pub fn persistent(&self) -> Option<f64> {
+        self.share().map(|w| 1.0 - w)
+    }
 }
 
 #[cfg(test)]
@@ -709,5 +801,41 @@ mod tests {
             "with the persistent part: {inside}"
         );
         assert!(plain < 0.6, "without it: {plain}");
+    }
+
+    /// Tracks given a few at a time, as a long video's are read back from disk.
+    struct InBatches<'a>(&'a [Vec<Observation>], usize);
+
+    impl ObservationSource for InBatches<'_> {
+        fn each_batch(&self, f: &mut dyn FnMut(&[Vec<Observation>])) -> std::io::Result<()> {
+            self.0.chunks(self.1).for_each(f);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn em_over_batches_is_em_over_all_the_tracks_to_the_bit() {
+        let q = white_acceleration_q(0.04, 0.25, 0.04);
+        let (mut obs, _) = simulate(&q, 0.03, 40, 120, 9);
+        // A gap, a single observation and an empty track among them.
+        obs[3].retain(|o| !(40..55).contains(&o.frame));
+        obs[5].truncate(1);
+        obs[7].clear();
+        let s = SmoothSettings::default();
+        let whole = smooth(&obs, &s);
+        let k = KalmanRts(s.clone());
+        let f = k.fit(&InBatches(&obs, 7)).unwrap();
+        assert!(whole.em_iterations > 2);
+        assert_eq!(f.em_iterations, whole.em_iterations);
+        assert_eq!(f.q, whole.q);
+        assert_eq!(f.log_likelihood.to_bits(), whole.log_likelihood.to_bits());
+        let states: Vec<Vec<State>> = obs.chunks(7).flat_map(|b| k.smooth_batch(&f, b)).collect();
+        assert_eq!(states, whole.tracks);
+        // The persistent share summed a track at a time: the same.
+        let mut w = WhiteShare::default();
+        for (o, st) in obs.iter().zip(&states) {
+            w.add_smoothed(o, st);
+        }
+        assert_eq!(w.persistent(), persistent_share(&obs, &whole.tracks));
     }
 }

@@ -61,33 +61,81 @@ fn shared(
     n
 }
 
-/// Joins the chunks' tracks (given in chunk order) and numbers them from 1.
-pub fn link_chunks(chunks: Vec<ChunkTracks>, s: &LinkSettings) -> (Vec<ImageTrack>, LinkStats) {
-    let mut stats = LinkStats::default();
-    // Every track so far, as its points; `open` indexes those that reach the current chunk's
-    // overlap.
-    let mut all: Vec<Vec<TrackPoint>> = Vec::new();
-    for chunk in chunks {
+/// A joined track that can grow no more, with its number in the order tracks were begun (the
+/// last key of [`canonical_order`]).
+pub struct Closed {
+    pub begun: usize,
+    pub points: Vec<TrackPoint>,
+}
+
+/// The canonical order of joined tracks: by first frame, then first position, then length,
+/// then the order they were begun. `(first point, length, begun)` of each.
+pub fn canonical_order(a: (&TrackPoint, usize, usize), b: (&TrackPoint, usize, usize)) -> Ordering {
+    let ((p, na, ka), (q, nb, kb)) = (a, b);
+    p.frame
+        .cmp(&q.frame)
+        .then(p.uv.x.total_cmp(&q.uv.x))
+        .then(p.uv.y.total_cmp(&q.uv.y))
+        .then(na.cmp(&nb))
+        .then(ka.cmp(&kb))
+}
+
+/// Joins the chunks' tracks a chunk at a time (chunks in order, their overlaps starting later
+/// and later) and gives away each joined track as soon as no later chunk can extend it: a long
+/// video's tracks are never all in memory, only those under way.
+pub struct Linker {
+    s: LinkSettings,
+    /// The tracks that may still grow, in the order they were begun, with that number.
+    live: Vec<(usize, Vec<TrackPoint>)>,
+    begun: usize,
+    stats: LinkStats,
+}
+
+impl Linker {
+    pub fn new(s: LinkSettings) -> Linker {
+        Linker {
+            s,
+            live: Vec::new(),
+            begun: 0,
+            stats: LinkStats::default(),
+        }
+    }
+
+    /// Adds the next chunk's tracks; the tracks that ended before its overlap go to `closed`.
+    pub fn push<E>(
+        &mut self,
+        chunk: ChunkTracks,
+        closed: &mut dyn FnMut(Closed) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let s = &self.s;
         let overlap = chunk.decode_from..chunk.start;
-        let open: Vec<usize> = (0..all.len())
-            .filter(|&k| {
-                all[k]
-                    .last()
-                    .is_some_and(|p| p.frame >= overlap.start && !overlap.is_empty())
-            })
-            .collect();
-        // Every pair that shares frames, most shared first (ties in a fixed order).
+        // Tracks that end before this overlap are never reached again.
+        let (keep, gone): (Vec<_>, Vec<_>) = std::mem::take(&mut self.live)
+            .into_iter()
+            .partition(|(_, p)| p.last().is_some_and(|p| p.frame >= overlap.start));
+        self.live = keep;
+        for (begun, points) in gone {
+            closed(Closed { begun, points })?;
+        }
+        let live = &mut self.live;
+        let open: Vec<usize> = if overlap.is_empty() {
+            Vec::new()
+        } else {
+            (0..live.len()).collect()
+        };
+        // Every pair that shares frames, most shared first (ties in a fixed order: the order
+        // the tracks were begun, then the chunk's).
         let mut pairs: Vec<(usize, usize, usize)> = Vec::new();
         for (b, t) in chunk.tracks.iter().enumerate() {
             for &a in &open {
-                let n = shared(&all[a], &t.points, overlap.clone(), s.same_px);
+                let n = shared(&live[a].1, &t.points, overlap.clone(), s.same_px);
                 if n >= s.min_shared {
                     pairs.push((n, a, b));
                 }
             }
         }
         pairs.sort_by(|x, y| y.0.cmp(&x.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2)));
-        let mut a_taken = vec![false; all.len()];
+        let mut a_taken = vec![false; live.len()];
         let mut b_to: Vec<Option<usize>> = vec![None; chunk.tracks.len()];
         for (_, a, b) in pairs {
             if !a_taken[a] && b_to[b].is_none() {
@@ -104,33 +152,61 @@ pub fn link_chunks(chunks: Vec<ChunkTracks>, s: &LinkSettings) -> (Vec<ImageTrac
                 .collect();
             match b_to[b] {
                 Some(a) => {
-                    stats.joined += 1;
-                    all[a].extend(own);
+                    self.stats.joined += 1;
+                    live[a].1.extend(own);
                 }
                 None => {
                     if !overlap.is_empty() && own.first().is_some_and(|p| p.frame == chunk.start) {
-                        stats.unmatched += 1;
+                        self.stats.unmatched += 1;
                     }
                     if !own.is_empty() {
-                        all.push(own);
+                        live.push((self.begun, own));
+                        self.begun += 1;
                     }
                 }
             }
         }
+        Ok(())
     }
-    all.retain(|p| !p.is_empty());
+
+    /// The tracks still under way go to `closed`; what linking did.
+    pub fn finish<E>(
+        self,
+        closed: &mut dyn FnMut(Closed) -> Result<(), E>,
+    ) -> Result<LinkStats, E> {
+        for (begun, points) in self.live {
+            closed(Closed { begun, points })?;
+        }
+        Ok(self.stats)
+    }
+}
+
+/// Joins the chunks' tracks (given in chunk order) and numbers them from 1 in the
+/// [`canonical_order`].
+pub fn link_chunks(chunks: Vec<ChunkTracks>, s: &LinkSettings) -> (Vec<ImageTrack>, LinkStats) {
+    let mut linker = Linker::new(*s);
+    let mut all: Vec<Closed> = Vec::new();
+    let mut keep = |c: Closed| -> Result<(), std::convert::Infallible> {
+        all.push(c);
+        Ok(())
+    };
+    for chunk in chunks {
+        let Ok(()) = linker.push(chunk, &mut keep);
+    }
+    let Ok(stats) = linker.finish(&mut keep);
     all.sort_by(|a, b| {
-        let (p, q) = (&a[0], &b[0]);
-        p.frame
-            .cmp(&q.frame)
-            .then(p.uv.x.total_cmp(&q.uv.x))
-            .then(p.uv.y.total_cmp(&q.uv.y))
-            .then(a.len().cmp(&b.len()))
+        canonical_order(
+            (&a.points[0], a.points.len(), a.begun),
+            (&b.points[0], b.points.len(), b.begun),
+        )
     });
     let tracks = all
         .into_iter()
         .enumerate()
-        .map(|(k, points)| ImageTrack { id: k + 1, points })
+        .map(|(k, c)| ImageTrack {
+            id: k + 1,
+            points: c.points,
+        })
         .collect();
     (tracks, stats)
 }
@@ -206,6 +282,28 @@ mod tests {
             end: 20,
             tracks: vec![track(1, 12..20, 300.0, 1.0)],
         };
+        // Streamed: the track that ended at frame 4 is given away when the next chunk comes
+        // (its overlap starts later), the other at the end.
+        let mut linker = Linker::new(S);
+        let mut closed: Vec<(usize, usize)> = Vec::new();
+        let copy = |c: &ChunkTracks| ChunkTracks {
+            tracks: c.tracks.clone(),
+            ..*c
+        };
+        let take = |closed: &mut Vec<(usize, usize)>, c: Closed| -> Result<(), ()> {
+            closed.push((c.begun, c.points[0].frame));
+            Ok(())
+        };
+        linker
+            .push(copy(&c0), &mut |c| take(&mut closed, c))
+            .unwrap();
+        assert!(closed.is_empty());
+        linker
+            .push(copy(&c1), &mut |c| take(&mut closed, c))
+            .unwrap();
+        assert_eq!(closed, vec![(0, 0)]);
+        linker.finish(&mut |c| take(&mut closed, c)).unwrap();
+        assert_eq!(closed, vec![(0, 0), (1, 12)]);
         let (t, stats) = link_chunks(vec![c0, c1], &S);
         assert_eq!(stats, LinkStats::default());
         assert_eq!(t.len(), 2);

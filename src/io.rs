@@ -348,6 +348,15 @@ pub fn write_atomic_with(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
+    write_atomic_file(path, |f| fill(f))
+}
+
+/// [`write_atomic_with`] given the buffered file itself: a writer that must go back (a length
+/// stated before data whose size is known only at the end) can seek.
+pub fn write_atomic_file(
+    path: &Path,
+    fill: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     if path.file_name().is_none() {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,

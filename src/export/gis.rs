@@ -47,12 +47,18 @@ fn add_point(g: &mut Geometry, c: &Vector3<f64>, flat: bool) {
 }
 
 /// Writes the trajectories as a GeoPackage in the CRS `crs_wkt` (none when empty): each point
-/// at its `crs` coordinates (a NaN height makes the geometry 2D).
-pub fn write_geopackage(
+/// at its `crs` coordinates (a NaN height makes the geometry 2D). `trajectories` gives them
+/// afresh for each of the two layers (a long video's are read back from disk, never all in
+/// memory).
+pub fn write_geopackage<I, T>(
     path: &Path,
     crs_wkt: &str,
-    trajectories: &[Trajectory],
-) -> Result<(), crate::gis::GisError> {
+    trajectories: impl Fn() -> I,
+) -> Result<(), crate::gis::GisError>
+where
+    I: IntoIterator<Item = std::io::Result<T>>,
+    T: std::borrow::Borrow<Trajectory>,
+{
     let format = GisFormat::GeoPackage;
     let srs = layer_srs(format, crs_wkt)?;
     write_dataset(path, format, |ds| {
@@ -69,7 +75,12 @@ pub fn write_geopackage(
             layer
                 .create_defn_fields(&LINE_FIELDS)
                 .map_err(|e| e.to_string())?;
-            for t in trajectories.iter().filter(|t| t.points.len() >= 2) {
+            for t in trajectories() {
+                let t = t.map_err(|e| e.to_string())?;
+                let t = t.borrow();
+                if t.points.len() < 2 {
+                    continue;
+                }
                 let mut f = Feature::new(layer.defn()).map_err(|e| e.to_string())?;
                 let (a, b) = (&t.points[0], &t.points[t.points.len() - 1]);
                 set_integer(&mut f, "id", t.id as i32)?;
@@ -95,7 +106,8 @@ pub fn write_geopackage(
                     .map_err(|e| format!("cannot write trajectory {}: {e}", t.id))?;
             }
         }
-        // A point per position.
+        // A point per position; the times' range for the style.
+        let (mut t0, mut t1) = (f64::INFINITY, f64::NEG_INFINITY);
         {
             let layer = ds
                 .create_layer(LayerOptions {
@@ -136,8 +148,11 @@ pub fn write_geopackage(
                 ix("sigma_n_m")?,
                 ix("observed")?,
             ];
-            for t in trajectories {
+            for t in trajectories() {
+                let t = t.map_err(|e| e.to_string())?;
+                let t = t.borrow();
                 for p in &t.points {
+                    (t0, t1) = (t0.min(p.time_s), t1.max(p.time_s));
                     let mut f = Feature::new(defn).map_err(|e| e.to_string())?;
                     f.set_field_integer(id, t.id as i32)?;
                     f.set_field_integer(frame, p.frame as i32)?;
@@ -166,12 +181,6 @@ pub fn write_geopackage(
             }
         }
         // QGIS's styles: lines by identity, points by time.
-        let times = trajectories
-            .iter()
-            .flat_map(|t| t.points.iter().map(|p| p.time_s));
-        let (t0, t1) = times.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
-            (a.min(t), b.max(t))
-        });
         let (t0, t1) = if t0.is_finite() { (t0, t1) } else { (0.0, 1.0) };
         crate::gis::add_qgis_styles(
             ds,

@@ -155,19 +155,22 @@ impl<'w> Pieces<'w> {
 
 /// The trajectories as CSV: one row per point.
 pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
-    text_of(|w| write_trajectories_csv(w, trajectories))
+    text_of(|w| write_trajectories_csv(w, trajectories.iter().map(Ok)))
 }
 
-/// [`trajectories_csv`] written to `w`.
-pub fn write_trajectories_csv(
+/// [`trajectories_csv`] written to `w` as the trajectories come (read back from disk: a long
+/// video's are never all in memory); the first that cannot be read stops it.
+pub fn write_trajectories_csv<T: std::borrow::Borrow<Trajectory>>(
     w: &mut dyn std::io::Write,
-    trajectories: &[Trajectory],
+    trajectories: impl IntoIterator<Item = std::io::Result<T>>,
 ) -> std::io::Result<()> {
     let mut out = Pieces::new(w);
     out.s.push_str(
         "id,frame,time_s,e_m,n_m,u_m,x,y,z,ve_m_s,vn_m_s,speed_m_s,sigma_e_m,sigma_n_m,cov_en_m2,sigma_random_m,sigma_height_m,sigma_pose_m,observed,height_m\n",
     );
     for t in trajectories {
+        let t = t?;
+        let t = t.borrow();
         let s = &mut out.s;
         for p in &t.points {
             let _ = writeln!(
@@ -203,13 +206,13 @@ pub fn write_trajectories_csv(
 /// PeTrack's and JuPedSim's trajectory text: comment lines, then `id frame x y z` in metres of
 /// the site frame (a local metric frame, as those tools expect).
 pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame_note: &str) -> String {
-    text_of(|w| write_petrack_txt(w, trajectories, fps, frame_note))
+    text_of(|w| write_petrack_txt(w, trajectories.iter().map(Ok), fps, frame_note))
 }
 
-/// [`petrack_txt`] written to `w`.
-pub fn write_petrack_txt(
+/// [`petrack_txt`] written to `w` as the trajectories come, like [`write_trajectories_csv`].
+pub fn write_petrack_txt<T: std::borrow::Borrow<Trajectory>>(
     w: &mut dyn std::io::Write,
-    trajectories: &[Trajectory],
+    trajectories: impl IntoIterator<Item = std::io::Result<T>>,
     fps: f64,
     frame_note: &str,
 ) -> std::io::Result<()> {
@@ -220,6 +223,8 @@ pub fn write_petrack_txt(
     let _ = writeln!(s, "# coordinates: {frame_note}");
     let _ = writeln!(s, "# id\tframe\tx/m\ty/m\tz/m");
     for t in trajectories {
+        let t = t?;
+        let t = t.borrow();
         let s = &mut out.s;
         for p in &t.points {
             let _ = writeln!(

@@ -2,19 +2,16 @@
 
 use super::*;
 
-/// A stage cache that a later stage found missing or damaged (removed while the run went on).
-fn cache_gone(cache: &Cache, stage: &str) -> std::io::Error {
-    std::io::Error::other(format!(
-        "{}: gone or damaged while the run went on: run again",
-        cache.path(stage).display()
-    ))
+/// [`cache_gone`] as an I/O error, for the writers.
+fn gone(cache: &Cache, stage: &str) -> std::io::Error {
+    std::io::Error::other(cache_gone(cache, stage).to_string())
 }
 
 /// Stage 6: the output files (always written: cheap, and the files must be there). Returns
 /// the files written and the WGS 84 transformations used.
 pub(super) fn export_stage(
     ctx: &Ctx,
-    smoothed: &SmoothData,
+    smooth_key: &str,
     track_key: &str,
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
@@ -44,7 +41,13 @@ pub(super) fn export_stage(
         outputs.push(name.to_string());
         Ok(())
     };
-    let trajs = &smoothed.trajectories;
+    // Every writer reads the trajectories back from the smooth stage's cache, one at a time.
+    let cache = &ctx.cache;
+    let trajs = || {
+        cache
+            .load_seq::<Trajectory>("smooth", smooth_key)
+            .ok_or_else(|| gone(cache, "smooth"))
+    };
     // The formats are independent files: written side by side.
     use rayon::prelude::*;
     let origin_note = &framed.frame.origin_note;
@@ -54,7 +57,6 @@ pub(super) fn export_stage(
         .map(|c| c.spec.clone());
     let height_kind = &framed.frame.height;
     // What the writers read back from the stage caches (the context is not shared by threads).
-    let cache = &ctx.cache;
     let chunks: Vec<(String, String)> = (0..ctx.grid.chunks())
         .map(|c| {
             (
@@ -69,14 +71,14 @@ pub(super) fn export_stage(
         match f.as_str() {
             "csv" => put(
                 "trajectories.csv",
-                &mut |w| crate::export::write_trajectories_csv(w, trajs),
+                &mut |w| crate::export::write_trajectories_csv(w, trajs()?),
                 outputs,
             )?,
             "petrack" => {
                 let note = format!("site frame ({origin_note}), metres");
                 put(
                     "trajectories.txt",
-                    &mut |w| crate::export::write_petrack_txt(w, trajs, fps, &note),
+                    &mut |w| crate::export::write_petrack_txt(w, trajs()?, fps, &note),
                     outputs,
                 )?
             }
@@ -87,7 +89,7 @@ pub(super) fn export_stage(
                 &mut |w| {
                     let tracks = cache
                         .load_seq::<ImageTrack>("track", track_key)
-                        .ok_or_else(|| cache_gone(cache, "track"))?;
+                        .ok_or_else(|| gone(cache, "track"))?;
                     crate::export::write_mot_in_order(w, tracks)
                 },
                 outputs,
@@ -100,7 +102,7 @@ pub(super) fn export_stage(
                     for (stage, key) in &chunks {
                         let chunk = cache
                             .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
-                            .ok_or_else(|| cache_gone(cache, stage))?;
+                            .ok_or_else(|| gone(cache, stage))?;
                         if chunk.end > chunk.start {
                             write_detection_rows(w, chunk.start, &chunk.detections)?;
                         }
@@ -110,7 +112,14 @@ pub(super) fn export_stage(
                 outputs,
             )?,
             "gpkg" => {
-                write_geopackage(&out.join("trajectories.gpkg"), &crs_wkt, trajs)?;
+                // Two passes: the lines, then the positions.
+                let each = || -> Box<dyn Iterator<Item = std::io::Result<Trajectory>>> {
+                    match trajs() {
+                        Ok(seq) => Box::new(seq),
+                        Err(e) => Box::new(std::iter::once(Err(e))),
+                    }
+                };
+                write_geopackage(&out.join("trajectories.gpkg"), &crs_wkt, each)?;
                 outputs.push("trajectories.gpkg".into());
             }
             "geojson" => {
@@ -131,7 +140,8 @@ pub(super) fn export_stage(
                  -> std::io::Result<()> {
                     let mut l = crate::export::geojson::Features::new(lines);
                     let mut p = crate::export::geojson::Features::new(points);
-                    for t in trajs {
+                    for t in trajs()? {
+                        let t = &t?;
                         let c = match wgs.convert(t) {
                             Ok(c) => c,
                             Err(e) => {

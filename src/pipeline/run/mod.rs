@@ -454,6 +454,68 @@ impl Cache {
     }
 }
 
+impl Cache {
+    /// A sequence of `count` elements cached as [`Cache::store`] stores a `Vec<T>` (read back
+    /// with [`Cache::load_seq`] or [`Cache::load`]), but given to `fill`'s `push` one element
+    /// at a time: a long video's stage is never whole in memory. The file's stated length is
+    /// written last; a `fill` that fails, or pushes another number of elements, leaves no file.
+    fn store_seq<T: Serialize>(
+        &self,
+        stage: &str,
+        key: &str,
+        count: usize,
+        fill: impl FnOnce(&mut dyn FnMut(&T) -> Result<(), RunError>) -> Result<(), RunError>,
+    ) -> Result<(), RunError> {
+        use bincode::Options;
+        use std::io::{Seek, SeekFrom, Write};
+        let codec = bincode::DefaultOptions::new();
+        let path = self.path(stage);
+        let io = |e: bincode::Error| std::io::Error::other(e.to_string());
+        let mut failed: Option<RunError> = None;
+        let written = crate::io::write_atomic_file(&path, |f| {
+            f.write_all(CACHE_MAGIC)?;
+            f.write_all(&0u64.to_le_bytes())?;
+            codec.serialize_into(&mut *f, key).map_err(io)?;
+            codec.serialize_into(&mut *f, &(count as u64)).map_err(io)?;
+            let mut pushed = 0usize;
+            let outcome = {
+                let mut push = |t: &T| -> Result<(), RunError> {
+                    if pushed == count {
+                        return Err(RunError::Failed(format!(
+                            "cannot cache {stage}: more than the {count} elements stated"
+                        )));
+                    }
+                    pushed += 1;
+                    codec
+                        .serialize_into(&mut *f, t)
+                        .map_err(|e| RunError::Failed(format!("cannot cache {stage}: {e}")))
+                };
+                fill(&mut push)
+            };
+            let outcome = outcome.and_then(|()| {
+                if pushed == count {
+                    Ok(())
+                } else {
+                    Err(RunError::Failed(format!(
+                        "cannot cache {stage}: {pushed} elements given, {count} stated"
+                    )))
+                }
+            });
+            if let Err(e) = outcome {
+                failed = Some(e);
+                return Err(std::io::Error::other("stopped"));
+            }
+            let end = f.stream_position()?;
+            f.seek(SeekFrom::Start(CACHE_MAGIC.len() as u64))?;
+            f.write_all(&(end - 16).to_le_bytes())
+        });
+        if let Some(e) = failed {
+            return Err(e);
+        }
+        written.map_err(|source| RunError::Io { path, source })
+    }
+}
+
 /// The build: geostride's version and a fingerprint of the running executable, so that a cache
 /// made by another build is never reused. The fingerprint is the executable's size and
 /// modification time to the nanosecond (a rebuilt executable never keeps both): hashing the
@@ -511,18 +573,7 @@ struct ScanData {
     tracks: Vec<FrameTrack>,
     /// How many detections the chunks hold.
     detections: usize,
-    /// Each chunk's image tracks, to be linked.
-    chunk_tracks: Vec<ChunkTracksData>,
     times: ScanTimes,
-}
-
-/// One chunk's image tracks and its frames.
-#[derive(Clone, Debug)]
-struct ChunkTracksData {
-    decode_from: usize,
-    start: usize,
-    end: usize,
-    tracks: Vec<ImageTrack>,
 }
 
 /// A frame's pose as the later stages need it.
@@ -563,17 +614,6 @@ struct WorldTrack {
     height_sd_m: f64,
     height_source: String,
     points: Vec<(usize, WorldPoint)>,
-}
-
-#[derive(Clone, Debug, Serialize, Deserialize)]
-struct SmoothData {
-    trajectories: Vec<Trajectory>,
-    em_iterations: usize,
-    em_converged: bool,
-    q: Vec<f64>,
-    /// The share of the detections' variance that persists from frame to frame
-    /// (`smooth::persistent_share`): added back to every point's random part.
-    persistent_share: f64,
 }
 
 /// The camera of the project, scaled to the video.
@@ -815,7 +855,8 @@ pub fn run_segment(
     chunks: std::ops::Range<usize>,
 ) -> Result<SegmentDone, RunError> {
     let t0 = Instant::now();
-    let Prepared { ctx, detector, .. } = prepare(l, out, progress)?;
+    let Prepared { ctx, detector, .. } =
+        prepare(l, out, progress, &ChunkMode::Only(chunks.clone()))?;
     let n = ctx.grid.chunks();
     if chunks.end > n || chunks.is_empty() {
         return Err(RunError::Unusable(format!(
@@ -823,8 +864,12 @@ pub fn run_segment(
             chunks.start, chunks.end, l.project.video.chunk_s
         )));
     }
-    let (_, computed, reused) =
-        scan_stage::chunks_of(&ctx, &ChunkMode::Only(chunks.clone()), detector)?;
+    let (computed, reused) = scan_stage::chunks_of(
+        &ctx,
+        &ChunkMode::Only(chunks.clone()),
+        detector,
+        &mut |_| Ok(()),
+    )?;
     Ok(SegmentDone {
         frames: chunks.clone().map(|c| ctx.grid.own(c).len()).sum(),
         chunks,
@@ -855,7 +900,7 @@ pub fn plan_chunks(
     out: &Path,
     progress: &dyn StageProgress,
 ) -> Result<ChunkPlan, RunError> {
-    let Prepared { ctx, inputs, .. } = prepare(l, out, progress)?;
+    let Prepared { ctx, inputs, .. } = prepare(l, out, progress, &ChunkMode::All)?;
     let keys: Vec<String> = (0..ctx.grid.chunks())
         .map(|c| scan_stage::chunk_key(&ctx, c))
         .collect();
@@ -884,26 +929,29 @@ pub fn run_with(
         detector,
         inputs,
         mut warnings,
-    } = prepare(l, out, progress)?;
+    } = prepare(l, out, progress, mode)?;
     let p = &l.project;
     let mut stages = Vec::new();
-    // No segment of a split run writes now: a killed run's temporaries can go.
-    let chunks_dir = out.join(".stages").join("chunks");
-    crate::io::remove_stale_temps(&chunks_dir).map_err(|source| RunError::Io {
-        path: chunks_dir,
-        source,
-    })?;
+    // No segment of a split run writes now: a killed run's temporaries can go (the stages'
+    // files half-written, the tracks and observations set aside).
+    for dir in [out.join(".stages").join("chunks"), out.join(".stages")] {
+        crate::io::remove_stale_temps(&dir).map_err(|source| RunError::Io { path: dir, source })?;
+    }
 
-    // What a stage's successors no longer need is dropped at once: the merge of a long video
-    // holds the whole video's tracks.
-    let (mut scan_data, scan_key, record) = scan_stage(&ctx, mode, detector)?;
+    let (scan_data, scan_key, record) = scan_stage(&ctx, mode, detector)?;
     stages.push(record);
     let (pose_data, pose_key, record) = pose_stage(&ctx, &scan_key, &scan_data, &mut warnings)?;
     stages.push(record);
+    let frames = scan_data.frames;
+    drop(scan_data);
     let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();
-    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, &mut scan_data)?;
+    // From here on each stage reads its predecessor's data back from the cache a track or a
+    // batch at a time and writes its own the same way: the merge of a long video holds the
+    // tracks under way, never all of them.
+    let (tracks, track_key, record) = track_stage(&ctx, &scan_key, frames)?;
     stages.push(record);
-    let (world, project_key, record) = project_stage(
+    release_freed();
+    let (projected, project_key, record) = project_stage(
         &ctx,
         [&track_key, &pose_key],
         &tracks,
@@ -911,16 +959,15 @@ pub fn run_with(
         &poses,
         &mut warnings,
     )?;
-    // The export reads the image tracks back from the track stage's cache.
-    drop(tracks);
     stages.push(record);
-    let (smoothed, record) = smooth_stage(&ctx, &project_key, world, &mut warnings)?;
+    release_freed();
+    let (_, smooth_key, record) = smooth_stage(&ctx, &project_key, &projected, &mut warnings)?;
     stages.push(record);
+    release_freed();
     let (mut outputs, transformations, record) =
-        export_stage(&ctx, &smoothed, &track_key, &mut warnings)?;
-    drop(scan_data);
+        export_stage(&ctx, &smooth_key, &track_key, &mut warnings)?;
     stages.push(record);
-    let (views, record) = views_stage(&ctx, &pose_data, &smoothed, &mut warnings)?;
+    let (views, record) = views_stage(&ctx, &pose_data, &smooth_key, &mut warnings)?;
     if let Some(record) = record {
         stages.push(record);
     }
@@ -963,6 +1010,16 @@ pub fn run_with(
     Ok(report)
 }
 
+/// Gives the memory freed by a stage back to the system (glibc keeps it in its arenas, one per
+/// thread that allocated: after a long video's stages that showed as memory that grew with the
+/// video although the data held did not).
+fn release_freed() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// Reads and checks everything the stages need before any work (a bad input is found now, not
 /// after hours of scanning), and makes the output folder. Also gives the detector, the inputs'
 /// records and the warnings so far.
@@ -970,6 +1027,7 @@ fn prepare<'a>(
     l: &'a Loaded,
     out: &'a Path,
     progress: &'a dyn StageProgress,
+    mode: &ChunkMode,
 ) -> Result<Prepared<'a>, RunError> {
     let p = &l.project;
     let files = l.input_files();
@@ -1126,6 +1184,9 @@ fn prepare<'a>(
             };
             (None, Some((palette, key)))
         }
+        // The merge detects nothing (its chunks were checked and made by the segments): an
+        // hour's box file is not read.
+        _ if *mode == ChunkMode::None => (None, None),
         _ => (
             Some(super::registry::detector(
                 &p.detect,
@@ -1264,6 +1325,37 @@ fn cached<T: Serialize + DeserializeOwned>(
     cache.store(stage, key, &d)?;
     progress.stored(stage);
     Ok((d, "computed"))
+}
+
+/// A stage whose data are a sequence written a piece at a time (its `compute` stores them with
+/// [`Cache::store_seq`] and gives their summary): the summary cached beside them (as
+/// `STAGE-summary`) under the same key, the data left on disk. Reused only when both are
+/// there whole under `key`.
+fn cached_seq<S: Serialize + DeserializeOwned>(
+    cache: &Cache,
+    progress: &dyn StageProgress,
+    stage: &str,
+    key: &str,
+    compute: impl FnOnce() -> Result<S, RunError>,
+) -> Result<(S, &'static str), RunError> {
+    let summary = format!("{stage}-summary");
+    if cache.has(stage, key)
+        && let Some(d) = cache.load::<S>(&summary, key)
+    {
+        return Ok((d, "reused"));
+    }
+    let d = compute()?;
+    cache.store(&summary, key, &d)?;
+    progress.stored(stage);
+    Ok((d, "computed"))
+}
+
+/// A stage cache that a later stage found missing or damaged (removed while the run went on).
+fn cache_gone(cache: &Cache, stage: &str) -> RunError {
+    RunError::Failed(format!(
+        "{}: gone or damaged while the run went on: run again",
+        cache.path(stage).display()
+    ))
 }
 
 /// Trajectories to WGS 84 for GeoJSON, one at a time, and what the report should say about them.
@@ -1548,5 +1640,45 @@ mod tests {
         lying[at..at + 9].copy_from_slice(&[253, 255, 255, 255, 255, 255, 255, 255, 15]);
         std::fs::write(&path, &lying).unwrap();
         assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
+    }
+
+    #[test]
+    fn a_sequence_cached_an_element_at_a_time_is_the_whole_vector_cached() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache {
+            dir: dir.path().to_path_buf(),
+        };
+        let data: Vec<(usize, f64)> = (0..300_000).map(|k| (k * 7, k as f64 * 0.5)).collect();
+        cache.store("whole", "k", &data).unwrap();
+        cache
+            .store_seq("seq", "k", data.len(), |push| {
+                data.iter().try_for_each(push)
+            })
+            .unwrap();
+        let (whole, seq) = (
+            std::fs::read(cache.path("whole")).unwrap(),
+            std::fs::read(cache.path("seq")).unwrap(),
+        );
+        assert!(whole == seq, "the same bytes as a Vec stored whole");
+        let back: Vec<(usize, f64)> = cache
+            .load_seq("seq", "k")
+            .unwrap()
+            .collect::<std::io::Result<_>>()
+            .unwrap();
+        assert_eq!(back, data);
+        // Fewer or more elements than stated, or a failing source: an error and no file, the
+        // old one kept.
+        for n in [data.len() + 1, data.len() - 1] {
+            assert!(
+                cache
+                    .store_seq("seq", "other", n, |push| data.iter().try_for_each(push))
+                    .is_err()
+            );
+        }
+        let failing = cache
+            .store_seq::<(usize, f64)>("seq", "other", 1, |_| Err(RunError::Failed("no".into())));
+        assert!(matches!(failing, Err(RunError::Failed(m)) if m == "no"));
+        assert_eq!(std::fs::read(cache.path("seq")).unwrap(), seq);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
     }
 }

@@ -2,15 +2,56 @@
 
 use super::*;
 
-/// Stage 4: image tracks to the head-height surface.
+/// What the project stage's cache holds besides the projected tracks (`project.bin`, a track
+/// at a time in order of identity).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub(super) struct ProjectSummary {
+    pub tracks: usize,
+    pub points: usize,
+    pub heights_given: usize,
+}
+
+/// The most image points projected at once: a batch of tracks is read, projected side by side
+/// and written before the next is read.
+pub(super) const BATCH_POINTS: usize = 1 << 16;
+
+/// Reads a cached sequence of tracks in batches of about `BATCH_POINTS` points, in order.
+pub(super) fn in_batches<T: DeserializeOwned>(
+    cache: &Cache,
+    stage: &str,
+    key: &str,
+    points: impl Fn(&T) -> usize,
+    f: &mut dyn FnMut(Vec<T>) -> Result<(), RunError>,
+) -> Result<(), RunError> {
+    let seq = cache
+        .load_seq::<T>(stage, key)
+        .ok_or_else(|| cache_gone(cache, stage))?;
+    let (mut batch, mut n) = (Vec::new(), 0);
+    for t in seq {
+        let t = t.map_err(|e| RunError::Failed(e.to_string()))?;
+        n += points(&t);
+        batch.push(t);
+        if n >= BATCH_POINTS {
+            f(std::mem::take(&mut batch))?;
+            n = 0;
+        }
+    }
+    if !batch.is_empty() {
+        f(batch)?;
+    }
+    Ok(())
+}
+
+/// Stage 4: image tracks to the head-height surface, read from the track stage's cache and
+/// written to this stage's a batch of tracks at a time.
 pub(super) fn project_stage(
     ctx: &Ctx,
     keys: [&str; 2],
-    tracks: &[ImageTrack],
+    tracks: &super::track_stage::TrackSummary,
     pose_data: &PoseData,
     poses: &[Rigid3],
     warnings: &mut Vec<String>,
-) -> Result<(Vec<WorldTrack>, String, StageRecord), RunError> {
+) -> Result<(ProjectSummary, String, StageRecord), RunError> {
     let camera = &ctx.camera;
     let surface = &ctx.surface;
     let heights = &ctx.heights;
@@ -28,82 +69,92 @@ pub(super) fn project_stage(
         ),
     );
     let t0 = Instant::now();
-    let (world, status) = cached(
-        &ctx.cache,
-        ctx.progress,
-        "project",
-        &project_key,
-        true,
-        || {
-            let one = |t: &ImageTrack, surface: &dyn HeightSurface| -> (WorldTrack, usize) {
-                let (h, sd, source) = match heights.get(&t.id) {
-                    Some((h, sd)) => (*h, *sd, "given"),
-                    None => (
-                        p.projection.head_height_m,
-                        p.projection.head_height_sd_m,
-                        "default",
-                    ),
-                };
-                let mut points = Vec::new();
-                let mut dropped = 0;
-                for q in &t.points {
-                    let fp = &pose_data.frames[q.frame];
-                    match project(
-                        camera,
-                        &poses[q.frame],
-                        fp.covariance.as_ref(),
-                        surface,
-                        &q.uv,
-                        &q.cov,
-                        h,
-                        sd,
-                    ) {
-                        Some(w) => points.push((q.frame, w)),
-                        None => dropped += 1,
-                    }
-                }
-                let track = WorldTrack {
-                    id: t.id,
-                    height_m: h,
-                    height_sd_m: sd,
-                    height_source: source.into(),
-                    points,
-                };
-                (track, dropped)
+    let (summary, status) = cached_seq(&ctx.cache, ctx.progress, "project", &project_key, || {
+        let one = |t: &ImageTrack, surface: &dyn HeightSurface| -> (WorldTrack, usize) {
+            let (h, sd, source) = match heights.get(&t.id) {
+                Some((h, sd)) => (*h, *sd, "given"),
+                None => (
+                    p.projection.head_height_m,
+                    p.projection.head_height_sd_m,
+                    "default",
+                ),
             };
-            // Tracks are independent: side by side where the surface can be shared, in order.
-            let projected: Vec<(WorldTrack, usize)> = match surface.shareable() {
-                Some(shared) => {
-                    use rayon::prelude::*;
-                    tracks.par_iter().map(|t| one(t, shared)).collect()
+            let mut points = Vec::new();
+            let mut dropped = 0;
+            for q in &t.points {
+                let fp = &pose_data.frames[q.frame];
+                match project(
+                    camera,
+                    &poses[q.frame],
+                    fp.covariance.as_ref(),
+                    surface,
+                    &q.uv,
+                    &q.cov,
+                    h,
+                    sd,
+                ) {
+                    Some(w) => points.push((q.frame, w)),
+                    None => dropped += 1,
                 }
-                None => tracks.iter().map(|t| one(t, surface.as_ref())).collect(),
-            };
-            let dropped: usize = projected.iter().map(|(_, d)| d).sum();
-            let world: Vec<WorldTrack> = projected.into_iter().map(|(t, _)| t).collect();
-            if dropped > 0 {
-                warnings.push(format!(
-                    "{dropped} detection(s) could not be projected (off the ground surface)"
-                ));
             }
-            Ok(world)
-        },
-    )?;
+            let track = WorldTrack {
+                id: t.id,
+                height_m: h,
+                height_sd_m: sd,
+                height_source: source.into(),
+                points,
+            };
+            (track, dropped)
+        };
+        let mut summary = ProjectSummary {
+            tracks: tracks.tracks,
+            points: 0,
+            heights_given: 0,
+        };
+        let mut dropped = 0;
+        ctx.cache
+            .store_seq("project", &project_key, tracks.tracks, |push| {
+                in_batches(
+                    &ctx.cache,
+                    "track",
+                    keys[0],
+                    |t: &ImageTrack| t.points.len(),
+                    &mut |batch| {
+                        // Tracks are independent: side by side where the surface can be
+                        // shared, in order.
+                        let projected: Vec<(WorldTrack, usize)> = match surface.shareable() {
+                            Some(shared) => {
+                                use rayon::prelude::*;
+                                batch.par_iter().map(|t| one(t, shared)).collect()
+                            }
+                            None => batch.iter().map(|t| one(t, surface.as_ref())).collect(),
+                        };
+                        for (t, d) in &projected {
+                            dropped += d;
+                            summary.points += t.points.len();
+                            summary.heights_given += usize::from(t.height_source == "given");
+                            push(t)?;
+                        }
+                        Ok(())
+                    },
+                )
+            })?;
+        if dropped > 0 {
+            warnings.push(format!(
+                "{dropped} detection(s) could not be projected (off the ground surface)"
+            ));
+        }
+        Ok(summary)
+    })?;
     let record = StageRecord {
         name: "project".into(),
         status: status.into(),
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([
-            (
-                "points".into(),
-                world.iter().map(|t| t.points.len()).sum::<usize>() as f64,
-            ),
-            (
-                "heights_given".into(),
-                world.iter().filter(|t| t.height_source == "given").count() as f64,
-            ),
+            ("points".into(), summary.points as f64),
+            ("heights_given".into(), summary.heights_given as f64),
         ]),
     };
 
-    Ok((world, project_key, record))
+    Ok((summary, project_key, record))
 }

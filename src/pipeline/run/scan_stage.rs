@@ -99,13 +99,15 @@ fn compute_chunk(
     })
 }
 
-/// The chunks `mode` asks for, computed or reused, in order; and how many of each. Under
+/// The chunks `mode` asks for, computed or reused, given to `each` in order a chunk at a time
+/// (a long video's are never all in memory); and how many were computed and reused. Under
 /// [`ChunkMode::Only`] the chunks are only stored, not given.
 pub(super) fn chunks_of(
     ctx: &Ctx,
     mode: &ChunkMode,
     mut detector: Option<Box<dyn crate::detect::Detector>>,
-) -> Result<(Vec<ChunkData>, usize, usize), RunError> {
+    each: &mut dyn FnMut(ChunkData) -> Result<(), RunError>,
+) -> Result<(usize, usize), RunError> {
     let n = ctx.grid.chunks();
     let range = match mode {
         ChunkMode::Only(r) => r.clone(),
@@ -113,57 +115,48 @@ pub(super) fn chunks_of(
     };
     let bar = ctx.progress.stage("scan");
     let (mut computed, mut reused) = (0, 0);
-    // A segment only needs to know which of its chunks are done; the others load them.
+    // A segment only needs to know which of its chunks are done; the others read them.
     let keep = !matches!(mode, ChunkMode::Only(_));
-    let mut done: Vec<Option<Option<ChunkData>>> = Vec::new();
-    let mut missing = Vec::new();
-    for c in range.clone() {
-        let data = if keep {
-            ctx.cache
-                .load::<ChunkData>(&chunk_stage(c), &chunk_key(ctx, c))
-                .map(Some)
-        } else {
-            chunk_done(ctx, c).then_some(None)
-        };
-        if data.is_none() && *mode == ChunkMode::None {
-            missing.push(c);
-        }
-        done.push(data);
-    }
-    if !missing.is_empty() {
-        return Err(RunError::MissingChunks(missing));
-    }
-    let todo: u64 = range
+    let done: Vec<bool> = range.clone().map(|c| chunk_done(ctx, c)).collect();
+    let missing: Vec<usize> = range
         .clone()
         .zip(&done)
-        .filter(|(_, d)| d.is_none())
-        .map(|(c, _)| ctx.grid.own(c).len() as u64)
-        .sum();
+        .filter(|(_, d)| !**d)
+        .map(|(c, _)| c)
+        .collect();
+    if !missing.is_empty() && *mode == ChunkMode::None {
+        return Err(RunError::MissingChunks(missing));
+    }
+    let todo: u64 = missing.iter().map(|&c| ctx.grid.own(c).len() as u64).sum();
     bar.set_length(todo);
-    let mut out = Vec::with_capacity(if keep { done.len() } else { 0 });
-    for (c, d) in range.zip(done) {
-        match d {
-            Some(d) => {
-                reused += 1;
-                out.extend(d);
-            }
-            None => {
-                let det = match detector.take() {
-                    Some(d) => d,
-                    None => chunk_detector(ctx)?,
-                };
-                let d = compute_chunk(ctx, c, det, bar.as_ref())?;
-                ctx.cache.store(&chunk_stage(c), &chunk_key(ctx, c), &d)?;
-                ctx.progress.stored(&chunk_stage(c));
-                computed += 1;
-                // A segment keeps nothing: its memory is one chunk's, however long it is.
-                if keep {
-                    out.push(d);
-                }
-            }
+    for (c, done) in range.zip(done) {
+        if done && !keep {
+            reused += 1;
+            continue;
+        }
+        // Read when it is reached; one damaged since it was checked is made again.
+        if let Some(d) = done.then(|| load_chunk(ctx, c)).flatten() {
+            reused += 1;
+            each(d)?;
+            continue;
+        }
+        if *mode == ChunkMode::None {
+            return Err(RunError::MissingChunks(vec![c]));
+        }
+        let det = match detector.take() {
+            Some(d) => d,
+            None => chunk_detector(ctx)?,
+        };
+        let d = compute_chunk(ctx, c, det, bar.as_ref())?;
+        ctx.cache.store(&chunk_stage(c), &chunk_key(ctx, c), &d)?;
+        ctx.progress.stored(&chunk_stage(c));
+        computed += 1;
+        // A segment keeps nothing: its memory is one chunk's, however long it is.
+        if keep {
+            each(d)?;
         }
     }
-    Ok((out, computed, reused))
+    Ok((computed, reused))
 }
 
 /// Stage 1: every chunk, put together.
@@ -173,10 +166,6 @@ pub(super) fn scan_stage(
     detector: Option<Box<dyn crate::detect::Detector>>,
 ) -> Result<(ScanData, String, StageRecord), RunError> {
     let t0 = Instant::now();
-    let (chunks, computed, reused) = chunks_of(ctx, mode, detector)?;
-    if computed > 0 {
-        ctx.progress.stored("scan");
-    }
     let (width, height) = ctx.size;
     let mut data = ScanData {
         fps: ctx.fps,
@@ -187,12 +176,13 @@ pub(super) fn scan_stage(
         detector_summary: Vec::new(),
         tracks: Vec::new(),
         detections: 0,
-        chunk_tracks: Vec::new(),
         times: ScanTimes::default(),
     };
     let mut summary: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut seeks = 0;
-    for c in chunks {
+    // What the later stages need of each chunk is its frames' stabilisation; the track stage
+    // and the export read the chunks' tracks and detections back from their files.
+    let (computed, reused) = chunks_of(ctx, mode, detector, &mut |c| {
         if c.end > c.start && data.frames != c.start {
             return Err(RunError::Failed(format!(
                 "{}: chunk {} starts at frame {} but the chunks before end at {} (the video ended early?)",
@@ -206,14 +196,7 @@ pub(super) fn scan_stage(
             data.frames = c.end;
         }
         data.tracks.extend(c.tracks);
-        // Not kept: `detections.csv` reads them back from the chunk's file.
         data.detections += c.detections.iter().map(Vec::len).sum::<usize>();
-        data.chunk_tracks.push(ChunkTracksData {
-            decode_from: c.decode_from,
-            start: c.start,
-            end: c.end,
-            tracks: c.image_tracks,
-        });
         for (k, v) in c.detector_summary {
             summary.entry(k).or_default().push(v);
         }
@@ -224,6 +207,10 @@ pub(super) fn scan_stage(
         t.track_s += c.times.track_s;
         t.wall_s += c.times.wall_s;
         seeks += usize::from(c.seeked);
+        Ok(())
+    })?;
+    if computed > 0 {
+        ctx.progress.stored("scan");
     }
     if data.frames == 0 {
         return Err(RunError::Failed(format!(

@@ -1,19 +1,151 @@
 //! Stage 5, `smooth`.
 
+use super::project_stage::in_batches;
 use super::*;
 use crate::pipeline::settings::SmoothSection;
 
-/// Stage 5: smoothing, and each point's covariance by source.
+/// What the smooth stage's cache holds besides the trajectories (`smooth.bin`, a trajectory at
+/// a time in order of identity).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub(super) struct SmoothSummary {
+    pub trajectories: usize,
+    pub points: usize,
+    pub em_iterations: usize,
+    pub em_converged: bool,
+    pub q: Vec<f64>,
+    /// The share of the detections' variance that persists from frame to frame
+    /// (`smooth::persistent_share`): added back to every point's random part.
+    pub persistent_share: f64,
+    pub median_sigma_m: Option<f64>,
+}
+
+/// The projected tracks' observations as the smoother takes them.
+fn observations(world: &[WorldTrack]) -> Vec<Vec<Observation>> {
+    world
+        .iter()
+        .map(|t| {
+            t.points
+                .iter()
+                .map(|(f, w)| Observation {
+                    frame: *f,
+                    position: w.position.xy(),
+                    cov: w.cov_pixel,
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The projected tracks' observations set aside for EM's passes in a file of their own, read
+/// back a batch at a time for each pass (a long video's are never all in memory): per track its
+/// number of observations, then each as frame, east, north and the covariance's four entries,
+/// little-endian (a tenth of the time of decoding the projected tracks each pass).
+struct ObservationFile {
+    path: std::path::PathBuf,
+}
+
+const OBSERVATION_BYTES: usize = 7 * 8;
+
+impl ObservationFile {
+    /// Writes the file from the project stage's cache.
+    fn write(cache: &Cache, project_key: &str, path: std::path::PathBuf) -> Result<Self, RunError> {
+        use std::io::Write;
+        let io_err = |source| RunError::Io {
+            path: path.clone(),
+            source,
+        };
+        let file = std::fs::File::create(&path).map_err(io_err)?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
+        let points_of = |t: &WorldTrack| t.points.len();
+        in_batches(cache, "project", project_key, points_of, &mut |batch| {
+            for obs in observations(&batch) {
+                let mut bytes = Vec::with_capacity(8 + obs.len() * OBSERVATION_BYTES);
+                bytes.extend((obs.len() as u64).to_le_bytes());
+                for o in &obs {
+                    bytes.extend((o.frame as u64).to_le_bytes());
+                    for v in [o.position.x, o.position.y]
+                        .into_iter()
+                        .chain(o.cov.iter().copied())
+                    {
+                        bytes.extend(v.to_le_bytes());
+                    }
+                }
+                w.write_all(&bytes).map_err(io_err)?;
+            }
+            Ok(())
+        })?;
+        w.flush().map_err(io_err)?;
+        Ok(ObservationFile { path })
+    }
+}
+
+impl Drop for ObservationFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+impl crate::smooth::ObservationSource for ObservationFile {
+    fn each_batch(&self, f: &mut dyn FnMut(&[Vec<Observation>])) -> std::io::Result<()> {
+        use std::io::Read;
+        let mut r = std::io::BufReader::with_capacity(1 << 20, std::fs::File::open(&self.path)?);
+        let (mut batch, mut points) = (Vec::new(), 0);
+        let mut bytes = Vec::new();
+        let f64_at = |b: &[u8], k: usize| {
+            f64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]))
+        };
+        loop {
+            let mut n = [0u8; 8];
+            match r.read_exact(&mut n) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => break,
+                Err(e) => return Err(e),
+            }
+            let n = u64::from_le_bytes(n) as usize;
+            bytes.resize(n * OBSERVATION_BYTES, 0);
+            r.read_exact(&mut bytes)?;
+            let obs: Vec<Observation> = bytes
+                .chunks_exact(OBSERVATION_BYTES)
+                .map(|b| Observation {
+                    frame: u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8])) as usize,
+                    position: Vector2::new(f64_at(b, 1), f64_at(b, 2)),
+                    cov: Matrix2::from_column_slice(&[
+                        f64_at(b, 3),
+                        f64_at(b, 4),
+                        f64_at(b, 5),
+                        f64_at(b, 6),
+                    ]),
+                })
+                .collect();
+            points += obs.len();
+            batch.push(obs);
+            if points >= super::project_stage::BATCH_POINTS {
+                f(&batch);
+                batch.clear();
+                points = 0;
+            }
+        }
+        if !batch.is_empty() {
+            f(&batch);
+        }
+        Ok(())
+    }
+}
+
+/// Stage 5: smoothing, and each point's covariance by source. Three kinds of pass over the
+/// projected tracks, each a batch at a time: EM's (the model), one for the persistent share,
+/// and the last that writes the trajectories.
 pub(super) fn smooth_stage(
     ctx: &Ctx,
     project_key: &str,
-    world: Vec<WorldTrack>,
+    projected: &super::project_stage::ProjectSummary,
     warnings: &mut Vec<String>,
-) -> Result<(SmoothData, StageRecord), RunError> {
+) -> Result<(SmoothSummary, String, StageRecord), RunError> {
     let fps = ctx.fps;
     let framed = &ctx.framed;
     let transform = &ctx.transform;
     let p = &ctx.l.project;
+    let cache = &ctx.cache;
     let smooth_key = stage_key("smooth", &[project_key], &p.smooth);
     let t0 = Instant::now();
     let to_out = |local: &Vector3<f64>| -> Result<Vector3<f64>, RunError> {
@@ -31,78 +163,86 @@ pub(super) fn smooth_stage(
             None => Ok(src),
         }
     };
-    let (smoothed, status) = cached(
-        &ctx.cache,
-        ctx.progress,
-        "smooth",
-        &smooth_key,
-        true,
-        || {
-            let obs: Vec<Vec<Observation>> = world
-                .iter()
-                .map(|t| {
-                    t.points
-                        .iter()
-                        .map(|(f, w)| Observation {
-                            frame: *f,
-                            position: w.position.xy(),
-                            cov: w.cov_pixel,
-                        })
-                        .collect()
-                })
-                .collect();
-            let smoother = crate::pipeline::registry::smoother(&p.smooth, 1.0 / fps);
-            let r = smoother.smooth(&obs);
-            // What smoothing cannot average away: detection errors that persist over frames.
-            let persistent = if matches!(p.smooth, SmoothSection::None(_)) {
-                0.0
-            } else {
-                crate::smooth::persistent_share(&obs, &r.tracks).unwrap_or(0.0)
-            };
-            let (states, iterations, converged) = (r.tracks, r.em_iterations, r.converged);
-            let q: Vec<f64> = if matches!(p.smooth, SmoothSection::None(_)) {
+    let points_of = |t: &WorldTrack| t.points.len();
+    let (summary, status) = cached_seq(cache, ctx.progress, "smooth", &smooth_key, || {
+        let smoother = crate::pipeline::registry::smoother(&p.smooth, 1.0 / fps);
+        let observed = ObservationFile::write(
+            cache,
+            project_key,
+            crate::io::temp_path(&cache.path("smooth"), ".observations"),
+        )?;
+        let read_err = |e: std::io::Error| RunError::Io {
+            path: observed.path.clone(),
+            source: e,
+        };
+        let fit = smoother.fit(&observed).map_err(read_err)?;
+        let none = matches!(p.smooth, SmoothSection::None(_));
+        // What smoothing cannot average away: detection errors that persist over frames.
+        let persistent = if none {
+            0.0
+        } else {
+            let mut white = crate::smooth::WhiteShare::default();
+            crate::smooth::ObservationSource::each_batch(&observed, &mut |obs| {
+                let states = smoother.smooth_batch(&fit, obs);
+                for (o, st) in obs.iter().zip(&states) {
+                    white.add_smoothed(o, st);
+                }
+            })
+            .map_err(read_err)?;
+            white.persistent().unwrap_or(0.0)
+        };
+        let mut points = 0;
+        cache.store_seq("smooth", &smooth_key, projected.tracks, |push| {
+            in_batches(cache, "project", project_key, points_of, &mut |batch| {
+                let states = smoother.smooth_batch(&fit, &observations(&batch));
+                for t in trajectory_points(ctx, batch, states, persistent, &to_out)? {
+                    points += t.points.len();
+                    push(&t)?;
+                }
+                Ok(())
+            })
+        })?;
+        let median_sigma_m = median_by_passes(points, &mut |f| {
+            for t in cache
+                .load_seq::<Trajectory>("smooth", &smooth_key)
+                .ok_or_else(|| cache_gone(cache, "smooth"))?
+            {
+                let t = t.map_err(|e| RunError::Failed(e.to_string()))?;
+                t.points.iter().for_each(|q| f(q.sigma_m.norm()));
+            }
+            Ok(())
+        })?;
+        Ok(SmoothSummary {
+            trajectories: projected.tracks,
+            points,
+            em_iterations: fit.em_iterations,
+            em_converged: fit.converged,
+            q: if none {
                 Vec::new()
             } else {
-                r.q.iter().copied().collect()
-            };
-            // What is used is freed as the trajectories are made: a long video's merge holds
-            // its points once, not four times.
-            drop(obs);
-            let trajectories = trajectory_points(ctx, world, states, persistent, &to_out)?;
-            let d = SmoothData {
-                trajectories,
-                em_iterations: iterations,
-                em_converged: converged,
-                q,
-                persistent_share: persistent,
-            };
-            Ok(d)
-        },
-    )?;
-    if !smoothed.em_converged {
+                fit.q.iter().copied().collect()
+            },
+            persistent_share: persistent,
+            median_sigma_m,
+        })
+    })?;
+    if !summary.em_converged {
         warnings.push(format!(
             "EM did not converge in {} iterations",
-            smoothed.em_iterations
+            summary.em_iterations
         ));
     }
     let mut counts = BTreeMap::from([
-        ("trajectories".into(), smoothed.trajectories.len() as f64),
-        ("em_iterations".into(), smoothed.em_iterations as f64),
-        ("persistent_share".into(), smoothed.persistent_share),
+        ("trajectories".into(), summary.trajectories as f64),
+        ("em_iterations".into(), summary.em_iterations as f64),
+        ("persistent_share".into(), summary.persistent_share),
     ]);
-    if smoothed.q.len() == 16 {
-        counts.insert("q_velocity_e_m2_s2".into(), smoothed.q[10]);
-        counts.insert("q_velocity_n_m2_s2".into(), smoothed.q[15]);
+    if summary.q.len() == 16 {
+        counts.insert("q_velocity_e_m2_s2".into(), summary.q[10]);
+        counts.insert("q_velocity_n_m2_s2".into(), summary.q[15]);
     }
-    let sig: Vec<f64> = smoothed
-        .trajectories
-        .iter()
-        .flat_map(|t| t.points.iter().map(|q| q.sigma_m.norm()))
-        .collect();
-    if !sig.is_empty() {
-        let mut s = sig.clone();
-        s.sort_by(f64::total_cmp);
-        counts.insert("median_sigma_m".into(), s[s.len() / 2]);
+    if let Some(m) = summary.median_sigma_m {
+        counts.insert("median_sigma_m".into(), m);
     }
     let record = StageRecord {
         name: "smooth".into(),
@@ -111,7 +251,53 @@ pub(super) fn smooth_stage(
         counts,
     };
 
-    Ok((smoothed, record))
+    Ok((summary, smooth_key, record))
+}
+
+/// Gives every value to its argument, once for each call (a pass over a cached stage).
+type EachValue<'a> = dyn FnMut(&mut dyn FnMut(f64)) -> Result<(), RunError> + 'a;
+
+/// The middle of `n` values (the one at `n / 2` in `f64::total_cmp`'s order, as sorting them
+/// all gives) read afresh by each call of `each`, in little memory whatever `n`: radix
+/// selection on the values' order-keeping bits, 16 bits a pass, until few enough are left to
+/// sort. None without values.
+fn median_by_passes(n: usize, each: &mut EachValue) -> Result<Option<f64>, RunError> {
+    const SORT_AT_MOST: u64 = 1 << 20;
+    // total_cmp's order as unsigned integers.
+    let key = |x: f64| {
+        let b = x.to_bits();
+        if b >> 63 == 1 { !b } else { b | 1 << 63 }
+    };
+    if n == 0 {
+        return Ok(None);
+    }
+    let (mut rank, mut left) = ((n / 2) as u64, n as u64);
+    // The keys left share their top `bits` bits, `prefix`.
+    let (mut prefix, mut bits) = (0u64, 0u32);
+    let within = |k: u64, prefix: u64, bits: u32| bits == 0 || k >> (64 - bits) == prefix;
+    while left > SORT_AT_MOST && bits < 64 {
+        let mut hist = vec![0u64; 1 << 16];
+        each(&mut |x| {
+            let k = key(x);
+            if within(k, prefix, bits) {
+                hist[((k << bits) >> 48) as usize] += 1;
+            }
+        })?;
+        let mut b = 0;
+        while rank >= hist[b] {
+            rank -= hist[b];
+            b += 1;
+        }
+        (left, prefix, bits) = (hist[b], (prefix << 16) | b as u64, bits + 16);
+    }
+    let mut rest = Vec::with_capacity(left as usize);
+    each(&mut |x| {
+        if within(key(x), prefix, bits) {
+            rest.push(x);
+        }
+    })?;
+    rest.sort_by(f64::total_cmp);
+    Ok(rest.get(rank as usize).copied())
 }
 
 /// Each smoothed state as a trajectory point: its covariance by source (the random part with
@@ -190,6 +376,36 @@ fn head_up(
 mod tests {
     use super::*;
     use crate::terrain::deck::VerticalAlignment;
+
+    #[test]
+    fn the_median_by_passes_is_the_sorted_middle() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        // Over the sorting limit, clustered (many share their top bits), with ties and a NaN.
+        let mut v: Vec<f64> = (0..(1 << 21) + 5)
+            .map(|k| match k % 5 {
+                0 => 0.031,
+                1 => f64::NAN,
+                _ => rng.random_range(0.03..0.031),
+            })
+            .collect();
+        for n in [v.len(), 1, 2, 1000] {
+            v.truncate(n);
+            let mut passes = 0;
+            let m = median_by_passes(v.len(), &mut |f| {
+                passes += 1;
+                v.iter().for_each(|x| f(*x));
+                Ok(())
+            })
+            .unwrap()
+            .unwrap();
+            let mut s = v.clone();
+            s.sort_by(f64::total_cmp);
+            assert_eq!(m.to_bits(), s[s.len() / 2].to_bits(), "{n} values");
+            assert!(passes >= if n > 1 << 20 { 2 } else { 1 });
+        }
+        assert_eq!(median_by_passes(0, &mut |_| Ok(())).unwrap(), None);
+    }
 
     #[test]
     fn a_smoothed_position_off_the_deck_takes_its_observations_height() {

@@ -1,73 +1,49 @@
 //! Stage 3, `track`: the chunks' image tracks joined into one set.
 
 use super::*;
-use crate::track::link::{ChunkTracks, LinkSettings, link_chunks};
+use crate::track::TrackPoint;
+use crate::track::link::{ChunkTracks, Closed, LinkSettings, Linker, canonical_order};
 
-/// Stage 3: image tracks. The chunks' tracks are taken from `scan_data` (nothing later needs
-/// them: the merge of a long video holds each point once).
+/// What the track stage's cache holds besides the tracks themselves (`track.bin`, in order of
+/// identity, read back a track at a time).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub(super) struct TrackSummary {
+    pub tracks: usize,
+    pub points: usize,
+    pub mean_length_s: f64,
+}
+
+/// A joined track set aside in the spill file until every track is known and they can be
+/// numbered: its place there and what orders it.
+struct Spilled {
+    first: TrackPoint,
+    len: usize,
+    begun: usize,
+    offset: u64,
+}
+
+/// Stage 3: image tracks. The chunks are read back a chunk at a time and each joined track is
+/// set aside on disk as soon as no later chunk can extend it; the tracks are then numbered in
+/// their canonical order and cached in that order. Memory: the tracks under way and a small
+/// index per track, whatever the video's length.
 pub(super) fn track_stage(
     ctx: &Ctx,
     scan_key: &str,
-    scan_data: &mut ScanData,
-) -> Result<(Vec<ImageTrack>, String, StageRecord), RunError> {
-    let fps = ctx.fps;
+    frames: usize,
+) -> Result<(TrackSummary, String, StageRecord), RunError> {
     let p = &ctx.l.project;
     let track_key = stage_key("track", &[scan_key], &p.track);
     let t0 = Instant::now();
     let mut joined = (0.0, 0.0);
-    let chunk_tracks = std::mem::take(&mut scan_data.chunk_tracks);
-    let frames = scan_data.frames;
-    let (tracks, status) = cached(&ctx.cache, ctx.progress, "track", &track_key, true, || {
-        let chunks = chunk_tracks
-            .into_iter()
-            .map(|c| ChunkTracks {
-                decode_from: c.decode_from,
-                start: c.start,
-                end: c.end,
-                tracks: c.tracks,
-            })
-            .collect();
-        let overlap = ctx.grid.overlap_frames;
-        let (tracks, stats) = link_chunks(
-            chunks,
-            &LinkSettings {
-                // The same detection in both chunks: within 5 cm at head height.
-                same_px: (0.05 * ctx.px_per_m).max(0.5),
-                min_shared: overlap.clamp(1, 3),
-            },
-        );
+    let (summary, status) = cached_seq(&ctx.cache, ctx.progress, "track", &track_key, || {
+        let (summary, stats) = link_to_cache(ctx, &track_key, frames)?;
         joined = (stats.joined as f64, stats.unmatched as f64);
-        // Short tracks are mostly false alarms, unless the video's start or end cut them.
-        let min_frames = (p.track.min_length_s() * fps).round() as usize;
-        let last = frames.saturating_sub(1);
-        let tracks: Vec<ImageTrack> = tracks
-            .into_iter()
-            .filter(|t| {
-                let (a, b) = (
-                    t.points.first().map_or(0, |q| q.frame),
-                    t.points.last().map_or(0, |q| q.frame),
-                );
-                b - a + 1 >= min_frames || a == 0 || b == last
-            })
-            .enumerate()
-            .map(|(k, mut t)| {
-                t.id = k + 1;
-                t
-            })
-            .collect();
-        Ok(tracks)
+        Ok(summary)
     })?;
-    let lengths: Vec<f64> = tracks.iter().map(|t| t.points.len() as f64 / fps).collect();
     let mut counts = BTreeMap::from([
-        ("tracks".into(), tracks.len() as f64),
-        (
-            "points".into(),
-            tracks.iter().map(|t| t.points.len()).sum::<usize>() as f64,
-        ),
-        (
-            "mean_length_s".into(),
-            lengths.iter().sum::<f64>() / lengths.len().max(1) as f64,
-        ),
+        ("tracks".into(), summary.tracks as f64),
+        ("points".into(), summary.points as f64),
+        ("mean_length_s".into(), summary.mean_length_s),
     ]);
     if status == "computed" {
         counts.insert("joined_at_chunk_borders".into(), joined.0);
@@ -79,6 +55,106 @@ pub(super) fn track_stage(
         seconds: t0.elapsed().as_secs_f64(),
         counts,
     };
+    Ok((summary, track_key, record))
+}
 
-    Ok((tracks, track_key, record))
+/// Links the chunks' tracks into the track stage's cache; its summary and what linking did.
+fn link_to_cache(
+    ctx: &Ctx,
+    track_key: &str,
+    frames: usize,
+) -> Result<(TrackSummary, crate::track::link::LinkStats), RunError> {
+    use std::io::{Seek, SeekFrom, Write};
+    let fps = ctx.fps;
+    let p = &ctx.l.project;
+    let overlap = ctx.grid.overlap_frames;
+    let mut linker = Linker::new(LinkSettings {
+        // The same detection in both chunks: within 5 cm at head height.
+        same_px: (0.05 * ctx.px_per_m).max(0.5),
+        min_shared: overlap.clamp(1, 3),
+    });
+    // Short tracks are mostly false alarms, unless the video's start or end cut them.
+    let min_frames = (p.track.min_length_s() * fps).round() as usize;
+    let last = frames.saturating_sub(1);
+    let spill_path = crate::io::temp_path(&ctx.cache.path("track"), ".spill");
+    let io_err = |source: std::io::Error| RunError::Io {
+        path: spill_path.clone(),
+        source,
+    };
+    let result = (|| {
+        let codec = bincode::DefaultOptions::new();
+        use bincode::Options;
+        // Written, then read back in the tracks' order.
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&spill_path)
+            .map_err(io_err)?;
+        let mut spill = std::io::BufWriter::with_capacity(1 << 20, file);
+        let mut index: Vec<Spilled> = Vec::new();
+        let mut offset = 0u64;
+        let mut set_aside = |c: Closed| -> Result<(), RunError> {
+            let (a, b) = (
+                c.points.first().map_or(0, |q| q.frame),
+                c.points.last().map_or(0, |q| q.frame),
+            );
+            if c.points.is_empty() || !(b - a + 1 >= min_frames || a == 0 || b == last) {
+                return Ok(());
+            }
+            let bytes = codec
+                .serialize(&c.points)
+                .map_err(|e| RunError::Failed(format!("cannot set tracks aside: {e}")))?;
+            spill.write_all(&bytes).map_err(io_err)?;
+            index.push(Spilled {
+                first: c.points[0].clone(),
+                len: c.points.len(),
+                begun: c.begun,
+                offset,
+            });
+            offset += bytes.len() as u64;
+            Ok(())
+        };
+        for c in 0..ctx.grid.chunks() {
+            let chunk = super::scan_stage::load_chunk(ctx, c)
+                .ok_or_else(|| cache_gone(&ctx.cache, &super::scan_stage::chunk_stage(c)))?;
+            linker.push(
+                ChunkTracks {
+                    decode_from: chunk.decode_from,
+                    start: chunk.start,
+                    end: chunk.end,
+                    tracks: chunk.image_tracks,
+                },
+                &mut set_aside,
+            )?;
+        }
+        let stats = linker.finish(&mut set_aside)?;
+        let mut spill = spill.into_inner().map_err(|e| io_err(e.into_error()))?;
+        index.sort_by(|a, b| {
+            canonical_order((&a.first, a.len, a.begun), (&b.first, b.len, b.begun))
+        });
+        let summary = TrackSummary {
+            tracks: index.len(),
+            points: index.iter().map(|t| t.len).sum(),
+            mean_length_s: index.iter().map(|t| t.len as f64 / fps).sum::<f64>()
+                / index.len().max(1) as f64,
+        };
+        ctx.cache
+            .store_seq("track", track_key, index.len(), |push| {
+                for (k, t) in index.iter().enumerate() {
+                    spill.seek(SeekFrom::Start(t.offset)).map_err(io_err)?;
+                    let points: Vec<TrackPoint> = codec
+                        .deserialize_from(std::io::BufReader::new(&mut spill))
+                        .map_err(|e| {
+                            RunError::Failed(format!("cannot read tracks set aside: {e}"))
+                        })?;
+                    push(&ImageTrack { id: k + 1, points })?;
+                }
+                Ok(())
+            })?;
+        Ok((summary, stats))
+    })();
+    let _ = std::fs::remove_file(&spill_path);
+    result
 }

@@ -9,7 +9,7 @@ use crate::pipeline::views::{GcpMark, Views, make_views};
 pub(super) fn views_stage(
     ctx: &Ctx,
     pose_data: &PoseData,
-    smoothed: &SmoothData,
+    smooth_key: &str,
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<(String, String)>, Option<StageRecord>), RunError> {
     let p = &ctx.l.project;
@@ -18,6 +18,14 @@ pub(super) fn views_stage(
         return Ok((Vec::new(), None));
     }
     let t0 = Instant::now();
+    // The views draw from every trajectory at once (the fundamental diagram's frames, the
+    // annotated video's): read back whole, the one stage whose memory grows with the video.
+    let trajectories: Vec<Trajectory> = ctx
+        .cache
+        .load_seq::<Trajectory>("smooth", smooth_key)
+        .ok_or_else(|| cache_gone(&ctx.cache, "smooth"))?
+        .collect::<std::io::Result<_>>()
+        .map_err(|e| RunError::Failed(e.to_string()))?;
     let mut poses: Vec<Option<Rigid3>> = vec![None; ctx.frames_total];
     for f in &pose_data.frames {
         if let Some(slot) = poses.get_mut(f.frame) {
@@ -63,7 +71,7 @@ pub(super) fn views_stage(
         camera: &ctx.camera,
         poses: &poses,
         key_frames: &pose_data.key_frames,
-        trajs: &smoothed.trajectories,
+        trajs: &trajectories,
         gcps,
         ground: ctx.surface.as_ref(),
         to_crs: Some(&to_crs),

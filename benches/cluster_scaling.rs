@@ -298,22 +298,44 @@ fn main() {
         ));
     }
 
-    // 4. The merge's memory against the video's length: its first minute alone.
-    let mut first = load(&project).expect("project").project;
-    first.video.duration_s = Some(60.0);
-    let minute = dir.join("project-1min.toml");
-    std::fs::write(
-        &minute,
-        project_text(&first, "the crowd's first minute").expect("text"),
-    )
-    .expect("project file");
-    let (mib_1, points_1) = split_run(&minute, &base.join("crowd-1min-split-2"), 2, None);
-    let (mib_2, points_2) = merges[0];
+    // 4. The merge's memory against the video's length: its first minute alone; then both
+    // lengths again with the views (plots, site image) that the projects above leave out.
+    let mut lengths = Vec::new();
+    for views in [false, true] {
+        for minutes in [1, 2] {
+            if minutes == 2 && !views {
+                lengths.push(merges[0]);
+                continue;
+            }
+            let mut p = load(&project).expect("project").project;
+            if minutes == 1 {
+                p.video.duration_s = Some(60.0);
+            }
+            p.output.plots = views;
+            p.output.site_image = views;
+            let name = format!("{minutes}min{}", if views { "-views" } else { "" });
+            let file = dir.join(format!("project-{name}.toml"));
+            std::fs::write(
+                &file,
+                project_text(&p, &format!("the crowd's first {minutes} min")).expect("text"),
+            )
+            .expect("project file");
+            lengths.push(split_run(
+                &file,
+                &base.join(format!("crowd-{name}-split-2")),
+                2,
+                None,
+            ));
+        }
+    }
     // What may still grow: SQLite's page cache for the GeoPackage (capped at 8 MiB) and the
     // per-frame and per-track records (under 1 KB a frame, tens of bytes a track).
-    println!(
-        "  the merge against the video's length: 1 min {mib_1:.0} MiB ({points_1} trajectory points), 2 min {mib_2:.0} MiB ({points_2}): {:+.0} MiB for twice the video ({:.0} bytes a point)",
-        mib_2 - mib_1,
-        (mib_2 - mib_1) * (1 << 20) as f64 / (points_2 - points_1)
-    );
+    for (k, what) in ["", ", with plots and site image"].iter().enumerate() {
+        let ((mib_1, points_1), (mib_2, points_2)) = (lengths[2 * k], lengths[2 * k + 1]);
+        println!(
+            "  the merge against the video's length{what}: 1 min {mib_1:.0} MiB ({points_1} trajectory points), 2 min {mib_2:.0} MiB ({points_2}): {:+.0} MiB for twice the video ({:.0} bytes a point)",
+            mib_2 - mib_1,
+            (mib_2 - mib_1) * (1 << 20) as f64 / (points_2 - points_1)
+        );
+    }
 }

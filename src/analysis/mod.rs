@@ -57,9 +57,20 @@ pub fn measures(
     walkable: &ConvexPolygon,
     measurement: &ConvexPolygon,
 ) -> Vec<FrameMeasures> {
+    measures_of_frames(people_by_frame(trajs), fps, walkable, measurement)
+}
+
+/// [`measures`] of the given frames' people (frames read a batch at a time from a long video's
+/// trajectories), side by side, in their order.
+pub fn measures_of_frames(
+    frames: Vec<(usize, FramePeople)>,
+    fps: f64,
+    walkable: &ConvexPolygon,
+    measurement: &ConvexPolygon,
+) -> Vec<FrameMeasures> {
     use rayon::prelude::*;
     let area_m = measurement.area();
-    people_by_frame(trajs)
+    frames
         .into_par_iter()
         .map(|(frame, people)| {
             let sites: Vec<Vector2<f64>> = people.iter().map(|p| p.0).collect();
@@ -162,6 +173,161 @@ pub fn quantile(values: &mut [f64], q: f64) -> f64 {
     let (i, f) = (x.floor() as usize, x.fract());
     let j = (i + 1).min(values.len() - 1);
     values[i] * (1.0 - f) + values[j] * f
+}
+
+/// Gives every `(group, value)` once for each call: one pass over data read back from disk.
+pub type EachValue<'a, E> = dyn FnMut(&mut dyn FnMut(usize, f64)) -> Result<(), E> + 'a;
+
+/// How many values each of `groups` groups has, in one pass (values of other groups are not
+/// counted).
+pub fn count_groups<E>(groups: usize, each: &mut EachValue<E>) -> Result<Vec<u64>, E> {
+    let mut counts = vec![0u64; groups];
+    each(&mut |g, _| {
+        if let Some(c) = counts.get_mut(g) {
+            *c += 1;
+        }
+    })?;
+    Ok(counts)
+}
+
+/// The values at the given ranks (`(group, rank)`, from 0 in `f64::total_cmp`'s order among
+/// the group's `counts[group]` values; None past the last), in a few passes over values read
+/// afresh by `each` and in little memory whatever their number: radix selection on the
+/// values' order-keeping bits, 12 bits a pass, until few enough are left to sort.
+pub fn select_ranks<E>(
+    counts: &[u64],
+    queries: &[(usize, u64)],
+    each: &mut EachValue<E>,
+) -> Result<Vec<Option<f64>>, E> {
+    const SORT_AT_MOST: u64 = 1 << 20;
+    const DIGIT: u32 = 12;
+    // total_cmp's order as unsigned integers.
+    let key = |x: f64| {
+        let b = x.to_bits();
+        if b >> 63 == 1 { !b } else { b | 1 << 63 }
+    };
+    let within = |k: u64, prefix: u64, bits: u32| bits == 0 || k >> (64 - bits) == prefix;
+    /// A rank being narrowed: the keys left share their top `bits` bits, `prefix`; `left` of
+    /// them, the wanted one `rank`-th among them.
+    struct Narrowing {
+        rank: u64,
+        left: u64,
+        prefix: u64,
+        bits: u32,
+    }
+    let groups = counts.len();
+    let mut of_group: Vec<Vec<usize>> = vec![Vec::new(); groups];
+    let mut q: Vec<Narrowing> = Vec::with_capacity(queries.len());
+    for (i, &(g, rank)) in queries.iter().enumerate() {
+        let n = counts.get(g).copied().unwrap_or(0);
+        if rank < n {
+            of_group[g].push(i);
+        }
+        q.push(Narrowing {
+            rank,
+            left: n,
+            prefix: 0,
+            bits: 0,
+        });
+    }
+    let active = |q: &[Narrowing], i: usize| {
+        let (g, rank) = queries[i];
+        rank < counts.get(g).copied().unwrap_or(0) && q[i].bits < 64
+    };
+    loop {
+        let narrowing: Vec<usize> = (0..q.len()).filter(|&i| active(&q, i)).collect();
+        let left: u64 = narrowing.iter().map(|&i| q[i].left).sum();
+        if narrowing.is_empty() || left <= SORT_AT_MOST {
+            break;
+        }
+        let mut hist = vec![vec![0u64; 1 << DIGIT]; q.len()];
+        {
+            let q = &q;
+            each(&mut |g, x| {
+                let k = key(x);
+                for &i in of_group.get(g).map_or(&[][..], |v| &v[..]) {
+                    let n = &q[i];
+                    if n.bits < 64 && within(k, n.prefix, n.bits) {
+                        let digit = DIGIT.min(64 - n.bits);
+                        hist[i][((k << n.bits) >> (64 - digit)) as usize] += 1;
+                    }
+                }
+            })?;
+        }
+        for i in narrowing {
+            let n = &mut q[i];
+            let digit = DIGIT.min(64 - n.bits);
+            let h = &hist[i];
+            let mut b = 0;
+            while n.rank >= h[b] {
+                n.rank -= h[b];
+                b += 1;
+            }
+            n.left = h[b];
+            n.prefix = (n.prefix << digit) | b as u64;
+            n.bits += digit;
+        }
+    }
+    let mut rest: Vec<Vec<f64>> = vec![Vec::new(); q.len()];
+    {
+        let q = &q;
+        each(&mut |g, x| {
+            let k = key(x);
+            for &i in of_group.get(g).map_or(&[][..], |v| &v[..]) {
+                if within(k, q[i].prefix, q[i].bits) {
+                    rest[i].push(x);
+                }
+            }
+        })?;
+    }
+    Ok(rest
+        .into_iter()
+        .zip(&q)
+        .enumerate()
+        .map(|(i, (mut r, n))| {
+            let (g, rank) = queries[i];
+            if rank >= counts.get(g).copied().unwrap_or(0) {
+                return None;
+            }
+            r.sort_by(f64::total_cmp);
+            r.get(n.rank as usize).copied()
+        })
+        .collect())
+}
+
+/// The `q` quantiles of each group's values as [`quantile`] gives them (linear interpolation;
+/// NaN for a group without values) by [`select_ranks`]: `(group, q)` each; with the groups'
+/// counts.
+pub fn quantiles_by_passes<E>(
+    groups: usize,
+    queries: &[(usize, f64)],
+    each: &mut EachValue<E>,
+) -> Result<(Vec<f64>, Vec<u64>), E> {
+    let counts = count_groups(groups, each)?;
+    let at: Vec<(u64, u64, f64)> = queries
+        .iter()
+        .map(|&(g, q)| {
+            let n = counts.get(g).copied().unwrap_or(0);
+            let x = q.clamp(0.0, 1.0) * n.saturating_sub(1) as f64;
+            let i = x.floor() as u64;
+            (i, (i + 1).min(n.saturating_sub(1)), x.fract())
+        })
+        .collect();
+    let ranks: Vec<(usize, u64)> = queries
+        .iter()
+        .zip(&at)
+        .flat_map(|(&(g, _), &(i, j, _))| [(g, i), (g, j)])
+        .collect();
+    let values = select_ranks(&counts, &ranks, each)?;
+    let out = at
+        .iter()
+        .enumerate()
+        .map(|(k, &(_, _, f))| match (values[2 * k], values[2 * k + 1]) {
+            (Some(a), Some(b)) => a * (1.0 - f) + b * f,
+            _ => f64::NAN,
+        })
+        .collect();
+    Ok((out, counts))
 }
 
 #[cfg(test)]
@@ -272,5 +438,48 @@ mod tests {
         assert_eq!(quantile(&mut v, 0.5), 2.0);
         assert_eq!(quantile(&mut v, 0.25), 1.5);
         assert!(quantile(&mut [], 0.5).is_nan());
+    }
+
+    #[test]
+    fn selection_by_passes_gives_the_sorted_ranks_and_quantiles() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        // Two groups over the sorting limit together, clustered (most share their top bits),
+        // with ties, a NaN and negatives; a third group empty.
+        let values: Vec<(usize, f64)> = (0..(1 << 21) + 7)
+            .map(|k| match k % 7 {
+                0 => (0, 0.031),
+                1 => (1, f64::NAN),
+                2 => (1, -rng.random_range(0.0..2.0)),
+                _ => (k % 2, rng.random_range(0.03..0.031)),
+            })
+            .collect();
+        let passes = std::cell::Cell::new(0);
+        let mut each = |f: &mut dyn FnMut(usize, f64)| -> Result<(), ()> {
+            passes.set(passes.get() + 1);
+            values.iter().for_each(|&(g, x)| f(g, x));
+            Ok(())
+        };
+        let qs = [(0, 0.5), (1, 0.5), (1, 0.995), (0, 0.0), (1, 1.0), (2, 0.5)];
+        let (got, counts) = quantiles_by_passes(3, &qs, &mut each).unwrap();
+        for (k, &(g, q)) in qs.iter().enumerate() {
+            let mut v: Vec<f64> = values.iter().filter(|p| p.0 == g).map(|p| p.1).collect();
+            assert_eq!(counts[g], v.len() as u64);
+            let want = quantile(&mut v, q);
+            assert!(
+                got[k].to_bits() == want.to_bits(),
+                "group {g} q {q}: {} against {want}",
+                got[k]
+            );
+        }
+        assert!(
+            passes.get() >= 3,
+            "{} passes: the limit was not reached",
+            passes.get()
+        );
+        // Ranks past the end: none.
+        let counts = count_groups(3, &mut each).unwrap();
+        let r = select_ranks(&counts, &[(2, 0), (0, counts[0])], &mut each).unwrap();
+        assert_eq!(r, vec![None, None]);
     }
 }

@@ -961,13 +961,14 @@ pub fn run_with(
     )?;
     stages.push(record);
     release_freed();
-    let (_, smooth_key, record) = smooth_stage(&ctx, &project_key, &projected, &mut warnings)?;
+    let (smoothed, smooth_key, record) =
+        smooth_stage(&ctx, &project_key, &projected, &mut warnings)?;
     stages.push(record);
     release_freed();
     let (mut outputs, transformations, record) =
         export_stage(&ctx, &smooth_key, &track_key, &mut warnings)?;
     stages.push(record);
-    let (views, record) = views_stage(&ctx, &pose_data, &smooth_key, &mut warnings)?;
+    let (views, record) = views_stage(&ctx, &pose_data, &smooth_key, &smoothed, &mut warnings)?;
     if let Some(record) = record {
         stages.push(record);
     }

@@ -202,16 +202,21 @@ pub(super) fn smooth_stage(
                 Ok(())
             })
         })?;
-        let median_sigma_m = median_by_passes(points, &mut |f| {
-            for t in cache
-                .load_seq::<Trajectory>("smooth", &smooth_key)
-                .ok_or_else(|| cache_gone(cache, "smooth"))?
-            {
-                let t = t.map_err(|e| RunError::Failed(e.to_string()))?;
-                t.points.iter().for_each(|q| f(q.sigma_m.norm()));
-            }
-            Ok(())
-        })?;
+        // The middle σ (as sorting them all gives it), in a few passes over what was written.
+        let median_sigma_m = crate::analysis::select_ranks::<RunError>(
+            &[points as u64],
+            &[(0, points as u64 / 2)],
+            &mut |f| {
+                for t in cache
+                    .load_seq::<Trajectory>("smooth", &smooth_key)
+                    .ok_or_else(|| cache_gone(cache, "smooth"))?
+                {
+                    let t = t.map_err(|e| RunError::Failed(e.to_string()))?;
+                    t.points.iter().for_each(|q| f(0, q.sigma_m.norm()));
+                }
+                Ok(())
+            },
+        )?[0];
         Ok(SmoothSummary {
             trajectories: projected.tracks,
             points,
@@ -252,52 +257,6 @@ pub(super) fn smooth_stage(
     };
 
     Ok((summary, smooth_key, record))
-}
-
-/// Gives every value to its argument, once for each call (a pass over a cached stage).
-type EachValue<'a> = dyn FnMut(&mut dyn FnMut(f64)) -> Result<(), RunError> + 'a;
-
-/// The middle of `n` values (the one at `n / 2` in `f64::total_cmp`'s order, as sorting them
-/// all gives) read afresh by each call of `each`, in little memory whatever `n`: radix
-/// selection on the values' order-keeping bits, 16 bits a pass, until few enough are left to
-/// sort. None without values.
-fn median_by_passes(n: usize, each: &mut EachValue) -> Result<Option<f64>, RunError> {
-    const SORT_AT_MOST: u64 = 1 << 20;
-    // total_cmp's order as unsigned integers.
-    let key = |x: f64| {
-        let b = x.to_bits();
-        if b >> 63 == 1 { !b } else { b | 1 << 63 }
-    };
-    if n == 0 {
-        return Ok(None);
-    }
-    let (mut rank, mut left) = ((n / 2) as u64, n as u64);
-    // The keys left share their top `bits` bits, `prefix`.
-    let (mut prefix, mut bits) = (0u64, 0u32);
-    let within = |k: u64, prefix: u64, bits: u32| bits == 0 || k >> (64 - bits) == prefix;
-    while left > SORT_AT_MOST && bits < 64 {
-        let mut hist = vec![0u64; 1 << 16];
-        each(&mut |x| {
-            let k = key(x);
-            if within(k, prefix, bits) {
-                hist[((k << bits) >> 48) as usize] += 1;
-            }
-        })?;
-        let mut b = 0;
-        while rank >= hist[b] {
-            rank -= hist[b];
-            b += 1;
-        }
-        (left, prefix, bits) = (hist[b], (prefix << 16) | b as u64, bits + 16);
-    }
-    let mut rest = Vec::with_capacity(left as usize);
-    each(&mut |x| {
-        if within(key(x), prefix, bits) {
-            rest.push(x);
-        }
-    })?;
-    rest.sort_by(f64::total_cmp);
-    Ok(rest.get(rank as usize).copied())
 }
 
 /// Each smoothed state as a trajectory point: its covariance by source (the random part with
@@ -376,36 +335,6 @@ fn head_up(
 mod tests {
     use super::*;
     use crate::terrain::deck::VerticalAlignment;
-
-    #[test]
-    fn the_median_by_passes_is_the_sorted_middle() {
-        use rand::{RngExt, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        // Over the sorting limit, clustered (many share their top bits), with ties and a NaN.
-        let mut v: Vec<f64> = (0..(1 << 21) + 5)
-            .map(|k| match k % 5 {
-                0 => 0.031,
-                1 => f64::NAN,
-                _ => rng.random_range(0.03..0.031),
-            })
-            .collect();
-        for n in [v.len(), 1, 2, 1000] {
-            v.truncate(n);
-            let mut passes = 0;
-            let m = median_by_passes(v.len(), &mut |f| {
-                passes += 1;
-                v.iter().for_each(|x| f(*x));
-                Ok(())
-            })
-            .unwrap()
-            .unwrap();
-            let mut s = v.clone();
-            s.sort_by(f64::total_cmp);
-            assert_eq!(m.to_bits(), s[s.len() / 2].to_bits(), "{n} values");
-            assert!(passes >= if n > 1 << 20 { 2 } else { 1 });
-        }
-        assert_eq!(median_by_passes(0, &mut |_| Ok(())).unwrap(), None);
-    }
 
     #[test]
     fn a_smoothed_position_off_the_deck_takes_its_observations_height() {

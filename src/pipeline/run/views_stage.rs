@@ -2,7 +2,32 @@
 //! (`pipeline::views`). Not cached: made again by every run (and by `geostride render`).
 
 use super::*;
-use crate::pipeline::views::{GcpMark, Views, make_views};
+use crate::pipeline::views::{
+    GcpMark, Trajectories, TrajectoryReader, ViewError, Views, make_views,
+};
+
+/// The smooth stage's trajectories, read from its cache for each pass of a view.
+struct Cached<'a> {
+    cache: &'a Cache,
+    key: &'a str,
+    count: usize,
+}
+
+impl Trajectories for Cached<'_> {
+    fn count(&self) -> usize {
+        self.count
+    }
+
+    fn read(&self) -> Result<TrajectoryReader<'_>, ViewError> {
+        let seq = self
+            .cache
+            .load_seq::<Trajectory>("smooth", self.key)
+            .ok_or_else(|| ViewError::Failed(cache_gone(self.cache, "smooth").to_string()))?;
+        Ok(Box::new(
+            seq.map(|t| t.map_err(|e| ViewError::Failed(e.to_string()))),
+        ))
+    }
+}
 
 /// Makes the views the project asks for; their (title, file) and the stage's record (none when
 /// nothing is asked for).
@@ -10,6 +35,7 @@ pub(super) fn views_stage(
     ctx: &Ctx,
     pose_data: &PoseData,
     smooth_key: &str,
+    smoothed: &super::smooth_stage::SmoothSummary,
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<(String, String)>, Option<StageRecord>), RunError> {
     let p = &ctx.l.project;
@@ -18,14 +44,13 @@ pub(super) fn views_stage(
         return Ok((Vec::new(), None));
     }
     let t0 = Instant::now();
-    // The views draw from every trajectory at once (the fundamental diagram's frames, the
-    // annotated video's): read back whole, the one stage whose memory grows with the video.
-    let trajectories: Vec<Trajectory> = ctx
-        .cache
-        .load_seq::<Trajectory>("smooth", smooth_key)
-        .ok_or_else(|| cache_gone(&ctx.cache, "smooth"))?
-        .collect::<std::io::Result<_>>()
-        .map_err(|e| RunError::Failed(e.to_string()))?;
+    // Every view reads the trajectories back from the smooth stage's cache, one at a time, as
+    // often as it needs them.
+    let trajectories = Cached {
+        cache: &ctx.cache,
+        key: smooth_key,
+        count: smoothed.trajectories,
+    };
     let mut poses: Vec<Option<Rigid3>> = vec![None; ctx.frames_total];
     for f in &pose_data.frames {
         if let Some(slot) = poses.get_mut(f.frame) {

@@ -2,8 +2,6 @@
 //! 95 % ellipse of its position (the smoothed point projected back into the frame), GCPs and
 //! key frames marked, the frame number as in every output.
 
-use std::collections::BTreeMap;
-
 use nalgebra::{Matrix2, Vector2, Vector3};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
@@ -23,13 +21,9 @@ pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, St
         ((f64::from(w) * scale).round() as u32) & !1,
         ((f64::from(h) * scale).round() as u32) & !1,
     );
-    // Which trajectory points each frame has.
-    let mut at: BTreeMap<usize, Vec<(usize, usize)>> = BTreeMap::new();
-    for (ti, t) in v.trajs.iter().enumerate() {
-        for (pi, p) in t.points.iter().enumerate() {
-            at.entry(p.frame).or_default().push((ti, pi));
-        }
-    }
+    // The trajectories frame by frame, only those under way held.
+    let mut sweep = super::FrameSweep::new(v.trajs)?;
+    let mut next = sweep.next_frame()?;
     let trail = (v.settings.trail_s * v.fps).round() as usize;
     let keys: std::collections::BTreeSet<usize> = v.key_frames.iter().copied().collect();
     let mut sink = crate::video::FrameSink::create(&v.out.join("annotated"), ow, oh, v.fps)?;
@@ -77,13 +71,20 @@ pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, St
         });
         for item in frames_rx.iter() {
             let (index, frame) = item?;
+            while next.as_ref().is_some_and(|(f, _)| *f < index) {
+                next = sweep.next_frame()?;
+            }
+            let who = match &next {
+                Some((f, who)) if *f == index => &who[..],
+                _ => &[],
+            };
             draw_frame(
                 v,
                 index,
                 frame,
                 &mut sink,
                 (scale, thick, text),
-                (&at, trail, &keys),
+                (&sweep.live, who, trail, &keys),
             )?;
             progress.inc(1);
             f += 1;
@@ -98,8 +99,8 @@ pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, St
     Ok((format!("Annotated video ({f} frames, {ow}x{oh})"), name))
 }
 
-/// The frame numbers' trajectory points, by frame.
-type PointsAt = BTreeMap<usize, Vec<(usize, usize)>>;
+/// The trajectories under way, each with its next point (`FrameSweep::live`).
+type Live = [(crate::export::Trajectory, usize)];
 
 /// Draws frame `index` (already at the output size) and appends it to `sink`.
 fn draw_frame(
@@ -108,16 +109,21 @@ fn draw_frame(
     frame: Mat,
     sink: &mut crate::video::FrameSink,
     (scale, thick, text): (f64, i32, f64),
-    (at, trail, keys): (&PointsAt, usize, &std::collections::BTreeSet<usize>),
+    (live, who, trail, keys): (
+        &Live,
+        &[(usize, usize)],
+        usize,
+        &std::collections::BTreeSet<usize>,
+    ),
 ) -> Result<(), ViewError> {
     let ow = frame.cols() as u32;
     {
         let mut c = Canvas::from_bgr(frame);
         let im = |e| ViewError::Image(format!("frame {index}"), e);
         let to_out = |uv: Vector2<f64>| (uv + Vector2::repeat(0.5)) * scale - Vector2::repeat(0.5);
-        let people = at.get(&index).map_or(0, Vec::len);
-        for &(ti, pi) in at.get(&index).map_or(&[][..], |v| &v[..]) {
-            let t = &v.trajs[ti];
+        let people = who.len();
+        for &(ti, pi) in who {
+            let t = &live[ti].0;
             let p = &t.points[pi];
             let rgb = id_colour(t.id);
             let Some(head) = v.image_point(index, &p.local) else {

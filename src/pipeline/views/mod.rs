@@ -11,7 +11,7 @@ use nalgebra::{Vector2, Vector3};
 
 use super::project::{AnalysisSection, OutputSection};
 use crate::camera::Camera;
-use crate::export::Trajectory;
+use crate::export::{Trajectory, TrajectoryPoint};
 use crate::geom::Rigid3;
 use crate::progress::Progress;
 use crate::terrain::HeightSurface;
@@ -49,6 +49,127 @@ pub struct GcpMark {
 /// The site frame's horizontal position to the output CRS's (exact: PROJ).
 pub type SiteToCrs<'b> = dyn Fn(&Vector2<f64>) -> Option<Vector2<f64>> + 'b;
 
+/// Trajectories read one at a time.
+pub type TrajectoryReader<'a> = Box<dyn Iterator<Item = Result<Trajectory, ViewError>> + 'a>;
+
+/// The trajectories the views draw from, read afresh for each pass over them, one at a time in
+/// identity order: a long video's are read back from the run's cache, never all in memory.
+pub trait Trajectories {
+    fn count(&self) -> usize;
+    fn read(&self) -> Result<TrajectoryReader<'_>, ViewError>;
+
+    /// Gives every trajectory to `f`, in order.
+    fn each(
+        &self,
+        f: &mut dyn FnMut(&Trajectory) -> Result<(), ViewError>,
+    ) -> Result<(), ViewError> {
+        for t in self.read()? {
+            f(&t?)?;
+        }
+        Ok(())
+    }
+
+    /// Gives every point's value of `value` (None: left out) to a pass of
+    /// [`crate::analysis::select_ranks`] (group 0).
+    fn each_value(
+        &self,
+        value: &dyn Fn(&TrajectoryPoint) -> Option<f64>,
+        f: &mut dyn FnMut(usize, f64),
+    ) -> Result<(), ViewError> {
+        self.each(&mut |t| {
+            t.points.iter().filter_map(value).for_each(|x| f(0, x));
+            Ok(())
+        })
+    }
+}
+
+impl Trajectories for Vec<Trajectory> {
+    fn count(&self) -> usize {
+        self.len()
+    }
+    fn read(&self) -> Result<TrajectoryReader<'_>, ViewError> {
+        Ok(Box::new(self.iter().cloned().map(Ok)))
+    }
+}
+
+/// The trajectories frame by frame, frames in order, holding only those under way: a frame is
+/// given once no trajectory not yet read can have a point in it (each one's first frame is known
+/// from a first pass).
+pub struct FrameSweep<'a> {
+    src: TrajectoryReader<'a>,
+    /// The earliest first frame of the trajectories from the k-th on.
+    earliest_from: Vec<usize>,
+    read: usize,
+    /// The trajectories under way, in identity order, each with its next point.
+    pub live: Vec<(Trajectory, usize)>,
+}
+
+impl<'a> FrameSweep<'a> {
+    pub fn new(trajs: &'a dyn Trajectories) -> Result<FrameSweep<'a>, ViewError> {
+        let mut firsts = Vec::with_capacity(trajs.count());
+        trajs.each(&mut |t| {
+            firsts.push(t.points.first().map_or(usize::MAX, |p| p.frame));
+            Ok(())
+        })?;
+        let mut earliest_from = vec![usize::MAX; firsts.len() + 1];
+        for k in (0..firsts.len()).rev() {
+            earliest_from[k] = earliest_from[k + 1].min(firsts[k]);
+        }
+        Ok(FrameSweep {
+            src: trajs.read()?,
+            earliest_from,
+            read: 0,
+            live: Vec::new(),
+        })
+    }
+
+    /// The next frame with someone in it, and who: `(index into live, index of the point)`,
+    /// in identity order (valid until the next call).
+    pub fn next_frame(&mut self) -> Result<Option<(usize, Vec<(usize, usize)>)>, ViewError> {
+        self.live.retain(|(t, next)| *next < t.points.len());
+        loop {
+            let frame = self.live.iter().map(|(t, k)| t.points[*k].frame).min();
+            let unread = self
+                .earliest_from
+                .get(self.read)
+                .copied()
+                .unwrap_or(usize::MAX);
+            match frame {
+                Some(f) if f < unread => {
+                    let mut who = Vec::new();
+                    for (i, (t, k)) in self.live.iter_mut().enumerate() {
+                        if t.points[*k].frame == f {
+                            who.push((i, *k));
+                            *k += 1;
+                        }
+                    }
+                    return Ok(Some((f, who)));
+                }
+                _ => match self.src.next() {
+                    Some(t) => {
+                        let t = t?;
+                        self.read += 1;
+                        if !t.points.is_empty() {
+                            self.live.push((t, 0));
+                        }
+                    }
+                    None => return Ok(None),
+                },
+            }
+        }
+    }
+}
+
+/// The `qs` quantiles of the points' finite speeds (as `analysis::quantile` gives them), in a
+/// few passes.
+pub fn speed_quantiles(trajs: &dyn Trajectories, qs: &[f64]) -> Result<(Vec<f64>, u64), ViewError> {
+    let queries: Vec<(usize, f64)> = qs.iter().map(|&q| (0, q)).collect();
+    let speed = |p: &TrajectoryPoint| Some(p.velocity.norm()).filter(|s| s.is_finite());
+    let (v, counts) =
+        crate::analysis::quantiles_by_passes(1, &queries, &mut |f| trajs.each_value(&speed, f))?;
+    Ok((v, counts[0]))
+}
+
 /// Everything the views draw from.
 pub struct Views<'a> {
     pub out: &'a Path,
@@ -62,7 +183,7 @@ pub struct Views<'a> {
     /// `cam_from_world` (the site frame) of each frame, by frame number.
     pub poses: &'a [Option<Rigid3>],
     pub key_frames: &'a [usize],
-    pub trajs: &'a [Trajectory],
+    pub trajs: &'a dyn Trajectories,
     pub gcps: Vec<GcpMark>,
     /// The ground (heads are above it).
     pub ground: &'a dyn HeightSurface,
@@ -137,7 +258,32 @@ fn fundamental(v: &Views) -> Result<Option<Vec<(String, String)>>, ViewError> {
         Some(w) => w,
         None => default_walkable(v.trajs, &measurement)?,
     };
-    let m = crate::analysis::measures(v.trajs, v.fps, &walkable, &measurement);
+    // Frame by frame, a batch of frames at a time side by side.
+    let mut m = Vec::new();
+    let mut batch = Vec::new();
+    let mut sweep = FrameSweep::new(v.trajs)?;
+    let mut measure = |batch: Vec<(usize, crate::analysis::FramePeople)>| {
+        m.extend(crate::analysis::measures_of_frames(
+            batch,
+            v.fps,
+            &walkable,
+            &measurement,
+        ))
+    };
+    while let Some((frame, who)) = sweep.next_frame()? {
+        let people = who
+            .iter()
+            .map(|&(i, k)| {
+                let p = &sweep.live[i].0.points[k];
+                (p.local.xy(), p.velocity.norm())
+            })
+            .collect();
+        batch.push((frame, people));
+        if batch.len() >= 256 {
+            measure(std::mem::take(&mut batch));
+        }
+    }
+    measure(batch);
     let csv = plots::measures_csv(&m);
     crate::io::write_atomic(&v.out.join("measures.csv"), csv.as_bytes()).map_err(|source| {
         ViewError::Io {
@@ -156,20 +302,23 @@ fn fundamental(v: &Views) -> Result<Option<Vec<(String, String)>>, ViewError> {
 
 /// The trajectories' bounding box with the measurement area, 1 m wider on every side.
 pub fn default_walkable(
-    trajs: &[Trajectory],
+    trajs: &dyn Trajectories,
     measurement: &crate::analysis::ConvexPolygon,
 ) -> Result<crate::analysis::ConvexPolygon, ViewError> {
     let (mut lo, mut hi) = (
         Vector2::repeat(f64::INFINITY),
         Vector2::repeat(f64::NEG_INFINITY),
     );
-    let points = trajs
-        .iter()
-        .flat_map(|t| t.points.iter().map(|p| p.local.xy()))
-        .chain(measurement.vertices().iter().copied());
-    for p in points {
-        lo = lo.inf(&p);
-        hi = hi.sup(&p);
+    trajs.each(&mut |t| {
+        for p in &t.points {
+            lo = lo.inf(&p.local.xy());
+            hi = hi.sup(&p.local.xy());
+        }
+        Ok(())
+    })?;
+    for p in measurement.vertices() {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
     }
     let (lo, hi) = (lo.add_scalar(-1.0), hi.add_scalar(1.0));
     crate::analysis::ConvexPolygon::new(vec![
@@ -199,16 +348,11 @@ pub fn colour_scale(t: f64) -> [u8; 3] {
 
 /// The speeds the site image's colours span: the 1st to the 99th percentile of the trajectory
 /// points' speeds (at least 0.5 m/s apart), so that a stream's differences show.
-pub fn speed_range(trajs: &[Trajectory]) -> (f64, f64) {
-    let mut speeds: Vec<f64> = trajs
-        .iter()
-        .flat_map(|t| t.points.iter().map(|p| p.velocity.norm()))
-        .filter(|s| s.is_finite())
-        .collect();
-    let lo = crate::analysis::quantile(&mut speeds, 0.01);
-    let hi = crate::analysis::quantile(&mut speeds, 0.99);
+pub fn speed_range(trajs: &dyn Trajectories) -> Result<(f64, f64), ViewError> {
+    let (q, _) = speed_quantiles(trajs, &[0.01, 0.99])?;
+    let (lo, hi) = (q[0], q[1]);
     let lo = if lo.is_finite() { lo } else { 0.0 };
-    (lo, hi.max(lo + 0.5))
+    Ok((lo, hi.max(lo + 0.5)))
 }
 
 /// A distinct, bright colour for an identity (golden-ratio hues).
@@ -233,6 +377,65 @@ pub fn id_colour(id: usize) -> [u8; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn trajectory(id: usize, frames: &[usize]) -> Trajectory {
+        Trajectory {
+            id,
+            height_m: 1.7,
+            height_source: "default".into(),
+            points: frames
+                .iter()
+                .map(|&f| TrajectoryPoint {
+                    frame: f,
+                    time_s: f as f64,
+                    local: Vector3::new(id as f64, f as f64, 0.0),
+                    crs: Vector3::zeros(),
+                    velocity: Vector2::zeros(),
+                    sigma_m: Vector2::zeros(),
+                    cov: Default::default(),
+                    observed: true,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_frame_sweep_gives_every_point_frame_by_frame_holding_only_those_under_way() {
+        // In identity order; the third starts before the second (its first detections were
+        // not projected), one is empty, one is a single point, one has a gap.
+        let trajs = vec![
+            trajectory(1, &[0, 1, 2, 3]),
+            trajectory(2, &[5, 6, 7]),
+            trajectory(3, &[2, 3, 4, 5, 6]),
+            trajectory(4, &[]),
+            trajectory(5, &[6]),
+            trajectory(6, &[9, 10, 12]),
+        ];
+        let mut by_frame: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+        for t in &trajs {
+            for p in &t.points {
+                by_frame.entry(p.frame).or_default().push(t.id);
+            }
+        }
+        let mut sweep = FrameSweep::new(&trajs).unwrap();
+        let mut got = std::collections::BTreeMap::new();
+        let mut most_held = 0;
+        while let Some((frame, who)) = sweep.next_frame().unwrap() {
+            let ids: Vec<usize> = who
+                .iter()
+                .map(|&(i, k)| {
+                    let t = &sweep.live[i].0;
+                    assert_eq!(t.points[k].frame, frame);
+                    t.id
+                })
+                .collect();
+            assert!(got.insert(frame, ids).is_none(), "frame {frame} twice");
+            most_held = most_held.max(sweep.live.len());
+        }
+        assert_eq!(got, by_frame);
+        // Never all six at once.
+        assert!(most_held <= 4, "{most_held} held");
+    }
 
     #[test]
     fn colours() {

@@ -22,18 +22,18 @@ fn save(c: &Canvas, out: &Path, name: &str) -> Result<String, ViewError> {
 
 /// Histogram of the speed of every trajectory point (the smoother's), 0.1 m/s bins.
 pub fn speed_plot(v: &Views) -> Result<(String, String), ViewError> {
-    let mut speeds: Vec<f64> = v
-        .trajs
-        .iter()
-        .flat_map(|t| t.points.iter().map(|p| p.velocity.norm()))
-        .filter(|s| s.is_finite())
-        .collect();
-    let n = speeds.len();
-    let median = analysis::quantile(&mut speeds, 0.5);
-    let top = analysis::quantile(&mut speeds, 0.995).max(0.5);
+    // The quantiles in a few passes, then the counts in one: the speeds are not all held.
+    let (q, n) = super::speed_quantiles(v.trajs, &[0.5, 0.995])?;
+    let (median, top) = (q[0], q[1].max(0.5));
     let bin = if top > 6.0 { 0.2 } else { 0.1 };
     let bins = ((top / bin).ceil() as usize).max(1);
-    let counts = analysis::histogram(speeds.iter().copied(), 0.0, bins as f64 * bin, bins);
+    let mut counts = vec![0usize; bins];
+    v.trajs.each(&mut |t| {
+        let speeds = t.points.iter().map(|p| p.velocity.norm());
+        let c = analysis::histogram(speeds, 0.0, bins as f64 * bin, bins);
+        counts.iter_mut().zip(c).for_each(|(a, b)| *a += b);
+        Ok(())
+    })?;
     let chart = Chart {
         title: format!("Speeds ({n} points, median {median:.2} m/s)"),
         x_label: "speed, m/s".into(),
@@ -59,14 +59,15 @@ pub fn speed_plot(v: &Views) -> Result<(String, String), ViewError> {
 pub fn people_plot(v: &Views) -> Result<(String, String), ViewError> {
     let frames = v.frames.max(1);
     let (mut all, mut seen) = (vec![0usize; frames], vec![0usize; frames]);
-    for t in v.trajs {
+    v.trajs.each(&mut |t| {
         for p in &t.points {
             if p.frame < frames {
                 all[p.frame] += 1;
                 seen[p.frame] += usize::from(p.observed);
             }
         }
-    }
+        Ok(())
+    })?;
     let series = |counts: &[usize], label: &str, rgb, style| Series {
         label: label.into(),
         xy: counts
@@ -81,7 +82,7 @@ pub fn people_plot(v: &Views) -> Result<(String, String), ViewError> {
     let chart = Chart {
         title: format!(
             "People in view ({} tracks, at most {most} at once)",
-            v.trajs.len()
+            v.trajs.count()
         ),
         x_label: "time, s".into(),
         y_label: "people".into(),
@@ -103,31 +104,33 @@ pub fn sigma_plot(v: &Views) -> Result<(String, String), ViewError> {
     let (w, h) = (f64::from(v.size.0), f64::from(v.size.1));
     let cols = 16usize;
     let rows = ((cols as f64 * h / w).round() as usize).max(1);
-    let mut cells: Vec<Vec<f64>> = vec![Vec::new(); cols * rows];
-    for t in v.trajs {
-        for p in &t.points {
-            let Some(uv) = v.image_point(p.frame, &p.local) else {
-                continue;
-            };
-            if !(uv.x >= 0.0 && uv.y >= 0.0 && uv.x < w && uv.y < h) {
-                continue;
-            }
-            let (c, r) = (
-                (uv.x / w * cols as f64) as usize,
-                (uv.y / h * rows as f64) as usize,
-            );
-            cells[r.min(rows - 1) * cols + c.min(cols - 1)].push(rms_sigma(&p.cov.total()));
+    // Each cell's median in a few passes over the points (not every σ held).
+    let cell_of = |frame: usize, local: &nalgebra::Vector3<f64>| -> Option<usize> {
+        let uv = v.image_point(frame, local)?;
+        if !(uv.x >= 0.0 && uv.y >= 0.0 && uv.x < w && uv.y < h) {
+            return None;
         }
-    }
-    let medians: Vec<f64> = cells
-        .iter_mut()
-        .map(|c| {
-            if c.len() < 5 {
-                f64::NAN
-            } else {
-                analysis::quantile(c, 0.5)
+        let (c, r) = (
+            (uv.x / w * cols as f64) as usize,
+            (uv.y / h * rows as f64) as usize,
+        );
+        Some(r.min(rows - 1) * cols + c.min(cols - 1))
+    };
+    let queries: Vec<(usize, f64)> = (0..cols * rows).map(|c| (c, 0.5)).collect();
+    let (medians, counts) = analysis::quantiles_by_passes(cols * rows, &queries, &mut |f| {
+        v.trajs.each(&mut |t| {
+            for p in &t.points {
+                if let Some(c) = cell_of(p.frame, &p.local) {
+                    f(c, rms_sigma(&p.cov.total()));
+                }
             }
+            Ok(())
         })
+    })?;
+    let medians: Vec<f64> = medians
+        .into_iter()
+        .zip(&counts)
+        .map(|(m, &n)| if n < 5 { f64::NAN } else { m })
         .collect();
     let finite: Vec<f64> = medians.iter().copied().filter(|m| m.is_finite()).collect();
     let lo = finite.iter().copied().fold(f64::INFINITY, f64::min);

@@ -329,7 +329,7 @@ pub fn site_image(v: &Views) -> Result<(Vec<(String, String)>, Vec<String>), Vie
         })
         .collect();
     // By identity, then by speed over the speeds' range.
-    for speeds in [None, Some(super::speed_range(v.trajs))] {
+    for speeds in [None, Some(super::speed_range(v.trajs)?)] {
         let mut image = Canvas::from_bgr_bytes(&white, grid.width as u32, grid.height as u32)
             .map_err(|e| ViewError::Image("site".into(), e))?;
         overlay(v, &mut image, &grid, &affine, speeds)?;
@@ -512,7 +512,7 @@ fn overlay(
     let im = |e| ViewError::Image("site".into(), e);
     let px = |local: &Vector3<f64>| grid.pixel(&affine.to_crs(&local.xy()));
     let thick = ((grid.width.max(grid.height) as f64 / 1000.0).round() as i32).max(1);
-    for t in v.trajs {
+    v.trajs.each(&mut |t| {
         if let Some((slow, fast)) = speeds {
             for w in t.points.windows(2) {
                 let s = (w[1].velocity.norm() - slow) / (fast - slow);
@@ -533,7 +533,8 @@ fn overlay(
                 .map_err(im)?;
             }
         }
-    }
+        Ok(())
+    })?;
     for g in &v.gcps {
         let p = px(&g.local);
         let rgb = if g.control {
@@ -573,7 +574,7 @@ fn framed(
     let title = format!(
         "{}: {} trajectories on the ground, {} m a pixel",
         v.title,
-        v.trajs.len(),
+        v.trajs.count(),
         grid.gsd
     );
     c.text(&Vector2::new(8.0, 22.0), &title, 0.55, [0, 0, 0], 1)

@@ -45,8 +45,8 @@ pub(super) fn export_stage(
     let cache = &ctx.cache;
     let trajs = || {
         cache
-            .load_seq::<Trajectory>("smooth", smooth_key)
-            .ok_or_else(|| gone(cache, "smooth"))
+            .read_seq::<Trajectory>("smooth", smooth_key)
+            .map_err(|e| std::io::Error::other(e.to_string()))
     };
     // The formats are independent files: written side by side.
     use rayon::prelude::*;
@@ -88,8 +88,8 @@ pub(super) fn export_stage(
                 "tracks_mot.txt",
                 &mut |w| {
                     let tracks = cache
-                        .load_seq::<ImageTrack>("track", track_key)
-                        .ok_or_else(|| gone(cache, "track"))?;
+                        .read_seq::<ImageTrack>("track", track_key)
+                        .map_err(|e| std::io::Error::other(e.to_string()))?;
                     crate::export::write_mot_in_order(w, tracks)
                 },
                 outputs,

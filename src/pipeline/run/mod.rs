@@ -452,9 +452,6 @@ impl Cache {
         })
         .map_err(|source| RunError::Io { path, source })
     }
-}
-
-impl Cache {
     /// A sequence of `count` elements cached as [`Cache::store`] stores a `Vec<T>` (read back
     /// with [`Cache::load_seq`] or [`Cache::load`]), but given to `fill`'s `push` one element
     /// at a time: a long video's stage is never whole in memory. The file's stated length is
@@ -513,6 +510,32 @@ impl Cache {
             return Err(e);
         }
         written.map_err(|source| RunError::Io { path, source })
+    }
+
+    /// [`Cache::load_seq`], or the error that the stage's file is gone (a later stage reads a
+    /// stage that was cached a moment ago).
+    fn read_seq<T: DeserializeOwned>(
+        &self,
+        stage: &str,
+        key: &str,
+    ) -> Result<CachedSeq<T>, RunError> {
+        self.load_seq(stage, key)
+            .ok_or_else(|| cache_gone(self, stage))
+    }
+
+    /// A cached sequence of tracks given to `f` in order, in batches of about [`BATCH_POINTS`]
+    /// points (`points` counts a track's).
+    fn read_batches<T: DeserializeOwned>(
+        &self,
+        stage: &str,
+        key: &str,
+        points: impl Fn(&T) -> usize,
+        f: impl FnMut(Vec<T>) -> Result<(), RunError>,
+    ) -> Result<(), RunError> {
+        let seq = self
+            .read_seq::<T>(stage, key)?
+            .map(|t| t.map_err(|e| RunError::Failed(e.to_string())));
+        in_batches(seq, points, f)
     }
 }
 
@@ -1357,6 +1380,33 @@ fn cache_gone(cache: &Cache, stage: &str) -> RunError {
         "{}: gone or damaged while the run went on: run again",
         cache.path(stage).display()
     ))
+}
+
+/// The most points of tracks a stage holds at once: a batch of tracks is read, worked on side by
+/// side and written before the next is read.
+const BATCH_POINTS: usize = 1 << 16;
+
+/// `items` (tracks, in order) given to `f` in batches of about [`BATCH_POINTS`] points
+/// (`points` counts an item's); the first error stops it.
+fn in_batches<T, E>(
+    items: impl IntoIterator<Item = Result<T, E>>,
+    points: impl Fn(&T) -> usize,
+    mut f: impl FnMut(Vec<T>) -> Result<(), E>,
+) -> Result<(), E> {
+    let (mut batch, mut n) = (Vec::new(), 0);
+    for t in items {
+        let t = t?;
+        n += points(&t);
+        batch.push(t);
+        if n >= BATCH_POINTS {
+            f(std::mem::take(&mut batch))?;
+            n = 0;
+        }
+    }
+    if !batch.is_empty() {
+        f(batch)?;
+    }
+    Ok(())
 }
 
 /// Trajectories to WGS 84 for GeoJSON, one at a time, and what the report should say about them.

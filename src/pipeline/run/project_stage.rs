@@ -11,37 +11,6 @@ pub(super) struct ProjectSummary {
     pub heights_given: usize,
 }
 
-/// The most image points projected at once: a batch of tracks is read, projected side by side
-/// and written before the next is read.
-pub(super) const BATCH_POINTS: usize = 1 << 16;
-
-/// Reads a cached sequence of tracks in batches of about `BATCH_POINTS` points, in order.
-pub(super) fn in_batches<T: DeserializeOwned>(
-    cache: &Cache,
-    stage: &str,
-    key: &str,
-    points: impl Fn(&T) -> usize,
-    f: &mut dyn FnMut(Vec<T>) -> Result<(), RunError>,
-) -> Result<(), RunError> {
-    let seq = cache
-        .load_seq::<T>(stage, key)
-        .ok_or_else(|| cache_gone(cache, stage))?;
-    let (mut batch, mut n) = (Vec::new(), 0);
-    for t in seq {
-        let t = t.map_err(|e| RunError::Failed(e.to_string()))?;
-        n += points(&t);
-        batch.push(t);
-        if n >= BATCH_POINTS {
-            f(std::mem::take(&mut batch))?;
-            n = 0;
-        }
-    }
-    if !batch.is_empty() {
-        f(batch)?;
-    }
-    Ok(())
-}
-
 /// Stage 4: image tracks to the head-height surface, read from the track stage's cache and
 /// written to this stage's a batch of tracks at a time.
 pub(super) fn project_stage(
@@ -114,12 +83,11 @@ pub(super) fn project_stage(
         let mut dropped = 0;
         ctx.cache
             .store_seq("project", &project_key, tracks.tracks, |push| {
-                in_batches(
-                    &ctx.cache,
+                ctx.cache.read_batches(
                     "track",
                     keys[0],
                     |t: &ImageTrack| t.points.len(),
-                    &mut |batch| {
+                    |batch| {
                         // Tracks are independent: side by side where the surface can be
                         // shared, in order.
                         let projected: Vec<(WorldTrack, usize)> = match surface.shareable() {

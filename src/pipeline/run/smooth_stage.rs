@@ -1,6 +1,5 @@
 //! Stage 5, `smooth`.
 
-use super::project_stage::in_batches;
 use super::*;
 use crate::pipeline::settings::SmoothSection;
 
@@ -57,7 +56,7 @@ impl ObservationFile {
         let file = std::fs::File::create(&path).map_err(io_err)?;
         let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
         let points_of = |t: &WorldTrack| t.points.len();
-        in_batches(cache, "project", project_key, points_of, &mut |batch| {
+        cache.read_batches("project", project_key, points_of, |batch| {
             for obs in observations(&batch) {
                 let mut bytes = Vec::with_capacity(8 + obs.len() * OBSERVATION_BYTES);
                 bytes.extend((obs.len() as u64).to_le_bytes());
@@ -85,50 +84,59 @@ impl Drop for ObservationFile {
     }
 }
 
-impl crate::smooth::ObservationSource for ObservationFile {
-    fn each_batch(&self, f: &mut dyn FnMut(&[Vec<Observation>])) -> std::io::Result<()> {
+/// The observation file's tracks, read one at a time.
+struct ObservationReader {
+    r: std::io::BufReader<std::fs::File>,
+    bytes: Vec<u8>,
+}
+
+impl Iterator for ObservationReader {
+    type Item = std::io::Result<Vec<Observation>>;
+
+    fn next(&mut self) -> Option<std::io::Result<Vec<Observation>>> {
         use std::io::Read;
-        let mut r = std::io::BufReader::with_capacity(1 << 20, std::fs::File::open(&self.path)?);
-        let (mut batch, mut points) = (Vec::new(), 0);
-        let mut bytes = Vec::new();
+        let mut n = [0u8; 8];
+        match self.r.read_exact(&mut n) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return None,
+            Err(e) => return Some(Err(e)),
+        }
+        self.bytes
+            .resize(u64::from_le_bytes(n) as usize * OBSERVATION_BYTES, 0);
+        if let Err(e) = self.r.read_exact(&mut self.bytes) {
+            return Some(Err(e));
+        }
         let f64_at = |b: &[u8], k: usize| {
             f64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]))
         };
-        loop {
-            let mut n = [0u8; 8];
-            match r.read_exact(&mut n) {
-                Ok(()) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => break,
-                Err(e) => return Err(e),
-            }
-            let n = u64::from_le_bytes(n) as usize;
-            bytes.resize(n * OBSERVATION_BYTES, 0);
-            r.read_exact(&mut bytes)?;
-            let obs: Vec<Observation> = bytes
-                .chunks_exact(OBSERVATION_BYTES)
-                .map(|b| Observation {
-                    frame: u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8])) as usize,
-                    position: Vector2::new(f64_at(b, 1), f64_at(b, 2)),
-                    cov: Matrix2::from_column_slice(&[
-                        f64_at(b, 3),
-                        f64_at(b, 4),
-                        f64_at(b, 5),
-                        f64_at(b, 6),
-                    ]),
-                })
-                .collect();
-            points += obs.len();
-            batch.push(obs);
-            if points >= super::project_stage::BATCH_POINTS {
-                f(&batch);
-                batch.clear();
-                points = 0;
-            }
-        }
-        if !batch.is_empty() {
+        Some(Ok(self
+            .bytes
+            .chunks_exact(OBSERVATION_BYTES)
+            .map(|b| Observation {
+                frame: u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8])) as usize,
+                position: Vector2::new(f64_at(b, 1), f64_at(b, 2)),
+                cov: Matrix2::from_column_slice(&[
+                    f64_at(b, 3),
+                    f64_at(b, 4),
+                    f64_at(b, 5),
+                    f64_at(b, 6),
+                ]),
+            })
+            .collect()))
+    }
+}
+
+impl crate::smooth::ObservationSource for ObservationFile {
+    fn each_batch(&self, f: &mut dyn FnMut(&[Vec<Observation>])) -> std::io::Result<()> {
+        let r = std::io::BufReader::with_capacity(1 << 20, std::fs::File::open(&self.path)?);
+        let tracks = ObservationReader {
+            r,
+            bytes: Vec::new(),
+        };
+        in_batches(tracks, Vec::len, |batch| {
             f(&batch);
-        }
-        Ok(())
+            Ok(())
+        })
     }
 }
 
@@ -193,7 +201,7 @@ pub(super) fn smooth_stage(
         };
         let mut points = 0;
         cache.store_seq("smooth", &smooth_key, projected.tracks, |push| {
-            in_batches(cache, "project", project_key, points_of, &mut |batch| {
+            cache.read_batches("project", project_key, points_of, |batch| {
                 let states = smoother.smooth_batch(&fit, &observations(&batch));
                 for t in trajectory_points(ctx, batch, states, persistent, &to_out)? {
                     points += t.points.len();
@@ -207,10 +215,7 @@ pub(super) fn smooth_stage(
             &[points as u64],
             &[(0, points as u64 / 2)],
             &mut |f| {
-                for t in cache
-                    .load_seq::<Trajectory>("smooth", &smooth_key)
-                    .ok_or_else(|| cache_gone(cache, "smooth"))?
-                {
+                for t in cache.read_seq::<Trajectory>("smooth", &smooth_key)? {
                     let t = t.map_err(|e| RunError::Failed(e.to_string()))?;
                     t.points.iter().for_each(|q| f(0, q.sigma_m.norm()));
                 }

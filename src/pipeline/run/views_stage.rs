@@ -21,8 +21,8 @@ impl Trajectories for Cached<'_> {
     fn read(&self) -> Result<TrajectoryReader<'_>, ViewError> {
         let seq = self
             .cache
-            .load_seq::<Trajectory>("smooth", self.key)
-            .ok_or_else(|| ViewError::Failed(cache_gone(self.cache, "smooth").to_string()))?;
+            .read_seq::<Trajectory>("smooth", self.key)
+            .map_err(|e| ViewError::Failed(e.to_string()))?;
         Ok(Box::new(
             seq.map(|t| t.map_err(|e| ViewError::Failed(e.to_string()))),
         ))

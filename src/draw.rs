@@ -36,6 +36,7 @@ impl Canvas {
         let name = path
             .to_str()
             .ok_or_else(|| file_error(path, "not a UTF-8 path"))?;
+        crate::imageheader::check_file(path).map_err(|e| file_error(path, e))?;
         let mat = opencv::imgcodecs::imread(name, opencv::imgcodecs::IMREAD_COLOR)
             .map_err(|e| file_error(path, e))?;
         if mat.empty() {

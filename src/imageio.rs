@@ -232,6 +232,7 @@ pub fn read_bgr_bytes(path: &Path) -> Result<(Vec<u8>, usize, usize), ImageError
     if !path.is_file() {
         return Err(file_error(path, "no such file"));
     }
+    crate::imageheader::check_file(path).map_err(|e| file_error(path, e))?;
     let m = opencv::imgcodecs::imread(name, opencv::imgcodecs::IMREAD_COLOR)
         .map_err(|e| file_error(path, e))?;
     if m.empty() {

@@ -28,6 +28,7 @@ pub mod export;
 pub mod features;
 pub mod geom;
 pub mod gis;
+pub mod imageheader;
 pub mod imageio;
 pub mod io;
 pub mod optim;

@@ -10,6 +10,17 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // OpenCV's decoders refuse larger images than geostride reads (formats whose header
+    // geostride does not read itself: `imageheader`).
+    if std::env::var_os("OPENCV_IO_MAX_IMAGE_PIXELS").is_none() {
+        // SAFETY: no other thread runs yet.
+        unsafe {
+            std::env::set_var(
+                "OPENCV_IO_MAX_IMAGE_PIXELS",
+                geostride::imageheader::MAX_IMAGE_PIXELS.to_string(),
+            );
+        }
+    }
     let cli = Cli::parse();
     if let Err(e) = cli.run() {
         // A message quoting a huge input is cut (readers clip what they quote; this is the net).

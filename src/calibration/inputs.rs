@@ -35,6 +35,12 @@ pub enum InputError {
         "cannot open video '{0}': OpenCV could not decode it (is it a video? is the codec installed?)"
     )]
     Video(PathBuf),
+    #[error("{}: {source}", path.display())]
+    Image {
+        path: PathBuf,
+        #[source]
+        source: crate::imageheader::HeaderError,
+    },
     #[error("OpenCV failed on '{path}': {source}")]
     OpenCv {
         path: String,
@@ -153,6 +159,10 @@ fn detect_image(
     let Some(path_str) = path.to_str() else {
         return Ok(Outcome::Unreadable);
     };
+    crate::imageheader::check_file(path).map_err(|source| InputError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
     // imread does not fail on unreadable files: it returns an empty image.
     let gray = imgcodecs::imread(path_str, imgcodecs::IMREAD_GRAYSCALE).map_err(cv(&name))?;
     if gray.empty() {

@@ -140,6 +140,8 @@ impl FrameReader {
         if !(width >= 1.0 && height >= 1.0) {
             return Err(unreadable(path, "the video states no frame size"));
         }
+        crate::imageheader::check_size(width as u64, height as u64)
+            .map_err(|e| unreadable(path, &format!("frames: {e}")))?;
         Ok(FrameReader {
             cap,
             fps: if fps > 0.0 && fps.is_finite() {

@@ -45,10 +45,10 @@ pub struct Args {
     #[arg(long)]
     bgr: bool,
     /// Per channel mean, subtracted from v/255 (model's channel order)
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [0.0f32, 0.0, 0.0], value_name = "M,M,M")]
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0f32, 0.0, 0.0], value_name = "M,M,M")]
     mean: Vec<f32>,
     /// Per channel std, dividing (v/255 − mean)
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0], value_name = "S,S,S")]
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0f32, 1.0, 1.0], value_name = "S,S,S")]
     std: Vec<f32>,
     /// At most N boxes a frame
     #[arg(long, default_value = "300", value_name = "N")]
@@ -69,7 +69,7 @@ pub struct Args {
     #[arg(long, default_value = "64", value_name = "PX")]
     overlap: usize,
     /// Only inside X,Y,W,H (pixels)
-    #[arg(long, value_delimiter = ',', num_args = 4, value_name = "X,Y,W,H")]
+    #[arg(long, value_delimiter = ',', value_name = "X,Y,W,H")]
     roi: Option<Vec<usize>>,
     /// Every N-th frame of a video
     #[arg(long, default_value = "1", value_name = "N")]
@@ -137,15 +137,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.every == 0 {
         return Err(bad_input(anyhow!("--every 0: give N ≥ 1")));
     }
-    if args.mean.len() != 3 || args.std.len() != 3 || args.std.iter().any(|v| !(*v > 0.0)) {
+    if args.mean.len() != 3 || args.std.len() != 3 {
         return Err(bad_input(anyhow!(
-            "--mean and --std take three numbers each, the std positive"
+            "--mean and --std take three numbers each, comma-separated (0.485,0.456,0.406)"
         )));
     }
-    if !(0.0..=1.0).contains(&args.min_score) || !(0.0..=1.0).contains(&args.nms) {
+    if args.roi.as_ref().is_some_and(|r| r.len() != 4) {
         return Err(bad_input(anyhow!(
-            "--min-score and --nms are fractions from 0 to 1"
+            "--roi takes four whole numbers, comma-separated: X,Y,W,H pixels"
         )));
+    }
+    let settings = NeuralSettings {
+        layout: args.layout.as_deref().and_then(Layout::from_name),
+        want_darknet: args.layout.as_deref() == Some("darknet"),
+        input_size: args.input_size.map(|(w, h)| [w as usize, h as usize]),
+        letterbox: !args.stretch,
+        bgr: args.bgr,
+        mean: [args.mean[0], args.mean[1], args.mean[2]],
+        std: [args.std[0], args.std[1], args.std[2]],
+        max_boxes: args.max_boxes,
+        classes: args.classes.clone(),
+        min_score: args.min_score,
+        nms_iou: args.nms,
+        tile: args.tile,
+        overlap: args.overlap,
+        roi: args.roi.as_ref().map(|r| [r[0], r[1], r[2], r[3]]),
+        threads: args.threads,
+    };
+    // The project's check, named by the flags.
+    settings.check().map_err(|(key, message)| {
+        let flag = match key {
+            "nms_iou" => "nms",
+            k => k,
+        };
+        bad_input(anyhow!("--{} {message}", flag.replace('_', "-")))
+    })?;
+    if args.max_frames == Some(0) {
+        return Err(bad_input(anyhow!("--max-frames 0: give N ≥ 1")));
     }
     let model = match &args.model {
         Some(m) => m.clone(),
@@ -160,35 +188,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     super::check_output_file(&args.out, inputs.iter().copied())?;
     if let Some(p) = &args.preview {
         super::check_output_file(p, inputs.iter().copied())?;
+        geostride::imageio::check_writable(p).map_err(bad_input)?;
     }
-    let settings = NeuralSettings {
-        layout: args.layout.as_deref().and_then(Layout::from_name),
-        input_size: args.input_size.map(|(w, h)| [w as usize, h as usize]),
-        letterbox: !args.stretch,
-        bgr: args.bgr,
-        mean: [args.mean[0], args.mean[1], args.mean[2]],
-        std: [args.std[0], args.std[1], args.std[2]],
-        max_boxes: args.max_boxes,
-        classes: args.classes.clone(),
-        min_score: args.min_score,
-        nms_iou: args.nms,
-        tile: args.tile,
-        overlap: args.overlap,
-        roi: args.roi.as_ref().map(|r| [r[0], r[1], r[2], r[3]]),
-        threads: args.threads,
-        ..NeuralSettings::default()
-    };
     let mut det = NeuralDetector::load(&model, &settings).map_err(|e| match e {
         NeuralError::Onnx(OnnxError::Run { .. }) => anyhow!(e),
         other => bad_input(other),
     })?;
-    if args.layout.as_deref() == Some("darknet") && !matches!(det.layout(), Layout::Darknet { .. })
-    {
-        return Err(bad_input(anyhow!(
-            "{}: --layout darknet needs the anchors in the model's darknet_yolo metadata (scripts/darknet_to_onnx.py writes them)",
-            model.display()
-        )));
-    }
 
     let bar = super::progress_bar(
         args.quiet || args.json,
@@ -201,7 +206,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut preview_done = false;
     let mut each = |index: usize, bgr: &[u8], wh: [usize; 2]| -> anyhow::Result<()> {
         let t = Instant::now();
-        let found = det.detect(bgr, wh).map_err(|e| anyhow!(e))?;
+        let found = det.detect(bgr, wh).map_err(|e| match e {
+            NeuralError::Onnx(_) => anyhow!(e),
+            other => bad_input(anyhow!("frame {index}: {other}")),
+        })?;
         busy += t.elapsed().as_secs_f64();
         for b in &found {
             let _ = writeln!(

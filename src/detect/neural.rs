@@ -41,6 +41,116 @@ pub struct NeuralSettings {
     pub roi: Option<[usize; 4]>,
     /// ONNX Runtime's threads (0: its choice).
     pub threads: usize,
+    /// The darknet layout was asked for: the model must carry its anchors (`layout` cannot
+    /// name them).
+    pub want_darknet: bool,
+}
+
+/// The most threads a model runs on: more than any machine geostride runs on has cores.
+pub const MAX_THREADS: usize = 256;
+/// The model's input side, pixels.
+pub const INPUT_SIDE: std::ops::RangeInclusive<usize> = 32..=4096;
+/// The smallest tile, pixels.
+pub const MIN_TILE: usize = 32;
+/// The most tiles one frame is cut into.
+pub const MAX_TILES: usize = 4096;
+/// The most boxes a frame keeps.
+pub const MAX_BOXES: usize = 10_000;
+
+impl NeuralSettings {
+    /// Every value in range and consistent with the others (the same check for `geostride
+    /// detect` and a project's `[detect] kind = "onnx"`): the key at fault, as the project file
+    /// names it, and what was expected.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        if let Some([w, h]) = self.input_size
+            && !(INPUT_SIDE.contains(&w) && INPUT_SIDE.contains(&h))
+        {
+            return Err((
+                "input_size",
+                format!(
+                    "{w}x{h}: expected {} to {} pixels a side",
+                    INPUT_SIDE.start(),
+                    INPUT_SIDE.end()
+                ),
+            ));
+        }
+        if self
+            .mean
+            .iter()
+            .any(|m| !(m.is_finite() && m.abs() <= 10.0))
+        {
+            return Err((
+                "mean",
+                format!(
+                    "{:?}: expected numbers from -10 to 10 (subtracted from v/255)",
+                    self.mean
+                ),
+            ));
+        }
+        if self
+            .std
+            .iter()
+            .any(|s| !(s.is_finite() && *s >= 1e-6 && *s <= 1e3))
+        {
+            return Err((
+                "std",
+                format!(
+                    "{:?}: expected numbers from 1e-6 to 1000 (dividing v/255 − mean)",
+                    self.std
+                ),
+            ));
+        }
+        for (key, v) in [("min_score", self.min_score), ("nms_iou", self.nms_iou)] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err((key, format!("{v}: expected a fraction from 0 to 1")));
+            }
+        }
+        if !(1..=MAX_BOXES).contains(&self.max_boxes) {
+            return Err((
+                "max_boxes",
+                format!(
+                    "{}: expected 1 to {MAX_BOXES} boxes a frame",
+                    self.max_boxes
+                ),
+            ));
+        }
+        if self.classes.is_empty() || self.classes.iter().any(|c| c.trim().is_empty()) {
+            return Err((
+                "classes",
+                "name at least one class (\"person\"), none empty".into(),
+            ));
+        }
+        if self.tile > 0 && (self.tile < MIN_TILE || self.overlap > self.tile / 2) {
+            return Err((
+                "tile",
+                format!(
+                    "tiles of {} pixels overlapping by {}: expected tiles of {MIN_TILE} pixels or more, overlapping by at most half a tile (0: whole frames)",
+                    self.tile, self.overlap
+                ),
+            ));
+        }
+        if let Some([x, y, w, h]) = self.roi {
+            let side = crate::camera::MAX_IMAGE_SIDE as usize;
+            if w == 0 || h == 0 || x >= side || y >= side || w > side || h > side {
+                return Err((
+                    "roi",
+                    format!(
+                        "[{x}, {y}, {w}, {h}]: expected x, y, width, height in pixels, the width and height at least 1"
+                    ),
+                ));
+            }
+        }
+        if self.threads > MAX_THREADS {
+            return Err((
+                "threads",
+                format!(
+                    "{}: expected 0 (ONNX Runtime's choice) to {MAX_THREADS}",
+                    self.threads
+                ),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for NeuralSettings {
@@ -60,6 +170,7 @@ impl Default for NeuralSettings {
             overlap: 64,
             roi: None,
             threads: 0,
+            want_darknet: false,
         }
     }
 }
@@ -72,6 +183,9 @@ pub enum NeuralError {
     /// The model and the settings disagree (layout, classes, input size).
     #[error("{}: {message}", path.display())]
     Model { path: PathBuf, message: String },
+    /// A setting out of range ([`NeuralSettings::check`]).
+    #[error("{key}: {message}")]
+    Settings { key: &'static str, message: String },
 }
 
 /// One detection in frame pixels.
@@ -142,6 +256,9 @@ impl NeuralDetector {
 
     /// Loads `path` and checks the settings against it.
     pub fn load(path: &Path, settings: &NeuralSettings) -> Result<NeuralDetector, NeuralError> {
+        settings
+            .check()
+            .map_err(|(key, message)| NeuralError::Settings { key, message })?;
         let model = OnnxModel::load(path, settings.threads)?;
         let bad = |message: String| NeuralError::Model {
             path: path.to_path_buf(),
@@ -154,7 +271,17 @@ impl NeuralDetector {
         let darknet = model.metadata("darknet_yolo");
         let input_wh = match (settings.input_size, &model.input_shape[..]) {
             (Some(s), _) => s,
-            (None, [_, _, h, w]) if *h > 0 && *w > 0 => [*w as usize, *h as usize],
+            (None, [_, _, h, w]) if *h > 0 && *w > 0 => {
+                let [w, h] = [*w as usize, *h as usize];
+                if !(INPUT_SIDE.contains(&w) && INPUT_SIDE.contains(&h)) {
+                    return Err(bad(format!(
+                        "its input is {w}x{h} pixels: expected {} to {} a side",
+                        INPUT_SIDE.start(),
+                        INPUT_SIDE.end()
+                    )));
+                }
+                [w, h]
+            }
             _ => [640, 640],
         };
         if let [_, c, h, w] = model.input_shape[..] {
@@ -172,6 +299,11 @@ impl NeuralDetector {
                 "the input's shape is {:?}; an image detector takes [1, 3, H, W]",
                 model.input_shape
             )));
+        }
+        if settings.want_darknet && darknet.is_none() {
+            return Err(bad(
+                "the darknet layout needs the anchors in the model's darknet_yolo metadata (scripts/darknet_to_onnx.py writes them)".into(),
+            ));
         }
         let layout = match (&settings.layout, darknet) {
             (Some(l), _) => l.clone(),
@@ -259,6 +391,12 @@ impl NeuralDetector {
             .run(vec![0.0; 3 * input_wh[0] * input_wh[1]], input_wh)?;
         let outputs: Vec<(Vec<i64>, Vec<f32>)> =
             outs.into_iter().map(|o| (o.shape, o.data)).collect();
+        if not_numbers(&outputs) {
+            return Err(NeuralError::Model {
+                path: path.to_path_buf(),
+                message: "its outputs on a blank image are not numbers (NaN or infinite): a broken or wrongly exported model".into(),
+            });
+        }
         let keep = Keep {
             classes: &d.class_ids,
             min_score: 1.0,
@@ -303,6 +441,12 @@ impl NeuralDetector {
         let outs = self.model.run(input, self.input_wh)?;
         let outputs: Vec<(Vec<i64>, Vec<f32>)> =
             outs.into_iter().map(|o| (o.shape, o.data)).collect();
+        if not_numbers(&outputs) {
+            return Err(NeuralError::Model {
+                path: self.path.clone(),
+                message: "its outputs are not numbers (NaN or infinite) for this frame: a broken or wrongly exported model".into(),
+            });
+        }
         let keep = Keep {
             classes: &self.class_ids,
             min_score: s.min_score,
@@ -336,13 +480,33 @@ impl NeuralDetector {
             None => [0, 0, wh[0], wh[1]],
         };
         if region[2] == 0 || region[3] == 0 {
-            return Ok(Vec::new());
+            return Err(NeuralError::Settings {
+                key: "roi",
+                message: format!(
+                    "{:?} lies outside the {}x{} frame: nothing would be searched",
+                    self.settings.roi.unwrap_or_default(),
+                    wh[0],
+                    wh[1]
+                ),
+            });
         }
         let parts = if self.settings.tile == 0 {
             vec![region]
         } else {
             tiles(region, self.settings.tile, self.settings.overlap)
         };
+        if parts.len() > MAX_TILES {
+            return Err(NeuralError::Settings {
+                key: "tile",
+                message: format!(
+                    "tiles of {} pixels cut the {}x{} frame into {}: at most {MAX_TILES}; give larger tiles",
+                    self.settings.tile,
+                    region[2],
+                    region[3],
+                    parts.len()
+                ),
+            });
+        }
         let mut all = Vec::new();
         for p in &parts {
             all.extend(self.run_region(bgr, wh, *p)?);
@@ -360,6 +524,13 @@ impl NeuralDetector {
             })
             .collect())
     }
+}
+
+/// Whether some output is all NaN or infinite (the model's numbers are not to be read).
+fn not_numbers(outputs: &[(Vec<i64>, Vec<f32>)]) -> bool {
+    outputs
+        .iter()
+        .any(|(_, d)| !d.is_empty() && d.iter().all(|v| !v.is_finite()))
 }
 
 /// Across tiles: a box mostly inside a better one of its class (a person cut by a tile's edge)
@@ -383,15 +554,20 @@ fn merge_cut(boxes: Vec<RawBox>) -> Vec<RawBox> {
 }
 
 /// The darknet layout from a model's `darknet_yolo` metadata (`scripts/darknet_to_onnx.py`).
-fn darknet_layout(meta: &str) -> Result<Layout, String> {
+pub fn darknet_layout(meta: &str) -> Result<Layout, String> {
     #[derive(Deserialize)]
     struct Meta {
         anchors: Vec<[f64; 2]>,
         masks: Vec<Vec<usize>>,
         strides: Vec<f64>,
     }
-    let m: Meta = serde_json::from_str(meta)
-        .map_err(|e| format!("its darknet_yolo metadata is not readable: {e}"))?;
+    // serde quotes the text it could not take: clipped, a model's metadata can be megabytes.
+    let m: Meta = serde_json::from_str(meta).map_err(|e| {
+        format!(
+            "its darknet_yolo metadata is not readable: {}",
+            crate::io::clip(&e.to_string(), 200)
+        )
+    })?;
     Ok(Layout::Darknet {
         anchors: m.anchors,
         masks: m.masks,
@@ -414,6 +590,113 @@ mod tests {
             ["person", "bicycle"]
         );
         assert!(parse_names("{1: 'person'}").is_none());
+    }
+
+    #[test]
+    fn settings_out_of_range_name_their_key() {
+        NeuralSettings::default().check().unwrap();
+        let tiled = NeuralSettings {
+            tile: 416,
+            ..NeuralSettings::default()
+        };
+        tiled.check().unwrap();
+        let cases: Vec<(&str, NeuralSettings)> = vec![
+            (
+                "tile",
+                NeuralSettings {
+                    tile: 1,
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "tile",
+                NeuralSettings {
+                    tile: 100,
+                    overlap: 64,
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "mean",
+                NeuralSettings {
+                    mean: [f32::NAN, 0.0, 0.0],
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "std",
+                NeuralSettings {
+                    std: [f32::INFINITY, 1.0, 1.0],
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "std",
+                NeuralSettings {
+                    std: [0.0, 1.0, 1.0],
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "input_size",
+                NeuralSettings {
+                    input_size: Some([0, 0]),
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "input_size",
+                NeuralSettings {
+                    input_size: Some([32768, 32768]),
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "min_score",
+                NeuralSettings {
+                    min_score: f64::NAN,
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "nms_iou",
+                NeuralSettings {
+                    nms_iou: 1.5,
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "max_boxes",
+                NeuralSettings {
+                    max_boxes: 0,
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "classes",
+                NeuralSettings {
+                    classes: vec![],
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "roi",
+                NeuralSettings {
+                    roi: Some([0, 0, 0, 10]),
+                    ..tiled.clone()
+                },
+            ),
+            (
+                "threads",
+                NeuralSettings {
+                    threads: 100_000,
+                    ..tiled.clone()
+                },
+            ),
+        ];
+        for (key, s) in cases {
+            assert_eq!(s.check().unwrap_err().0, key, "{s:?}");
+        }
     }
 
     #[test]

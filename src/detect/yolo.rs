@@ -250,6 +250,13 @@ pub fn decode(
             }
         }
     }
+    // A value that is not a number (a broken export) makes no box: NaN passes every `<` test.
+    out.retain(|b| {
+        b.score.is_finite()
+            && b.xywh.iter().all(|v| v.is_finite())
+            && b.xywh[2] > 0.0
+            && b.xywh[3] > 0.0
+    });
     Ok(out)
 }
 
@@ -510,6 +517,59 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    #[test]
+    fn values_that_are_not_numbers_make_no_box() {
+        let keep = Keep {
+            classes: &[],
+            min_score: 0.3,
+        };
+        let nan = f32::NAN;
+        // A NaN score, a NaN centre, an infinite width, a box of no height, then a good one.
+        let v5 = vec![
+            10.0,
+            20.0,
+            4.0,
+            6.0,
+            nan,
+            0.9,
+            0.1, //
+            nan,
+            20.0,
+            4.0,
+            6.0,
+            0.9,
+            0.9,
+            0.1, //
+            10.0,
+            20.0,
+            f32::INFINITY,
+            6.0,
+            0.9,
+            0.9,
+            0.1, //
+            10.0,
+            20.0,
+            4.0,
+            0.0,
+            0.9,
+            0.9,
+            0.1, //
+            10.0,
+            20.0,
+            4.0,
+            6.0,
+            0.9,
+            0.9,
+            0.1,
+        ];
+        let b = decode(&Layout::Yolov5, &[(vec![1, 5, 7], v5)], [64, 64], &keep).unwrap();
+        assert_eq!(b.len(), 1);
+        assert_eq!(b[0].xywh, [8.0, 17.0, 4.0, 6.0]);
+        let v8 = vec![nan; 12];
+        let b = decode(&Layout::Yolov8, &[(vec![1, 6, 2], v8)], [64, 64], &keep).unwrap();
+        assert!(b.is_empty());
     }
 
     #[test]

@@ -11,7 +11,7 @@ use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSecti
 use crate::camera::Camera;
 use crate::detect::Detector;
 use crate::detect::FrameView;
-use crate::detect::boxes::{BoxFilter, BoxFormat, ShadowModel, read_boxes};
+use crate::detect::boxes::{BoxFormat, ShadowModel, read_boxes};
 use crate::detect::colour::{ColourDetector, ColourSettings, LearningColourDetector, Palette};
 use crate::detect::person::{BoxesDetector, HeadsFromBodies};
 use crate::geom::Rigid3;
@@ -123,19 +123,7 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
     } else {
         Some(shadow_model(&b.shadow_samples, x)?)
     };
-    let filter = BoxFilter {
-        min_score: b.min_score,
-        roi: b.roi,
-        merge_iou: b.merge_iou,
-        nms_iou: b.nms_iou,
-        aspect: b.aspect,
-        size_m: b.size_m,
-        person_m: b.person_m.unwrap_or(1.0),
-        max_split: if b.person_m.is_some() { 4 } else { 1 },
-        shadow,
-        max_shadow_fraction: b.max_shadow_fraction,
-        ..BoxFilter::new(x.px_per_m)
-    };
+    let filter = b.filter(x.px_per_m, shadow);
     let inner = BoxesDetector::new(boxes, filter).map_err(|e| x.input(e.key, e.to_string()))?;
     Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
 }
@@ -143,8 +131,7 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
 /// A neural detector's boxes (a YOLO-family ONNX model on every frame), filtered, their heads
 /// found.
 pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
-    use crate::detect::neural::{NeuralDetector, NeuralSettings};
-    use crate::detect::yolo::Layout;
+    use crate::detect::neural::NeuralDetector;
     let model = match &o.model {
         Some(m) => x.l.resolve(m),
         None => crate::detect::onnx::bundled_model().ok_or_else(|| {
@@ -154,35 +141,10 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
             )
         })?,
     };
-    let settings = NeuralSettings {
-        layout: o.layout.as_deref().and_then(Layout::from_name),
-        input_size: o.input_size,
-        letterbox: o.letterbox,
-        bgr: o.bgr,
-        mean: o.mean,
-        std: o.std,
-        classes: o.classes.clone(),
-        min_score: o.min_score,
-        nms_iou: o.nms_iou,
-        max_boxes: o.max_boxes,
-        tile: o.tile,
-        overlap: o.overlap,
-        roi: o.roi,
-        threads: o.threads,
-        ..NeuralSettings::default()
-    };
+    let settings = o.neural();
     let net =
         NeuralDetector::load(&model, &settings).map_err(|e| x.input("model", e.to_string()))?;
-    let filter = BoxFilter {
-        min_score: o.min_score,
-        merge_iou: o.merge_iou,
-        nms_iou: o.nms_iou,
-        aspect: o.aspect,
-        size_m: o.size_m,
-        person_m: o.person_m.unwrap_or(1.0),
-        max_split: if o.person_m.is_some() { 4 } else { 1 },
-        ..BoxFilter::new(x.px_per_m)
-    };
+    let filter = o.filter(x.px_per_m);
     let inner = BoxesDetector::from_model(net, o.stride, filter)
         .map_err(|e| x.input(e.key, e.to_string()))?;
     Ok(heads_from_bodies(Box::new(inner), &o.body(), x))

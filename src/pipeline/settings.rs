@@ -660,6 +660,72 @@ impl PoseSection {
     }
 }
 
+/// A box filter's values, checked before any work (the image scale does not matter here).
+fn filter_check(f: &crate::detect::boxes::BoxFilter) -> Result<(), Bad> {
+    f.check().map_err(|e| (e.key, e.message))
+}
+
+impl BoxesSection {
+    /// The box filter at `px_per_m` pixels a metre at head height.
+    pub fn filter(
+        &self,
+        px_per_m: f64,
+        shadow: Option<crate::detect::boxes::ShadowModel>,
+    ) -> crate::detect::boxes::BoxFilter {
+        crate::detect::boxes::BoxFilter {
+            min_score: self.min_score,
+            roi: self.roi,
+            merge_iou: self.merge_iou,
+            nms_iou: self.nms_iou,
+            aspect: self.aspect,
+            size_m: self.size_m,
+            person_m: self.person_m.unwrap_or(1.0),
+            max_split: if self.person_m.is_some() { 4 } else { 1 },
+            shadow,
+            max_shadow_fraction: self.max_shadow_fraction,
+            ..crate::detect::boxes::BoxFilter::new(px_per_m)
+        }
+    }
+}
+
+impl OnnxSection {
+    /// The box filter at `px_per_m` pixels a metre at head height.
+    pub fn filter(&self, px_per_m: f64) -> crate::detect::boxes::BoxFilter {
+        crate::detect::boxes::BoxFilter {
+            min_score: self.min_score,
+            merge_iou: self.merge_iou,
+            nms_iou: self.nms_iou,
+            aspect: self.aspect,
+            size_m: self.size_m,
+            person_m: self.person_m.unwrap_or(1.0),
+            max_split: if self.person_m.is_some() { 4 } else { 1 },
+            ..crate::detect::boxes::BoxFilter::new(px_per_m)
+        }
+    }
+
+    /// How the model is run, as `geostride detect` takes it.
+    pub fn neural(&self) -> crate::detect::neural::NeuralSettings {
+        use crate::detect::yolo::Layout;
+        crate::detect::neural::NeuralSettings {
+            layout: self.layout.as_deref().and_then(Layout::from_name),
+            want_darknet: self.layout.as_deref() == Some("darknet"),
+            input_size: self.input_size,
+            letterbox: self.letterbox,
+            bgr: self.bgr,
+            mean: self.mean,
+            std: self.std,
+            classes: self.classes.clone(),
+            min_score: self.min_score,
+            nms_iou: self.nms_iou,
+            max_boxes: self.max_boxes,
+            tile: self.tile,
+            overlap: self.overlap,
+            roi: self.roi,
+            threads: self.threads,
+        }
+    }
+}
+
 impl DetectSection {
     /// The values' checks (that the box file exists is the project's).
     pub fn check(&self) -> Result<(), Bad> {
@@ -677,6 +743,7 @@ impl DetectSection {
                 {
                     return bad("boxes_format", "expected 'mot', 'jsonl' or 'coco'");
                 }
+                filter_check(&b.filter(1.0, None))?;
                 b.body().check()
             }
             DetectSection::Background(b) => b.body().check(),
@@ -689,24 +756,11 @@ impl DetectSection {
                         "expected 'darknet', 'yolov5', 'yolov8' or 'yolox'",
                     );
                 }
-                if !(0.0..=1.0).contains(&o.min_score) || !(0.0..=1.0).contains(&o.nms_iou) {
-                    return bad(
-                        "min_score",
-                        "min_score and nms_iou are fractions from 0 to 1",
-                    );
+                if o.stride == 0 {
+                    return bad("stride", "expected 1 or more");
                 }
-                if o.tile > 0 && o.overlap >= o.tile {
-                    return bad("overlap", "the overlap must be smaller than the tile");
-                }
-                if o.stride == 0 || o.max_boxes == 0 {
-                    return bad("stride", "stride and max_boxes are at least 1");
-                }
-                if o.std.iter().any(|v| !(*v > 0.0)) {
-                    return bad("std", "each channel's std must be positive");
-                }
-                if o.classes.is_empty() {
-                    return bad("classes", "name at least one class (\"person\")");
-                }
+                o.neural().check()?;
+                filter_check(&o.filter(1.0))?;
                 o.body().check()
             }
         }

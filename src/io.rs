@@ -397,6 +397,21 @@ fn process_alive(pid: u32) -> bool {
 /// Removes the temporaries (`.NAME.tmp-PID…`, see [`temp_path`]) that a geostride process which
 /// no longer runs left in `dir`; returns how many. A missing folder has none.
 pub fn remove_stale_temps(dir: &Path) -> std::io::Result<usize> {
+    remove_stale(dir, None)
+}
+
+/// [`remove_stale_temps`] of the one output `path` (the temporaries of its name in its folder).
+pub fn remove_stale_temps_of(path: &Path) -> std::io::Result<usize> {
+    let name = path
+        .file_name()
+        .map(|n| format!(".{}{TEMP_TAG}", n.to_string_lossy()));
+    match name {
+        Some(n) => remove_stale(&folder_of(path), Some(&n)),
+        None => Ok(0),
+    }
+}
+
+fn remove_stale(dir: &Path, prefix: Option<&str>) -> std::io::Result<usize> {
     let entries = match std::fs::read_dir(dir) {
         Ok(e) => e,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
@@ -405,6 +420,9 @@ pub fn remove_stale_temps(dir: &Path) -> std::io::Result<usize> {
     let mut removed = 0;
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
+        if prefix.is_some_and(|p| !name.starts_with(p)) {
+            continue;
+        }
         let Some(pid) = name
             .strip_prefix('.')
             .and_then(|n| n.rfind(TEMP_TAG).map(|i| &n[i + TEMP_TAG.len()..]))
@@ -437,6 +455,10 @@ pub enum OutputError {
         "{path}: this output folder holds the input {input}, which an output could overwrite; choose a folder that holds no input (a new sub-folder, say)"
     )]
     HoldsInput { path: PathBuf, input: PathBuf },
+    #[error(
+        "{path}: inside the input folder {folder}, which geostride only reads (a model, photos); choose a place outside it"
+    )]
+    InsideInput { path: PathBuf, folder: PathBuf },
     #[error("{path}: is a folder; expected a file name for the output")]
     IsFolder { path: PathBuf },
     #[error("{path}: is a file; expected a folder for the outputs")]
@@ -456,6 +478,9 @@ pub enum OutputError {
 pub struct Inputs {
     /// (as given, resolved)
     paths: Vec<(PathBuf, PathBuf)>,
+    /// Folders that are inputs as a whole (a model, a folder of photos): nothing is written
+    /// inside them. (as given, resolved)
+    folders: Vec<(PathBuf, PathBuf)>,
 }
 
 /// `path` with links and `..` resolved as far as it exists, the rest appended: what it will be.
@@ -500,12 +525,37 @@ impl Inputs {
                 .into_iter()
                 .map(|p| (p.as_ref().to_path_buf(), resolve(p.as_ref())))
                 .collect(),
+            folders: Vec::new(),
         }
     }
 
     pub fn add(&mut self, path: impl AsRef<Path>) {
         let p = path.as_ref();
         self.paths.push((p.to_path_buf(), resolve(p)));
+    }
+
+    /// A folder read as a whole (a model, a folder of photos): no output goes inside it, and it
+    /// is an input itself.
+    pub fn add_folder(&mut self, folder: impl AsRef<Path>) {
+        let p = folder.as_ref();
+        self.add(p);
+        self.folders.push((p.to_path_buf(), resolve(p)));
+    }
+
+    /// Refuses a path inside an input folder.
+    fn outside_folders(&self, out: &Path) -> Result<(), OutputError> {
+        let r = resolve(out);
+        match self
+            .folders
+            .iter()
+            .find(|(_, f)| r.starts_with(f) && r != *f)
+        {
+            Some((folder, _)) => Err(OutputError::InsideInput {
+                path: out.to_path_buf(),
+                folder: folder.clone(),
+            }),
+            None => Ok(()),
+        }
     }
 
     /// An output file: not a folder, in a folder that exists, not an input. Stale temporaries
@@ -529,6 +579,11 @@ impl Inputs {
                 input: input.clone(),
             });
         }
+        self.outside_folders(out)?;
+        remove_stale_temps_of(out).map_err(|source| OutputError::Io {
+            path: out.to_path_buf(),
+            source,
+        })?;
         Ok(())
     }
 
@@ -546,7 +601,7 @@ impl Inputs {
                 input: input.clone(),
             });
         }
-        Ok(())
+        self.outside_folders(out)
     }
 
     /// [`check_dir`](Self::check_dir), then creates the folder and clears the temporaries a
@@ -702,6 +757,15 @@ mod tests {
         assert!(!dead.exists() && !dead_gpkg.exists());
         assert!(ours.exists() && other.exists());
         assert_eq!(remove_stale_temps(&dir.path().join("none")).unwrap(), 0);
+        // An output file's own: only its name's temporaries go, when its path is checked.
+        let mine = dir.path().join(".out.txt.tmp-4194999");
+        let theirs = dir.path().join(".other.txt.tmp-4194999");
+        std::fs::write(&mine, b"x").unwrap();
+        std::fs::write(&theirs, b"x").unwrap();
+        Inputs::default()
+            .check_file(&dir.path().join("out.txt"))
+            .unwrap();
+        assert!(!mine.exists() && theirs.exists());
     }
 
     #[test]

@@ -55,9 +55,13 @@ fn fixture() -> &'static Path {
         std::fs::write(dir.join("boxes.txt"), BOXES).unwrap();
         std::fs::write(dir.join("heights.csv"), "id,height_m\n1,1.75\n2,1.62\n").unwrap();
         std::fs::write(dir.join("picks-frame.csv"), picks_on_frame(&dir)).unwrap();
+        more::extend_fixture(&dir);
         dir
     })
 }
+
+#[path = "bad_inputs/more.rs"]
+mod more;
 
 const PROJECT: &str = r#"name = "bad inputs"
 [camera]
@@ -91,6 +95,7 @@ fn picks_on_frame(dir: &Path) -> String {
 }
 
 /// One bad input.
+#[derive(Default)]
 struct Case {
     id: &'static str,
     category: &'static str,
@@ -102,6 +107,14 @@ struct Case {
     expect: &'static str,
     /// Where: the file and its line (`gcps.csv:3`) or field (`field 'export.crs'`).
     place: &'static str,
+    /// Files written as bytes (relative path, content), after `setup`.
+    bytes: Vec<(String, Vec<u8>)>,
+    /// Files removed, after `setup`.
+    remove: Vec<&'static str>,
+    /// Commands that must succeed first (a split or a run to work on), in the case's folder.
+    setup: Vec<Vec<String>>,
+    /// Environment variables of the command.
+    env: Vec<(&'static str, String)>,
 }
 
 fn args(words: &[&str]) -> Vec<String> {
@@ -169,6 +182,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "would overwrite the input",
             place: "picks.csv",
+            ..Default::default()
         },
         Case {
             id: "convert-onto-its-reference",
@@ -180,6 +194,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "would overwrite the input",
             place: "ref.csv",
+            ..Default::default()
         },
         Case {
             id: "convert-onto-itself-by-another-path",
@@ -188,6 +203,7 @@ fn cases() -> Vec<Case> {
             args: convert("gcps.csv", "csv", "truth/../gcps.csv"),
             expect: "would overwrite the input",
             place: "gcps.csv",
+            ..Default::default()
         },
         Case {
             id: "calibrate-onto-an-image",
@@ -207,6 +223,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "would overwrite the input",
             place: "truth/frame.png",
+            ..Default::default()
         },
         Case {
             id: "ba-onto-its-problem",
@@ -215,6 +232,7 @@ fn cases() -> Vec<Case> {
             args: args(&["ba", "--bal", "problem.bal", "--out", "problem.bal"]),
             expect: "would overwrite the input",
             place: "problem.bal",
+            ..Default::default()
         },
         Case {
             id: "camera-convert-onto-itself",
@@ -223,6 +241,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "convert", "camera.json", "camera.json"]),
             expect: "would overwrite the input",
             place: "camera.json",
+            ..Default::default()
         },
         Case {
             id: "run-into-the-project-folder",
@@ -237,6 +256,7 @@ fn cases() -> Vec<Case> {
             args: args(&["run", "project.toml", "--out", ".", "-q"]),
             expect: "holds the input",
             place: ".",
+            ..Default::default()
         },
         Case {
             id: "pose-video-into-the-inputs-folder",
@@ -257,6 +277,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "holds the input",
             place: ".",
+            ..Default::default()
         },
         Case {
             id: "track-into-the-boxes-folder",
@@ -276,6 +297,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "holds the input",
             place: ".",
+            ..Default::default()
         },
         Case {
             id: "simulate-into-the-scene-folder",
@@ -284,6 +306,7 @@ fn cases() -> Vec<Case> {
             args: args(&["simulate", "scene.toml", "--out", "."]),
             expect: "holds the input",
             place: ".",
+            ..Default::default()
         },
         // --- Outputs that cannot be written, found before the work ---------------------------
         Case {
@@ -302,6 +325,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "does not exist",
             place: "missing/cal.yaml",
+            ..Default::default()
         },
         Case {
             id: "ba-into-a-missing-folder",
@@ -310,6 +334,7 @@ fn cases() -> Vec<Case> {
             args: args(&["ba", "--bal", "problem.bal", "--out", "missing/out.bal"]),
             expect: "does not exist",
             place: "missing/out.bal",
+            ..Default::default()
         },
         Case {
             id: "convert-to-a-folder",
@@ -318,6 +343,7 @@ fn cases() -> Vec<Case> {
             args: convert("gcps.csv", "csv", "truth"),
             expect: "is a folder",
             place: "truth",
+            ..Default::default()
         },
         Case {
             id: "run-out-is-a-file",
@@ -326,6 +352,7 @@ fn cases() -> Vec<Case> {
             args: args(&["run", "project.toml", "--out", "heights.csv", "-q"]),
             expect: "is a file",
             place: "heights.csv",
+            ..Default::default()
         },
         Case {
             id: "track-out-is-a-file",
@@ -345,6 +372,7 @@ fn cases() -> Vec<Case> {
             ]),
             expect: "is a file",
             place: "heights.csv",
+            ..Default::default()
         },
         Case {
             id: "annotated-image-without-a-format",
@@ -359,6 +387,7 @@ fn cases() -> Vec<Case> {
             },
             expect: "image format",
             place: "out.txt",
+            ..Default::default()
         },
         // --- Project files checked whole, before any work -------------------------------------
         Case {
@@ -371,6 +400,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "is a folder",
             place: "field 'survey.gcps'",
+            ..Default::default()
         },
         Case {
             id: "project-image-as-video",
@@ -382,6 +412,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "is an image",
             place: "field 'video.path'",
+            ..Default::default()
         },
         Case {
             id: "project-bad-export-crs",
@@ -390,6 +421,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "PROJ does not know it",
             place: "field 'export.crs'",
+            ..Default::default()
         },
         Case {
             id: "project-wrong-survey-crs",
@@ -401,6 +433,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "Longitude",
             place: "gcps.csv:2",
+            ..Default::default()
         },
         Case {
             id: "project-picks-frame-beyond-video",
@@ -409,6 +442,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "beyond the",
             place: "field 'pose.picks_frame'",
+            ..Default::default()
         },
         Case {
             id: "project-onnx-model-missing",
@@ -420,6 +454,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "no such file",
             place: "field 'detect.model'",
+            ..Default::default()
         },
         Case {
             id: "project-model-pose-without-a-model",
@@ -431,6 +466,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "has no cameras.txt",
             place: "field 'pose.model'",
+            ..Default::default()
         },
         Case {
             id: "project-picks-image-not-a-frame",
@@ -439,6 +475,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "should end in '#N'",
             place: "field 'survey.picks'",
+            ..Default::default()
         },
         Case {
             id: "project-nan-centre-line",
@@ -450,6 +487,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "finite",
             place: "field 'ground.centre_line'",
+            ..Default::default()
         },
         Case {
             id: "project-infinite-sigma",
@@ -458,6 +496,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "finite",
             place: "field 'survey.gcp_sigma_m'",
+            ..Default::default()
         },
         Case {
             id: "project-unknown-key",
@@ -466,6 +505,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "head_heigth_m",
             place: "project.toml:",
+            ..Default::default()
         },
         Case {
             id: "project-duplicate-heights",
@@ -477,6 +517,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "already",
             place: "heights.csv:3",
+            ..Default::default()
         },
         Case {
             id: "project-negative-height-sigma",
@@ -488,6 +529,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "negative",
             place: "heights.csv:2",
+            ..Default::default()
         },
         Case {
             id: "project-inverted-roi",
@@ -500,6 +542,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "roi",
             place: "field 'detect.roi'",
+            ..Default::default()
         },
         Case {
             id: "project-box-filter-key",
@@ -512,6 +555,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "min_score",
             place: "field 'detect.min_score'",
+            ..Default::default()
         },
         Case {
             id: "project-boxes-of-another-video",
@@ -523,6 +567,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "none of the 2 boxes",
             place: "field 'detect.boxes'",
+            ..Default::default()
         },
         Case {
             id: "project-shadow-sample-not-whole",
@@ -535,6 +580,7 @@ fn cases() -> Vec<Case> {
             args: run(),
             expect: "whole pixels",
             place: "field 'detect.shadow_samples'",
+            ..Default::default()
         },
         // --- Survey files: numbers, ranges, columns, duplicates, CRS ------------------------
         Case {
@@ -544,6 +590,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "finite",
             place: "gcps.csv:2",
+            ..Default::default()
         },
         Case {
             id: "emlid-1e400-northing",
@@ -552,6 +599,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "finite",
             place: "gcps.csv:3",
+            ..Default::default()
         },
         Case {
             id: "emlid-zero-rms",
@@ -560,6 +608,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "positive",
             place: "gcps.csv:4",
+            ..Default::default()
         },
         Case {
             id: "emlid-extra-field",
@@ -568,6 +617,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "fields",
             place: "gcps.csv:5",
+            ..Default::default()
         },
         Case {
             id: "emlid-crs-contradicts-its-longitudes",
@@ -576,6 +626,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "is the CRS right?",
             place: "gcps.csv:2",
+            ..Default::default()
         },
         Case {
             id: "emlid-duplicate-name",
@@ -584,6 +635,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "duplicate point name",
             place: "gcps.csv:3",
+            ..Default::default()
         },
         Case {
             id: "metashape-far-outside-the-crs",
@@ -592,6 +644,7 @@ fn cases() -> Vec<Case> {
             args: survey("m.csv"),
             expect: "outside where",
             place: "m.csv:4",
+            ..Default::default()
         },
         Case {
             id: "emlid-long-token-clipped",
@@ -600,6 +653,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcps.csv"),
             expect: "bytes in all",
             place: "gcps.csv:2",
+            ..Default::default()
         },
         Case {
             id: "metashape-decimal-commas",
@@ -608,6 +662,7 @@ fn cases() -> Vec<Case> {
             args: survey("m.csv"),
             expect: "decimal commas",
             place: "m.csv:3",
+            ..Default::default()
         },
         Case {
             id: "metashape-negative-accuracy",
@@ -616,6 +671,7 @@ fn cases() -> Vec<Case> {
             args: survey("m.csv"),
             expect: "positive",
             place: "m.csv:4",
+            ..Default::default()
         },
         Case {
             id: "metashape-latitude-out-of-range",
@@ -624,6 +680,7 @@ fn cases() -> Vec<Case> {
             args: survey("m.csv"),
             expect: "out of range",
             place: "m.csv:3",
+            ..Default::default()
         },
         Case {
             id: "odm-infinite-pixel",
@@ -632,6 +689,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcp_list.txt"),
             expect: "finite",
             place: "gcp_list.txt:2",
+            ..Default::default()
         },
         Case {
             id: "odm-too-few-fields",
@@ -640,6 +698,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcp_list.txt"),
             expect: "fields",
             place: "gcp_list.txt:2",
+            ..Default::default()
         },
         Case {
             id: "opensfm-latitude-out-of-range",
@@ -648,6 +707,7 @@ fn cases() -> Vec<Case> {
             args: survey("ground_control_points.json"),
             expect: "out of range",
             place: "ground_control_points.json:1",
+            ..Default::default()
         },
         Case {
             id: "petrack-no-points",
@@ -656,6 +716,7 @@ fn cases() -> Vec<Case> {
             args: args(&["survey", "inspect", "g.3dc", "--format", "petrack"]),
             expect: "no points",
             place: "g.3dc:1",
+            ..Default::default()
         },
         Case {
             id: "survey-long-crs",
@@ -664,6 +725,7 @@ fn cases() -> Vec<Case> {
             args: survey("gcp_list.txt"),
             expect: "KiB",
             place: "gcp_list.txt:1",
+            ..Default::default()
         },
         Case {
             id: "picks-nan-pixel",
@@ -672,6 +734,7 @@ fn cases() -> Vec<Case> {
             args: args(&["survey", "inspect", "gcps.csv", "--picks", "picks.csv"]),
             expect: "finite",
             place: "picks.csv:3",
+            ..Default::default()
         },
         Case {
             id: "picks-zero-sigma",
@@ -680,6 +743,7 @@ fn cases() -> Vec<Case> {
             args: args(&["survey", "inspect", "gcps.csv", "--picks", "picks.csv"]),
             expect: "positive",
             place: "picks.csv:2",
+            ..Default::default()
         },
         Case {
             id: "picks-twice-in-one-image",
@@ -692,6 +756,7 @@ fn cases() -> Vec<Case> {
             args: args(&["survey", "inspect", "gcps.csv", "--picks", "picks.csv"]),
             expect: "picked twice",
             place: "picks.csv:",
+            ..Default::default()
         },
         Case {
             id: "picks-empty",
@@ -700,6 +765,7 @@ fn cases() -> Vec<Case> {
             args: args(&["survey", "inspect", "gcps.csv", "--picks", "picks.csv"]),
             expect: "no picks",
             place: "picks.csv",
+            ..Default::default()
         },
         Case {
             id: "pose-collinear-picks",
@@ -719,6 +785,7 @@ fn cases() -> Vec<Case> {
             args: pose_image(),
             expect: "one line",
             place: "picks.csv",
+            ..Default::default()
         },
         // --- Calibration files ---------------------------------------------------------------
         Case {
@@ -728,6 +795,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "camera.json"]),
             expect: "number out of range",
             place: "camera.json:",
+            ..Default::default()
         },
         Case {
             id: "yaml-calibration-nan-focal",
@@ -736,6 +804,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "cam.yaml"]),
             expect: "must be positive",
             place: "field 'camera_matrix'",
+            ..Default::default()
         },
         Case {
             id: "yaml-calibration-deep-nesting",
@@ -744,6 +813,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "cam.yaml"]),
             expect: "nested",
             place: "cam.yaml:3",
+            ..Default::default()
         },
         Case {
             id: "yaml-calibration-huge-size",
@@ -752,6 +822,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "cam.yaml"]),
             expect: "pixels",
             place: "field 'image_size'",
+            ..Default::default()
         },
         Case {
             id: "xml-calibration-tiny-focal",
@@ -760,6 +831,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "cam.xml"]),
             expect: "focal length",
             place: "field 'f'",
+            ..Default::default()
         },
         Case {
             id: "json-calibration-negative-variance",
@@ -768,6 +840,7 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "cam.json"]),
             expect: "positive semi-definite",
             place: "field 'covariance'",
+            ..Default::default()
         },
         // --- Boxes, BAL, evaluate, scenes, plan ----------------------------------------------
         Case {
@@ -777,6 +850,7 @@ fn cases() -> Vec<Case> {
             args: args(&["track", "video.mp4", "--detect", "boxes", "--boxes", "boxes.txt", "--px-per-m", "30", "--out", "tracks"]),
             expect: "frame",
             place: "boxes.txt:1",
+            ..Default::default()
         },
         Case {
             id: "mot-decimal-commas",
@@ -785,6 +859,7 @@ fn cases() -> Vec<Case> {
             args: args(&["track", "video.mp4", "--detect", "boxes", "--boxes", "boxes.txt", "--px-per-m", "30", "--out", "tracks"]),
             expect: "score",
             place: "boxes.txt:1",
+            ..Default::default()
         },
         Case {
             id: "coco-duplicate-image-ids",
@@ -793,6 +868,7 @@ fn cases() -> Vec<Case> {
             args: args(&["track", "video.mp4", "--detect", "boxes", "--boxes", "boxes.json", "--px-per-m", "30", "--out", "tracks"]),
             expect: "used twice",
             place: "boxes.json",
+            ..Default::default()
         },
         Case {
             id: "bal-duplicate-observation",
@@ -801,6 +877,7 @@ fn cases() -> Vec<Case> {
             args: args(&["ba", "--bal", "problem.bal"]),
             expect: "both of point 0 in camera 0",
             place: "field 'observations'",
+            ..Default::default()
         },
         Case {
             id: "bal-huge-counts",
@@ -809,6 +886,7 @@ fn cases() -> Vec<Case> {
             args: args(&["ba", "--bal", "problem.bal"]),
             expect: "problem.bal",
             place: "problem.bal:",
+            ..Default::default()
         },
         Case {
             id: "evaluate-empty-truth",
@@ -817,6 +895,7 @@ fn cases() -> Vec<Case> {
             args: args(&["evaluate", "--truth", "empty.csv", "--tracks", "truth/heads.csv", "--tracks-columns", "frame,person,e_m,n_m"]),
             expect: "no rows",
             place: "empty.csv",
+            ..Default::default()
         },
         Case {
             id: "evaluate-fractional-frame",
@@ -825,6 +904,7 @@ fn cases() -> Vec<Case> {
             args: args(&["evaluate", "--truth", "truth/heads.csv", "--tracks", "t.csv"]),
             expect: "whole number",
             place: "t.csv:2",
+            ..Default::default()
         },
         Case {
             id: "evaluate-duplicate-row",
@@ -833,6 +913,7 @@ fn cases() -> Vec<Case> {
             args: args(&["evaluate", "--truth", "truth/heads.csv", "--tracks", "t.csv"]),
             expect: "twice",
             place: "t.csv:3",
+            ..Default::default()
         },
         Case {
             id: "project-error-profile-unsorted",
@@ -844,6 +925,7 @@ fn cases() -> Vec<Case> {
             args: args(&["run", "project.toml", "--out", "out"]),
             expect: "t rising within 0 to 1",
             place: "field 'detect.error_profile_px2'",
+            ..Default::default()
         },
         Case {
             id: "fit-error-no-width",
@@ -855,6 +937,7 @@ fn cases() -> Vec<Case> {
             args: args(&["fit-error", "--detections", "det.csv", "--annotations", "ann.csv"]),
             expect: "give --width",
             place: "report.json",
+            ..Default::default()
         },
         Case {
             id: "fit-error-too-few-heads",
@@ -866,6 +949,7 @@ fn cases() -> Vec<Case> {
             args: args(&["fit-error", "--detections", "det.csv", "--annotations", "ann.csv", "--width", "1920"]),
             expect: "at least 20",
             place: "ann.csv",
+            ..Default::default()
         },
         Case {
             id: "fit-error-missing-column",
@@ -877,6 +961,7 @@ fn cases() -> Vec<Case> {
             args: args(&["fit-error", "--detections", "det.csv", "--annotations", "ann.csv", "--width", "1920"]),
             expect: "no column 'x_px'",
             place: "ann.csv:1",
+            ..Default::default()
         },
         Case {
             id: "scene-huge-video",
@@ -885,6 +970,7 @@ fn cases() -> Vec<Case> {
             args: args(&["simulate", "scene.toml", "--out", "sim"]),
             expect: "video_mode",
             place: "field 'camera.video_mode'",
+            ..Default::default()
         },
         Case {
             id: "scene-narrow-deck",
@@ -893,6 +979,7 @@ fn cases() -> Vec<Case> {
             args: args(&["simulate", "scene.toml", "--out", "sim"]),
             expect: "width",
             place: "field 'ground.width_m'",
+            ..Default::default()
         },
         Case {
             id: "scene-infinite-noise",
@@ -901,6 +988,7 @@ fn cases() -> Vec<Case> {
             args: args(&["simulate", "scene.toml", "--out", "sim"]),
             expect: "finite",
             place: "field 'output.gcp_noise_m'",
+            ..Default::default()
         },
         Case {
             id: "scene-bad-site-crs",
@@ -912,6 +1000,7 @@ fn cases() -> Vec<Case> {
             args: args(&["simulate", "scene.toml", "--out", "sim"]),
             expect: "site.crs",
             place: "scene.toml",
+            ..Default::default()
         },
         Case {
             id: "simulate-endless-duration",
@@ -920,6 +1009,7 @@ fn cases() -> Vec<Case> {
             args: args(&["simulate", "scene.toml", "--out", "sim", "--duration", "1e300"]),
             expect: "3600",
             place: "--duration",
+            ..Default::default()
         },
         Case {
             id: "plan-huge-video-mode",
@@ -928,8 +1018,10 @@ fn cases() -> Vec<Case> {
             args: args(&["plan", "--camera", "mini3pro", "--altitude", "30", "--video-mode", "1920000x1080000"]),
             expect: "WIDTHxHEIGHT",
             place: "--video-mode",
+            ..Default::default()
         },
     ];
+    c.extend(more::cases());
     // Every case runs in its own folder: relative names keep the messages short.
     for case in &mut c {
         assert!(!case.args.is_empty());
@@ -989,6 +1081,57 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, String> {
     out
 }
 
+/// A case in words for the catalogue: its command, then what was made bad.
+fn describe(c: &Case) -> String {
+    let word = |w: &String| {
+        let shown = w.escape_debug().to_string();
+        if shown.is_empty() || shown.contains(' ') {
+            format!("'{shown}'")
+        } else {
+            shown
+        }
+    };
+    let mut s = format!(
+        "`{}`",
+        c.args.iter().map(word).collect::<Vec<_>>().join(" ")
+    );
+    let mut edits: Vec<String> = c
+        .files
+        .iter()
+        .map(|(n, _)| n.to_string())
+        .chain(c.bytes.iter().map(|(n, _)| n.clone()))
+        .map(|n| format!("`{}`", n.escape_debug()))
+        .collect();
+    edits.dedup();
+    if !c.setup.is_empty() {
+        let steps: Vec<String> = c
+            .setup
+            .iter()
+            .map(|st| format!("`{}`", st.join(" ")))
+            .collect();
+        s = format!("after {}, {s}", steps.join(", "));
+    }
+    if !edits.is_empty() {
+        s.push_str(&format!(" (the case writes {})", edits.join(", ")));
+    }
+    for r in &c.remove {
+        s.push_str(&format!(", `{r}` removed"));
+    }
+    for (k, v) in &c.env {
+        s.push_str(&format!(", `{k}={v}`"));
+    }
+    s.replace('|', "\\|")
+}
+
+/// The largest resident memory of the children waited for so far, MB.
+fn children_peak_mb() -> f64 {
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `usage` is a valid rusage to fill.
+    let r = unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };
+    assert_eq!(r, 0);
+    usage.ru_maxrss as f64 / 1024.0
+}
+
 fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {
@@ -1005,54 +1148,59 @@ fn copy_dir(from: &Path, to: &Path) {
 #[test]
 fn every_bad_input_exits_2_with_its_place_and_leaves_everything_as_it_was() {
     let fixture = fixture();
-    // A frame of the video as an image, for the image cases.
-    let frame = fixture.join("truth/frame.png");
-    if !frame.is_file() {
-        // Any PNG will do: a checkerboard the simulator can render is not needed, a frame is.
-        let out = geostride()
-            .args(["simulate"])
-            .arg(fixture.join("scene.toml"))
-            .arg("--out")
-            .arg(fixture.join("frames"))
-            .args([
-                "--duration",
-                "0.1",
-                "--frames-every",
-                "1",
-                "--no-video",
-                "-q",
-            ])
-            .output()
-            .unwrap();
-        common::assert_success(&out);
-        let png = std::fs::read_dir(fixture.join("frames/frames"))
-            .unwrap()
-            .next()
-            .unwrap()
-            .unwrap()
-            .path();
-        std::fs::copy(png, &frame).unwrap();
-        std::fs::remove_dir_all(fixture.join("frames")).unwrap();
-    }
     let tmp = tempfile::tempdir().unwrap();
     let cases = cases();
     let mut failures = Vec::new();
     let mut ids = std::collections::HashSet::new();
+    let mut slowest = (0.0f64, "");
     for case in &cases {
         assert!(ids.insert(case.id), "two cases are named {}", case.id);
         let dir = tmp.path().join(case.id);
         copy_dir(fixture, &dir);
+        for step in &case.setup {
+            let out = geostride().args(step).current_dir(&dir).output().unwrap();
+            assert!(
+                out.status.success(),
+                "{}: the set-up {step:?} failed: {}",
+                case.id,
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
         for (name, text) in &case.files {
+            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
             std::fs::write(dir.join(name), text).unwrap();
         }
+        for (name, bytes) in &case.bytes {
+            if let Some(parent) = dir.join(name).parent() {
+                std::fs::create_dir_all(parent).unwrap();
+            }
+            std::fs::write(dir.join(name), bytes).unwrap();
+        }
+        for name in &case.remove {
+            let p = dir.join(name);
+            if p.is_dir() {
+                std::fs::remove_dir_all(p).unwrap();
+            } else {
+                std::fs::remove_file(p).unwrap();
+            }
+        }
         let before = snapshot(&dir);
+        let started = std::time::Instant::now();
         let out = geostride()
             .args(&case.args)
+            .envs(case.env.iter().map(|(k, v)| (k, v)))
             .current_dir(&dir)
             .output()
             .unwrap();
+        let seconds = started.elapsed().as_secs_f64();
+        if seconds > slowest.0 {
+            slowest = (seconds, case.id);
+        }
         let stderr = String::from_utf8_lossy(&out.stderr);
         let mut why = Vec::new();
+        if seconds > 60.0 {
+            why.push(format!("ran {seconds:.0} s (60 s at most)"));
+        }
         if out.status.code() != Some(2) {
             why.push(format!("exit {:?}, expected 2", out.status.code()));
         }
@@ -1090,8 +1238,20 @@ fn every_bad_input_exits_2_with_its_place_and_leaves_everything_as_it_was() {
             ));
         }
     }
-    eprintln!("{} bad-input cases", cases.len());
-    assert!(cases.len() >= 60, "the catalogue has {} cases", cases.len());
+    // The largest resident memory of any case's process (and of the set-ups').
+    let peak_mb = children_peak_mb();
+    eprintln!(
+        "{} bad-input cases; the slowest {} in {:.1} s; the largest process {peak_mb:.0} MB",
+        cases.len(),
+        slowest.1,
+        slowest.0
+    );
+    assert!(
+        cases.len() >= 230,
+        "the catalogue has {} cases",
+        cases.len()
+    );
+    assert!(peak_mb < 2048.0, "a process took {peak_mb:.0} MB");
     assert!(
         failures.is_empty(),
         "{} case(s) failed:\n{}",
@@ -1099,6 +1259,28 @@ fn every_bad_input_exits_2_with_its_place_and_leaves_everything_as_it_was() {
         failures.join("\n")
     );
 
+    // GEOSTRIDE_CATALOGUE=FILE writes the table rows of the cases the page lacks (for docs).
+    if let Some(path) = std::env::var_os("GEOSTRIDE_CATALOGUE") {
+        let doc = std::fs::read_to_string(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/bad-inputs.md"),
+        )
+        .unwrap();
+        let rows: String = cases
+            .iter()
+            .filter(|c| !doc.contains(&format!("`{}`", c.id)))
+            .map(|c| {
+                format!(
+                    "| `{}` | {} | {} | {} | `{}` |\n",
+                    c.id,
+                    c.category,
+                    describe(c),
+                    c.expect.replace('|', "\\|"),
+                    c.place.replace('|', "\\|")
+                )
+            })
+            .collect();
+        std::fs::write(path, rows).unwrap();
+    }
     // docs/bad-inputs.md lists every case.
     let doc =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/bad-inputs.md"))
@@ -1110,4 +1292,172 @@ fn every_bad_input_exits_2_with_its_place_and_leaves_everything_as_it_was() {
         .collect();
     assert!(missing.is_empty(), "docs/bad-inputs.md lacks {missing:?}");
     let _ = std::fs::remove_dir_all(fixture);
+}
+
+/// Every command aimed at its own inputs (its output equal to an input file, inside an input
+/// folder or holding an input) is refused, and every input keeps its bytes; the commands that
+/// only read run and change nothing.
+#[test]
+fn no_command_writes_into_its_inputs() {
+    let fixture = fixture();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    let aimed = more::aimed_at_inputs();
+    let commands: std::collections::BTreeSet<String> = aimed
+        .iter()
+        .map(|a| {
+            a.label
+                .split(':')
+                .next()
+                .unwrap()
+                .trim_end_matches(" --video")
+                .to_string()
+        })
+        .collect();
+    for (k, a) in aimed.iter().enumerate() {
+        let dir = tmp.path().join(format!("aimed-{k}"));
+        copy_dir(fixture, &dir);
+        for step in &a.case.setup {
+            let out = geostride().args(step).current_dir(&dir).output().unwrap();
+            assert!(
+                out.status.success(),
+                "{}: {step:?}: {}",
+                a.label,
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        for (name, bytes) in &a.case.bytes {
+            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
+            std::fs::write(dir.join(name), bytes).unwrap();
+        }
+        if let Some((file, folder)) = a.retarget {
+            let canonical = dir.canonicalize().unwrap();
+            let text = std::fs::read_to_string(dir.join(file)).unwrap();
+            let from = canonical.join("project.toml").display().to_string();
+            assert!(text.contains(&from), "{file} names no {from}");
+            let to = canonical
+                .join(folder)
+                .join("project.toml")
+                .display()
+                .to_string();
+            std::fs::write(dir.join(file), text.replace(&from, &to)).unwrap();
+        }
+        let before = snapshot(&dir);
+        let out = geostride()
+            .args(&a.args)
+            .current_dir(&dir)
+            .output()
+            .unwrap();
+        let after = snapshot(&dir);
+        let changed: Vec<String> = after
+            .iter()
+            .filter(|(p, h)| before.get(*p) != Some(h))
+            .map(|(p, _)| p.display().to_string())
+            .chain(
+                before
+                    .keys()
+                    .filter(|p| !after.contains_key(*p))
+                    .map(|p| format!("{} (removed)", p.display())),
+            )
+            .collect();
+        if out.status.code() != Some(a.code) || !changed.is_empty() {
+            failures.push(format!(
+                "{}: exit {:?} (expected {}), changed {changed:?}: {}",
+                a.label,
+                out.status.code(),
+                a.code,
+                geostride::io::clip(String::from_utf8_lossy(&out.stderr).trim(), 300)
+            ));
+        }
+    }
+    // Every command is here.
+    let every = [
+        "ba",
+        "calibrate",
+        "camera convert",
+        "camera show",
+        "demo",
+        "detect",
+        "evaluate",
+        "fit-error",
+        "plan",
+        "pose",
+        "render",
+        "run",
+        "segment",
+        "merge",
+        "sfm",
+        "sfm register",
+        "simulate",
+        "slurm",
+        "split",
+        "survey convert",
+        "survey inspect",
+        "track",
+    ];
+    let missing: Vec<&str> = every
+        .iter()
+        .copied()
+        .filter(|c| !commands.contains(*c))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "commands not aimed at their inputs: {missing:?}"
+    );
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// A newline (or another character Slurm reads as more than a value) in any option of `slurm`
+/// is refused before anything is written: no job script can run a line of the user's.
+#[test]
+fn no_slurm_option_becomes_a_shell_line() {
+    let fixture = fixture();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    let options = [
+        "--partition",
+        "--time",
+        "--merge-time",
+        "--mem",
+        "--merge-mem",
+        "--sbatch",
+        "--out",
+        "--cpus",
+    ];
+    for (k, opt) in options.iter().enumerate() {
+        for value in [
+            "ok\ntouch pwned",
+            "ok\r\ntouch pwned",
+            "2\n#SBATCH --exclusive",
+        ] {
+            let dir = tmp.path().join(format!("slurm-{k}-{}", value.len()));
+            copy_dir(fixture, &dir);
+            let before = snapshot(&dir);
+            let mut words: Vec<String> = vec![
+                "slurm".into(),
+                "project.toml".into(),
+                "--segments".into(),
+                "1".into(),
+            ];
+            let value = if *opt == "--sbatch" {
+                format!("--account={value}")
+            } else {
+                value.to_string()
+            };
+            if *opt != "--out" {
+                words.extend(["--out".to_string(), "sl".to_string()]);
+            }
+            words.push(format!("{opt}={value}"));
+            let out = geostride().args(&words).current_dir(&dir).output().unwrap();
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            if out.status.code() != Some(2) || !stderr.contains(opt) || snapshot(&dir) != before {
+                failures.push(format!(
+                    "{opt}={value:?}: exit {:?}: {}",
+                    out.status.code(),
+                    stderr.trim()
+                ));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

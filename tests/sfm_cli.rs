@@ -872,3 +872,199 @@ fn video_frames_are_placed_in_the_reference_model() {
     let tracks = common::read_csv(&run_dir.join("trajectories.csv"));
     assert!(!tracks.is_empty());
 }
+
+/// Issue 35: measurements that disagree with the others are left out and named, or refused
+/// before the features, and the model stays right. The simulated survey flight with plain-CSV
+/// RTK centres: one centre 1 km off is left out (every camera then within its stated σ of the
+/// run with all centres right); centres 112 km from the GCPs are refused at once; EXIF GPS with
+/// one photo placed on another continent places the model on the others.
+#[test]
+fn inconsistent_measurements_are_left_out_or_refused_and_the_model_stays_right() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sim = tmp.path().join("sim");
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/scenes/survey-flight.toml"
+    );
+    let o = geostride(&["simulate", scene, "--out", sim.to_str().unwrap(), "-q"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    // The centres as name,x,y,z (ellipsoidal heights, EPSG:3812 given on the command line).
+    let emlid = common::read_csv(&sim.join("survey/centres.csv"));
+    let centres = |shift: &dyn Fn(&str) -> f64| -> String {
+        let mut t = String::from("name,x,y,z\n");
+        for r in &emlid {
+            t.push_str(&format!(
+                "{},{},{},{}\n",
+                r["Name"],
+                common::num(r, "Easting") + shift(&r["Name"]),
+                r["Northing"],
+                r["Ellipsoidal height"]
+            ));
+        }
+        t
+    };
+    let sfm = |out: &Path, centres_text: &str| {
+        let c = out.with_extension("centres.csv");
+        std::fs::write(&c, centres_text).unwrap();
+        geostride(&[
+            "sfm",
+            &s(&sim.join("survey/photos")),
+            "--camera",
+            "mini3pro",
+            "--gcps",
+            &s(&sim.join("gcps.csv")),
+            "--picks",
+            &s(&sim.join("survey/picks.csv")),
+            "--centres",
+            &s(&c),
+            "--crs",
+            "EPSG:3812",
+            "--height",
+            "ellipsoidal",
+            "--max-features",
+            "4096",
+            "--out",
+            &s(out),
+            "--json",
+        ])
+    };
+    let clean = tmp.path().join("clean");
+    let o = sfm(&clean, &centres(&|_| 0.0));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // 1. One centre 1 km east: left out, named; the cameras as with every centre right.
+    let off = tmp.path().join("off");
+    copy_tree(&clean.join("cache"), &off.join("cache"));
+    let culprit = "IMG_0005.jpg";
+    let o = sfm(&off, &centres(&|n| if n == culprit { 1000.0 } else { 0.0 }));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let left_out = report["georef"]["left_out"].as_array().unwrap();
+    // "its measured centre is 999.99 m from where ...": the kilometre it was moved.
+    let metres = |why: &str| -> f64 {
+        why.split(" is ")
+            .nth(1)
+            .and_then(|t| t.split(" m ").next())
+            .and_then(|t| t.parse().ok())
+            .unwrap_or(f64::NAN)
+    };
+    assert!(
+        left_out
+            .iter()
+            .any(|l| l[0] == culprit && (metres(l[1].as_str().unwrap()) - 1000.0).abs() < 0.5),
+        "{left_out:?}"
+    );
+    assert_eq!(left_out.len(), 1, "{left_out:?}");
+    let a = common::read_csv(&clean.join("cameras.csv"));
+    let b = common::read_csv(&off.join("cameras.csv"));
+    let mut worst = 0.0f64;
+    for r in &b {
+        let c = a.iter().find(|c| c["image"] == r["image"]).unwrap();
+        for (axis, sigma) in [
+            ("crs_x", "sigma_e_m"),
+            ("crs_y", "sigma_n_m"),
+            ("crs_h", "sigma_u_m"),
+        ] {
+            let d = (common::num(r, axis) - common::num(c, axis)).abs();
+            let z = d / common::num(r, sigma);
+            worst = worst.max(z);
+            assert!(
+                z <= 1.0,
+                "{}: {axis} {d} m from the clean run, σ {}",
+                r["image"],
+                r[sigma]
+            );
+        }
+    }
+    eprintln!("one centre 1 km off: left out; cameras within {worst:.2} σ of the clean run");
+
+    // 2. Centres 112 km from the GCPs: refused before any feature is found.
+    let far = tmp.path().join("far");
+    let o = sfm(&far, &centres(&|_| 112_000.0));
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("112.0 km (median) from the nearest GCP"),
+        "{err}"
+    );
+    assert!(!far.exists(), "a refused run left {}", far.display());
+
+    // 3. EXIF GPS of every photo from the truth, one on another continent: the model is placed
+    // on the others, and the photo is named.
+    let truth = common::read_csv(&sim.join("truth/survey_cameras.csv"));
+    let (lat0, lon0) = (
+        common::num(&emlid[0], "Latitude"),
+        common::num(&emlid[0], "Longitude"),
+    );
+    let (x0, y0) = (common::num(&truth[0], "x"), common::num(&truth[0], "y"));
+    // WGS 84 metres per degree at lat0: meridian and parallel.
+    let (a, e2) = (6_378_137.0f64, 0.006_694_379_990_14f64);
+    let sin = lat0.to_radians().sin();
+    let w = (1.0 - e2 * sin * sin).sqrt();
+    let per_lat = a * (1.0 - e2) / (w * w * w) * std::f64::consts::PI / 180.0;
+    let per_lon = a / w * lat0.to_radians().cos() * std::f64::consts::PI / 180.0;
+    let photos = tmp.path().join("gps-photos");
+    std::fs::create_dir_all(&photos).unwrap();
+    let far_away = "IMG_0007.jpg";
+    for t in &truth {
+        let name = &t["image"];
+        let mut gps = (
+            lat0 + (common::num(t, "y") - y0) / per_lat,
+            lon0 + (common::num(t, "x") - x0) / per_lon,
+            common::num(t, "ellipsoidal_height_m"),
+        );
+        if name == far_away {
+            gps = (-33.8568, 151.2153, 40.0);
+        }
+        let jpeg = std::fs::read(sim.join("survey/photos").join(name)).unwrap();
+        let e = common::exif::Exif {
+            gps: Some(gps),
+            ..Default::default()
+        };
+        std::fs::write(photos.join(name), common::exif::with_exif(&jpeg, &e)).unwrap();
+    }
+    let out = tmp.path().join("gps");
+    let o = geostride(&[
+        "sfm",
+        &s(&photos),
+        "--camera",
+        "mini3pro",
+        "--max-features",
+        "4096",
+        "--out",
+        &s(&out),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["frame"], "enu");
+    let g = &report["gps"];
+    let left_out = g["left_out"].as_array().unwrap();
+    assert!(
+        left_out.iter().any(|l| l[0] == far_away
+            && l[1]
+                .as_str()
+                .unwrap()
+                .contains("km from the others' median")),
+        "{left_out:?}"
+    );
+    assert_eq!(g["images"], truth.len() - 1);
+    let h = g["rms_horizontal_m"].as_f64().unwrap();
+    eprintln!(
+        "EXIF GPS with one photo in Sydney: left out; the others {h:.3} m RMS from their GPS"
+    );
+    assert!(h < 0.1, "{h} m");
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.path().is_dir() {
+            copy_tree(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}

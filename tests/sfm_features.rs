@@ -107,3 +107,29 @@ fn unreadable_images_are_refused_with_the_file_named() {
         .to_string();
     assert!(e.contains("no such file"), "{e}");
 }
+
+/// The tests' EXIF writer (`common::exif`) writes what geostride's reader reads: a focal length,
+/// a GPS position south and west, an altitude, DJI's RTK σ.
+#[test]
+fn exif_written_for_tests_reads_back() {
+    let tmp = tempfile::tempdir().unwrap();
+    let jpg = tmp.path().join("a.jpg");
+    geostride::imageio::write_rgb(&jpg, 16, 8, &[128; 16 * 8 * 3]).unwrap();
+    let e = common::exif::Exif {
+        focal_35mm: Some(24),
+        gps: Some((-33.856_784, -70.123_456, 512.25)),
+        rtk_sigma_m: Some([0.02, 0.03, 0.05]),
+    };
+    let bytes = common::exif::with_exif(&std::fs::read(&jpg).unwrap(), &e);
+    let m = geostride::sfm::exif::meta_from_bytes(&bytes);
+    assert_eq!(m.focal_35mm, Some(24.0));
+    let g = m.gps.expect("a GPS position");
+    assert!((g.lat_deg + 33.856_784).abs() < 1e-7, "{g:?}");
+    assert!((g.lon_deg + 70.123_456).abs() < 1e-7, "{g:?}");
+    assert!((g.alt_m.unwrap() - 512.25).abs() < 1e-3, "{g:?}");
+    assert_eq!(m.rtk_sigma_m, Some([0.02, 0.03, 0.05]));
+    // Still a JPEG OpenCV decodes.
+    std::fs::write(&jpg, &bytes).unwrap();
+    let (_, w, h) = geostride::imageio::read_bgr_bytes(&jpg).unwrap();
+    assert_eq!((w, h), (16, 8));
+}

@@ -234,7 +234,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => args.format.map(Format::from),
     };
     if let Some(out) = &args.output {
-        check_output_file(out, &job.inputs)?;
+        // The folders' images too: an output named like one of them would replace it.
+        let files = geostride::calibration::inputs::expand(&job.inputs).map_err(bad_input)?;
+        check_output_file(out, job.inputs.iter().chain(&files))?;
     }
     let outcome = run_job(&job)?;
     let written = match &args.output {

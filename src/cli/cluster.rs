@@ -127,14 +127,29 @@ fn load_split(dir: &Path) -> anyhow::Result<(Manifest, Loaded)> {
         )));
     }
     let mut l = load(&m.project).map_err(bad_input)?;
-    // The video was hashed once, by split: a file whose size or time changed is hashed again
-    // (and then no chunk matches its key).
+    // The video was hashed once, by split: a file whose size or time changed is hashed again,
+    // and refused if its content is not the one split.
+    geostride::pipeline::run::check_known_inputs(&l, &m.plan.inputs, dir).map_err(run_error)?;
     l.known_inputs = m.plan.inputs.clone();
     Ok((m, l))
 }
 
-/// Splits and writes the manifest; the manifest.
+/// Splits and writes the manifest; the manifest. A split refused leaves no folder it made.
 fn split(project: &Path, n: usize, out: &Path, quiet: bool) -> anyhow::Result<Manifest> {
+    if n == 0 {
+        return Err(bad_input(anyhow!(
+            "--segments 0: expected at least 1 segment"
+        )));
+    }
+    let existed = out.exists();
+    let made = split_into(project, n, out, quiet);
+    if made.is_err() && !existed && out.is_dir() {
+        let _ = std::fs::remove_dir_all(out);
+    }
+    made
+}
+
+fn split_into(project: &Path, n: usize, out: &Path, quiet: bool) -> anyhow::Result<Manifest> {
     let project = std::fs::canonicalize(project)
         .map_err(|e| bad_input(anyhow!("{}: {e}", project.display())))?;
     // Loaded from the path the segments load it from: the inputs' paths (and the checksums
@@ -274,10 +289,6 @@ pub fn run_merge(a: MergeArgs) -> anyhow::Result<()> {
 }
 
 pub fn run_slurm(a: SlurmArgs) -> anyhow::Result<()> {
-    let m = split(&a.project, a.segments, &a.out, a.quiet)?;
-    describe(&m, &a.out);
-    let dir = std::fs::canonicalize(&a.out)?;
-    let exe = std::env::current_exe()?;
     let opts = SlurmOptions {
         partition: a.partition.clone(),
         time: a.time.clone(),
@@ -287,9 +298,28 @@ pub fn run_slurm(a: SlurmArgs) -> anyhow::Result<()> {
         cpus: a.cpus,
         extra: a.extra.clone(),
     };
-    let (seg, merge) = slurm_scripts(&exe, &dir, m.segments.len(), &opts);
+    // Before the split (which hashes the video): nothing is written for options Slurm would
+    // misread.
+    opts.check()
+        .map_err(|(flag, message)| bad_input(anyhow!("{flag} {message}")))?;
+    if a.out
+        .to_str()
+        .is_none_or(|s| s.chars().any(char::is_control))
+    {
+        return Err(bad_input(anyhow!(
+            "--out {}: a Slurm script cannot name this folder (a control character, or not UTF-8); choose another",
+            a.out.display().to_string().escape_debug()
+        )));
+    }
+    let m = split(&a.project, a.segments, &a.out, a.quiet)?;
+    describe(&m, &a.out);
+    let dir = std::fs::canonicalize(&a.out)?;
+    let exe = std::env::current_exe()?;
+    let (seg, merge) =
+        slurm_scripts(&exe, &dir, m.segments.len(), &opts).map_err(|e| bad_input(anyhow!(e)))?;
     let sdir = dir.join("slurm");
     std::fs::create_dir_all(&sdir)?;
+    geostride::io::remove_stale_temps(&sdir)?;
     let (seg_path, merge_path) = (sdir.join("segments.sbatch"), sdir.join("merge.sbatch"));
     geostride::io::write_atomic(&seg_path, seg.as_bytes())?;
     geostride::io::write_atomic(&merge_path, merge.as_bytes())?;

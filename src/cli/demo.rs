@@ -566,6 +566,9 @@ fn calibrate_scene(
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The output folder before any work: not a file, not holding or inside the survey.
+    let survey: Vec<&std::path::Path> = args.survey.iter().map(PathBuf::as_path).collect();
+    super::check_output_dir(&args.out, survey)?;
     if args.crowd && args.detector == "onnx" {
         return crowd_onnx::run_crowd_onnx(args);
     }

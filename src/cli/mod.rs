@@ -182,7 +182,36 @@ pub(crate) fn check_output_file<P: AsRef<Path>>(
     out: &Path,
     inputs: impl IntoIterator<Item = P>,
 ) -> anyhow::Result<()> {
-    Inputs::new(inputs).check_file(out).map_err(output_error)
+    let mut guard = Inputs::new(std::iter::empty::<&Path>());
+    for p in inputs {
+        // A folder given as an input is read as a whole: nothing goes inside it.
+        if p.as_ref().is_dir() {
+            guard.add_folder(p);
+        } else {
+            guard.add(p);
+        }
+    }
+    guard.check_file(out).map_err(output_error)
+}
+
+/// Refuses, before any work, an output folder that is a file or holds one of `inputs`, without
+/// making it: the guard then makes it ([`Inputs::create_dir`]) once the command's own checks
+/// passed, so that a refused command leaves no folder behind.
+pub(crate) fn check_output_dir<P: AsRef<Path>>(
+    out: &Path,
+    inputs: impl IntoIterator<Item = P>,
+) -> anyhow::Result<Inputs> {
+    let mut guard = Inputs::new(std::iter::empty::<&Path>());
+    for p in inputs {
+        // A folder given as an input is read as a whole: nothing goes inside it.
+        if p.as_ref().is_dir() {
+            guard.add_folder(p);
+        } else {
+            guard.add(p);
+        }
+    }
+    guard.check_dir(out).map_err(output_error)?;
+    Ok(guard)
 }
 
 /// Creates an output folder, refusing, before any work, a file or a folder that holds one of

@@ -63,6 +63,21 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.head_height.is_finite() && (0.0..=3.0).contains(&args.head_height)) {
+        return Err(bad_input(anyhow!(
+            "--head-height {}: expected 0 to 3 m",
+            args.head_height
+        )));
+    }
+    if !(args.height_error.is_finite() && (0.0..=3.0).contains(&args.height_error)) {
+        return Err(bad_input(anyhow!(
+            "--height-error {}: expected 0 to 3 m",
+            args.height_error
+        )));
+    }
+    if args.map_step == 0 {
+        return Err(bad_input(anyhow!("--map-step 0: expected 1 pixel or more")));
+    }
     let (mut camera, source) = load_camera(&args.camera)?;
     if let Some((w, h)) = args.video_mode {
         camera = scale_to(camera, w, h)?;
@@ -84,10 +99,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         noise,
         map_step_px: args.map_step.max(1),
     };
-    if let Some(dir) = &args.out {
-        super::create_output_dir(dir, [&args.camera])?;
-    }
+    let guard = match &args.out {
+        Some(dir) => Some(super::check_output_dir(dir, [&args.camera])?),
+        None => None,
+    };
     let p = plan(&camera, &settings).map_err(bad_input)?;
+    if let (Some(dir), Some(g)) = (&args.out, guard) {
+        g.create_dir(dir).map_err(super::output_error)?;
+    }
     let mut written = Vec::new();
     if let Some(dir) = &args.out {
         let maps = [

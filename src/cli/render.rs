@@ -27,7 +27,9 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let report_path = args.run_dir.join("report.json");
-    let text = std::fs::read_to_string(&report_path)
+    // A run's report is kilobytes to a few megabytes (its warnings).
+    let text = geostride::io::FileCtx { path: &report_path }
+        .read_small_text("a geostride run report", 64 << 20)
         .with_context(|| {
             format!(
                 "{}: give the output folder of a geostride run",
@@ -49,6 +51,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )));
     }
     let mut loaded = load(std::path::Path::new(project_file)).map_err(bad_input)?;
+    // The run as it was: its settings and inputs unchanged, or this would be a new run (hours,
+    // and the run's files replaced) under the name of drawing its views.
+    let recorded: Vec<geostride::pipeline::run::InputRecord> = report
+        .get("inputs")
+        .cloned()
+        .and_then(|v| serde_json::from_value(v).ok())
+        .ok_or_else(|| {
+            bad_input(anyhow!(
+                "{}: the report lists no inputs (a run by an older geostride): run the project again",
+                report_path.display()
+            ))
+        })?;
+    // The settings as the run recorded them, [output] aside (what render changes).
+    let now = serde_json::to_value(&loaded.project)?;
+    let strip = |v: &serde_json::Value| {
+        let mut v = v.clone();
+        if let Some(o) = v.as_object_mut() {
+            o.remove("output");
+        }
+        v
+    };
+    if report.get("parameters").map(strip) != Some(strip(&now)) {
+        return Err(bad_input(anyhow!(
+            "{project_file}: its settings changed since the run in {} (beyond [output]): render draws that run's views; run the project again (geostride run) for new ones",
+            args.run_dir.display()
+        )));
+    }
+    loaded.known_inputs =
+        geostride::pipeline::run::check_recorded_inputs(&loaded, &recorded, &args.run_dir)
+            .map_err(|e| bad_input(anyhow!(e)))?;
     let o = &mut loaded.project.output;
     o.plots = true;
     o.site_image = true;

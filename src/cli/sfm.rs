@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 
 use super::survey::{ReadArgs, read_framed, read_other};
-use super::{bad_input, create_output_dir, load_camera, progress_bar};
+use super::{bad_input, check_output_dir, load_camera, output_error, progress_bar};
 use geostride::sfm::FeatureSettings;
 use geostride::sfm::georef::{GeorefSettings, PointRole};
 use geostride::sfm::job::{
@@ -76,7 +76,7 @@ pub struct Args {
     #[arg(long)]
     json: bool,
     /// No progress bars
-    #[arg(long)]
+    #[arg(short, long)]
     quiet: bool,
 }
 
@@ -159,7 +159,7 @@ struct RegisterArgs {
     #[arg(long)]
     json: bool,
     /// No progress bars
-    #[arg(long)]
+    #[arg(short, long)]
     quiet: bool,
 }
 
@@ -229,13 +229,25 @@ fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
             args.model.display()
         )));
     }
+    if args.max_features.is_some_and(|n| n < 100) {
+        return Err(bad_input(anyhow!(
+            "--max-features {}: too few to match images (the model's own is the default)",
+            args.max_features.unwrap_or_default()
+        )));
+    }
     let inputs: Vec<&Path> = images
         .iter()
         .map(PathBuf::as_path)
-        .chain([args.model.as_path()])
+        .chain([args.model.as_path(), model_images.as_path()])
+        .chain(
+            args.inputs
+                .iter()
+                .filter(|p| p.is_dir())
+                .map(PathBuf::as_path),
+        )
         .chain(args.video.iter().map(PathBuf::as_path))
         .collect();
-    create_output_dir(&args.out, inputs)?;
+    let guard = check_output_dir(&args.out, inputs)?;
     let job = RegisterJob {
         model_dir: args.model.clone(),
         model_images,
@@ -260,6 +272,7 @@ fn run_register_cli(args: RegisterArgs) -> anyhow::Result<()> {
     })?;
     features.finish_and_clear();
     matching.finish_and_clear();
+    guard.create_dir(&args.out).map_err(output_error)?;
     let written = write_register_outputs(&args.out, &run)
         .map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
     let r = &run.report;
@@ -353,8 +366,14 @@ pub(super) fn build(args: &Args) -> anyhow::Result<Built> {
         .chain(args.gcps.iter().map(PathBuf::as_path))
         .chain(args.centres.iter().map(PathBuf::as_path))
         .chain(args.read.picks.iter().map(PathBuf::as_path))
+        .chain(
+            args.inputs
+                .iter()
+                .filter(|p| p.is_dir())
+                .map(PathBuf::as_path),
+        )
         .collect();
-    create_output_dir(&out, inputs)?;
+    let guard = check_output_dir(&out, inputs)?;
     let job = SfmJob {
         images,
         camera,
@@ -379,6 +398,7 @@ pub(super) fn build(args: &Args) -> anyhow::Result<Built> {
     })?;
     features.finish_and_clear();
     matching.finish_and_clear();
+    guard.create_dir(&out).map_err(output_error)?;
     let crs = match &frame {
         Some(f) => Some(crs_positions(&run, f)?),
         None => None,
@@ -450,6 +470,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             g.rms_horizontal_m,
             g.rms_vertical_m
         );
+        for (name, why) in &g.left_out {
+            println!("  left out: {name}: {why}");
+        }
     }
     if let Some(g) = r.georef.as_ref().filter(|_| r.frame == "site") {
         let rms = |x: &Option<geostride::sfm::georef::Rms>| match x {
@@ -477,6 +500,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         for (name, why) in &g.left_out {
             println!("  left out: {name}: {why}");
+        }
+        if g.sigma_scale > 1.0 {
+            println!(
+                "  camera σ scaled by {:.2}: the surveyed points and centres spread more than their σ say",
+                g.sigma_scale
+            );
         }
     }
     if !r.unmatched_names.is_empty() {

@@ -79,6 +79,20 @@ struct Report {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // A head a few pixels across to a thousand: beyond, the tracker's gates mean nothing.
+    if !(1.0..=10_000.0).contains(&args.px_per_m) {
+        return Err(bad_input(anyhow!(
+            "--px-per-m {}: expected 1 to 10000 pixels a metre at head height",
+            args.px_per_m
+        )));
+    }
+    if !(args.min_area_m2 < args.max_area_m2) {
+        return Err(bad_input(anyhow!(
+            "--min-area-m2 {} is not below --max-area-m2 {}: a person's area lies between them",
+            args.min_area_m2,
+            args.max_area_m2
+        )));
+    }
     let detector: Box<dyn Detector> = match args.detect.as_str() {
         "boxes" => {
             let path = args.boxes.as_ref().ok_or_else(|| {

@@ -116,6 +116,100 @@ pub struct SlurmOptions {
     pub extra: Vec<String>,
 }
 
+/// The most CPUs a task may ask for.
+pub const MAX_CPUS: u32 = 4096;
+
+impl SlurmOptions {
+    /// Every value is one `#SBATCH` word that Slurm reads as meant: no value can end its line
+    /// (a newline would make the rest a shell command of every task), split into more options,
+    /// start a comment or open a quote. Gives the option and what is wrong.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+        for (flag, t) in [("--time", &self.time), ("--merge-time", &self.merge_time)] {
+            let (days, clock) = match t.split_once('-') {
+                Some((d, c)) => (Some(d), c),
+                None => (None, t.as_str()),
+            };
+            let parts: Vec<&str> = clock.split(':').collect();
+            let ok = ["unlimited", "infinite"].contains(&t.to_ascii_lowercase().as_str())
+                || (days.is_none_or(digits) && parts.len() <= 3 && parts.iter().all(|p| digits(p)));
+            if !ok {
+                return Err((
+                    flag,
+                    format!(
+                        "'{}': expected a Slurm time: MINUTES, HH:MM:SS, D-HH[:MM[:SS]] or UNLIMITED",
+                        crate::io::clip(&t.escape_debug().to_string(), 40)
+                    ),
+                ));
+            }
+        }
+        for (flag, m) in [("--mem", &self.mem), ("--merge-mem", &self.merge_mem)] {
+            let number = m.trim_end_matches(['K', 'M', 'G', 'T', 'k', 'm', 'g', 't']);
+            if !digits(number) || m.len() > number.len() + 1 {
+                return Err((
+                    flag,
+                    format!(
+                        "'{}': expected a Slurm memory size: a whole number with K, M, G or T (e.g. 8G)",
+                        crate::io::clip(&m.escape_debug().to_string(), 40)
+                    ),
+                ));
+            }
+        }
+        if let Some(p) = &self.partition
+            && (p.is_empty()
+                || !p
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "_.,-".contains(c)))
+        {
+            return Err((
+                "--partition",
+                format!(
+                    "'{}': expected partition names (letters, digits, '_', '.', '-', comma-separated)",
+                    crate::io::clip(&p.escape_debug().to_string(), 40)
+                ),
+            ));
+        }
+        if !(1..=MAX_CPUS).contains(&self.cpus) {
+            return Err((
+                "--cpus",
+                format!("{}: expected 1 to {MAX_CPUS} CPUs a task", self.cpus),
+            ));
+        }
+        for e in &self.extra {
+            let bad = e
+                .chars()
+                .find(|c| c.is_control() || c.is_whitespace() || "#'\"\\`$;".contains(*c));
+            if !e.starts_with('-') || e.len() < 2 || bad.is_some() {
+                return Err((
+                    "--sbatch",
+                    format!(
+                        "'{}': expected one sbatch option such as --account=crowd{}",
+                        crate::io::clip(&e.escape_debug().to_string(), 40),
+                        match bad {
+                            Some(c) => format!(
+                                ", without '{}' (Slurm would read it as more than the option)",
+                                c.escape_debug()
+                            ),
+                            None => String::new(),
+                        }
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A path Slurm can take in `#SBATCH --output=`: its file-name patterns (`%`) and escapes (`\`)
+/// written literally; `None` for a path with a control character (no line can hold it).
+pub fn slurm_path(path: &Path) -> Option<String> {
+    let s = path.to_str()?;
+    if s.chars().any(char::is_control) {
+        return None;
+    }
+    Some(shell_quote(&s.replace('\\', "\\\\").replace('%', "%%")))
+}
+
 /// A word for a shell script, quoted.
 pub fn shell_quote(s: &str) -> String {
     if !s.is_empty()
@@ -128,11 +222,12 @@ pub fn shell_quote(s: &str) -> String {
     }
 }
 
-fn header(name: &str, o: &SlurmOptions, time: &str, mem: &str, log: &Path) -> String {
+/// The scripts' head; `log` is a file name pattern of Slurm's (`%a`, the task), `dir` the
+/// folder it is in.
+fn header(name: &str, o: &SlurmOptions, time: &str, mem: &str, dir: &str, log: &str) -> String {
     let mut s = format!(
-        "#!/bin/bash\n#SBATCH --job-name={name}\n#SBATCH --time={time}\n#SBATCH --mem={mem}\n#SBATCH --cpus-per-task={}\n#SBATCH --ntasks=1\n#SBATCH --output={}\n",
+        "#!/bin/bash\n#SBATCH --job-name={name}\n#SBATCH --time={time}\n#SBATCH --mem={mem}\n#SBATCH --cpus-per-task={}\n#SBATCH --ntasks=1\n#SBATCH --output={dir}{log}\n",
         o.cpus,
-        shell_quote(&log.display().to_string())
     );
     if let Some(p) = &o.partition {
         s.push_str(&format!("#SBATCH --partition={p}\n"));
@@ -143,25 +238,44 @@ fn header(name: &str, o: &SlurmOptions, time: &str, mem: &str, log: &Path) -> St
     s
 }
 
+/// Why Slurm scripts cannot be written.
+#[derive(Debug, thiserror::Error)]
+pub enum SlurmError {
+    #[error("{flag} {message}")]
+    Option { flag: &'static str, message: String },
+    #[error(
+        "{}: a Slurm script cannot name this folder (a control character, or not UTF-8); choose another --out",
+        .0.escape_debug()
+    )]
+    Path(String),
+}
+
 /// The segments' array script and the merge's script for the split run in `dir`, run with the
-/// executable `exe`.
+/// executable `exe`. The options are checked ([`SlurmOptions::check`]) and every path quoted.
 pub fn slurm_scripts(
     exe: &Path,
     dir: &Path,
     segments: usize,
     o: &SlurmOptions,
-) -> (String, String) {
-    let (exe, d) = (
-        shell_quote(&exe.display().to_string()),
-        shell_quote(&dir.display().to_string()),
-    );
-    let logs = dir.join("slurm");
+) -> Result<(String, String), SlurmError> {
+    o.check()
+        .map_err(|(flag, message)| SlurmError::Option { flag, message })?;
+    let refused = |p: &Path| SlurmError::Path(p.display().to_string());
+    let quoted = |p: &Path| match p.to_str() {
+        Some(s) if !s.chars().any(char::is_control) => Ok(shell_quote(s)),
+        _ => Err(refused(p)),
+    };
+    let (exe, d) = (quoted(exe)?, quoted(dir)?);
+    // The log's folder as Slurm reads it, the pattern after it (`%a` must stay a pattern).
+    let logs_dir = dir.join("slurm").join("");
+    let logs = slurm_path(&logs_dir).ok_or_else(|| refused(&logs_dir))?;
     let mut seg = header(
         "geostride-segment",
         o,
         &o.time,
         &o.mem,
-        &logs.join("segment-%a.log"),
+        &logs,
+        "segment-%a.log",
     );
     seg.push_str(&format!(
         "#SBATCH --array=0-{}\n# One segment of the video per task; a segment done already is not redone.\nset -euo pipefail\nexec {exe} segment {d} -q\n",
@@ -172,12 +286,13 @@ pub fn slurm_scripts(
         o,
         &o.merge_time,
         &o.merge_mem,
-        &logs.join("merge.log"),
+        &logs,
+        "merge.log",
     );
     merge.push_str(&format!(
         "# After every segment (submitted with --dependency=afterok on the array).\nset -euo pipefail\nexec {exe} merge {d} -q\n"
     ));
-    (seg, merge)
+    Ok((seg, merge))
 }
 
 #[cfg(test)]
@@ -224,11 +339,68 @@ mod tests {
             cpus: 2,
             extra: vec!["--account=crowd".into()],
         };
-        let (s, m) = slurm_scripts(Path::new("/opt/gs"), Path::new("/scratch/my run"), 5, &o);
+        let (s, m) =
+            slurm_scripts(Path::new("/opt/gs"), Path::new("/scratch/my run"), 5, &o).unwrap();
         assert!(s.contains("#SBATCH --array=0-4\n"));
         assert!(s.contains("exec /opt/gs segment '/scratch/my run' -q"));
         assert!(s.contains("#SBATCH --partition=short\n#SBATCH --account=crowd\n"));
+        assert!(s.contains("#SBATCH --output='/scratch/my run/slurm/'segment-%a.log\n"));
         assert!(m.contains("exec /opt/gs merge '/scratch/my run' -q"));
         assert!(m.contains("#SBATCH --mem=8G"));
+        // A '%' of the folder is not a pattern of Slurm's.
+        let (s, _) = slurm_scripts(Path::new("/opt/gs"), Path::new("/runs/100%"), 2, &o).unwrap();
+        assert!(
+            s.contains("--output=/runs/100%%/slurm/segment-%a.log"),
+            "{s}"
+        );
+    }
+
+    #[test]
+    fn a_value_that_would_end_its_line_or_split_is_refused() {
+        let good = SlurmOptions {
+            partition: Some("short,long".into()),
+            time: "2-12:00:00".into(),
+            merge_time: "90".into(),
+            mem: "16G".into(),
+            merge_mem: "512".into(),
+            cpus: 8,
+            extra: vec!["--qos=high".into()],
+        };
+        good.check().unwrap();
+        let bad: Vec<(&str, Box<dyn Fn(&mut SlurmOptions)>)> = vec![
+            ("--time", Box::new(|o| o.time = "1:00\nrm -rf ~".into())),
+            (
+                "--merge-time",
+                Box::new(|o| o.merge_time = "1:00 --exclusive".into()),
+            ),
+            ("--mem", Box::new(|o| o.mem = "8G\ntouch x".into())),
+            ("--merge-mem", Box::new(|o| o.merge_mem = "8GB#".into())),
+            (
+                "--partition",
+                Box::new(|o| o.partition = Some("a\nb".into())),
+            ),
+            (
+                "--partition",
+                Box::new(|o| o.partition = Some(String::new())),
+            ),
+            ("--cpus", Box::new(|o| o.cpus = 0)),
+            (
+                "--sbatch",
+                Box::new(|o| o.extra = vec!["--account=x\necho".into()]),
+            ),
+            ("--sbatch", Box::new(|o| o.extra = vec!["account=x".into()])),
+            (
+                "--sbatch",
+                Box::new(|o| o.extra = vec!["--comment='a".into()]),
+            ),
+            ("--sbatch", Box::new(|o| o.extra = vec!["--x=$(id)".into()])),
+        ];
+        for (flag, f) in bad {
+            let mut o = good.clone();
+            f(&mut o);
+            assert_eq!(o.check().unwrap_err().0, flag);
+            assert!(slurm_scripts(Path::new("/g"), Path::new("/r"), 2, &o).is_err());
+        }
+        assert!(slurm_scripts(Path::new("/g"), Path::new("/r\nx"), 2, &good).is_err());
     }
 }

@@ -2,7 +2,7 @@
 //! length (and its 35 mm equivalent), GPS position; DJI's XMP attributes (relative altitude,
 //! gimbal angles, RTK standard deviations when present).
 
-use std::io::{BufReader, Read};
+use std::io::{BufReader, Read, Seek};
 use std::path::Path;
 
 use exif::{In, Reader, Tag, Value};
@@ -70,22 +70,30 @@ fn xmp_number(xmp: &str, name: &str) -> Option<f64> {
         .filter(|x: &f64| x.is_finite())
 }
 
+/// The 35 mm-equivalent focal lengths of real lenses, millimetres: a fisheye to a long
+/// telephoto. A value outside (EXIF's 0, 1 or 65535) is not a lens.
+pub const FOCAL_35MM_RANGE: std::ops::RangeInclusive<f64> = 8.0..=1200.0;
+
 /// The metadata of the photo at `path`. A photo without EXIF gives empty metadata; a file
 /// that cannot be read is an error.
 pub fn read_meta(path: &Path) -> Result<PhotoMeta, FileError> {
     let ctx = crate::io::FileCtx { path };
     let file =
         std::fs::File::open(path).map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    meta_of(BufReader::new(file)).map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))
+}
+
+/// The metadata of a photo held in memory (what [`read_meta`] reads from a file).
+pub fn meta_from_bytes(bytes: &[u8]) -> PhotoMeta {
+    meta_of(std::io::Cursor::new(bytes)).unwrap_or_default()
+}
+
+/// A photo's metadata from a reader at its start.
+fn meta_of<R: std::io::BufRead + Seek>(mut file: R) -> std::io::Result<PhotoMeta> {
     let mut meta = PhotoMeta::default();
     // XMP sits in the first segments of a JPEG: 256 KiB is plenty.
     let mut head = Vec::new();
-    BufReader::new(
-        file.try_clone()
-            .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?,
-    )
-    .take(256 << 10)
-    .read_to_end(&mut head)
-    .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
+    (&mut file).take(256 << 10).read_to_end(&mut head)?;
     let text = String::from_utf8_lossy(&head);
     if let Some(i) = text.find("<x:xmpmeta") {
         let xmp = &text[i..];
@@ -98,19 +106,18 @@ pub fn read_meta(path: &Path) -> Result<PhotoMeta, FileError> {
         ) {
             meta.gimbal_ypr_deg = Some([y, p, r]);
         }
+        // An RTK σ is a few centimetres to metres: 0 or a negative one is no σ.
         if let (Some(lon), Some(lat), Some(h)) = (
             xmp_number(xmp, "RtkStdLon"),
             xmp_number(xmp, "RtkStdLat"),
             xmp_number(xmp, "RtkStdHgt"),
-        ) {
+        ) && [lon, lat, h].iter().all(|s| *s > 0.0 && *s <= 100.0)
+        {
             meta.rtk_sigma_m = Some([lon, lat, h]);
         }
     }
-    // The clone above shares the file's position: back to the start for the EXIF reader.
-    let mut file = file;
-    std::io::Seek::rewind(&mut file)
-        .map_err(|e| ctx.err(None, None, format!("cannot read: {e}")))?;
-    let Ok(exif) = Reader::new().read_from_container(&mut BufReader::new(file)) else {
+    file.rewind()?;
+    let Ok(exif) = Reader::new().read_from_container(&mut file) else {
         return Ok(meta);
     };
     let field = |t: Tag| exif.get_field(t, In::PRIMARY).map(|f| &f.value);
@@ -122,9 +129,12 @@ pub fn read_meta(path: &Path) -> Result<PhotoMeta, FileError> {
     meta.focal_35mm = field(Tag::FocalLengthIn35mmFilm)
         .and_then(|v| rational(v, 0))
         .filter(|f| *f > 0.0);
+    // Degrees, minutes, seconds: minutes and seconds under 60, or no position.
     let dms = |t: Tag| {
         let v = field(t)?;
-        Some(rational(v, 0)? + rational(v, 1)? / 60.0 + rational(v, 2)? / 3600.0)
+        let (d, m, s) = (rational(v, 0)?, rational(v, 1)?, rational(v, 2)?);
+        (d >= 0.0 && (0.0..60.0).contains(&m) && (0.0..60.0).contains(&s))
+            .then(|| d + m / 60.0 + s / 3600.0)
     };
     let sign = |t: Tag, negative: &str| {
         field(t).and_then(ascii).map_or(1.0, |s| {
@@ -143,9 +153,11 @@ pub fn read_meta(path: &Path) -> Result<PhotoMeta, FileError> {
         if lat.abs() <= 90.0 && lon.abs() <= 180.0 && (lat, lon) != (0.0, 0.0) {
             let below =
                 matches!(field(Tag::GPSAltitudeRef), Some(Value::Byte(b)) if b.first() == Some(&1));
+            // Within the atmosphere a drone flies in: below it is a wrong number.
             let alt = field(Tag::GPSAltitude)
                 .and_then(|v| rational(v, 0))
-                .map(|a| if below { -a } else { a });
+                .map(|a| if below { -a } else { a })
+                .filter(|a| (-1000.0..=20_000.0).contains(a));
             meta.gps = Some(GpsFix {
                 lat_deg: lat,
                 lon_deg: lon,

@@ -120,8 +120,13 @@ pub struct GeorefReport {
     /// The model's scale change: site metres per model unit.
     pub scale: f64,
     /// Per image (registered or not), the σ of its adjusted camera from the adjustment's
-    /// covariance (every observation at its σ; a Monte Carlo spread agrees, see the tests).
+    /// covariance (every observation at its σ; a Monte Carlo spread agrees, see the tests),
+    /// scaled by `sigma_scale`.
     pub camera_sigma: Vec<Option<CameraSigma>>,
+    /// The factor the cameras' σ were scaled by so that they are never smaller than the
+    /// surveyed points' and centres' residuals support: the RMS of those residuals in units of
+    /// their σ, when above 1; else 1.
+    pub sigma_scale: f64,
 }
 
 /// One camera's standard deviations after georeferencing.
@@ -170,6 +175,16 @@ pub enum GeorefError {
     NotEnough { control: usize, centres: String },
     #[error("the georeferencing adjustment failed: {0}")]
     Adjustment(String),
+    #[error(
+        "the measured camera centres disagree with the control points: {left_out} of {centres} lie more than {threshold_m:.2} m (median {median_m:.1} m) from where the control points place their cameras ({names}); check that both files are in one CRS with one kind of height, and that the centres are named after their images"
+    )]
+    CentresDisagree {
+        left_out: usize,
+        centres: usize,
+        threshold_m: f64,
+        median_m: f64,
+        names: String,
+    },
 }
 
 /// Normalised image coordinates of a pixel.
@@ -226,7 +241,7 @@ pub fn transform(r: &mut Reconstruction, sim: &Similarity) {
 
 /// The similarity from the model onto the site with the most control points within
 /// `outlier_m` (MSAC over triples), refitted on those; and which points it kept.
-fn robust_similarity(
+pub(crate) fn robust_similarity(
     model: &[Vector3<f64>],
     site: &[Vector3<f64>],
     outlier_m: f64,
@@ -328,14 +343,23 @@ fn pick_rms_px(
     (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64).sqrt())
 }
 
+/// How far a measured camera centre may lie from where the placement puts its camera before it
+/// is left out, metres: the control points' outlier distance, or five of its σ if larger.
+fn centre_threshold_m(c: &CentreMeasurement, s: &GeorefSettings) -> f64 {
+    s.outlier_m.max(5.0 * c.sigma_m.norm())
+}
+
 /// Places `r` (features `pixels`, their relative σ `sigmas`) in the site frame of `points` and adjusts it with them and
-/// the camera-centre measurements `centres`; `r` is changed only when this succeeds.
+/// the camera-centre measurements `centres` (`names`: the images', for the report); `r` is
+/// changed only when this succeeds. A control point or a centre that disagrees with the others is
+/// left out and listed; centres that disagree with the control points as a whole are an error.
 pub fn georeference(
     r: &mut Reconstruction,
     pixels: &[Vec<Vector2<f64>>],
     sigmas: Option<&[Vec<f64>]>,
     points: &[GroundPoint],
     centres: &[CentreMeasurement],
+    names: &[String],
     s: &GeorefSettings,
 ) -> Result<GeorefReport, GeorefError> {
     let mut left_out = Vec::new();
@@ -353,11 +377,17 @@ pub fn georeference(
             ..p.clone()
         })
         .collect();
-    let centres: Vec<CentreMeasurement> = centres
+    let mut centres: Vec<CentreMeasurement> = centres
         .iter()
         .copied()
         .filter(|c| registered(c.image))
         .collect();
+    let name_of = |i: usize| {
+        names
+            .get(i)
+            .cloned()
+            .unwrap_or_else(|| format!("image {i}"))
+    };
 
     // 1. The first placement.
     let mut control_model = Vec::new();
@@ -399,13 +429,17 @@ pub fn georeference(
             .map(|c| r.poses[c.image].expect("registered").centre())
             .collect();
         let dst: Vec<Vector3<f64>> = centres.iter().map(|c| c.position).collect();
-        let sim =
-            fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).map_err(|_| {
-                GeorefError::NotEnough {
-                    control: control_model.len(),
-                    centres: format!(", and the {} camera centres are collinear", centres.len()),
-                }
-            })?;
+        let collinear = || GeorefError::NotEnough {
+            control: control_model.len(),
+            centres: format!(", and the {} camera centres are collinear", centres.len()),
+        };
+        let mut thresholds: Vec<f64> = centres.iter().map(|c| centre_threshold_m(c, s)).collect();
+        thresholds.sort_by(f64::total_cmp);
+        let (sim, keep) = robust_similarity(&src, &dst, thresholds[thresholds.len() / 2])
+            .ok_or_else(collinear)?;
+        if keep.iter().filter(|k| **k).count() < 3 {
+            return Err(collinear());
+        }
         (sim, "camera centres")
     } else {
         return Err(GeorefError::NotEnough {
@@ -418,6 +452,48 @@ pub fn georeference(
     };
     let mut model = r.clone();
     transform(&mut model, &sim);
+
+    // The measured centres against the placement: one far off is left out; most of them far
+    // off means the centres and the control points are not of one frame.
+    let far: Vec<(usize, f64)> = centres
+        .iter()
+        .enumerate()
+        .filter_map(|(k, c)| {
+            let d = (model.poses[c.image].expect("registered").centre() - c.position).norm();
+            (!(d <= centre_threshold_m(c, s))).then_some((k, d))
+        })
+        .collect();
+    if placed_by == "control points" && centres.len() >= 2 && 2 * far.len() > centres.len() {
+        let mut d: Vec<f64> = far.iter().map(|f| f.1).collect();
+        d.sort_by(f64::total_cmp);
+        let shown: Vec<String> = far
+            .iter()
+            .take(5)
+            .map(|&(k, _)| name_of(centres[k].image))
+            .collect();
+        return Err(GeorefError::CentresDisagree {
+            left_out: far.len(),
+            centres: centres.len(),
+            threshold_m: centre_threshold_m(&centres[far[0].0], s),
+            median_m: d[d.len() / 2],
+            names: shown.join(", ") + if far.len() > 5 { ", ..." } else { "" },
+        });
+    }
+    for &(k, d) in &far {
+        left_out.push((
+            name_of(centres[k].image),
+            format!(
+                "its measured centre is {d:.2} m from where the {placed_by} place its camera: a wrong name or position?"
+            ),
+        ));
+    }
+    let far_set: Vec<usize> = far.iter().map(|f| f.0).collect();
+    centres = centres
+        .into_iter()
+        .enumerate()
+        .filter(|(k, _)| !far_set.contains(k))
+        .map(|(_, c)| c)
+        .collect();
 
     // 2. The adjustment: the model's points, then the control points picked in a registered
     // image (one pick is enough: the survey holds the point), with priors.
@@ -521,12 +597,35 @@ pub fn georeference(
         Some(1.0),
     )
     .ok();
+    // The surveyed points' and the centres' residuals in units of their σ: when they spread
+    // more than their σ say, so do the cameras.
+    let (mut z2, mut nz) = (0.0, 0usize);
+    for p in &priors.points {
+        let x = Vector3::from(problem.points[p.point]);
+        let d = x - Vector3::from(p.position);
+        z2 += (p.sqrt_information * d).norm_squared();
+        nz += 3;
+    }
+    for c in &priors.centres {
+        let centre = rigid_pose(&problem.poses[c.camera]).centre();
+        let d = centre - Vector3::from(c.position);
+        z2 += d.component_div(&Vector3::from(c.sigma)).norm_squared();
+        nz += 3;
+    }
+    let sigma_scale = if nz > 0 {
+        (z2 / nz as f64).sqrt().max(1.0)
+    } else {
+        1.0
+    };
     let mut sigmas_out = vec![None; model.poses.len()];
     for (k, &i) in images.iter().enumerate() {
         model.poses[i] = Some(rigid_pose(&problem.poses[k]));
         if let Some(c) = &cov {
             let block = nalgebra::Matrix6::from_iterator(c.pose(k).iter().copied());
-            sigmas_out[i] = Some(camera_sigma(&problem.poses[k], &block));
+            let mut sigma = camera_sigma(&problem.poses[k], &block);
+            sigma.centre_m = sigma.centre_m.map(|v| v * sigma_scale);
+            sigma.rotation_deg *= sigma_scale;
+            sigmas_out[i] = Some(sigma);
         }
     }
     model.camera.set_params(&problem.intrinsics[0]);
@@ -610,6 +709,7 @@ pub fn georeference(
         points: residuals,
         scale: sim.scale,
         camera_sigma: sigmas_out,
+        sigma_scale,
     };
     *r = model;
     Ok(report)
@@ -635,6 +735,7 @@ mod tests {
             None,
             points,
             centres,
+            &[],
             &GeorefSettings::default(),
         )
     }

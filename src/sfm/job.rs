@@ -11,7 +11,7 @@ use sha2::{Digest, Sha256};
 
 use super::cache::{SfmCache, key_of};
 use super::colmap::{cameras_txt, images_txt, ply, points3d_txt};
-use super::exif::{GpsFix, PhotoMeta, focal_px_from_exif, read_meta};
+use super::exif::{FOCAL_35MM_RANGE, GpsFix, PhotoMeta, focal_px_from_exif, read_meta};
 use super::georef::{
     CentreMeasurement, GeorefError, GeorefReport, GeorefSettings, GroundPoint, Pick, PointRole,
     georeference,
@@ -23,7 +23,6 @@ use super::tracks::PairMatches;
 use super::{FeatureSettings, Features};
 use crate::camera::Camera;
 use crate::geom::geodesy::{Ellipsoid, Geodetic, LocalTangentFrame};
-use crate::geom::similarity::{ScaleMode, fit_weighted};
 use crate::imageio::ImageError;
 use crate::progress::Progress;
 
@@ -153,6 +152,39 @@ pub enum SfmJobError {
     Georef(#[from] GeorefError),
     #[error("the stage cache: {0}")]
     Cache(String),
+    #[error(
+        "{}: its name {reason}: COLMAP's images.txt and cameras.csv could not hold it; rename the file (letters, digits, '_', '-', '.')",
+        path.display()
+    )]
+    BadName { path: PathBuf, reason: String },
+    #[error(
+        "{} and {}: two images of one name (case and extension aside): the model, the picks and the centres name images by their file names; rename one",
+        first.display(),
+        second.display()
+    )]
+    DuplicateName { first: PathBuf, second: PathBuf },
+    #[error(
+        "{}: its EXIF 35 mm-equivalent focal length is {value} mm: no lens has that (expected {} to {} mm); give --camera (a calibration file or a preset)",
+        path.display(),
+        FOCAL_35MM_RANGE.start(),
+        FOCAL_35MM_RANGE.end()
+    )]
+    Focal35 { path: PathBuf, value: f64 },
+    #[error(
+        "{} ({a} mm) and {} ({b} mm): the EXIF 35 mm-equivalent focal lengths differ, but one camera is used for every image; give the photos of one zoom setting, or --camera",
+        first.display(),
+        second.display()
+    )]
+    FocalsDiffer {
+        first: PathBuf,
+        a: f64,
+        second: PathBuf,
+        b: f64,
+    },
+    #[error(
+        "the measured camera centres lie {distance_km:.1} km (median) from the nearest GCP: the centres and the GCPs are not of one site, or not in one CRS (check the CRS and the heights of both files)"
+    )]
+    CentresFarFromGcps { distance_km: f64 },
 }
 
 impl SfmJobError {
@@ -197,6 +229,9 @@ pub struct GpsPlacement {
     /// fields where every photo has them, else a consumer receiver's.
     pub prior_sigma_m: [f64; 3],
     pub rtk: bool,
+    /// Images whose GPS position was not used, with why (far from the others', no altitude
+    /// among fixes with one, far from where the others place the model).
+    pub left_out: Vec<(String, String)>,
 }
 
 /// σ of a consumer drone's GPS position as a prior (east, north, up, metres): a few metres
@@ -261,6 +296,134 @@ pub(crate) fn file_name(p: &Path) -> String {
     )
 }
 
+/// What in an image's file name no model file can hold: `None` for a name written as it is.
+pub fn name_problem(name: &str) -> Option<String> {
+    if let Some(c) = name
+        .chars()
+        .find(|c| c.is_whitespace() || c.is_control() || *c == ',' || *c == '"')
+    {
+        return Some(format!(
+            "{} holds {}",
+            crate::io::clip(&format!("{name:?}"), 60),
+            match c {
+                ',' => "a comma".to_string(),
+                '"' => "a double quote".to_string(),
+                c if c.is_control() => format!("a control character ({c:?})"),
+                _ => "a space".to_string(),
+            }
+        ));
+    }
+    None
+}
+
+/// The images' names checked (usable in every output, none twice: the name and the name without
+/// its extension, case aside, are how picks and centres name an image) and their sizes from
+/// their headers, before any is decoded (`None` where the header is not one geostride reads).
+pub fn check_images(images: &[PathBuf]) -> Result<Vec<Option<(u32, u32)>>, SfmJobError> {
+    let mut seen: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+    let mut sizes = Vec::with_capacity(images.len());
+    for (k, path) in images.iter().enumerate() {
+        let name = match path.file_name().and_then(|n| n.to_str()) {
+            Some(n) => n.to_string(),
+            None => {
+                return Err(SfmJobError::BadName {
+                    path: path.clone(),
+                    reason: "is not UTF-8 text".into(),
+                });
+            }
+        };
+        if let Some(reason) = name_problem(&name) {
+            return Err(SfmJobError::BadName {
+                path: path.clone(),
+                reason,
+            });
+        }
+        let stem = Path::new(&name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_lowercase())
+            .unwrap_or_default();
+        for key in [name.to_lowercase(), stem] {
+            if let Some(&first) = seen.get(&key) {
+                if first != k {
+                    return Err(SfmJobError::DuplicateName {
+                        first: images[first].clone(),
+                        second: path.clone(),
+                    });
+                }
+            } else {
+                seen.insert(key, k);
+            }
+        }
+        let size = crate::imageheader::check_file(path)
+            .map_err(|e| SfmJobError::Image(crate::imageio::file_error(path, e)))?;
+        if size.is_none() && !super::sift::decodable(path) {
+            return Err(SfmJobError::Image(crate::imageio::file_error(
+                path,
+                "cannot decode the image (not a JPEG, PNG, TIFF or other format OpenCV reads)",
+            )));
+        }
+        sizes.push(size);
+    }
+    Ok(sizes)
+}
+
+/// The 35 mm-equivalent focal length the images share (the first image's, checked against the
+/// others that state one), when no camera is given.
+fn exif_focal_35mm(images: &[PathBuf], metas: &[PhotoMeta]) -> Result<f64, SfmJobError> {
+    let Some(f) = metas[0].focal_35mm else {
+        return Err(SfmJobError::NoFocal {
+            path: images[0].clone(),
+        });
+    };
+    for (path, m) in images.iter().zip(metas) {
+        let Some(v) = m.focal_35mm else { continue };
+        if !FOCAL_35MM_RANGE.contains(&v) {
+            return Err(SfmJobError::Focal35 {
+                path: path.clone(),
+                value: v,
+            });
+        }
+        if (v - f).abs() > 0.01 * f {
+            return Err(SfmJobError::FocalsDiffer {
+                first: images[0].clone(),
+                a: f,
+                second: path.clone(),
+                b: v,
+            });
+        }
+    }
+    Ok(f)
+}
+
+/// Refuses measured camera centres that lie far from every GCP (the two in different CRSs or
+/// sites): no drone flies kilometres from the targets it photographs.
+fn check_centres_near_gcps(g: &GeorefInput) -> Result<(), SfmJobError> {
+    if g.points.is_empty() || g.centres.is_empty() {
+        return Ok(());
+    }
+    let mut nearest: Vec<f64> = g
+        .centres
+        .iter()
+        .map(|c| {
+            g.points
+                .iter()
+                .map(|p| (p.position - c.position).xy().norm())
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    nearest.sort_by(f64::total_cmp);
+    let median = nearest[nearest.len() / 2];
+    if !(median <= MAX_CENTRE_GCP_DISTANCE_M) {
+        return Err(SfmJobError::CentresFarFromGcps {
+            distance_km: median / 1000.0,
+        });
+    }
+    Ok(())
+}
+
+/// The farthest the measured camera centres (their median) may lie from the nearest GCP, metres.
+pub const MAX_CENTRE_GCP_DISTANCE_M: f64 = 5000.0;
+
 /// Runs the job; `features` and `matching` show the progress of those two stages.
 pub fn run_sfm(
     job: &SfmJob,
@@ -270,16 +433,52 @@ pub fn run_sfm(
     if job.images.len() < 2 {
         return Err(SfmError::TooFewImages(job.images.len()).into());
     }
+    // Everything that can be checked before the features is checked first.
+    let sizes = check_images(&job.images)?;
     let metas: Vec<PhotoMeta> = job
         .images
         .iter()
         .map(|p| read_meta(p))
         .collect::<Result<_, _>>()?;
-    if job.camera.is_none() && metas[0].focal_35mm.is_none() {
-        return Err(SfmJobError::NoFocal {
-            path: job.images[0].clone(),
-        });
+    let focal_35mm = match &job.camera {
+        Some(_) => None,
+        None => Some(exif_focal_35mm(&job.images, &metas)?),
+    };
+    let header_size = match sizes[0] {
+        Some(first) if sizes.iter().all(|s| s.is_some()) => {
+            if let Some(k) = sizes.iter().position(|s| *s != Some(first)) {
+                let (width, height) = sizes[k].expect("all known");
+                return Err(SfmJobError::MixedSizes {
+                    path: job.images[k].clone(),
+                    width,
+                    height,
+                    first: job.images[0].clone(),
+                    first_w: first.0,
+                    first_h: first.1,
+                });
+            }
+            if let Some(c) = &job.camera {
+                given_camera(c, first.0, first.1)?;
+            }
+            Some(first)
+        }
+        _ => None,
+    };
+    let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
+    let mut unmatched_names = Vec::new();
+    if let Some(g) = &job.georef {
+        check_centres_near_gcps(g)?;
     }
+    let mut indexed = match (&job.georef, header_size) {
+        (Some(g), Some((width, height))) => Some(index_georef(
+            g,
+            &names,
+            width,
+            height,
+            &mut unmatched_names,
+        )?),
+        _ => None,
+    };
     let t = Instant::now();
     let cache = SfmCache::new(job.cache_dir.as_deref());
     let (found, feature_keys, features_cached) =
@@ -287,28 +486,30 @@ pub fn run_sfm(
     let mut pairs_cached = 0;
     let seconds_features = t.elapsed().as_secs_f64();
     let (width, height) = (found[0].width, found[0].height);
-    // The survey's picks checked before the long work.
-    let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
-    let mut unmatched_names = Vec::new();
-    let indexed = match &job.georef {
-        Some(g) => Some(index_georef(
+    // Images whose headers geostride does not read: their picks are checked now.
+    if let (Some(g), None) = (&job.georef, &indexed) {
+        indexed = Some(index_georef(
             g,
             &names,
             width,
             height,
             &mut unmatched_names,
-        )?),
-        None => None,
-    };
+        )?);
+    }
     let mut sfm_settings = job.sfm.clone();
     let (camera, camera_source) = match &job.camera {
         Some(c) => (given_camera(c, width, height)?, "given"),
         None => {
-            let f = focal_px_from_exif(&metas[0], width, height).ok_or_else(|| {
-                SfmJobError::NoFocal {
-                    path: job.images[0].clone(),
-                }
-            })?;
+            let f35 = focal_35mm.expect("checked when no camera is given");
+            let f = focal_px_from_exif(
+                &PhotoMeta {
+                    focal_35mm: Some(f35),
+                    ..PhotoMeta::default()
+                },
+                width,
+                height,
+            )
+            .expect("a 35 mm focal length");
             // Known only roughly: refined.
             sfm_settings.refine_intrinsics = true;
             let c = Camera::pinhole(
@@ -323,8 +524,9 @@ pub fn run_sfm(
     };
     let t = Instant::now();
     let n = found.len();
-    let gps: Option<Vec<GpsFix>> = metas.iter().map(|m| m.gps).collect();
-    let (chosen, pair_selection) = match &gps {
+    let gps = consistent_gps(&metas, &names);
+    let all_gps: Option<Vec<GpsFix>> = gps.fixes.iter().copied().collect();
+    let (chosen, pair_selection) = match &all_gps {
         _ if job.sequential > 0 => (sequential_pairs(n, job.sequential), "sequential"),
         Some(g) if job.gps_neighbours > 0 && n > job.gps_neighbours + 1 => {
             (gps_neighbour_pairs(g, job.gps_neighbours), "gps-neighbours")
@@ -385,39 +587,21 @@ pub fn run_sfm(
                 Some(&sigmas),
                 &points,
                 &centres,
+                &names,
                 &settings,
             )?;
             (None, Some(report))
         }
-        _ => match gps.as_deref().and_then(enu_of).and_then(|(enu, frame)| {
-            place_on_gps(&mut r, &enu, &frame).map(|placement| (enu, placement))
-        }) {
-            Some((enu, mut placement)) => {
-                // Then an adjustment with the GPS positions as priors, at their σ.
-                let rtk: Option<Vec<[f64; 3]>> = metas.iter().map(|m| m.rtk_sigma_m).collect();
-                let centres: Vec<CentreMeasurement> = (0..n)
-                    .map(|i| CentreMeasurement {
-                        image: i,
-                        position: enu[i],
-                        // DJI gives longitude, latitude, height: east, north, up.
-                        sigma_m: Vector3::from(rtk.as_ref().map_or(CONSUMER_GPS_SIGMA_M, |s| s[i]))
-                            .map(|v| v.max(0.005)),
-                    })
-                    .collect();
-                let settings = GeorefSettings {
-                    refine_intrinsics: sfm_settings.refine_intrinsics,
-                    ..GeorefSettings::default()
-                };
-                let report =
-                    georeference(&mut r, &keypoints, Some(&sigmas), &[], &centres, &settings)?;
-                if let Some(c) = &report.centres_rms {
-                    placement.rms_horizontal_m = c.horizontal_m;
-                    placement.rms_vertical_m = c.vertical_m;
-                }
-                placement.rtk = rtk.is_some();
-                placement.prior_sigma_m = rtk.as_ref().map_or(CONSUMER_GPS_SIGMA_M, |s| s[0]);
-                (Some(placement), Some(report))
-            }
+        _ => match gps_placement(
+            &mut r,
+            &gps,
+            &metas,
+            &names,
+            &keypoints,
+            &sigmas,
+            sfm_settings.refine_intrinsics,
+        )? {
+            Some((placement, report)) => (Some(placement), Some(report)),
             None => (None, None),
         },
     };
@@ -717,44 +901,130 @@ pub fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize)> {
     pairs.into_iter().collect()
 }
 
-/// Scales and places the model on the GPS positions of its registered images (`enu`, metres in
-/// `frame`, east-north-up at their centroid) by a least-squares similarity; `None` with fewer
-/// than three.
-fn place_on_gps(
+/// The farthest a photo's GPS position may lie from the median of all of them (horizontally),
+/// metres: a drone's flight, not a continent.
+pub const MAX_GPS_SPREAD_M: f64 = 10_000.0;
+
+/// The photos' GPS fixes that agree with each other: a fix far from the others' median, or
+/// without the altitude the others have, is left out with why.
+pub struct ConsistentGps {
+    pub fixes: Vec<Option<GpsFix>>,
+    pub left_out: Vec<(String, String)>,
+}
+
+/// The photos' fixes checked against each other ([`ConsistentGps`]).
+pub fn consistent_gps(metas: &[PhotoMeta], names: &[String]) -> ConsistentGps {
+    let mut fixes: Vec<Option<GpsFix>> = metas.iter().map(|m| m.gps).collect();
+    let mut left_out = Vec::new();
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let known: Vec<GpsFix> = fixes.iter().flatten().copied().collect();
+    if known.is_empty() {
+        return ConsistentGps { fixes, left_out };
+    }
+    let centre = Geodetic::from_degrees(
+        median(known.iter().map(|f| f.lat_deg).collect()),
+        median(known.iter().map(|f| f.lon_deg).collect()),
+        0.0,
+    );
+    let Some(frame) = LocalTangentFrame::at_centroid(Ellipsoid::WGS84, &[centre]) else {
+        return ConsistentGps { fixes, left_out };
+    };
+    let with_altitude = known.iter().filter(|f| f.alt_m.is_some()).count() * 2 > known.len();
+    for (i, f) in fixes.iter_mut().enumerate() {
+        let Some(fix) = *f else { continue };
+        let enu = frame.enu_from_geodetic(&Geodetic::from_degrees(fix.lat_deg, fix.lon_deg, 0.0));
+        let d = enu.xy().norm();
+        let why = if !(d <= MAX_GPS_SPREAD_M) {
+            Some(format!(
+                "its GPS position ({:.5}, {:.5}) is {:.1} km from the others' median: not used",
+                fix.lat_deg,
+                fix.lon_deg,
+                d / 1000.0
+            ))
+        } else if with_altitude && fix.alt_m.is_none() {
+            Some("its GPS position has no altitude, the others' have: not used".into())
+        } else {
+            None
+        };
+        if let Some(why) = why {
+            left_out.push((names[i].clone(), why));
+            *f = None;
+        }
+    }
+    ConsistentGps { fixes, left_out }
+}
+
+/// Places and adjusts the model on the registered images' consistent GPS positions (priors at
+/// their σ: DJI's RTK σ where every one has it, else a consumer receiver's), in an
+/// east-north-up frame at their centroid; `None` with fewer than three.
+fn gps_placement(
     r: &mut Reconstruction,
-    enu: &[Vector3<f64>],
-    frame: &LocalTangentFrame,
-) -> Option<GpsPlacement> {
-    let registered: Vec<usize> = (0..r.poses.len())
-        .filter(|&i| r.poses[i].is_some())
+    gps: &ConsistentGps,
+    metas: &[PhotoMeta],
+    names: &[String],
+    keypoints: &[Vec<Vector2<f64>>],
+    sigmas: &[Vec<f64>],
+    refine_intrinsics: bool,
+) -> Result<Option<(GpsPlacement, GeorefReport)>, SfmJobError> {
+    let used: Vec<usize> = (0..r.poses.len())
+        .filter(|&i| r.poses[i].is_some() && gps.fixes[i].is_some())
         .collect();
-    if registered.len() < 3 {
-        return None;
+    if used.len() < 3 {
+        return Ok(None);
     }
-    let src: Vec<Vector3<f64>> = registered
+    let geodetic: Vec<Geodetic> = used
         .iter()
-        .map(|&i| r.poses[i].expect("registered").centre())
+        .map(|&i| {
+            let f = gps.fixes[i].expect("used");
+            Geodetic::from_degrees(f.lat_deg, f.lon_deg, f.alt_m.unwrap_or(0.0))
+        })
         .collect();
-    let dst: Vec<Vector3<f64>> = registered.iter().map(|&i| enu[i]).collect();
-    let sim = fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).ok()?;
-    super::georef::transform(r, &sim);
-    let (mut h2, mut v2) = (0.0, 0.0);
-    for (&i, d) in registered.iter().zip(&dst) {
-        let e = r.poses[i].expect("registered").centre() - d;
-        h2 += e.xy().norm_squared();
-        v2 += e.z * e.z;
-    }
-    let n = registered.len() as f64;
+    let Some(frame) = LocalTangentFrame::at_centroid(Ellipsoid::WGS84, &geodetic) else {
+        return Ok(None);
+    };
+    let rtk: Option<Vec<[f64; 3]>> = used.iter().map(|&i| metas[i].rtk_sigma_m).collect();
+    let centres: Vec<CentreMeasurement> = used
+        .iter()
+        .zip(&geodetic)
+        .enumerate()
+        .map(|(k, (&i, g))| CentreMeasurement {
+            image: i,
+            position: frame.enu_from_geodetic(g),
+            // DJI gives longitude, latitude, height: east, north, up.
+            sigma_m: Vector3::from(rtk.as_ref().map_or(CONSUMER_GPS_SIGMA_M, |s| s[k]))
+                .map(|v| v.max(0.005)),
+        })
+        .collect();
+    let settings = GeorefSettings {
+        refine_intrinsics,
+        ..GeorefSettings::default()
+    };
+    let report = match georeference(r, keypoints, Some(sigmas), &[], &centres, names, &settings) {
+        Ok(report) => report,
+        // Collinear or too few agreeing positions: the model stays in its own frame.
+        Err(GeorefError::NotEnough { .. }) => return Ok(None),
+        Err(e) => return Err(e.into()),
+    };
     let o = frame.origin;
-    Some(GpsPlacement {
+    let (h, v) = report
+        .centres_rms
+        .map_or((f64::NAN, f64::NAN), |c| (c.horizontal_m, c.vertical_m));
+    let mut left_out = gps.left_out.clone();
+    left_out.extend(report.left_out.iter().cloned());
+    let placement = GpsPlacement {
         origin: [o.lat.to_degrees(), o.lon.to_degrees(), o.h],
-        scale: 1.0 / sim.scale,
-        images: registered.len(),
-        rms_horizontal_m: (h2 / n).sqrt(),
-        rms_vertical_m: (v2 / n).sqrt(),
-        prior_sigma_m: CONSUMER_GPS_SIGMA_M,
-        rtk: false,
-    })
+        scale: 1.0 / report.scale,
+        images: report.centres_rms.map_or(0, |c| c.points),
+        rms_horizontal_m: h,
+        rms_vertical_m: v,
+        prior_sigma_m: rtk.as_ref().map_or(CONSUMER_GPS_SIGMA_M, |s| s[0]),
+        rtk: rtk.is_some(),
+        left_out,
+    };
+    Ok(Some((placement, report)))
 }
 
 /// `report.md`: the summary and a line per image.
@@ -822,6 +1092,9 @@ pub fn report_md(r: &SfmReport) -> String {
             g.rms_horizontal_m,
             g.rms_vertical_m
         ));
+        for (name, why) in &g.left_out {
+            s.push_str(&format!("\nLeft out: {name}: {why}\n"));
+        }
     }
     if let Some(g) = r.georef.as_ref().filter(|_| r.frame == "site") {
         s.push_str(&georef_md(g, r.site_frame.as_deref().unwrap_or("")));
@@ -887,6 +1160,12 @@ fn georef_md(g: &GeorefReport, frame: &str) -> String {
     }
     for (name, why) in &g.left_out {
         s.push_str(&format!("\nLeft out: {name}: {why}\n"));
+    }
+    if g.sigma_scale > 1.0 {
+        s.push_str(&format!(
+            "\nThe cameras' σ are scaled by {:.2}: the surveyed points and centres spread that much more than their σ say.\n",
+            g.sigma_scale
+        ));
     }
     s
 }

@@ -32,15 +32,35 @@ pub struct Reference {
 
 impl Reference {
     /// Reads the model in `model_dir` (COLMAP text, `geostride sfm`'s output) and its images'
-    /// features from `model_images` (the model's own cache serves those it holds). The
-    /// settings must be the model's, or the keypoints would not be the model's.
+    /// features from `model_images`: the model's own cache serves those it holds, read only (the
+    /// model is an input), and `cache` those found since. The settings must be the model's, or
+    /// the keypoints would not be the model's.
     pub fn load(
         model_dir: &Path,
         model_images: &Path,
         settings: &FeatureSettings,
+        cache: &SfmCache,
         progress: &dyn Progress,
     ) -> Result<Reference, RegisterError> {
-        let model = read_model(model_dir)?;
+        Self::of_model(
+            read_model(model_dir)?,
+            model_dir,
+            model_images,
+            settings,
+            cache,
+            progress,
+        )
+    }
+
+    /// [`Reference::load`] of a model read already (from `model_dir`).
+    pub fn of_model(
+        model: Model,
+        model_dir: &Path,
+        model_images: &Path,
+        settings: &FeatureSettings,
+        cache: &SfmCache,
+        progress: &dyn Progress,
+    ) -> Result<Reference, RegisterError> {
         let paths: Vec<PathBuf> = model
             .images
             .iter()
@@ -51,10 +71,23 @@ impl Reference {
             .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
             .and_then(|v| v["frame"].as_str().map(str::to_string))
             .unwrap_or_else(|| "model".into());
-        let cache = SfmCache::new(Some(&model_dir.join("cache")));
+        // Every model photo present before the long work.
+        if let Some(missing) = paths.iter().find(|p| !p.is_file()) {
+            return Err(RegisterError::MissingImage {
+                path: missing.clone(),
+            });
+        }
+        let cache = cache.clone().reading_also(&model_dir.join("cache"));
         let (features, _, _) = extract_features(&paths, settings, &cache, progress)?;
         for (k, (f, m)) in features.iter().zip(&model.images).enumerate() {
-            if f.len() != m.keypoints.len() {
+            // The same count and the same places: another photo of the same name, or other
+            // settings, would attach the model's points to the wrong features.
+            let moved = f
+                .keypoints
+                .iter()
+                .zip(&m.keypoints)
+                .any(|(a, b)| (a.x - b.x).abs() > 0.01 || (a.y - b.y).abs() > 0.01);
+            if f.len() != m.keypoints.len() || moved {
                 return Err(RegisterError::FeaturesDiffer {
                     path: paths[k].clone(),
                     found: f.len(),

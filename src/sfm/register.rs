@@ -45,50 +45,81 @@ pub struct ModelError {
     pub message: String,
 }
 
-fn numbers(line: &str) -> Option<Vec<f64>> {
-    line.split_whitespace().map(|v| v.parse().ok()).collect()
-}
+/// The largest coordinate of a model's point or camera, metres (or model units): an
+/// Earth-centred frame is 6.4e6; beyond this a number is a mistake.
+pub const MAX_MODEL_COORDINATE: f64 = 1e8;
 
-/// Reads the COLMAP text model in `dir`.
+/// Reads the COLMAP text model in `dir` (its files no larger than the input limit).
 pub fn read_model(dir: &Path) -> Result<Model, ModelError> {
     let read = |name: &str| -> Result<(PathBuf, String), ModelError> {
         let path = dir.join(name);
-        std::fs::read_to_string(&path)
-            .map(|t| (path.clone(), t))
+        let text = crate::io::FileCtx { path: &path }
+            .read_text("a COLMAP text model file")
             .map_err(|e| ModelError {
-                path,
+                path: path.clone(),
                 line: None,
                 message: format!(
-                    "{e} (a model folder holds cameras.txt, images.txt and points3D.txt, as `geostride sfm` writes them)"
+                    "{} (a model folder holds cameras.txt, images.txt and points3D.txt, as `geostride sfm` writes them)",
+                    e.message
                 ),
-            })
+            })?;
+        Ok((path, text))
     };
+    let cameras = read("cameras.txt")?;
+    let points = read("points3D.txt")?;
+    let images = read("images.txt")?;
+    parse_model(
+        (&cameras.0, &cameras.1),
+        (&images.0, &images.1),
+        (&points.0, &points.1),
+    )
+}
+
+/// Whitespace-separated finite numbers.
+fn finite_numbers(line: &str) -> Option<Vec<f64>> {
+    line.split_whitespace()
+        .map(|v| v.parse::<f64>().ok().filter(|x| x.is_finite()))
+        .collect()
+}
+
+/// A whole number in a field (an id, a size).
+fn whole(t: &str) -> Option<i64> {
+    t.parse::<i64>().ok()
+}
+
+/// A COLMAP text model from its three files' texts (`(path, text)`, the paths for messages):
+/// one camera, finite numbers in range, ids whole and unique, every point an image observes
+/// in points3D.txt, names that stay inside the images' folder.
+pub fn parse_model(
+    cameras: (&Path, &str),
+    images: (&Path, &str),
+    points: (&Path, &str),
+) -> Result<Model, ModelError> {
     let bad = |path: &Path, line: usize, message: String| ModelError {
         path: path.to_path_buf(),
         line: Some(line),
         message,
     };
+    let content = |(_, l): &(usize, &str)| !l.starts_with('#') && !l.trim().is_empty();
     // cameras.txt: one camera.
-    let (path, text) = read("cameras.txt")?;
+    let (path, text) = cameras;
     let mut camera = None;
-    for (k, l) in text.lines().enumerate() {
-        if l.starts_with('#') || l.trim().is_empty() {
-            continue;
-        }
+    for (k, l) in text.lines().enumerate().filter(content) {
         if camera.is_some() {
             return Err(bad(
-                &path,
+                path,
                 k + 1,
                 "more than one camera: registration uses one".into(),
             ));
         }
         let f: Vec<&str> = l.split_whitespace().collect();
-        let v = f.get(2..).and_then(|r| numbers(&r.join(" ")));
-        let (Some(model), Some(v)) = (f.get(1), v) else {
+        let id = f.first().and_then(|t| whole(t));
+        let v = f.get(2..).and_then(|r| finite_numbers(&r.join(" ")));
+        let (Some(id), Some(model), Some(v)) = (id, f.get(1), v) else {
             return Err(bad(
-                &path,
+                path,
                 k + 1,
-                "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS".into(),
+                "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS, whole ids and finite numbers".into(),
             ));
         };
         let want = match *model {
@@ -97,17 +128,37 @@ pub fn read_model(dir: &Path) -> Result<Model, ModelError> {
             "FULL_OPENCV" => 14,
             other => {
                 return Err(bad(
-                    &path,
+                    path,
                     k + 1,
-                    format!("camera model {other}: PINHOLE, OPENCV or FULL_OPENCV expected"),
+                    format!(
+                        "camera model {}: PINHOLE, OPENCV or FULL_OPENCV expected",
+                        crate::io::clip(other, 40)
+                    ),
                 ));
             }
         };
         if v.len() != want {
             return Err(bad(
-                &path,
+                path,
                 k + 1,
                 format!("{model} needs {} parameters", want - 2),
+            ));
+        }
+        let side = 1.0..=f64::from(crate::camera::MAX_IMAGE_SIDE);
+        if !(side.contains(&v[0])
+            && side.contains(&v[1])
+            && v[0].fract() == 0.0
+            && v[1].fract() == 0.0)
+        {
+            return Err(bad(
+                path,
+                k + 1,
+                format!(
+                    "an image of {}x{} pixels: expected whole numbers from 1 to {}",
+                    v[0],
+                    v[1],
+                    crate::camera::MAX_IMAGE_SIDE
+                ),
             ));
         }
         let (w, h) = (v[0] as u32, v[1] as u32);
@@ -116,75 +167,158 @@ pub fn read_model(dir: &Path) -> Result<Model, ModelError> {
         for (d, x) in c.dist.iter_mut().zip(v[6..].iter()) {
             *d = *x;
         }
-        camera = Some((c, w, h));
+        crate::camera::Calibration::from_camera(c.clone())
+            .validate()
+            .map_err(|(field, message)| bad(path, k + 1, format!("{field}: {message}")))?;
+        camera = Some((c, w, h, id));
     }
-    let (path_c, _) = (path, ());
-    let (camera, width, height) =
-        camera.ok_or_else(|| bad(&path_c, 1, "no camera in the file".into()))?;
+    let (camera, width, height, camera_id) =
+        camera.ok_or_else(|| bad(path, 1, "no camera in the file".into()))?;
     // points3D.txt: ids to indices.
-    let (path, text) = read("points3D.txt")?;
+    let (path, text) = points;
     let mut points = Vec::new();
     let mut index_of: HashMap<i64, usize> = HashMap::new();
-    for (k, l) in text.lines().enumerate() {
-        if l.starts_with('#') || l.trim().is_empty() {
-            continue;
-        }
+    for (k, l) in text.lines().enumerate().filter(content) {
         let f: Vec<&str> = l.split_whitespace().take(4).collect();
         let parsed = (f.len() == 4)
-            .then(|| {
-                Some((
-                    f[0].parse::<i64>().ok()?,
-                    Vector3::new(f[1].parse().ok()?, f[2].parse().ok()?, f[3].parse().ok()?),
-                ))
-            })
+            .then(|| Some((whole(f[0])?, finite_numbers(&f[1..].join(" "))?)))
             .flatten();
         let Some((id, xyz)) = parsed else {
-            return Err(bad(&path, k + 1, "expected POINT3D_ID X Y Z ...".into()));
+            return Err(bad(
+                path,
+                k + 1,
+                "expected POINT3D_ID X Y Z ..., a whole id and finite coordinates".into(),
+            ));
         };
-        index_of.insert(id, points.len());
-        points.push(xyz);
+        if id < 0 {
+            return Err(bad(
+                path,
+                k + 1,
+                format!("point id {id}: ids are 0 or more"),
+            ));
+        }
+        if xyz.iter().any(|x| x.abs() > MAX_MODEL_COORDINATE) {
+            return Err(bad(
+                path,
+                k + 1,
+                format!("a coordinate beyond {MAX_MODEL_COORDINATE:e}: not a model's point"),
+            ));
+        }
+        if index_of.insert(id, points.len()).is_some() {
+            return Err(bad(path, k + 1, format!("point {id} is listed twice")));
+        }
+        points.push(Vector3::new(xyz[0], xyz[1], xyz[2]));
     }
-    // images.txt: two lines per image.
-    let (path, text) = read("images.txt")?;
-    let lines: Vec<(usize, &str)> = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.starts_with('#'))
-        .collect();
+    // images.txt: a head line, then its points' line (empty for an image without points).
+    let (path, text) = images;
+    let mut lines = text.lines().enumerate();
     let mut images = Vec::new();
-    for pair in lines.chunks(2) {
-        let (k, head) = pair[0];
-        if head.trim().is_empty() && pair.len() == 1 {
+    let mut ids = std::collections::HashSet::new();
+    let mut names = std::collections::HashSet::new();
+    while let Some((k, head)) = lines.next() {
+        if head.starts_with('#') || head.trim().is_empty() {
             continue;
         }
         let f: Vec<&str> = head.split_whitespace().collect();
-        let v = (f.len() >= 10)
-            .then(|| numbers(&f[1..8].join(" ")))
-            .flatten()
-            .ok_or_else(|| {
-                bad(
-                    &path,
-                    k + 1,
-                    "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME".into(),
-                )
-            })?;
+        let parsed = (f.len() == 10)
+            .then(|| {
+                Some((
+                    whole(f[0])?,
+                    finite_numbers(&f[1..8].join(" "))?,
+                    whole(f[8])?,
+                ))
+            })
+            .flatten();
+        let Some((id, v, cam)) = parsed else {
+            return Err(bad(
+                path,
+                k + 1,
+                "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME: whole ids, finite numbers, a name without spaces".into(),
+            ));
+        };
+        if !ids.insert(id) {
+            return Err(bad(path, k + 1, format!("image {id} is listed twice")));
+        }
+        if cam != camera_id {
+            return Err(bad(
+                path,
+                k + 1,
+                format!("camera {cam} is not the camera of cameras.txt ({camera_id})"),
+            ));
+        }
+        let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt();
+        if !((norm - 1.0).abs() <= 1e-3) {
+            return Err(bad(
+                path,
+                k + 1,
+                format!("the rotation's quaternion has norm {norm}: expected a unit quaternion"),
+            ));
+        }
+        if v[4..7].iter().any(|x| x.abs() > MAX_MODEL_COORDINATE) {
+            return Err(bad(
+                path,
+                k + 1,
+                format!("a translation beyond {MAX_MODEL_COORDINATE:e}: not a model's camera"),
+            ));
+        }
+        let name = f[9].to_string();
+        let escapes = Path::new(&name).is_absolute()
+            || Path::new(&name)
+                .components()
+                .any(|c| matches!(c, std::path::Component::ParentDir));
+        if escapes || name.chars().any(|c| c.is_control() || c == ',' || c == '"') {
+            return Err(bad(
+                path,
+                k + 1,
+                format!(
+                    "image name {}: expected a name inside the images' folder (no '..', not absolute, no commas or quotes)",
+                    crate::io::clip(&name, 60)
+                ),
+            ));
+        }
+        if !names.insert(name.clone()) {
+            return Err(bad(path, k + 1, format!("image {name} is listed twice")));
+        }
         let q = UnitQuaternion::from_quaternion(Quaternion::new(v[0], v[1], v[2], v[3]));
         let pose = Rigid3::new(Rotation3::from(q), Vector3::new(v[4], v[5], v[6]));
-        let name = f[9..].join(" ");
-        let (k2, row) = pair.get(1).copied().unwrap_or((k + 1, ""));
-        let v = numbers(row)
+        let (k2, row) = lines.next().unwrap_or((k + 1, ""));
+        let v = finite_numbers(row)
             .filter(|v| v.len() % 3 == 0)
-            .ok_or_else(|| bad(&path, k2 + 1, "expected X Y POINT3D_ID triples".into()))?;
+            .ok_or_else(|| {
+                bad(
+                    path,
+                    k2 + 1,
+                    "expected X Y POINT3D_ID triples of finite numbers".into(),
+                )
+            })?;
         let mut keypoints = Vec::with_capacity(v.len() / 3);
         let mut point_of = Vec::with_capacity(v.len() / 3);
+        let (w, h) = (f64::from(width), f64::from(height));
         for t in v.chunks(3) {
+            if !(t[0] >= -1.0 && t[0] <= w + 1.0 && t[1] >= -1.0 && t[1] <= h + 1.0) {
+                return Err(bad(
+                    path,
+                    k2 + 1,
+                    format!(
+                        "the keypoint ({}, {}) lies outside the {width}x{height} image",
+                        t[0], t[1]
+                    ),
+                ));
+            }
             keypoints.push(Vector2::new(t[0] - 0.5, t[1] - 0.5));
+            if t[2].fract() != 0.0 {
+                return Err(bad(
+                    path,
+                    k2 + 1,
+                    format!("point id {}: expected a whole number (-1: none)", t[2]),
+                ));
+            }
             let id = t[2] as i64;
             point_of.push(if id < 0 {
                 None
             } else {
                 Some(*index_of.get(&id).ok_or_else(|| {
-                    bad(&path, k2 + 1, format!("point {id} is not in points3D.txt"))
+                    bad(path, k2 + 1, format!("point {id} is not in points3D.txt"))
                 })?)
             });
         }
@@ -196,7 +330,7 @@ pub fn read_model(dir: &Path) -> Result<Model, ModelError> {
         });
     }
     if images.is_empty() {
-        return Err(bad(&path, 1, "no registered image in the model".into()));
+        return Err(bad(path, 1, "no registered image in the model".into()));
     }
     Ok(Model {
         camera,

@@ -156,7 +156,7 @@ pub enum RegisterError {
     #[error(transparent)]
     Job(#[from] SfmJobError),
     #[error(
-        "{}: {found} features, but the model lists {listed} keypoints for it: the model was built from other features (another version or --max-features); build it again or give its images as they were",
+        "{}: {found} features, but the model lists {listed} keypoints for it, or not in the same places: the model was built from other features (another photo of that name, another version or --max-features); build it again or give its images as they were",
         path.display()
     )]
     FeaturesDiffer {
@@ -164,6 +164,11 @@ pub enum RegisterError {
         found: usize,
         listed: usize,
     },
+    #[error(
+        "{}: a photo of the model is not here: give the folder of the model's photos (--model-images)",
+        path.display()
+    )]
+    MissingImage { path: PathBuf },
     #[error("{0}")]
     Video(String),
     #[error("{}: the new images are {width}x{height}, their camera {mw}x{mh}: give the camera of these images (--camera)", path.display())]
@@ -192,7 +197,25 @@ pub fn run_register(
     matching: &dyn Progress,
 ) -> Result<RegisterRun, RegisterError> {
     let t = Instant::now();
-    let reference = Reference::load(&job.model_dir, &job.model_images, &job.features, features)?;
+    // The new images' names and sizes before any work.
+    super::job::check_images(&job.images)?;
+    if let Some((video, _)) = &job.video
+        && let Some(reason) = super::job::name_problem(&file_name(video))
+    {
+        return Err(SfmJobError::BadName {
+            path: video.clone(),
+            reason,
+        }
+        .into());
+    }
+    let cache = SfmCache::new(job.cache_dir.as_deref());
+    let reference = Reference::load(
+        &job.model_dir,
+        &job.model_images,
+        &job.features,
+        &cache,
+        features,
+    )?;
     let model_paths: Vec<PathBuf> = reference
         .model
         .images
@@ -201,7 +224,6 @@ pub fn run_register(
         .collect();
     let mut all: Vec<PathBuf> = model_paths;
     all.extend(job.images.iter().cloned());
-    let cache = SfmCache::new(job.cache_dir.as_deref());
     let (new_features, new_names, fps) = match &job.video {
         None => (
             extract_features(&job.images, &job.features, &cache, features)?.0,
@@ -244,8 +266,15 @@ pub fn run_register(
     let gps: Option<Vec<GpsFix>> = if job.video.is_some() {
         None
     } else {
-        all.iter()
-            .map(|p| read_meta(p).ok().and_then(|m| m.gps))
+        // Fixes far from the others' (another continent) are not used: then all are matched.
+        let metas: Vec<_> = all
+            .iter()
+            .map(|p| read_meta(p).unwrap_or_default())
+            .collect();
+        let names: Vec<String> = all.iter().map(|p| file_name(p)).collect();
+        super::job::consistent_gps(&metas, &names)
+            .fixes
+            .into_iter()
             .collect()
     };
     let n_new = new_features.len();

@@ -11,6 +11,12 @@ use opencv::{features2d, imgcodecs, imgproc};
 use super::{DESCRIPTOR_LEN, FeatureSettings, Features, Keypoint, grid_cap, root_sift};
 use crate::imageio::{ImageError, file_error};
 
+/// Whether a decoder knows the file's format from its first bytes (nothing is decoded).
+pub fn decodable(path: &Path) -> bool {
+    path.to_str()
+        .is_some_and(|name| imgcodecs::have_image_reader(name).unwrap_or(false))
+}
+
 /// The features of the image file `path`.
 pub fn read_features(path: &Path, s: &FeatureSettings) -> Result<Features, ImageError> {
     let name = path
@@ -19,6 +25,7 @@ pub fn read_features(path: &Path, s: &FeatureSettings) -> Result<Features, Image
     if !path.is_file() {
         return Err(file_error(path, "no such file"));
     }
+    crate::imageheader::check_file(path).map_err(|e| file_error(path, e))?;
     let grey = imgcodecs::imread(
         name,
         imgcodecs::IMREAD_GRAYSCALE | imgcodecs::IMREAD_IGNORE_ORIENTATION,

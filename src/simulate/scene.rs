@@ -421,8 +421,9 @@ impl Scene {
             };
             return bad(&field, "expected finite numbers (not nan or inf)");
         }
-        if !(scene.fps > 0.0 && scene.fps <= 240.0) {
-            return bad("fps", "must be in (0, 240]");
+        // Video encoders take no fewer than one frame a second.
+        if !(scene.fps >= 1.0 && scene.fps <= 240.0) {
+            return bad("fps", "must be from 1 to 240 frames a second");
         }
         if !(scene.duration_s > 0.0 && scene.duration_s <= 3600.0) {
             return bad("duration_s", "must be in (0, 3600]");

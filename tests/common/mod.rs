@@ -1,6 +1,9 @@
 //! Shared helpers for integration tests.
 #![allow(dead_code)]
 
+pub mod exif;
+pub mod onnx;
+
 use std::path::PathBuf;
 
 /// The real-data folder from `GEOSTRIDE_DATA`. Outside CI a missing folder skips the test with

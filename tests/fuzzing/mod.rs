@@ -14,6 +14,11 @@ use std::time::Instant;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+#[path = "../common/exif.rs"]
+mod exif;
+#[path = "../common/onnx.rs"]
+mod onnx;
+
 /// The system allocator, counting the bytes in use and their peak.
 pub struct Counting;
 
@@ -161,6 +166,147 @@ fn picks_survey() -> geostride::survey::Survey {
     )
     .expect("the Emlid seed is valid")
 }
+
+/// A COLMAP text model in one text: each file after a `== NAME ==` line.
+const COLMAP: &str = "== cameras.txt ==\n# Camera list\n1 OPENCV 1280 720 1000.5 1001 640.5 360.5 -0.01 0.002 0.0001 -0.0002\n== images.txt ==\n# Image list\n1 1 0 0 0 0 0 0 1 p0.png\n100.5 200.5 1 300.5 400.5 2 50 60 -1\n2 0.9998 0.02 0 0 -1 0.1 0 1 p1.png\n120.5 210.5 1 320.5 390.5 2\n3 1 0 0 0 -2 0 0 1 p2.png\n\n== points3D.txt ==\n# 3D point list\n1 0.5 0.25 10 200 200 200 0.4 1 0 2 0\n2 -0.5 0.5 11 200 200 200 0.4 1 1 2 1\n";
+
+/// The three files of a [`COLMAP`]-like text (missing ones empty).
+fn colmap_parts(t: &str) -> [String; 3] {
+    let mut parts: [String; 3] = Default::default();
+    let mut at = None;
+    for line in t.split_inclusive('\n') {
+        let name = line
+            .trim()
+            .strip_prefix("== ")
+            .and_then(|l| l.strip_suffix(" =="));
+        match name {
+            Some("cameras.txt") => at = Some(0),
+            Some("images.txt") => at = Some(1),
+            Some("points3D.txt") => at = Some(2),
+            _ => {
+                if let Some(k) = at {
+                    parts[k].push_str(line);
+                }
+            }
+        }
+    }
+    parts
+}
+
+/// A small JPEG with EXIF (35 mm focal length, GPS) and DJI XMP, and variants.
+fn exif_seeds() -> Vec<Vec<u8>> {
+    // A JPEG's frame, scan and end: what follows the metadata hardly matters to its reader.
+    let body: &[u8] = &[
+        0xFF, 0xD8, 0xFF, 0xC0, 0, 11, 8, 0, 8, 0, 8, 1, 1, 0x11, 0, 0xFF, 0xDA, 0, 8, 1, 1, 0, 0,
+        0x3F, 0, 0x12, 0x34, 0xFF, 0xD9,
+    ];
+    let e = |focal, gps, rtk| exif::Exif {
+        focal_35mm: focal,
+        gps,
+        rtk_sigma_m: rtk,
+    };
+    vec![
+        exif::with_exif(
+            body,
+            &e(
+                Some(24),
+                Some((51.07, 4.43, 88.5)),
+                Some([0.02, 0.02, 0.03]),
+            ),
+        ),
+        exif::with_exif(body, &e(None, Some((-33.85, -70.12, -12.0)), None)),
+        exif::with_exif(body, &e(Some(65535), None, None)),
+    ]
+}
+
+/// Image headers of every format `imageheader` reads.
+fn header_seeds() -> Vec<Vec<u8>> {
+    let mut jpeg = vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 4, 0, 0, 0xFF, 0xC2, 0, 11, 8];
+    jpeg.extend(2160u16.to_be_bytes());
+    jpeg.extend(3840u16.to_be_bytes());
+    jpeg.extend([1, 1, 0x11, 0]);
+    let mut png = b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR".to_vec();
+    png.extend(4000u32.to_be_bytes());
+    png.extend(3000u32.to_be_bytes());
+    png.extend([8, 2, 0, 0, 0]);
+    let mut tiff = b"MM\0*".to_vec();
+    tiff.extend(8u32.to_be_bytes());
+    tiff.extend(2u16.to_be_bytes());
+    for (tag, v) in [(256u16, 6000u32), (257, 4000)] {
+        tiff.extend(tag.to_be_bytes());
+        tiff.extend(4u16.to_be_bytes());
+        tiff.extend(1u32.to_be_bytes());
+        tiff.extend(v.to_be_bytes());
+    }
+    let mut big = b"II+\0\x08\0\0\0".to_vec();
+    big.extend(16u64.to_le_bytes());
+    big.extend(1u64.to_le_bytes());
+    big.extend(256u16.to_le_bytes());
+    big.extend(16u16.to_le_bytes());
+    big.extend(1u64.to_le_bytes());
+    big.extend(70000u64.to_le_bytes());
+    let mut bmp = b"BM".to_vec();
+    bmp.extend([0u8; 16]);
+    bmp.extend(640i32.to_le_bytes());
+    bmp.extend((-480i32).to_le_bytes());
+    let mut webp = b"RIFF\0\0\0\0WEBPVP8X".to_vec();
+    webp.extend([0u8; 8]);
+    webp.extend([0xFF, 0x0E, 0, 0x6F, 0x08, 0]);
+    webp.resize(32, 0);
+    vec![
+        jpeg,
+        png,
+        tiff,
+        big,
+        bmp,
+        webp,
+        b"P6\n# c\n640 480\n255\n".to_vec(),
+    ]
+}
+
+/// Stage caches as the run writes them: the smoothed trajectories, image tracks, a palette.
+fn stage_seeds() -> Vec<Vec<u8>> {
+    use geostride::export::{PointCov, Trajectory, TrajectoryPoint};
+    use nalgebra::{Matrix2, Vector2, Vector3};
+    let dir = std::env::temp_dir().join(format!("geostride-fuzz-stage-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let point = |f: usize| TrajectoryPoint {
+        frame: f,
+        time_s: f as f64 / 25.0,
+        local: Vector3::new(f as f64 * 0.05, 1.0, 7.7),
+        crs: Vector3::new(654_500.0, 696_000.0, 59.7),
+        velocity: Vector2::new(1.2, 0.0),
+        sigma_m: Vector2::new(0.03, 0.04),
+        cov: PointCov {
+            random: Matrix2::identity() * 1e-3,
+            height: Matrix2::zeros(),
+            pose: Matrix2::identity() * 2e-4,
+        },
+        observed: f % 3 != 0,
+    };
+    let trajectories = vec![
+        Trajectory {
+            id: 1,
+            height_m: 1.7,
+            height_source: "default".into(),
+            points: (0..4).map(point).collect(),
+        },
+        Trajectory {
+            id: 2,
+            height_m: 1.62,
+            height_source: "heights.csv".into(),
+            points: vec![point(9)],
+        },
+    ];
+    let path = dir.join("smooth.bin");
+    geostride::pipeline::run::write_stage_file(&path, STAGE_KEY, &trajectories).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    vec![bytes]
+}
+
+/// The key the stage-cache seeds are made under.
+const STAGE_KEY: &str = "0f1e2d3c4b5a69788796a5b4c3d2e1f0";
 
 /// Every parser, with its seeds.
 pub fn targets() -> Vec<Target> {
@@ -320,6 +466,97 @@ pub fn targets() -> Vec<Target> {
         target!("truth-boxes", "boxes.csv", [TRUTH_BOXES], |p, t| {
             geostride::detect::simulated::parse_truth_boxes(p, t)
         }),
+        Target {
+            name: "colmap-model",
+            share: 1.0,
+            file: "model/",
+            seeds: vec![COLMAP.as_bytes().to_vec()],
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => {
+                    let [c, i, p] = colmap_parts(t);
+                    outcome(geostride::sfm::register::parse_model(
+                        (Path::new("model/cameras.txt"), &c),
+                        (Path::new("model/images.txt"), &i),
+                        (Path::new("model/points3D.txt"), &p),
+                    ))
+                }
+                None => Outcome::Err("model/: not UTF-8 text".into()),
+            }),
+        },
+        Target {
+            name: "exif",
+            share: 1.0,
+            file: "",
+            seeds: exif_seeds(),
+            // Metadata is optional: what cannot be read is left out, never an error.
+            run: Box::new(|_: &Path, b: &[u8]| {
+                let m = geostride::sfm::exif::meta_from_bytes(b);
+                let sane = m.gps.is_none_or(|g| g.lat_deg.abs() <= 90.0 && g.lon_deg.abs() <= 180.0)
+                    && m.focal_35mm.is_none_or(f64::is_finite)
+                    && m.rtk_sigma_m.is_none_or(|s| s.iter().all(|v| *v > 0.0));
+                if sane {
+                    Outcome::Ok
+                } else {
+                    Outcome::Err(format!("metadata out of range: {m:?}"))
+                }
+            }),
+        },
+        Target {
+            name: "image-header",
+            share: 1.0,
+            file: "",
+            seeds: header_seeds(),
+            run: Box::new(|_: &Path, b: &[u8]| {
+                outcome(geostride::imageheader::read_size(&mut std::io::Cursor::new(b)))
+            }),
+        },
+        Target {
+            name: "onnx-metadata",
+            share: 1.0,
+            file: "",
+            seeds: vec![
+                b"[\"person\", \"bicycle\", \"car\"]".to_vec(),
+                b"{0: 'person', 1: 'bicycle', 2: 'car'}".to_vec(),
+                br#"{"anchors": [[10, 14], [23, 27], [37, 58], [81, 82], [135, 169], [344, 319]], "masks": [[3, 4, 5], [0, 1, 2]], "strides": [32, 16]}"#.to_vec(),
+            ],
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => {
+                    let _ = geostride::detect::neural::parse_names(t);
+                    outcome(geostride::detect::neural::darknet_layout(t))
+                }
+                None => Outcome::Err("not text".into()),
+            }),
+        },
+        Target {
+            name: "stage-cache",
+            share: 1.0,
+            file: "",
+            seeds: stage_seeds(),
+            // A cache that is not whole under its key is a miss (the stage runs again), never an
+            // error: read as the smoothed trajectories (a sequence) and whole.
+            run: Box::new(|_: &Path, b: &[u8]| {
+                thread_local! {
+                    static DIR: std::path::PathBuf = {
+                        let d = std::env::temp_dir().join(format!(
+                            "geostride-fuzz-cache-{}-{:?}",
+                            std::process::id(),
+                            std::thread::current().id()
+                        ));
+                        std::fs::create_dir_all(&d).unwrap();
+                        d
+                    };
+                }
+                DIR.with(|d| {
+                    let path = d.join("smooth.bin");
+                    std::fs::write(&path, b).unwrap();
+                    let _ = geostride::pipeline::run::read_stage_seq_file::<geostride::export::Trajectory>(&path, STAGE_KEY);
+                    std::fs::write(&path, b).unwrap();
+                    let _ = geostride::pipeline::run::read_stage_file::<Vec<geostride::export::Trajectory>>(&path, STAGE_KEY);
+                    let _ = geostride::pipeline::run::read_stage_file::<geostride::detect::colour::Palette>(&path, STAGE_KEY);
+                });
+                Outcome::Ok
+            }),
+        },
         Target {
             name: "crs",
             share: 0.2,

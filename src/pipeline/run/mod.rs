@@ -265,6 +265,83 @@ impl KnownInput {
     }
 }
 
+/// Refuses, naming the project key, an input whose bytes differ from its record in `known` (a
+/// split run's inputs: a video replaced after the split would make segments of another video).
+/// A file whose size and time are as recorded is taken as unchanged, as everywhere else.
+pub fn check_known_inputs(
+    l: &Loaded,
+    known: &[KnownInput],
+    split_dir: &Path,
+) -> Result<(), RunError> {
+    for (role, path) in l.input_files() {
+        let shown = path.display().to_string();
+        let Some(k) = known.iter().find(|k| k.path == shown) else {
+            continue;
+        };
+        let (section, key) = role.split_once('.').unwrap_or((role, ""));
+        let changed = |how: String| {
+            RunError::Input(l.error(
+                section,
+                key,
+                format!(
+                    "{shown}: {how} since it was split into {}: the segments would be of another file; split again",
+                    split_dir.display()
+                ),
+            ))
+        };
+        let now = match size_and_time(&path) {
+            Some(now) => now,
+            None => return Err(changed("gone".into())),
+        };
+        if now.0 != k.bytes {
+            return Err(changed(format!("{} bytes now, {} then", now.0, k.bytes)));
+        }
+        if file_record(role, &path, known)?.sha256 != k.sha256 {
+            return Err(changed("its content changed".into()));
+        }
+    }
+    Ok(())
+}
+
+/// The inputs of `l` hashed now and compared with a finished run's `recorded` ones (`geostride
+/// render` draws that run's views: a changed input would make it a new run). Gives the records
+/// as known inputs, so that the run does not read the files again.
+pub fn check_recorded_inputs(
+    l: &Loaded,
+    recorded: &[InputRecord],
+    run_dir: &Path,
+) -> Result<Vec<KnownInput>, RunError> {
+    let mut known = Vec::new();
+    for (role, path) in l.input_files() {
+        let now = file_record(role, &path, &[])?;
+        let (section, key) = role.split_once('.').unwrap_or((role, ""));
+        // By role and content: the run may have named the file by another path.
+        let same = recorded
+            .iter()
+            .any(|r| r.role == now.role && r.sha256 == now.sha256);
+        if !same {
+            return Err(RunError::Input(l.error(
+                section,
+                key,
+                format!(
+                    "{}: not the file the run in {} read (changed since, or another): render draws that run's views; run the project again (geostride run) for new ones",
+                    now.path,
+                    run_dir.display()
+                ),
+            )));
+        }
+        if let Some((bytes, modified_ns)) = size_and_time(&path) {
+            known.push(KnownInput {
+                path: now.path,
+                bytes,
+                modified_ns,
+                sha256: now.sha256,
+            });
+        }
+    }
+    Ok(known)
+}
+
 fn file_record(role: &str, path: &Path, known: &[KnownInput]) -> Result<InputRecord, RunError> {
     let shown = path.display().to_string();
     if let Some((bytes, modified_ns)) = size_and_time(path)
@@ -344,7 +421,13 @@ impl<T: DeserializeOwned> Iterator for CachedSeq<T> {
             .with_limit(self.limit)
             .allow_trailing_bytes();
         Some(codec.deserialize_from(&mut self.reader).map_err(|e| {
-            std::io::Error::other(format!("{}: unreadable: {e}", self.path.display()))
+            // Damaged inside a whole file: removed, so that the next run computes it again.
+            self.left = 0;
+            let _ = std::fs::remove_file(&self.path);
+            std::io::Error::other(format!(
+                "{}: damaged ({e}); removed: run again to compute it anew",
+                self.path.display()
+            ))
         }))
     }
 }
@@ -353,6 +436,48 @@ impl<T: DeserializeOwned> Iterator for CachedSeq<T> {
 fn cache_payload(bytes: &[u8]) -> Option<&[u8]> {
     let (len, payload) = cache_header(bytes)?;
     (len == payload.len() as u64).then_some(payload)
+}
+
+/// The cache at `path` (`DIR/STAGE.bin`) as the run reads it: whole, made under `key`, its data
+/// a `T`; `None` otherwise (for tests and the fuzzing of the format).
+pub fn read_stage_file<T: DeserializeOwned>(path: &Path, key: &str) -> Option<T> {
+    let (cache, stage) = cache_of(path)?;
+    cache.load(&stage, key)
+}
+
+/// The cached sequence at `path` read an element at a time, as the later stages read it:
+/// `None` when the file is not whole under `key` or an element is damaged.
+pub fn read_stage_seq_file<T: DeserializeOwned>(path: &Path, key: &str) -> Option<Vec<T>> {
+    let (cache, stage) = cache_of(path)?;
+    cache
+        .load_seq::<T>(&stage, key)?
+        .collect::<Result<_, _>>()
+        .ok()
+}
+
+/// Writes `data` at `path` as a stage cache made under `key`.
+pub fn write_stage_file<T: Serialize>(path: &Path, key: &str, data: &T) -> Result<(), RunError> {
+    let (cache, stage) = cache_of(path).ok_or_else(|| {
+        RunError::Failed(format!(
+            "{}: not a stage cache's name (DIR/STAGE.bin)",
+            path.display()
+        ))
+    })?;
+    cache.store(&stage, key, data)
+}
+
+fn cache_of(path: &Path) -> Option<(Cache, String)> {
+    let stage = path
+        .file_name()?
+        .to_str()?
+        .strip_suffix(".bin")?
+        .to_string();
+    Some((
+        Cache {
+            dir: path.parent()?.to_path_buf(),
+        },
+        stage,
+    ))
 }
 
 /// Whether `path` is a whole stage cache file (a test that a killed run left none half-written).
@@ -1044,6 +1169,9 @@ fn release_freed() {
     }
 }
 
+/// The most frames a run processes: a day at 120 frames a second.
+pub const MAX_FRAMES: usize = 24 * 3600 * 120;
+
 /// Reads and checks everything the stages need before any work (a bad input is found now, not
 /// after hours of scanning), and makes the output folder. Also gives the detector, the inputs'
 /// records and the warnings so far.
@@ -1057,6 +1185,13 @@ fn prepare<'a>(
     let files = l.input_files();
     let mut guard = crate::io::Inputs::new(files.iter().map(|(_, f)| f));
     guard.add(&l.path);
+    // A model is read as a whole: nothing of the run goes inside it.
+    if let super::settings::PoseSection::Model(m) = &p.pose {
+        guard.add_folder(l.resolve(&m.model));
+    }
+    if let super::project::GroundSection::LocalPlanes { model, .. } = &p.ground {
+        guard.add_folder(l.resolve(model));
+    }
     guard.check_dir(out).map_err(output_error)?;
 
     let mut warnings = Vec::new();
@@ -1102,6 +1237,7 @@ fn prepare<'a>(
             l,
             m,
             &framed,
+            &out.join(".stages").join("model-features"),
             progress.stage("model").as_ref(),
         )?),
         _ => None,
@@ -1161,6 +1297,15 @@ fn prepare<'a>(
             "the video states no frame count: give the seconds to process",
         ))
     })?;
+    if frames > MAX_FRAMES {
+        return Err(RunError::Input(l.error(
+            "video",
+            "duration_s",
+            format!(
+                "{frames} frames to process: more than a day at 120 frames a second ({MAX_FRAMES}); a damaged video states a wrong count: give the seconds to process"
+            ),
+        )));
+    }
     let grid = super::chunk_pass::ChunkGrid::new(frames, fps, p.video.chunk_s, p.video.overlap_s);
     let scan_key = stage_key(
         "scan",
@@ -1362,14 +1507,15 @@ fn cached_seq<S: Serialize + DeserializeOwned>(
     key: &str,
     compute: impl FnOnce() -> Result<S, RunError>,
 ) -> Result<(S, &'static str), RunError> {
-    let summary = format!("{stage}-summary");
+    // The summary's key is not the data's: neither file passes for the other.
+    let (summary, summary_key) = (format!("{stage}-summary"), format!("{key}/summary"));
     if cache.has(stage, key)
-        && let Some(d) = cache.load::<S>(&summary, key)
+        && let Some(d) = cache.load::<S>(&summary, &summary_key)
     {
         return Ok((d, "reused"));
     }
     let d = compute()?;
-    cache.store(&summary, key, &d)?;
+    cache.store(&summary, &summary_key, &d)?;
     progress.stored(stage);
     Ok((d, "computed"))
 }

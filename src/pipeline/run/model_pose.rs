@@ -81,22 +81,35 @@ fn median(mut v: Vec<f64>) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
 
-/// Reads the reference model of `[pose] kind = "model"`, its photos' features, and moves it into
-/// the site frame.
+/// Reads the reference model of `[pose] kind = "model"`, its photos' features (kept in
+/// `cache_dir`, under the run's output: the model folder is an input, never written), and moves
+/// it into the site frame.
 pub(super) fn open_model(
     l: &Loaded,
     m: &ModelSettings,
     framed: &Framed,
+    cache_dir: &Path,
     progress: &dyn Progress,
 ) -> Result<SiteModel, RunError> {
     let dir = l.resolve(&m.model);
+    // The model's own files checked first: its cameras' CSV is only as good as they are.
+    let model = crate::sfm::register::read_model(&dir)
+        .map_err(|e| RunError::Input(l.error("pose", "model", e.to_string())))?;
     let (site_from, fit_rms_m, cams) = site_from_model(l, "pose", &dir, framed)?;
     let features = FeatureSettings {
         max_features: m.max_features.unwrap_or_else(|| model_max_features(&dir)),
         ..FeatureSettings::default()
     };
-    let mut reference = Reference::load(&dir, &l.resolve(&m.model_images), &features, progress)
-        .map_err(|e| RunError::Input(l.error("pose", "model_images", e.to_string())))?;
+    let cache = crate::sfm::cache::SfmCache::new(Some(cache_dir));
+    let mut reference = Reference::of_model(
+        model,
+        &dir,
+        &l.resolve(&m.model_images),
+        &features,
+        &cache,
+        progress,
+    )
+    .map_err(|e| RunError::Input(l.error("pose", "model_images", e.to_string())))?;
     reference.transform(&site_from);
     let pick =
         |f: &dyn Fn(&crate::sfm::reference::GeoCamera) -> f64| median(cams.iter().map(f).collect());

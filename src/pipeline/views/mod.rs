@@ -220,10 +220,13 @@ pub fn make_views(v: &Views, progress: &dyn Progress) -> Result<Made, ViewError>
     let s = v.settings;
     if s.plots {
         let dir = v.out.join("plots");
-        std::fs::create_dir_all(&dir).map_err(|source| ViewError::Io {
-            path: dir.clone(),
-            source,
-        })?;
+        // A killed run's temporaries go with the folder's next use.
+        std::fs::create_dir_all(&dir)
+            .and_then(|_| crate::io::remove_stale_temps(&dir).map(|_| ()))
+            .map_err(|source| ViewError::Io {
+                path: dir.clone(),
+                source,
+            })?;
         made.files.push(plots::speed_plot(v)?);
         made.files.push(plots::people_plot(v)?);
         made.files.push(plots::sigma_plot(v)?);

@@ -24,7 +24,8 @@ fn save(c: &Canvas, out: &Path, name: &str) -> Result<String, ViewError> {
 pub fn speed_plot(v: &Views) -> Result<(String, String), ViewError> {
     // The quantiles in a few passes, then the counts in one: the speeds are not all held.
     let (q, n) = super::speed_quantiles(v.trajs, &[0.5, 0.995])?;
-    let (median, top) = (q[0], q[1].max(0.5));
+    // No person runs 50 m/s: the scale ends there whatever a wild point says.
+    let (median, top) = (q[0], q[1].clamp(0.5, 50.0));
     let bin = if top > 6.0 { 0.2 } else { 0.1 };
     let bins = ((top / bin).ceil() as usize).max(1);
     let mut counts = vec![0usize; bins];

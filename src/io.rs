@@ -529,6 +529,19 @@ impl Inputs {
         }
     }
 
+    /// The inputs `paths`, a folder among them read as a whole ([`Inputs::add_folder`]).
+    pub fn with_folders<P: AsRef<Path>>(paths: impl IntoIterator<Item = P>) -> Inputs {
+        let mut inputs = Inputs::default();
+        for p in paths {
+            if p.as_ref().is_dir() {
+                inputs.add_folder(p);
+            } else {
+                inputs.add(p);
+            }
+        }
+        inputs
+    }
+
     pub fn add(&mut self, path: impl AsRef<Path>) {
         let p = path.as_ref();
         self.paths.push((p.to_path_buf(), resolve(p)));

@@ -1081,6 +1081,36 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, String> {
     out
 }
 
+/// A case's folder made ready: its set-up commands run, its files written and removed.
+fn prepare(dir: &Path, case: &Case) {
+    for step in &case.setup {
+        let out = geostride().args(step).current_dir(dir).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}: the set-up {step:?} failed: {}",
+            case.id,
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let files = case
+        .files
+        .iter()
+        .map(|(n, t)| (n.to_string(), t.as_bytes()))
+        .chain(case.bytes.iter().map(|(n, b)| (n.clone(), b.as_slice())));
+    for (name, bytes) in files {
+        std::fs::create_dir_all(dir.join(&name).parent().unwrap()).unwrap();
+        std::fs::write(dir.join(&name), bytes).unwrap();
+    }
+    for name in &case.remove {
+        let p = dir.join(name);
+        if p.is_dir() {
+            std::fs::remove_dir_all(p).unwrap();
+        } else {
+            std::fs::remove_file(p).unwrap();
+        }
+    }
+}
+
 /// A case in words for the catalogue: its command, then what was made bad.
 fn describe(c: &Case) -> String {
     let word = |w: &String| {
@@ -1157,33 +1187,7 @@ fn every_bad_input_exits_2_with_its_place_and_leaves_everything_as_it_was() {
         assert!(ids.insert(case.id), "two cases are named {}", case.id);
         let dir = tmp.path().join(case.id);
         copy_dir(fixture, &dir);
-        for step in &case.setup {
-            let out = geostride().args(step).current_dir(&dir).output().unwrap();
-            assert!(
-                out.status.success(),
-                "{}: the set-up {step:?} failed: {}",
-                case.id,
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        for (name, text) in &case.files {
-            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
-            std::fs::write(dir.join(name), text).unwrap();
-        }
-        for (name, bytes) in &case.bytes {
-            if let Some(parent) = dir.join(name).parent() {
-                std::fs::create_dir_all(parent).unwrap();
-            }
-            std::fs::write(dir.join(name), bytes).unwrap();
-        }
-        for name in &case.remove {
-            let p = dir.join(name);
-            if p.is_dir() {
-                std::fs::remove_dir_all(p).unwrap();
-            } else {
-                std::fs::remove_file(p).unwrap();
-            }
-        }
+        prepare(&dir, case);
         let before = snapshot(&dir);
         let started = std::time::Instant::now();
         let out = geostride()
@@ -1317,19 +1321,7 @@ fn no_command_writes_into_its_inputs() {
     for (k, a) in aimed.iter().enumerate() {
         let dir = tmp.path().join(format!("aimed-{k}"));
         copy_dir(fixture, &dir);
-        for step in &a.case.setup {
-            let out = geostride().args(step).current_dir(&dir).output().unwrap();
-            assert!(
-                out.status.success(),
-                "{}: {step:?}: {}",
-                a.label,
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        for (name, bytes) in &a.case.bytes {
-            std::fs::create_dir_all(dir.join(name).parent().unwrap()).unwrap();
-            std::fs::write(dir.join(name), bytes).unwrap();
-        }
+        prepare(&dir, &a.case);
         if let Some((file, folder)) = a.retarget {
             let canonical = dir.canonicalize().unwrap();
             let text = std::fs::read_to_string(dir.join(file)).unwrap();

@@ -291,6 +291,7 @@ fn a_killed_runs_temporaries_are_removed_by_the_next() {
         out.join(".stages/.track.bin.tmp-4194999"),
         out.join(".stages/chunks/.00000.bin.tmp-4194999"),
         out.join("pose/.poses.csv.tmp-4194999"),
+        out.join("plots/.speed.png.tmp-4194999"),
     ];
     for s in &stale {
         std::fs::write(s, b"half").unwrap();

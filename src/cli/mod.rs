@@ -182,16 +182,9 @@ pub(crate) fn check_output_file<P: AsRef<Path>>(
     out: &Path,
     inputs: impl IntoIterator<Item = P>,
 ) -> anyhow::Result<()> {
-    let mut guard = Inputs::new(std::iter::empty::<&Path>());
-    for p in inputs {
-        // A folder given as an input is read as a whole: nothing goes inside it.
-        if p.as_ref().is_dir() {
-            guard.add_folder(p);
-        } else {
-            guard.add(p);
-        }
-    }
-    guard.check_file(out).map_err(output_error)
+    Inputs::with_folders(inputs)
+        .check_file(out)
+        .map_err(output_error)
 }
 
 /// Refuses, before any work, an output folder that is a file or holds one of `inputs`, without
@@ -201,15 +194,8 @@ pub(crate) fn check_output_dir<P: AsRef<Path>>(
     out: &Path,
     inputs: impl IntoIterator<Item = P>,
 ) -> anyhow::Result<Inputs> {
-    let mut guard = Inputs::new(std::iter::empty::<&Path>());
-    for p in inputs {
-        // A folder given as an input is read as a whole: nothing goes inside it.
-        if p.as_ref().is_dir() {
-            guard.add_folder(p);
-        } else {
-            guard.add(p);
-        }
-    }
+    // A folder given as an input is read as a whole: nothing goes inside it.
+    let guard = Inputs::with_folders(inputs);
     guard.check_dir(out).map_err(output_error)?;
     Ok(guard)
 }
@@ -220,7 +206,9 @@ pub(crate) fn create_output_dir<P: AsRef<Path>>(
     out: &Path,
     inputs: impl IntoIterator<Item = P>,
 ) -> anyhow::Result<()> {
-    Inputs::new(inputs).create_dir(out).map_err(output_error)
+    Inputs::with_folders(inputs)
+        .create_dir(out)
+        .map_err(output_error)
 }
 
 /// `WIDTHxHEIGHT` in pixels, e.g. `3840x2160`.

@@ -7,7 +7,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use geostride::optim::ba::{BaSettings, bundle_adjust};
+use geostride::optim::ba::BaSettings;
+use geostride::optim::bal::bundle_adjust;
 use geostride::optim::bal::read_bal;
 
 const RUNS: usize = 3;

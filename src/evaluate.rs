@@ -41,49 +41,6 @@ pub fn read_samples(path: &Path, columns: [&str; 4]) -> Result<SampleTable, File
     parse_samples(path, &text, columns)
 }
 
-/// A CSV with a header: its columns, where each of `columns` is, and its data rows (blank lines
-/// skipped, each with the header's field count) as (line, fields).
-pub(crate) fn csv_rows<'t>(
-    ctx: FileCtx<'_>,
-    text: &'t str,
-    columns: &[&str],
-    mut each: impl FnMut(usize, &[&'t str], &[usize], &[&'t str]) -> Result<(), FileError>,
-) -> Result<usize, FileError> {
-    let mut lines = ctx.lines(text);
-    let (_, header) = lines
-        .next()
-        .transpose()?
-        .ok_or_else(|| ctx.err(None, None, "empty file: expected a header line"))?;
-    let header: Vec<&str> = header.split(',').map(str::trim).collect();
-    let idx: Vec<usize> = columns
-        .iter()
-        .map(|w| {
-            header.iter().position(|h| h == w).ok_or_else(|| {
-                ctx.at(
-                    1,
-                    format!(
-                        "no column '{}' in the header ({})",
-                        crate::io::clip(w, 40),
-                        crate::io::clip(&header.join(","), 200)
-                    ),
-                )
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    let mut rows = 0;
-    for row in lines {
-        let (line, l) = row?;
-        if l.trim().is_empty() {
-            continue;
-        }
-        let f: Vec<&str> = l.split(',').collect();
-        ctx.field_count(&f, line, header.len(), header.len(), "the header's columns")?;
-        each(line, &f, &idx, &header)?;
-        rows += 1;
-    }
-    Ok(rows)
-}
-
 /// [`read_samples`] on text; `path` names the file in messages.
 pub fn parse_samples(
     path: &Path,
@@ -93,7 +50,7 @@ pub fn parse_samples(
     let ctx = FileCtx { path };
     let mut table = SampleTable::default();
     let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
-    csv_rows(ctx, text, &columns, |line, f, idx, header| {
+    crate::io::csv_rows(ctx, text, &columns, |line, f, idx, header| {
         let in_view = header.iter().position(|h| *h == "in_view");
         let frame = ctx.whole(f[idx[0]], line, columns[0])? as usize;
         let id = ctx.whole(f[idx[1]], line, columns[1])? as usize;
@@ -775,7 +732,7 @@ pub fn read_covariances(path: &Path) -> Result<Covariances, FileError> {
         "sigma_pose_m",
     ];
     let mut out = Covariances::new();
-    csv_rows(ctx, &text, &names, |line, f, idx, _| {
+    crate::io::csv_rows(ctx, &text, &names, |line, f, idx, _| {
         let v = |k: usize| ctx.number(f[idx[k]], line, names[k]);
         let frame = ctx.whole(f[idx[0]], line, names[0])? as usize;
         let id = ctx.whole(f[idx[1]], line, names[1])? as usize;

@@ -6,7 +6,7 @@ use opencv::core::{CV_8UC1, Mat, Vector};
 use opencv::imgcodecs;
 use opencv::prelude::*;
 
-use crate::simulate::board::GrayImage;
+use crate::image::GrayImage;
 
 /// Why an image could not be read, made or written.
 #[derive(Debug, thiserror::Error)]

@@ -670,6 +670,49 @@ pub fn iso8601_from_unix(secs: i64) -> String {
     )
 }
 
+/// A CSV with a header: its columns, where each of `columns` is, and its data rows (blank lines
+/// skipped, each with the header's field count) as (line, fields).
+pub(crate) fn csv_rows<'t>(
+    ctx: FileCtx<'_>,
+    text: &'t str,
+    columns: &[&str],
+    mut each: impl FnMut(usize, &[&'t str], &[usize], &[&'t str]) -> Result<(), FileError>,
+) -> Result<usize, FileError> {
+    let mut lines = ctx.lines(text);
+    let (_, header) = lines
+        .next()
+        .transpose()?
+        .ok_or_else(|| ctx.err(None, None, "empty file: expected a header line"))?;
+    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let idx: Vec<usize> = columns
+        .iter()
+        .map(|w| {
+            header.iter().position(|h| h == w).ok_or_else(|| {
+                ctx.at(
+                    1,
+                    format!(
+                        "no column '{}' in the header ({})",
+                        crate::io::clip(w, 40),
+                        crate::io::clip(&header.join(","), 200)
+                    ),
+                )
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let mut rows = 0;
+    for row in lines {
+        let (line, l) = row?;
+        if l.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = l.split(',').collect();
+        ctx.field_count(&f, line, header.len(), header.len(), "the header's columns")?;
+        each(line, &f, &idx, &header)?;
+        rows += 1;
+    }
+    Ok(rows)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

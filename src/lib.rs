@@ -18,6 +18,7 @@
 pub type PluginError = Box<dyn std::error::Error + Send + Sync>;
 
 pub mod analysis;
+pub mod cache;
 pub mod calibration;
 pub mod camera;
 pub mod detect;
@@ -28,6 +29,7 @@ pub mod export;
 pub mod features;
 pub mod geom;
 pub mod gis;
+pub mod image;
 pub mod imageheader;
 pub mod imageio;
 pub mod io;
@@ -41,6 +43,7 @@ pub mod simulate;
 pub mod smooth;
 pub mod survey;
 pub mod terrain;
+pub mod text;
 pub mod track;
 pub mod video;
 

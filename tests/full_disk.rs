@@ -96,7 +96,7 @@ fn whole(p: &Path) -> Result<(), String> {
         "json" | "geojson" => serde_json::from_slice::<serde_json::Value>(&bytes)
             .map(|_| ())
             .map_err(|e| format!("{name}: {e}")),
-        "bin" => geostride::pipeline::run::cache_file_whole(p)
+        "bin" => geostride::cache::cache_file_whole(p)
             .then_some(())
             .ok_or(format!("{name}: not a whole stage cache")),
         "gpkg" => {

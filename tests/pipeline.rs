@@ -153,7 +153,7 @@ fn runs_reuses_resumes_and_writes_gis_files() {
         .filter(|e| e.path().is_file() && !e.file_name().to_string_lossy().starts_with('.'))
     {
         assert!(
-            geostride::pipeline::run::cache_file_whole(&entry.path()),
+            geostride::cache::cache_file_whole(&entry.path()),
             "{} is half-written",
             entry.path().display()
         );

@@ -58,7 +58,7 @@ fn solves_a_view_flags_its_outliers_and_draws_them() {
     // A grey photo of the camera's size, to annotate.
     geostride::imageio::write_gray(
         &dir.path().join("shot.png"),
-        &geostride::simulate::board::GrayImage {
+        &geostride::image::GrayImage {
             width: 3840,
             height: 2160,
             pixels: vec![128; 3840 * 2160],

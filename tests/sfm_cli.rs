@@ -215,7 +215,7 @@ fn write_png(path: &Path, w: u32, h: u32, seed: u64) {
             (state >> 56) as u8
         })
         .collect();
-    let img = geostride::simulate::board::GrayImage {
+    let img = geostride::image::GrayImage {
         width: w,
         height: h,
         pixels: px,

@@ -6,7 +6,8 @@ use anyhow::{Context, anyhow};
 
 use super::bad_input;
 use geostride::optim::RobustLoss;
-use geostride::optim::ba::{BaSettings, LinearSolver, bundle_adjust};
+use geostride::optim::ba::{BaSettings, LinearSolver};
+use geostride::optim::bal::bundle_adjust;
 use geostride::optim::bal::{bal_text, read_bal};
 
 #[derive(clap::Args)]

@@ -6,12 +6,13 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 
 use super::bad_input;
+use geostride::cache::build_id;
 use geostride::pipeline::cluster::{
     FORMAT, MANIFEST, Manifest, SlurmOptions, index_from, segments, slurm_scripts,
 };
 use geostride::pipeline::project::{Loaded, load};
 use geostride::pipeline::run::{
-    ChunkMode, RunError, build_id, chunk_list, plan_chunks, run_segment, run_with,
+    ChunkMode, RunError, chunk_list, plan_chunks, run_segment, run_with,
 };
 
 #[derive(clap::Args)]

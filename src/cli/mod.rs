@@ -125,6 +125,7 @@ impl Cli {
             Command::Track(args) => track::run(args),
             Command::Survey(cmd) => survey::run(cmd),
             Command::Plan(args) => plan::run(args),
+            Command::Pose(args) if args.video.is_some() => pose_video::run(&args),
             Command::Pose(args) => pose::run(args),
             Command::Simulate(args) => simulate::run(args),
             Command::Sfm(args) => sfm::run(args),

@@ -592,10 +592,8 @@ fn annotate(path_in: &Path, path_out: &Path, report: &Report) -> anyhow::Result<
     c.save(path_out).map_err(err)
 }
 
+/// `geostride pose` of one image (`--video` is `pose_video::run`'s).
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.video.is_some() {
-        return super::pose_video::run(&args);
-    }
     let size = match &args.image {
         Some(img) => {
             let c = Canvas::read(img).map_err(|e| bad_input(anyhow!(e)))?;

@@ -14,8 +14,9 @@ use geostride::detect::Detector;
 use geostride::detect::background::{BackgroundDetector, Subtractor};
 use geostride::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
 use geostride::detect::person::BoxesDetector;
+use geostride::pipeline::chunk_pass::ScanError;
 use geostride::pipeline::klt_pass::{KltPass, klt_over_video};
-use geostride::pipeline::scan::{ScanError, ScanJob, scan};
+use geostride::pipeline::scan::{ScanJob, scan};
 use geostride::pipeline::settings::KltSection;
 use geostride::track::ImageTrack;
 

@@ -375,9 +375,9 @@ pub fn write_detection_rows(
     first_frame: usize,
     detections: &[Vec<Detection>],
 ) -> std::io::Result<()> {
-    use crate::export::fixed::Fixed;
+    use crate::text::fixed::Fixed;
     use std::fmt::Write;
-    let mut out = crate::export::Pieces::new(w);
+    let mut out = crate::text::Pieces::new(w);
     for (k, dets) in detections.iter().enumerate() {
         let frame = first_frame + k;
         for d in dets {
@@ -432,7 +432,7 @@ pub fn parse_frame_points(
     let ctx = FileCtx { path };
     let mut out: BTreeMap<usize, Vec<Vector2<f64>>> = BTreeMap::new();
     let mut count = 0usize;
-    let rows = crate::evaluate::csv_rows(ctx, text, &columns, |line, f, idx, _| {
+    let rows = crate::io::csv_rows(ctx, text, &columns, |line, f, idx, _| {
         count += 1;
         if count > max_rows {
             return Err(ctx.at(
@@ -621,7 +621,7 @@ mod tests {
             score: 1.0,
         };
         // As the export writes it: the header, then chunk by chunk from each one's first frame.
-        let text = crate::export::text_of(|w| {
+        let text = crate::text::text_of(|w| {
             writeln!(w, "{DETECTIONS_HEADER}")?;
             write_detection_rows(w, 0, &[vec![d.clone()], vec![]])?;
             write_detection_rows(w, 2, &[vec![d.clone(), d]])

@@ -18,7 +18,7 @@ const DECIMALS: usize = 9;
 /// A coordinate to `DECIMALS` decimals, without trailing zeros.
 fn coordinate(s: &mut String, v: f64) {
     let start = s.len();
-    let _ = write!(s, "{}", super::fixed::Fixed::<DECIMALS>(v));
+    let _ = write!(s, "{}", crate::text::fixed::Fixed::<DECIMALS>(v));
     if s[start..].contains('.') {
         let trimmed = s.trim_end_matches('0').trim_end_matches('.').len();
         s.truncate(trimmed);
@@ -62,13 +62,13 @@ const TAIL: &str = "\n]}\n";
 /// A FeatureCollection written to `w` one trajectory at a time (an hour's positions never stand
 /// whole in memory); `wgs` gives each trajectory's positions in WGS 84, point by point.
 pub struct Features<'w> {
-    out: super::Pieces<'w>,
+    out: crate::text::Pieces<'w>,
     first: bool,
 }
 
 impl<'w> Features<'w> {
     pub fn new(w: &'w mut dyn std::io::Write) -> Features<'w> {
-        let mut out = super::Pieces::new(w);
+        let mut out = crate::text::Pieces::new(w);
         out.s.push_str(HEAD);
         Features { out, first: true }
     }

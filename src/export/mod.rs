@@ -1,14 +1,15 @@
 //! Trajectory outputs: CSV, PeTrack/JuPedSim text and MOTChallenge text (pure formatting), and
 //! GeoJSON (`geojson`, pure formatting) and GeoPackage through GDAL (`gis`, an adapter).
 
-pub mod fixed;
 pub mod geojson;
 pub mod gis;
 pub mod qgis_style;
 
 use std::fmt::Write as _;
 
-use fixed::Fixed;
+use crate::text::Pieces;
+use crate::text::fixed::Fixed;
+pub use crate::text::text_of;
 
 use nalgebra::{Matrix2, Vector2, Vector3};
 
@@ -113,44 +114,6 @@ pub fn image_tracks_csv(tracks: &[crate::track::ImageTrack]) -> String {
         }
     }
     s
-}
-
-/// The text `fill` writes, as a string (small outputs and tests; writing to memory cannot fail).
-pub fn text_of(fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>) -> String {
-    let mut v = Vec::new();
-    let _ = fill(&mut v);
-    String::from_utf8_lossy(&v).into_owned()
-}
-
-/// Text made in pieces and passed to `w` once a piece is large: a long video's outputs never
-/// stand whole in memory, and `w` is not called for every row.
-pub(crate) struct Pieces<'w> {
-    w: &'w mut dyn std::io::Write,
-    pub(crate) s: String,
-}
-
-impl<'w> Pieces<'w> {
-    pub(crate) fn new(w: &'w mut dyn std::io::Write) -> Pieces<'w> {
-        Pieces {
-            w,
-            s: String::new(),
-        }
-    }
-
-    /// Passes the text on once it is 64 KiB or more.
-    pub(crate) fn done_piece(&mut self) -> std::io::Result<()> {
-        if self.s.len() >= 1 << 16 {
-            self.finish()?;
-        }
-        Ok(())
-    }
-
-    /// Passes the rest of the text on.
-    pub(crate) fn finish(&mut self) -> std::io::Result<()> {
-        self.w.write_all(self.s.as_bytes())?;
-        self.s.clear();
-        Ok(())
-    }
 }
 
 /// The trajectories as CSV: one row per point.

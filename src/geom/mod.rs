@@ -5,6 +5,7 @@
 pub mod geodesy;
 pub mod rigid;
 pub mod similarity;
+pub mod so3;
 
 pub use rigid::Rigid3;
 

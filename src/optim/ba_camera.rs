@@ -174,12 +174,12 @@ pub fn pose_with_covariance<const M: usize>(
 mod tests {
     use super::*;
     use crate::camera::PARAM_NAMES;
+    use crate::geom::so3::rotation;
     use crate::optim::RobustLoss;
     use crate::optim::ba::{
         BaError, BaSettings, LinearSolver, Observation, PointPrior, Priors, Problem, adjust,
         covariance, linearise,
     };
-    use crate::optim::bal::rotation;
     use rand::{RngExt, SeedableRng};
     use rand_distr::{Distribution, Normal};
 

@@ -10,18 +10,14 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
+use nalgebra::{SMatrix, Vector2, Vector3};
 
-use super::ba::{Problem, Projection};
+use super::ba::{BaError, BaSettings, BaSummary, Observation, Priors, Problem, Projection, adjust};
+use crate::geom::so3::rotation;
 use crate::io::{FileCtx, FileError};
 
-/// One image measurement: camera `camera` sees point `point` at `xy` (pixels).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BalObservation {
-    pub camera: usize,
-    pub point: usize,
-    pub xy: [f64; 2],
-}
+/// One image measurement in BAL form (the engine's own).
+pub type BalObservation = Observation;
 
 /// A bundle adjustment problem in BAL form.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,32 +26,6 @@ pub struct BalProblem {
     pub cameras: Vec<[f64; 9]>,
     pub points: Vec<[f64; 3]>,
     pub observations: Vec<BalObservation>,
-}
-
-/// The rotation matrix of an angle-axis vector (Rodrigues); to first order near zero.
-pub fn rotation(w: &Vector3<f64>) -> Matrix3<f64> {
-    let theta2 = w.norm_squared();
-    let k = w.cross_matrix();
-    if theta2 > f64::EPSILON {
-        let theta = theta2.sqrt();
-        Matrix3::identity() + k * (theta.sin() / theta) + k * k * ((1.0 - theta.cos()) / theta2)
-    } else {
-        Matrix3::identity() + k
-    }
-}
-
-/// The left Jacobian of SO(3): `∂(R(w)·X)/∂w = −[R(w)·X]ₓ · J(w)`.
-pub(crate) fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
-    let theta2 = w.norm_squared();
-    let k = w.cross_matrix();
-    if theta2 > 1e-12 {
-        let theta = theta2.sqrt();
-        Matrix3::identity()
-            + k * ((1.0 - theta.cos()) / theta2)
-            + k * k * ((theta - theta.sin()) / (theta2 * theta))
-    } else {
-        Matrix3::identity() + k * 0.5 + k * k / 6.0
-    }
 }
 
 /// Where a BAL camera sees a point, pixels.
@@ -142,6 +112,14 @@ impl BalProblem {
             })
             .sum::<f64>()
     }
+}
+
+/// Adjusts a BAL problem's cameras and points in place.
+pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> Result<BaSummary, BaError> {
+    let mut q = p.to_problem();
+    let summary = adjust(&mut q, &BalIntrinsics, &Priors::default(), settings)?;
+    p.update_from(&q);
+    Ok(summary)
 }
 
 /// Reads a BAL file (whitespace-separated numbers; line breaks do not matter).
@@ -320,6 +298,7 @@ pub fn bal_text(p: &BalProblem) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Matrix3;
 
     fn numeric(camera: &[f64; 9], point: &[f64; 3]) -> (SMatrix<f64, 2, 9>, SMatrix<f64, 2, 3>) {
         let mut jc = SMatrix::<f64, 2, 9>::zeros();

@@ -21,7 +21,6 @@ use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::klt_pass::KltParts;
-use super::scan::{ScanError, ScanTimes};
 use crate::detect::{Detection, Detector, FrameDetections, FrameView};
 use crate::estimate::homography::transfer;
 use crate::pose::stabilise::{FrameTrack, StabiliseSettings, Stabiliser};
@@ -30,6 +29,46 @@ use crate::track::{ImageTrack, Tracker};
 use crate::video::klt::{Klt, KltSettings};
 use crate::video::reduce::area_reduce;
 use crate::video::source::{FramePool, FrameReader, MatPool};
+
+/// Seconds spent, summed over the frames (the stages overlap in time).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct ScanTimes {
+    pub decode_s: f64,
+    pub stabilise_s: f64,
+    pub detect_s: f64,
+    /// The image tracker's, when it runs in the pass.
+    #[serde(default)]
+    pub track_s: f64,
+    pub wall_s: f64,
+}
+
+/// Why a pass failed: the detector could not work with this video and these settings (a
+/// problem of the inputs), or anything else.
+#[derive(Debug)]
+pub enum ScanError {
+    Detector(String),
+    Other(String),
+}
+
+impl From<crate::video::source::VideoError> for ScanError {
+    fn from(e: crate::video::source::VideoError) -> ScanError {
+        ScanError::Other(e.to_string())
+    }
+}
+
+impl From<String> for ScanError {
+    fn from(e: String) -> ScanError {
+        ScanError::Other(e)
+    }
+}
+
+impl std::fmt::Display for ScanError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ScanError::Detector(e) | ScanError::Other(e) => f.write_str(e),
+        }
+    }
+}
 
 /// The frames of a video cut into chunks: chunk `c` owns frames `[c·len, (c+1)·len)` and
 /// decodes from `overlap` frames before them.

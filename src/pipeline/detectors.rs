@@ -5,8 +5,8 @@ use std::path::Path;
 
 use nalgebra::Vector2;
 
+use super::error::RunError;
 use super::project::Loaded;
-use super::run::RunError;
 use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSection, OnnxSection};
 use crate::camera::Camera;
 use crate::detect::Detector;

@@ -3,10 +3,13 @@
 pub mod chunk_pass;
 pub mod cluster;
 pub mod detectors;
+pub mod error;
 pub mod klt_pass;
 pub mod pose_outputs;
 pub mod project;
+pub mod provenance;
 pub mod registry;
+pub mod report;
 pub mod run;
 pub mod scan;
 pub mod settings;

@@ -373,7 +373,7 @@ pub struct Loaded {
     pub path: PathBuf,
     pub text: String,
     /// Input checksums known already (a split's), taken while each file's size and time match.
-    pub known_inputs: Vec<crate::pipeline::run::KnownInput>,
+    pub known_inputs: Vec<super::provenance::KnownInput>,
 }
 
 impl Loaded {

@@ -3,7 +3,7 @@
 //! are exhaustive, so the compiler lists every place a new kind must be handled).
 
 use super::detectors::{self, DetectorInputs};
-use super::run::RunError;
+use super::error::RunError;
 use super::settings::{DetectSection, KltSection, SmoothSection, TrackSection};
 use crate::detect::Detector;
 use crate::smooth::{KalmanRts, SmoothSettings, Smoother, Unsmoothed};

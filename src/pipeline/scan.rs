@@ -8,7 +8,6 @@ use std::time::Instant;
 
 use nalgebra::Vector2;
 use opencv::core::Mat;
-use serde::{Deserialize, Serialize};
 
 use crate::detect::{Detection, Detector};
 use crate::pose::stabilise::{FrameTrack, StabiliseSettings};
@@ -26,18 +25,6 @@ pub struct ScanJob<'a> {
     pub detector: Option<Box<dyn Detector>>,
 }
 
-/// Seconds spent, summed over the frames (the stages overlap in time).
-#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
-pub struct ScanTimes {
-    pub decode_s: f64,
-    pub stabilise_s: f64,
-    pub detect_s: f64,
-    /// The image tracker's, when it runs in the pass.
-    #[serde(default)]
-    pub track_s: f64,
-    pub wall_s: f64,
-}
-
 /// The pass's results.
 pub struct Scanned {
     pub fps: f64,
@@ -51,35 +38,8 @@ pub struct Scanned {
     pub times: ScanTimes,
 }
 
-/// Why a pass failed: the detector could not work with this video and these settings (a
-/// problem of the inputs), or anything else.
-#[derive(Debug)]
-pub enum ScanError {
-    Detector(String),
-    Other(String),
-}
-
-impl From<crate::video::source::VideoError> for ScanError {
-    fn from(e: crate::video::source::VideoError) -> ScanError {
-        ScanError::Other(e.to_string())
-    }
-}
-
-impl From<String> for ScanError {
-    fn from(e: String) -> ScanError {
-        ScanError::Other(e)
-    }
-}
-
-impl std::fmt::Display for ScanError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            ScanError::Detector(e) | ScanError::Other(e) => f.write_str(e),
-        }
-    }
-}
-
 use super::chunk_pass::{Detected, stabiliser, to_gray};
+use super::chunk_pass::{ScanError, ScanTimes};
 
 /// The stabiliser's part of a pass.
 struct StabiliseJob<'a> {

@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
 
+use crate::cache::hex;
+
 use super::{DESCRIPTOR_LEN, Features, Keypoint};
 
 const FEATURES_MAGIC: &[u8; 4] = b"GSF2";
@@ -19,10 +21,6 @@ const MATCHES_MAGIC: &[u8; 4] = b"GSM2";
 pub struct SfmCache {
     dir: Option<PathBuf>,
     read_only: Option<PathBuf>,
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// A key from its parts (32 hex digits).

@@ -798,7 +798,7 @@ pub fn extract_features(
     features: &dyn Progress,
 ) -> Result<(Vec<Features>, Vec<String>, usize), SfmJobError> {
     features.set_length(images.len() as u64);
-    let build = crate::pipeline::run::build_id();
+    let build = crate::cache::build_id();
     let feature_settings = format!("{:?}", settings);
     let mut found: Vec<Features> = Vec::with_capacity(images.len());
     let mut feature_keys = Vec::with_capacity(images.len());

@@ -10,10 +10,11 @@ use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use super::FeatureSettings;
 use super::Features;
 use super::cache::SfmCache;
+use super::job::SfmJobError;
 use super::job::extract_features;
 use super::matching::{MatchSettings, match_features};
+use super::register::ModelError;
 use super::register::{Model, RegisterSettings, Registration, read_model, register_image};
-use super::register_job::RegisterError;
 use crate::camera::Camera;
 use crate::geom::Rigid3;
 use crate::geom::similarity::Similarity;
@@ -336,6 +337,47 @@ pub fn pose_from_carried(
     }
     let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
     Some((refined, rms, errs.len()))
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RegisterError {
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(transparent)]
+    Job(#[from] SfmJobError),
+    #[error(
+        "{}: {found} features, but the model lists {listed} keypoints for it, or not in the same places: the model was built from other features (another photo of that name, another version or --max-features); build it again or give its images as they were",
+        path.display()
+    )]
+    FeaturesDiffer {
+        path: PathBuf,
+        found: usize,
+        listed: usize,
+    },
+    #[error(
+        "{}: a photo of the model is not here: give the folder of the model's photos (--model-images)",
+        path.display()
+    )]
+    MissingImage { path: PathBuf },
+    #[error("{0}")]
+    Video(String),
+    #[error("{}: the new images are {width}x{height}, their camera {mw}x{mh}: give the camera of these images (--camera)", path.display())]
+    Size {
+        path: PathBuf,
+        width: u32,
+        height: u32,
+        mw: u32,
+        mh: u32,
+    },
+}
+
+impl RegisterError {
+    pub fn is_input(&self) -> bool {
+        match self {
+            RegisterError::Job(e) => e.is_input(),
+            _ => true,
+        }
+    }
 }
 
 #[cfg(test)]

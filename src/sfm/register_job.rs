@@ -13,8 +13,8 @@ use super::cache::SfmCache;
 use super::exif::{GpsFix, read_meta};
 use super::job::{SfmJobError, enu_of, extract_features, file_name};
 use super::matching::MatchSettings;
-use super::reference::Reference;
-use super::register::{Model, ModelError, RegisterSettings, Registration};
+use super::reference::{Reference, RegisterError};
+use super::register::{Model, RegisterSettings, Registration};
 use crate::camera::Camera;
 use crate::draw::{Chart, Series, Style, line_chart};
 use crate::progress::Progress;
@@ -147,47 +147,6 @@ pub fn pose_series_csv(series: &[PoseSample]) -> String {
         ));
     }
     s
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum RegisterError {
-    #[error(transparent)]
-    Model(#[from] ModelError),
-    #[error(transparent)]
-    Job(#[from] SfmJobError),
-    #[error(
-        "{}: {found} features, but the model lists {listed} keypoints for it, or not in the same places: the model was built from other features (another photo of that name, another version or --max-features); build it again or give its images as they were",
-        path.display()
-    )]
-    FeaturesDiffer {
-        path: PathBuf,
-        found: usize,
-        listed: usize,
-    },
-    #[error(
-        "{}: a photo of the model is not here: give the folder of the model's photos (--model-images)",
-        path.display()
-    )]
-    MissingImage { path: PathBuf },
-    #[error("{0}")]
-    Video(String),
-    #[error("{}: the new images are {width}x{height}, their camera {mw}x{mh}: give the camera of these images (--camera)", path.display())]
-    Size {
-        path: PathBuf,
-        width: u32,
-        height: u32,
-        mw: u32,
-        mh: u32,
-    },
-}
-
-impl RegisterError {
-    pub fn is_input(&self) -> bool {
-        match self {
-            RegisterError::Job(e) => e.is_input(),
-            _ => true,
-        }
-    }
 }
 
 /// Runs the registration; `features` and `matching` show their stages' progress.

@@ -8,6 +8,7 @@ use rand_distr::{Distribution, Normal};
 use crate::calibration::board_points;
 use crate::camera::{BoardSpec, Camera, ImageSize};
 use crate::geom::Rigid3;
+use crate::image::GrayImage;
 
 /// Random board poses (`cam_from_board`) for calibration: the board fills 35-65 % of the image
 /// width, is tilted 10-45° about a random axis in its plane, turned up to ±30° in plane, and every
@@ -98,13 +99,6 @@ pub fn add_noise(points: &mut [Vector2<f64>], sigma_px: f64, rng: &mut impl Rng)
         p.x += normal.sample(rng);
         p.y += normal.sample(rng);
     }
-}
-
-/// An 8-bit greyscale image, row-major.
-pub struct GrayImage {
-    pub width: u32,
-    pub height: u32,
-    pub pixels: Vec<u8>,
 }
 
 /// Renders board views through a distorted camera: each pixel is the mean of `ss`x`ss`

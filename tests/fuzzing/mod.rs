@@ -299,7 +299,7 @@ fn stage_seeds() -> Vec<Vec<u8>> {
         },
     ];
     let path = dir.join("smooth.bin");
-    geostride::pipeline::run::write_stage_file(&path, STAGE_KEY, &trajectories).unwrap();
+    geostride::cache::write_stage_file(&path, STAGE_KEY, &trajectories).unwrap();
     let bytes = std::fs::read(&path).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     vec![bytes]
@@ -549,10 +549,10 @@ pub fn targets() -> Vec<Target> {
                 DIR.with(|d| {
                     let path = d.join("smooth.bin");
                     std::fs::write(&path, b).unwrap();
-                    let _ = geostride::pipeline::run::read_stage_seq_file::<geostride::export::Trajectory>(&path, STAGE_KEY);
+                    let _ = geostride::cache::read_stage_seq_file::<geostride::export::Trajectory>(&path, STAGE_KEY);
                     std::fs::write(&path, b).unwrap();
-                    let _ = geostride::pipeline::run::read_stage_file::<Vec<geostride::export::Trajectory>>(&path, STAGE_KEY);
-                    let _ = geostride::pipeline::run::read_stage_file::<geostride::detect::colour::Palette>(&path, STAGE_KEY);
+                    let _ = geostride::cache::read_stage_file::<Vec<geostride::export::Trajectory>>(&path, STAGE_KEY);
+                    let _ = geostride::cache::read_stage_file::<geostride::detect::colour::Palette>(&path, STAGE_KEY);
                 });
                 Outcome::Ok
             }),

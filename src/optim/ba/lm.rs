@@ -129,14 +129,6 @@ pub(super) fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> R
     Ok(())
 }
 
-/// Adjusts a BAL problem's cameras and points in place.
-pub fn bundle_adjust(p: &mut BalProblem, settings: &BaSettings) -> Result<BaSummary, BaError> {
-    let mut q = p.to_problem();
-    let summary = adjust(&mut q, &BalIntrinsics, &Priors::default(), settings)?;
-    p.update_from(&q);
-    Ok(summary)
-}
-
 /// Adjusts the problem's poses, intrinsics and points in place, with priors on some points
 /// and camera centres (which also fix the gauge: without them the solution is defined up to a
 /// similarity).

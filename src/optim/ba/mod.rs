@@ -34,7 +34,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use super::RobustLoss;
-use super::bal::{BalIntrinsics, BalObservation, BalProblem, left_jacobian, rotation};
+use crate::geom::so3::{left_jacobian, rotation};
 
 mod covariance;
 mod evaluation;
@@ -47,12 +47,17 @@ mod tests;
 pub use covariance::{CameraCovariance, covariance};
 use evaluation::*;
 use lm::*;
-pub use lm::{adjust, adjust_with_covariance, bundle_adjust};
+pub use lm::{adjust, adjust_with_covariance};
 use pcg::*;
 use schur::*;
 
 /// One image measurement: image `camera` sees point `point` at `xy` (pixels).
-pub type Observation = BalObservation;
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    pub camera: usize,
+    pub point: usize,
+    pub xy: [f64; 2],
+}
 
 type Mat6 = SMatrix<f64, 6, 6>;
 type Vec6 = SVector<f64, 6>;

@@ -1,5 +1,5 @@
 use super::*;
-use crate::optim::bal::{BalObservation, project};
+use crate::optim::bal::{BalIntrinsics, BalObservation, BalProblem, bundle_adjust, project};
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 

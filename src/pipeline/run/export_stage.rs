@@ -3,7 +3,7 @@
 use super::*;
 
 /// [`cache_gone`] as an I/O error, for the writers.
-fn gone(cache: &Cache, stage: &str) -> std::io::Error {
+fn gone(cache: &StageCache, stage: &str) -> std::io::Error {
     std::io::Error::other(cache_gone(cache, stage).to_string())
 }
 
@@ -225,7 +225,7 @@ pub(super) fn export_stage(
     }
     let record = StageRecord {
         name: "export".into(),
-        status: "computed".into(),
+        status: StageStatus::Computed,
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([("files".into(), outputs.len() as f64)]),
     };

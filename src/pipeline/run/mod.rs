@@ -7,18 +7,25 @@
 //! matches its artifact is not run again.
 
 use std::collections::BTreeMap;
-use std::io::Read as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nalgebra::{Matrix2, Matrix3, Matrix6, Vector2, Vector3};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
+use super::error::output_error;
+pub use super::error::{RunError, chunk_list};
+pub use super::provenance::{InputRecord, KnownInput};
+use super::provenance::{file_record, size_and_time};
+pub use super::report::{
+    RunReport, Silent, StageProgress, StageRecord, StageStatus, report_markdown,
+};
+use crate::cache::{StageCache, build_id, cache_gone, in_batches, stage_key};
+
+use super::chunk_pass::{ScanError, ScanTimes};
 use super::pose_outputs::{PoseRun, write_pose_outputs};
 use super::project::{GroundSection, Loaded};
-use super::scan::{ScanError, ScanTimes};
 use crate::camera::{Camera, formats, presets};
 use crate::detect::Detection;
 use crate::export::gis::write_geopackage;
@@ -55,61 +62,6 @@ use scan_stage::scan_stage;
 use smooth_stage::smooth_stage;
 use track_stage::track_stage;
 use views_stage::views_stage;
-/// A failure of a run: bad input (the user's to fix: [`RunError::is_input`]) or a failure while
-/// running.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// An input file, or a key of the project file, is wrong: the file, line and key named.
-    #[error(transparent)]
-    Input(#[from] crate::io::FileError),
-    /// The inputs cannot give a result (no pose from these picks, say), in words.
-    #[error("{0}")]
-    Unusable(String),
-    /// An output path that cannot be used (it would overwrite an input, say).
-    #[error(transparent)]
-    OutputPath(crate::io::OutputError),
-    /// Reading or writing a file failed while running.
-    #[error("{}: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    /// The pose stage's files could not be written.
-    #[error(transparent)]
-    PoseOutputs(#[from] super::pose_outputs::PoseOutputError),
-    /// A GeoPackage or GeoJSON file could not be written.
-    #[error(transparent)]
-    Gis(#[from] crate::gis::GisError),
-    /// A coordinate conversion failed while running.
-    #[error(transparent)]
-    Crs(#[from] crate::survey::crs::CrsError),
-    /// Chunks of the video are not done (a cluster's segments that failed or did not run).
-    #[error("{} of the video's chunks are missing or were made from other inputs or by another build: {}", .0.len(), chunk_list(.0))]
-    MissingChunks(Vec<usize>),
-    /// Anything else that failed while running.
-    #[error("{0}")]
-    Failed(String),
-}
-
-/// Chunk numbers for a message, runs of them as ranges.
-pub fn chunk_list(chunks: &[usize]) -> String {
-    let mut parts: Vec<String> = Vec::new();
-    let mut i = 0;
-    while i < chunks.len() {
-        let mut j = i;
-        while j + 1 < chunks.len() && chunks[j + 1] == chunks[j] + 1 {
-            j += 1;
-        }
-        parts.push(if i == j {
-            chunks[i].to_string()
-        } else {
-            format!("{}-{}", chunks[i], chunks[j])
-        });
-        i = j + 1;
-    }
-    parts.join(", ")
-}
 
 /// Which chunks of the video a call computes; the others must be in the output folder's cache
 /// already.
@@ -121,148 +73,6 @@ pub enum ChunkMode {
     Only(std::ops::Range<usize>),
     /// None (`geostride merge`): a chunk not done is an error.
     None,
-}
-
-impl RunError {
-    /// Whether the inputs are at fault (exit status 2), rather than the run.
-    pub fn is_input(&self) -> bool {
-        matches!(
-            self,
-            RunError::Input(_) | RunError::Unusable(_) | RunError::OutputPath(_)
-        )
-    }
-
-    /// An input's error that names its own file.
-    pub fn from_input(e: impl std::fmt::Display) -> RunError {
-        RunError::Unusable(e.to_string())
-    }
-}
-
-/// A failure described in words (an adapter's, say), while running.
-impl From<String> for RunError {
-    fn from(s: String) -> RunError {
-        RunError::Failed(s)
-    }
-}
-
-/// Shows progress per stage.
-pub trait StageProgress {
-    fn stage(&self, name: &str) -> Box<dyn Progress>;
-    /// Called once a stage's result is stored in the run's cache (a run killed from now on
-    /// resumes after this stage).
-    fn stored(&self, _stage: &str) {}
-}
-
-/// Shows nothing.
-pub struct Silent;
-
-impl StageProgress for Silent {
-    fn stage(&self, _: &str) -> Box<dyn Progress> {
-        Box::new(crate::progress::NoProgress)
-    }
-}
-
-impl StageRecord {
-    /// The stage's numbers as `key value, ...`: whole numbers without decimals, others with
-    /// `decimals`.
-    pub fn numbers(&self, decimals: usize) -> String {
-        self.counts
-            .iter()
-            .map(|(k, v)| {
-                if v.fract() == 0.0 && v.abs() < 1e12 {
-                    format!("{k} {v:.0}")
-                } else {
-                    format!("{k} {v:.decimals$}")
-                }
-            })
-            .collect::<Vec<_>>()
-            .join(", ")
-    }
-}
-
-/// One input file of a run, with its checksum.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct InputRecord {
-    pub role: String,
-    pub path: String,
-    pub bytes: u64,
-    pub sha256: String,
-}
-
-/// One stage of a run.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct StageRecord {
-    pub name: String,
-    /// `computed` or `reused`.
-    pub status: String,
-    pub seconds: f64,
-    pub counts: BTreeMap<String, f64>,
-}
-
-/// The run report.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct RunReport {
-    pub project: String,
-    pub geostride_version: String,
-    pub inputs: Vec<InputRecord>,
-    pub parameters: super::project::Project,
-    pub site_frame: String,
-    pub output_crs: String,
-    /// How GeoJSON's WGS 84 coordinates were made from the output CRS: PROJ's operations.
-    #[serde(default)]
-    pub wgs84_transformations: Vec<String>,
-    pub stages: Vec<StageRecord>,
-    pub outputs: Vec<String>,
-    /// The plots, site images and video: (title, file in the output folder).
-    #[serde(default)]
-    pub views: Vec<(String, String)>,
-    /// The project file the run read (`geostride render` reads it again).
-    #[serde(default)]
-    pub project_file: String,
-    pub warnings: Vec<String>,
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
-
-/// An input's checksum as recorded by an earlier process with the file's size and modification
-/// time: a later one takes it while both still match, without reading the file again (`split`
-/// hashes the video once for all its segments and the merge: hours of 4K are tens of GB).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct KnownInput {
-    pub path: String,
-    pub bytes: u64,
-    /// Modification time, nanoseconds since 1970.
-    pub modified_ns: u64,
-    pub sha256: String,
-}
-
-/// A file's size and modification time (nanoseconds since 1970).
-fn size_and_time(path: &Path) -> Option<(u64, u64)> {
-    let m = std::fs::metadata(path).ok()?;
-    let t = m
-        .modified()
-        .ok()?
-        .duration_since(std::time::UNIX_EPOCH)
-        .ok()?;
-    Some((m.len(), u64::try_from(t.as_nanos()).ok()?))
-}
-
-impl KnownInput {
-    /// The record of `r` with its file's size and time now; None when they cannot be read.
-    pub fn of(r: &InputRecord) -> Option<KnownInput> {
-        let (bytes, modified_ns) = size_and_time(Path::new(&r.path))?;
-        (bytes == r.bytes).then(|| KnownInput {
-            path: r.path.clone(),
-            bytes,
-            modified_ns,
-            sha256: r.sha256.clone(),
-        })
-    }
 }
 
 /// Refuses, naming the project key, an input whose bytes differ from its record in `known` (a
@@ -340,365 +150,6 @@ pub fn check_recorded_inputs(
         }
     }
     Ok(known)
-}
-
-fn file_record(role: &str, path: &Path, known: &[KnownInput]) -> Result<InputRecord, RunError> {
-    let shown = path.display().to_string();
-    if let Some((bytes, modified_ns)) = size_and_time(path)
-        && let Some(k) = known
-            .iter()
-            .find(|k| k.path == shown && k.bytes == bytes && k.modified_ns == modified_ns)
-    {
-        return Ok(InputRecord {
-            role: role.into(),
-            path: shown,
-            bytes,
-            sha256: k.sha256.clone(),
-        });
-    }
-    let mut f = std::fs::File::open(path)
-        .map_err(|e| RunError::Unusable(format!("{}: {e}", path.display())))?;
-    let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 20];
-    let mut bytes = 0u64;
-    loop {
-        let n = f.read(&mut buf).map_err(|source| RunError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-        bytes += n as u64;
-    }
-    Ok(InputRecord {
-        role: role.into(),
-        path: path.display().to_string(),
-        bytes,
-        sha256: h.finalize().iter().map(|b| format!("{b:02x}")).collect(),
-    })
-}
-
-/// The cached stage artifacts, each `DIR/STAGE.bin`: `CACHE_MAGIC`, the length of the rest
-/// (u64, little-endian), then the key it was made under and its data in bincode's compact
-/// binary form (JSON took 136 MB and most of a second for the smoothed trajectories of 2 minutes
-/// of a 220-person crowd; binary keeps NaN too, which JSON cannot).
-struct Cache {
-    dir: PathBuf,
-}
-
-const CACHE_MAGIC: &[u8; 8] = b"GSCACHE1";
-
-/// A cache file's stated payload length and what follows its header (all of the payload, or
-/// its start); None without the magic.
-fn cache_header(bytes: &[u8]) -> Option<(u64, &[u8])> {
-    let rest = bytes.strip_prefix(CACHE_MAGIC)?;
-    let (len, payload) = rest.split_first_chunk::<8>()?;
-    Some((u64::from_le_bytes(*len), payload))
-}
-
-/// The elements of a cached sequence, read as they are asked for ([`Cache::load_seq`]).
-struct CachedSeq<T> {
-    reader: std::io::BufReader<std::fs::File>,
-    /// No element can ask for more memory than the file holds.
-    limit: u64,
-    left: u64,
-    path: PathBuf,
-    element: std::marker::PhantomData<T>,
-}
-
-impl<T: DeserializeOwned> Iterator for CachedSeq<T> {
-    type Item = std::io::Result<T>;
-
-    fn next(&mut self) -> Option<std::io::Result<T>> {
-        use bincode::Options;
-        if self.left == 0 {
-            return None;
-        }
-        self.left -= 1;
-        let codec = bincode::DefaultOptions::new()
-            .with_limit(self.limit)
-            .allow_trailing_bytes();
-        Some(codec.deserialize_from(&mut self.reader).map_err(|e| {
-            // Damaged inside a whole file: removed, so that the next run computes it again.
-            self.left = 0;
-            let _ = std::fs::remove_file(&self.path);
-            std::io::Error::other(format!(
-                "{}: damaged ({e}); removed: run again to compute it anew",
-                self.path.display()
-            ))
-        }))
-    }
-}
-
-/// The payload of a cache file when the file is whole (its magic and its stated length).
-fn cache_payload(bytes: &[u8]) -> Option<&[u8]> {
-    let (len, payload) = cache_header(bytes)?;
-    (len == payload.len() as u64).then_some(payload)
-}
-
-/// The cache at `path` (`DIR/STAGE.bin`) as the run reads it: whole, made under `key`, its data
-/// a `T`; `None` otherwise (for tests and the fuzzing of the format).
-pub fn read_stage_file<T: DeserializeOwned>(path: &Path, key: &str) -> Option<T> {
-    let (cache, stage) = cache_of(path)?;
-    cache.load(&stage, key)
-}
-
-/// The cached sequence at `path` read an element at a time, as the later stages read it:
-/// `None` when the file is not whole under `key` or an element is damaged.
-pub fn read_stage_seq_file<T: DeserializeOwned>(path: &Path, key: &str) -> Option<Vec<T>> {
-    let (cache, stage) = cache_of(path)?;
-    cache
-        .load_seq::<T>(&stage, key)?
-        .collect::<Result<_, _>>()
-        .ok()
-}
-
-/// Writes `data` at `path` as a stage cache made under `key`.
-pub fn write_stage_file<T: Serialize>(path: &Path, key: &str, data: &T) -> Result<(), RunError> {
-    let (cache, stage) = cache_of(path).ok_or_else(|| {
-        RunError::Failed(format!(
-            "{}: not a stage cache's name (DIR/STAGE.bin)",
-            path.display()
-        ))
-    })?;
-    cache.store(&stage, key, data)
-}
-
-fn cache_of(path: &Path) -> Option<(Cache, String)> {
-    let stage = path
-        .file_name()?
-        .to_str()?
-        .strip_suffix(".bin")?
-        .to_string();
-    Some((
-        Cache {
-            dir: path.parent()?.to_path_buf(),
-        },
-        stage,
-    ))
-}
-
-/// Whether `path` is a whole stage cache file (a test that a killed run left none half-written).
-pub fn cache_file_whole(path: &Path) -> bool {
-    std::fs::read(path).is_ok_and(|b| cache_payload(&b).is_some())
-}
-
-impl Cache {
-    fn path(&self, stage: &str) -> PathBuf {
-        self.dir.join(format!("{stage}.bin"))
-    }
-
-    /// The data cached under `key`; None when there is none, it was made under another key, or
-    /// it cannot be read back (cut short, or written by another build).
-    fn load<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<T> {
-        use bincode::Options;
-        use std::io::Read;
-        let (mut reader, limit) = self.open_under(stage, key, 1 << 20)?;
-        let codec = bincode::DefaultOptions::new()
-            .with_limit(limit)
-            .allow_trailing_bytes();
-        let data: T = codec.deserialize_from(&mut reader).ok()?;
-        let mut rest = [0u8; 1];
-        matches!(reader.read(&mut rest), Ok(0)).then_some(data)
-    }
-
-    /// A cached sequence (a `Vec<T>` stored whole) read back one element at a time: what reads
-    /// a long video's tracks this way never holds them all. None as for [`Cache::load`] (a
-    /// damaged element shows as an error when it is reached).
-    fn load_seq<T: DeserializeOwned>(&self, stage: &str, key: &str) -> Option<CachedSeq<T>> {
-        use bincode::Options;
-        let (mut reader, limit) = self.open_under(stage, key, 1 << 20)?;
-        // bincode writes a sequence as its length, then its elements.
-        let left: u64 = bincode::DefaultOptions::new()
-            .with_limit(limit)
-            .allow_trailing_bytes()
-            .deserialize_from(&mut reader)
-            .ok()?;
-        Some(CachedSeq {
-            reader,
-            limit,
-            left,
-            path: self.path(stage),
-            element: std::marker::PhantomData,
-        })
-    }
-
-    /// The stage's file, whole (its stated length) and made under `key`: a reader at its data
-    /// with a buffer of `buffer` bytes (read through a buffer, not whole: an hour's stage would
-    /// stand in memory twice) and the most any length in it may ask for (the file's size: no
-    /// damaged length can ask for more memory than the file holds).
-    fn open_under(
-        &self,
-        stage: &str,
-        key: &str,
-        buffer: usize,
-    ) -> Option<(std::io::BufReader<std::fs::File>, u64)> {
-        use bincode::Options;
-        use std::io::Read;
-        let f = std::fs::File::open(self.path(stage)).ok()?;
-        let size = f.metadata().ok()?.len();
-        let mut reader = std::io::BufReader::with_capacity(buffer, f);
-        let mut head = [0u8; 16];
-        reader.read_exact(&mut head).ok()?;
-        let (len, _) = cache_header(&head)?;
-        if len != size.saturating_sub(16) {
-            return None;
-        }
-        let stored_key: String = bincode::DefaultOptions::new()
-            .with_limit(len)
-            .allow_trailing_bytes()
-            .deserialize_from(&mut reader)
-            .ok()?;
-        (stored_key == key).then_some((reader, len))
-    }
-
-    /// Whether a whole artifact made under `key` is cached, without reading its data.
-    fn has(&self, stage: &str, key: &str) -> bool {
-        // A buffer the size of a header and a key: the data are not read.
-        self.open_under(stage, key, 16 + 4096).is_some()
-    }
-
-    fn store<T: Serialize>(&self, stage: &str, key: &str, data: &T) -> Result<(), RunError> {
-        use bincode::Options;
-        let failed = |e: bincode::Error| RunError::Failed(format!("cannot cache {stage}: {e}"));
-        let codec = bincode::DefaultOptions::new();
-        // Sized first and then written through a buffer: never whole in memory.
-        let len = codec.serialized_size(key).map_err(failed)?
-            + codec.serialized_size(data).map_err(failed)?;
-        let path = self.path(stage);
-        crate::io::write_atomic_with(&path, |w| {
-            w.write_all(CACHE_MAGIC)?;
-            w.write_all(&len.to_le_bytes())?;
-            let io = |e: bincode::Error| std::io::Error::other(e.to_string());
-            codec.serialize_into(&mut *w, key).map_err(io)?;
-            codec.serialize_into(&mut *w, data).map_err(io)
-        })
-        .map_err(|source| RunError::Io { path, source })
-    }
-    /// A sequence of `count` elements cached as [`Cache::store`] stores a `Vec<T>` (read back
-    /// with [`Cache::load_seq`] or [`Cache::load`]), but given to `fill`'s `push` one element
-    /// at a time: a long video's stage is never whole in memory. The file's stated length is
-    /// written last; a `fill` that fails, or pushes another number of elements, leaves no file.
-    fn store_seq<T: Serialize>(
-        &self,
-        stage: &str,
-        key: &str,
-        count: usize,
-        fill: impl FnOnce(&mut dyn FnMut(&T) -> Result<(), RunError>) -> Result<(), RunError>,
-    ) -> Result<(), RunError> {
-        use bincode::Options;
-        use std::io::{Seek, SeekFrom, Write};
-        let codec = bincode::DefaultOptions::new();
-        let path = self.path(stage);
-        let io = |e: bincode::Error| std::io::Error::other(e.to_string());
-        let mut failed: Option<RunError> = None;
-        let written = crate::io::write_atomic_file(&path, |f| {
-            f.write_all(CACHE_MAGIC)?;
-            f.write_all(&0u64.to_le_bytes())?;
-            codec.serialize_into(&mut *f, key).map_err(io)?;
-            codec.serialize_into(&mut *f, &(count as u64)).map_err(io)?;
-            let mut pushed = 0usize;
-            let outcome = {
-                let mut push = |t: &T| -> Result<(), RunError> {
-                    if pushed == count {
-                        return Err(RunError::Failed(format!(
-                            "cannot cache {stage}: more than the {count} elements stated"
-                        )));
-                    }
-                    pushed += 1;
-                    codec
-                        .serialize_into(&mut *f, t)
-                        .map_err(|e| RunError::Failed(format!("cannot cache {stage}: {e}")))
-                };
-                fill(&mut push)
-            };
-            let outcome = outcome.and_then(|()| {
-                if pushed == count {
-                    Ok(())
-                } else {
-                    Err(RunError::Failed(format!(
-                        "cannot cache {stage}: {pushed} elements given, {count} stated"
-                    )))
-                }
-            });
-            if let Err(e) = outcome {
-                failed = Some(e);
-                return Err(std::io::Error::other("stopped"));
-            }
-            let end = f.stream_position()?;
-            f.seek(SeekFrom::Start(CACHE_MAGIC.len() as u64))?;
-            f.write_all(&(end - 16).to_le_bytes())
-        });
-        if let Some(e) = failed {
-            return Err(e);
-        }
-        written.map_err(|source| RunError::Io { path, source })
-    }
-
-    /// [`Cache::load_seq`], or the error that the stage's file is gone (a later stage reads a
-    /// stage that was cached a moment ago).
-    fn read_seq<T: DeserializeOwned>(
-        &self,
-        stage: &str,
-        key: &str,
-    ) -> Result<CachedSeq<T>, RunError> {
-        self.load_seq(stage, key)
-            .ok_or_else(|| cache_gone(self, stage))
-    }
-
-    /// A cached sequence of tracks given to `f` in order, in batches of about [`BATCH_POINTS`]
-    /// points (`points` counts a track's).
-    fn read_batches<T: DeserializeOwned>(
-        &self,
-        stage: &str,
-        key: &str,
-        points: impl Fn(&T) -> usize,
-        f: impl FnMut(Vec<T>) -> Result<(), RunError>,
-    ) -> Result<(), RunError> {
-        let seq = self
-            .read_seq::<T>(stage, key)?
-            .map(|t| t.map_err(|e| RunError::Failed(e.to_string())));
-        in_batches(seq, points, f)
-    }
-}
-
-/// The build: geostride's version and a fingerprint of the running executable, so that a cache
-/// made by another build is never reused. The fingerprint is the executable's size and
-/// modification time to the nanosecond (a rebuilt executable never keeps both): hashing the
-/// whole 70 MB file cost 0.2 s at the start of every run.
-pub fn build_id() -> &'static str {
-    static ID: std::sync::OnceLock<String> = std::sync::OnceLock::new();
-    ID.get_or_init(|| {
-        let stamp = std::env::current_exe()
-            .ok()
-            .and_then(|p| std::fs::metadata(p).ok())
-            .map(|m| {
-                let ns = m
-                    .modified()
-                    .ok()
-                    .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-                    .map_or(0, |d| d.as_nanos());
-                sha256_hex(format!("{}|{ns}", m.len()).as_bytes())
-            })
-            .unwrap_or_default();
-        format!(
-            "{}+{}",
-            env!("CARGO_PKG_VERSION"),
-            &stamp[..stamp.len().min(16)]
-        )
-    })
-}
-
-fn stage_key(stage: &str, parents: &[&str], params: &impl Serialize) -> String {
-    let mut text = format!("{stage}|{}|", build_id());
-    for p in parents {
-        text.push_str(p);
-        text.push('|');
-    }
-    text.push_str(&serde_json::to_string(params).unwrap_or_default());
-    sha256_hex(text.as_bytes())
 }
 
 /// What writing one export format gave: files, warnings, and the WGS 84 transformations used.
@@ -1321,9 +772,7 @@ fn prepare<'a>(
             &grid,
         ),
     );
-    let cache = Cache {
-        dir: out.join(".stages"),
-    };
+    let cache = StageCache::new(out.join(".stages"));
     // The colour detector's palette is learnt once, before the chunks (each detects with it);
     // a video of one chunk learns it in its one pass, from the same frames (no frame is
     // decoded twice).
@@ -1448,7 +897,7 @@ struct Ctx<'a> {
     out: &'a Path,
     progress: &'a dyn StageProgress,
     guard: crate::io::Inputs,
-    cache: Cache,
+    cache: StageCache,
     video: PathBuf,
     fps: f64,
     camera: Camera,
@@ -1480,79 +929,44 @@ struct Ctx<'a> {
 /// A stage's result: the one cached under `key` when there is one (and `valid`), else
 /// `compute`d and cached. Says which.
 fn cached<T: Serialize + DeserializeOwned>(
-    cache: &Cache,
+    cache: &StageCache,
     progress: &dyn StageProgress,
     stage: &str,
     key: &str,
     valid: bool,
     compute: impl FnOnce() -> Result<T, RunError>,
-) -> Result<(T, &'static str), RunError> {
+) -> Result<(T, StageStatus), RunError> {
     if valid && let Some(d) = cache.load::<T>(stage, key) {
-        return Ok((d, "reused"));
+        return Ok((d, StageStatus::Reused));
     }
     let d = compute()?;
     cache.store(stage, key, &d)?;
     progress.stored(stage);
-    Ok((d, "computed"))
+    Ok((d, StageStatus::Computed))
 }
 
 /// A stage whose data are a sequence written a piece at a time (its `compute` stores them with
-/// [`Cache::store_seq`] and gives their summary): the summary cached beside them (as
+/// [`StageCache::store_seq`] and gives their summary): the summary cached beside them (as
 /// `STAGE-summary`) under the same key, the data left on disk. Reused only when both are
 /// there whole under `key`.
 fn cached_seq<S: Serialize + DeserializeOwned>(
-    cache: &Cache,
+    cache: &StageCache,
     progress: &dyn StageProgress,
     stage: &str,
     key: &str,
     compute: impl FnOnce() -> Result<S, RunError>,
-) -> Result<(S, &'static str), RunError> {
+) -> Result<(S, StageStatus), RunError> {
     // The summary's key is not the data's: neither file passes for the other.
     let (summary, summary_key) = (format!("{stage}-summary"), format!("{key}/summary"));
     if cache.has(stage, key)
         && let Some(d) = cache.load::<S>(&summary, &summary_key)
     {
-        return Ok((d, "reused"));
+        return Ok((d, StageStatus::Reused));
     }
     let d = compute()?;
     cache.store(&summary, &summary_key, &d)?;
     progress.stored(stage);
-    Ok((d, "computed"))
-}
-
-/// A stage cache that a later stage found missing or damaged (removed while the run went on).
-fn cache_gone(cache: &Cache, stage: &str) -> RunError {
-    RunError::Failed(format!(
-        "{}: gone or damaged while the run went on: run again",
-        cache.path(stage).display()
-    ))
-}
-
-/// The most points of tracks a stage holds at once: a batch of tracks is read, worked on side by
-/// side and written before the next is read.
-const BATCH_POINTS: usize = 1 << 16;
-
-/// `items` (tracks, in order) given to `f` in batches of about [`BATCH_POINTS`] points
-/// (`points` counts an item's); the first error stops it.
-fn in_batches<T, E>(
-    items: impl IntoIterator<Item = Result<T, E>>,
-    points: impl Fn(&T) -> usize,
-    mut f: impl FnMut(Vec<T>) -> Result<(), E>,
-) -> Result<(), E> {
-    let (mut batch, mut n) = (Vec::new(), 0);
-    for t in items {
-        let t = t?;
-        n += points(&t);
-        batch.push(t);
-        if n >= BATCH_POINTS {
-            f(std::mem::take(&mut batch))?;
-            n = 0;
-        }
-    }
-    if !batch.is_empty() {
-        f(batch)?;
-    }
-    Ok(())
+    Ok((d, StageStatus::Computed))
 }
 
 /// Trajectories to WGS 84 for GeoJSON, one at a time, and what the report should say about them.
@@ -1634,14 +1048,6 @@ impl Wgs84 {
     }
 }
 
-/// An output path that cannot be used is the project's to fix; an I/O failure is not.
-fn output_error(e: crate::io::OutputError) -> RunError {
-    match e {
-        crate::io::OutputError::Io { path, source } => RunError::Io { path, source },
-        e => RunError::OutputPath(e),
-    }
-}
-
 /// Known head heights from a heights file (`parse_heights`).
 fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
     let text = crate::io::FileCtx { path }.read_text("a CSV of heights")?;
@@ -1709,173 +1115,4 @@ pub fn parse_heights(
         .into_iter()
         .map(|(k, (h, sd, _))| (k, (h, sd)))
         .collect())
-}
-
-/// The report as Markdown.
-pub fn report_markdown(r: &RunReport) -> String {
-    use std::fmt::Write as _;
-    let mut s = String::new();
-    let _ = writeln!(s, "# geostride run: {}\n", r.project);
-    let _ = writeln!(
-        s,
-        "geostride {}; site frame: {}; output CRS: {}\n",
-        r.geostride_version, r.site_frame, r.output_crs
-    );
-    let _ = writeln!(
-        s,
-        "## Inputs\n\n| role | file | bytes | SHA-256 |\n|---|---|---|---|"
-    );
-    for i in &r.inputs {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} | `{}` |",
-            i.role, i.path, i.bytes, i.sha256
-        );
-    }
-    let _ = writeln!(
-        s,
-        "\n## Stages\n\n| stage | status | seconds | numbers |\n|---|---|---|---|"
-    );
-    for st in &r.stages {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {:.2} | {} |",
-            st.name,
-            st.status,
-            st.seconds,
-            st.numbers(4)
-        );
-    }
-    let _ = writeln!(s, "\n## Outputs\n");
-    for o in &r.outputs {
-        let _ = writeln!(s, "- `{o}`");
-    }
-    if !r.wgs84_transformations.is_empty() {
-        let _ = writeln!(s, "\nWGS 84 (GeoJSON) through PROJ:\n");
-        for t in &r.wgs84_transformations {
-            let _ = writeln!(s, "- {t}");
-        }
-    }
-    if !r.views.is_empty() {
-        let _ = writeln!(s, "\n## Views\n");
-        for (title, file) in &r.views {
-            if file.ends_with(".png") {
-                let _ = writeln!(s, "### {title}\n\n![{title}]({file})\n");
-            } else {
-                let _ = writeln!(s, "- {title}: [`{file}`]({file})");
-            }
-        }
-    }
-    if !r.warnings.is_empty() {
-        let _ = writeln!(s, "\n## Warnings\n");
-        for w in &r.warnings {
-            let _ = writeln!(s, "- {w}");
-        }
-    }
-    let _ = writeln!(
-        s,
-        "\n## Parameters\n\n```toml\n{}```",
-        toml::to_string(&r.parameters).unwrap_or_default()
-    );
-    s
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_known_checksum_is_taken_only_while_size_and_time_match() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("video.bin");
-        std::fs::write(&path, b"frames").unwrap();
-        let hashed = file_record("video", &path, &[]).unwrap();
-        let mut known = KnownInput::of(&hashed).unwrap();
-        // Taken as recorded, without reading the file: a made-up checksum shows it.
-        known.sha256 = "recorded".into();
-        let r = file_record("video", &path, std::slice::from_ref(&known)).unwrap();
-        assert_eq!(r.sha256, "recorded");
-        // Another modification time: the file is read again.
-        known.modified_ns += 1;
-        let r = file_record("video", &path, std::slice::from_ref(&known)).unwrap();
-        assert_eq!(r.sha256, hashed.sha256);
-        // Another size (the same time): read again.
-        known.modified_ns -= 1;
-        known.bytes += 1;
-        let r = file_record("video", &path, &[known]).unwrap();
-        assert_eq!(r.sha256, hashed.sha256);
-    }
-
-    #[test]
-    fn a_stage_cache_reads_back_only_whole_and_under_its_key() {
-        let dir = tempfile::tempdir().unwrap();
-        let cache = Cache {
-            dir: dir.path().to_path_buf(),
-        };
-        // Larger than the writer's and the reader's buffers.
-        let data: Vec<(usize, f64)> = (0..300_000).map(|k| (k, k as f64 * 0.5)).collect();
-        cache.store("smooth", "key-1", &data).unwrap();
-        let path = cache.path("smooth");
-        assert!(cache_file_whole(&path) && cache.has("smooth", "key-1"));
-        assert_eq!(
-            cache.load::<Vec<(usize, f64)>>("smooth", "key-1"),
-            Some(data)
-        );
-        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-2"), None);
-        let bytes = std::fs::read(&path).unwrap();
-        // Cut short, or a byte more: not read.
-        std::fs::write(&path, &bytes[..bytes.len() - 1]).unwrap();
-        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
-        assert!(cache.load_seq::<(usize, f64)>("smooth", "key-1").is_none());
-        let mut longer = bytes.clone();
-        longer.push(0);
-        std::fs::write(&path, &longer).unwrap();
-        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
-        // A length inside that asks for more than the file holds: refused, not allocated.
-        let mut lying = bytes.clone();
-        let at = 16 + 1 + "key-1".len();
-        lying[at..at + 9].copy_from_slice(&[253, 255, 255, 255, 255, 255, 255, 255, 15]);
-        std::fs::write(&path, &lying).unwrap();
-        assert_eq!(cache.load::<Vec<(usize, f64)>>("smooth", "key-1"), None);
-    }
-
-    #[test]
-    fn a_sequence_cached_an_element_at_a_time_is_the_whole_vector_cached() {
-        let dir = tempfile::tempdir().unwrap();
-        let cache = Cache {
-            dir: dir.path().to_path_buf(),
-        };
-        let data: Vec<(usize, f64)> = (0..300_000).map(|k| (k * 7, k as f64 * 0.5)).collect();
-        cache.store("whole", "k", &data).unwrap();
-        cache
-            .store_seq("seq", "k", data.len(), |push| {
-                data.iter().try_for_each(push)
-            })
-            .unwrap();
-        let (whole, seq) = (
-            std::fs::read(cache.path("whole")).unwrap(),
-            std::fs::read(cache.path("seq")).unwrap(),
-        );
-        assert!(whole == seq, "the same bytes as a Vec stored whole");
-        let back: Vec<(usize, f64)> = cache
-            .load_seq("seq", "k")
-            .unwrap()
-            .collect::<std::io::Result<_>>()
-            .unwrap();
-        assert_eq!(back, data);
-        // Fewer or more elements than stated, or a failing source: an error and no file, the
-        // old one kept.
-        for n in [data.len() + 1, data.len() - 1] {
-            assert!(
-                cache
-                    .store_seq("seq", "other", n, |push| data.iter().try_for_each(push))
-                    .is_err()
-            );
-        }
-        let failing = cache
-            .store_seq::<(usize, f64)>("seq", "other", 1, |_| Err(RunError::Failed("no".into())));
-        assert!(matches!(failing, Err(RunError::Failed(m)) if m == "no"));
-        assert_eq!(std::fs::read(cache.path("seq")).unwrap(), seq);
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
-    }
 }

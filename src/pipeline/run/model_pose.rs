@@ -578,7 +578,7 @@ pub(super) fn model_pose_stage(
     }
     let record = StageRecord {
         name: "pose".into(),
-        status: status.into(),
+        status,
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([
             ("key_frames".into(), pose_data.key_frames.len() as f64),

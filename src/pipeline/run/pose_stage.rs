@@ -114,7 +114,7 @@ pub(super) fn pose_stage(
     }
     let record = StageRecord {
         name: "pose".into(),
-        status: status.into(),
+        status,
         seconds: t0.elapsed().as_secs_f64(),
         counts,
     };

@@ -82,8 +82,8 @@ pub(super) fn project_stage(
         };
         let mut dropped = 0;
         ctx.cache
-            .store_seq("project", &project_key, tracks.tracks, |push| {
-                ctx.cache.read_batches(
+            .store_seq::<_, RunError>("project", &project_key, tracks.tracks, |push| {
+                ctx.cache.read_batches::<_, RunError>(
                     "track",
                     keys[0],
                     |t: &ImageTrack| t.points.len(),
@@ -116,7 +116,7 @@ pub(super) fn project_stage(
     })?;
     let record = StageRecord {
         name: "project".into(),
-        status: status.into(),
+        status,
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([
             ("points".into(), summary.points as f64),

@@ -229,13 +229,13 @@ pub(super) fn scan_stage(
         .collect();
     let n_det = data.detections;
     let status = match (computed, reused) {
-        (0, _) => "reused",
-        (_, 0) => "computed",
-        _ => "partly reused",
+        (0, _) => StageStatus::Reused,
+        (_, 0) => StageStatus::Computed,
+        _ => StageStatus::PartlyReused,
     };
     let record = StageRecord {
         name: "scan".into(),
-        status: status.into(),
+        status,
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([
             ("frames".into(), data.frames as f64),

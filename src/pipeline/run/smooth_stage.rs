@@ -47,7 +47,11 @@ const OBSERVATION_BYTES: usize = 7 * 8;
 
 impl ObservationFile {
     /// Writes the file from the project stage's cache.
-    fn write(cache: &Cache, project_key: &str, path: std::path::PathBuf) -> Result<Self, RunError> {
+    fn write(
+        cache: &StageCache,
+        project_key: &str,
+        path: std::path::PathBuf,
+    ) -> Result<Self, RunError> {
         use std::io::Write;
         let io_err = |source| RunError::Io {
             path: path.clone(),
@@ -56,7 +60,7 @@ impl ObservationFile {
         let file = std::fs::File::create(&path).map_err(io_err)?;
         let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
         let points_of = |t: &WorldTrack| t.points.len();
-        cache.read_batches("project", project_key, points_of, |batch| {
+        cache.read_batches::<_, RunError>("project", project_key, points_of, |batch| {
             for obs in observations(&batch) {
                 let mut bytes = Vec::with_capacity(8 + obs.len() * OBSERVATION_BYTES);
                 bytes.extend((obs.len() as u64).to_le_bytes());
@@ -200,8 +204,8 @@ pub(super) fn smooth_stage(
             white.persistent().unwrap_or(0.0)
         };
         let mut points = 0;
-        cache.store_seq("smooth", &smooth_key, projected.tracks, |push| {
-            cache.read_batches("project", project_key, points_of, |batch| {
+        cache.store_seq::<_, RunError>("smooth", &smooth_key, projected.tracks, |push| {
+            cache.read_batches::<_, RunError>("project", project_key, points_of, |batch| {
                 let states = smoother.smooth_batch(&fit, &observations(&batch));
                 for t in trajectory_points(ctx, batch, states, persistent, &to_out)? {
                     points += t.points.len();
@@ -256,7 +260,7 @@ pub(super) fn smooth_stage(
     }
     let record = StageRecord {
         name: "smooth".into(),
-        status: status.into(),
+        status,
         seconds: t0.elapsed().as_secs_f64(),
         counts,
     };

@@ -45,13 +45,13 @@ pub(super) fn track_stage(
         ("points".into(), summary.points as f64),
         ("mean_length_s".into(), summary.mean_length_s),
     ]);
-    if status == "computed" {
+    if status == StageStatus::Computed {
         counts.insert("joined_at_chunk_borders".into(), joined.0);
         counts.insert("unmatched_at_chunk_borders".into(), joined.1);
     }
     let record = StageRecord {
         name: "track".into(),
-        status: status.into(),
+        status,
         seconds: t0.elapsed().as_secs_f64(),
         counts,
     };
@@ -141,7 +141,7 @@ fn link_to_cache(
                 / index.len().max(1) as f64,
         };
         ctx.cache
-            .store_seq("track", track_key, index.len(), |push| {
+            .store_seq::<_, RunError>("track", track_key, index.len(), |push| {
                 for (k, t) in index.iter().enumerate() {
                     spill.seek(SeekFrom::Start(t.offset)).map_err(io_err)?;
                     let points: Vec<TrackPoint> = codec

@@ -8,7 +8,7 @@ use crate::pipeline::views::{
 
 /// The smooth stage's trajectories, read from its cache for each pass of a view.
 struct Cached<'a> {
-    cache: &'a Cache,
+    cache: &'a StageCache,
     key: &'a str,
     count: usize,
 }
@@ -114,7 +114,7 @@ pub(super) fn views_stage(
     warnings.extend(made.warnings);
     let record = StageRecord {
         name: "views".into(),
-        status: "computed".into(),
+        status: StageStatus::Computed,
         seconds: t0.elapsed().as_secs_f64(),
         counts: BTreeMap::from([("files".into(), made.files.len() as f64)]),
     };

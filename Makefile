@@ -1,4 +1,5 @@
-# geostride: `make demo` runs the bundled example, `make test` the tests, `make bench` the
+# geostride: `make demo` runs the bundled example, `make test` the tests (and the pure core
+# alone, built without OpenCV, GDAL, PROJ or ONNX Runtime: scripts/check-pure.sh), `make bench` the
 # side-by-side benchmarks. Each target first installs what the build needs (scripts/bootstrap.sh).
 
 CARGO ?= cargo
@@ -27,6 +28,7 @@ demo: build
 
 test: bootstrap
 	$(CARGO) test --release --locked
+	CARGO=$(CARGO) ./scripts/check-pure.sh
 
 bench: bootstrap
 	@./scripts/bootstrap.sh --bench

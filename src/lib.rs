@@ -22,18 +22,22 @@ pub mod cache;
 pub mod calibration;
 pub mod camera;
 pub mod detect;
+#[cfg(feature = "opencv")]
 pub mod draw;
 pub mod estimate;
 pub mod evaluate;
 pub mod export;
 pub mod features;
 pub mod geom;
+#[cfg(feature = "gdal")]
 pub mod gis;
 pub mod image;
 pub mod imageheader;
+#[cfg(feature = "opencv")]
 pub mod imageio;
 pub mod io;
 pub mod optim;
+#[cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 pub mod pipeline;
 pub mod pose;
 pub mod progress;
@@ -41,10 +45,12 @@ pub mod projection;
 pub mod sfm;
 pub mod simulate;
 pub mod smooth;
+#[cfg(feature = "gdal")]
 pub mod survey;
 pub mod terrain;
 pub mod text;
 pub mod track;
+#[cfg(feature = "opencv")]
 pub mod video;
 
 /// Helpers shared by the unit tests.

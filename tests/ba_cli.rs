@@ -1,6 +1,8 @@
 //! `geostride ba` on the real BAL problems in `$GEOSTRIDE_DATA/bal` (Agarwal et al.'s Ladybug
 //! sequence, 49 cameras), and its errors.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use common::{data_dir, geostride};

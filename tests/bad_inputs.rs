@@ -3,6 +3,8 @@
 //! leaves no output behind and changes no input. Each case runs in a fresh copy of a small valid
 //! project; the folder's files and their SHA-256 are compared before and after.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::collections::BTreeMap;

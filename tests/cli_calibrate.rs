@@ -1,6 +1,8 @@
 //! `geostride calibrate`, `camera` and `demo` end to end on temporary folders: synthetic board
 //! images and videos with known truth, and bad inputs.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

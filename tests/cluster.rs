@@ -3,6 +3,8 @@
 //! whatever order the segments run in; a missing segment named by `merge`, and a re-run that
 //! redoes only what is missing.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

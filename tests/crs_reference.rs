@@ -11,6 +11,8 @@
 //!   an independent implementation of the EPSG Guidance Note 7-2 LCC (2SP) formulas checked
 //!   against PROJ across Belgium (no published non-origin point for Lambert 2008 was found).
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use geostride::survey::crs::Crs;
 
 /// Metres per degree of latitude and longitude near `lat`, to express angular differences.

@@ -3,6 +3,8 @@
 //! the errors for a missing library, a file that is not ONNX, a layout and classes that do not
 //! fit the model.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

@@ -3,6 +3,8 @@
 //! points) and `estimate::essential::five_point` give the same set of essential matrices, on
 //! random scenes and on near-planar ones (every point within 1 % of the depth of a plane).
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use geostride::estimate::essential::{essential_of, five_point};
 use geostride::geom::Rigid3;
 use nalgebra::{Matrix3, Rotation3, Vector2, Vector3};

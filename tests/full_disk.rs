@@ -3,6 +3,8 @@
 //! (`unshare -rm`), filled to different points of a run; a killed run's temporaries are removed by
 //! the next one.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

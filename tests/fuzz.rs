@@ -2,6 +2,8 @@
 //! mutated and structured inputs; no parser may panic, take a second on an input, name another
 //! file in its errors or print a message over 8 kB, or hold more than 2 GB at once.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod fuzzing;
 
 #[global_allocator]

@@ -3,6 +3,8 @@
 //! WGS 84), Belgian Lambert 2008 (ETRS89), UTM 31N (WGS 84) and the Swiss LV95 (CH1903+), each
 //! point compared with PROJ's own `cs2cs` on the CSV's coordinates in the same CRS.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::io::Write as _;

@@ -1,5 +1,7 @@
 //! geostride's OpenCV YAML is read by OpenCV's own FileStorage, and OpenCV's is read by geostride.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use std::path::Path;
 
 use geostride::camera::formats::{self, Format};

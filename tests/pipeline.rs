@@ -2,6 +2,8 @@
 //! right CRS, a re-run reuses its stages, an interrupted run finishes with the same outputs as
 //! an uninterrupted one, and a bad project file names the key and the line.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

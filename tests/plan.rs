@@ -1,5 +1,7 @@
 //! `geostride plan` reproduces the paper's planning numbers with the nominal presets.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 fn plan_json(args: &[&str]) -> serde_json::Value {

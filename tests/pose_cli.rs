@@ -1,6 +1,8 @@
 //! `geostride pose` end to end on a temporary folder: a simulated view with outliers, its JSON
 //! and annotated image, and bad inputs.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::Path;

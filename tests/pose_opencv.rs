@@ -2,6 +2,8 @@
 //! at least as well as `cv::solvePnPRansac` / `cv::solvePnP` (to 1e-6 px), and flags the same
 //! outliers.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use geostride::camera::Camera;
 use geostride::geom::Rigid3;
 use geostride::pose::oracle::OpenCvPnpInput;

@@ -2,6 +2,8 @@
 //! chosen, and every frame's pose projects the GCPs within 1 px (mean) of where the true pose
 //! puts them.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::collections::HashMap;

@@ -2,6 +2,7 @@
 //! against OpenCV's reference calibration of them and against cv::calibrateCamera run on the
 //! very same detected corners.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 // Reference values are copied digit for digit from the reference file.
 #![allow(clippy::excessive_precision)]
 

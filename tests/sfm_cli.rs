@@ -1,6 +1,8 @@
 //! `geostride sfm` as a user runs it: a folder of photos and a calibration in, a COLMAP text
 //! model, a PLY, `report.json` and `report.md` out; bad input refused with a reason and exit 2.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use std::path::Path;
 use std::process::Command;
 

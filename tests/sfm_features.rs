@@ -2,6 +2,8 @@
 //! over a grid, RootSIFT, mutual nearest neighbours with the ratio test, checked by the
 //! five-point essential matrix in MSAC.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use std::path::Path;
 
 use geostride::estimate::essential::EssentialEstimator;

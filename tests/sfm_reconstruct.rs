@@ -2,6 +2,8 @@
 //! the intrinsics of their `K.txt` as the start, matched exhaustively, reconstructed
 //! incrementally with the focal lengths and two radial terms refined at the end.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use std::time::Instant;
 
 use geostride::camera::Camera;

@@ -1,5 +1,7 @@
 //! `geostride simulate`: deterministic truth, and truth heads that land on the rendered hats.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::Path;

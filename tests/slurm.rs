@@ -5,6 +5,8 @@
 //! scripts/bootstrap.sh) or the test is not root (slurmd must be), it says so and skips; under
 //! CI (`CI` set) that is a failure instead.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

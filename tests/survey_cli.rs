@@ -1,6 +1,8 @@
 //! `geostride survey inspect` and `survey convert` end to end: the real OpenDroneMap lists,
 //! round trips through WGS 84, GIS outputs opened by ogrinfo, Helmert fits, bad inputs.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

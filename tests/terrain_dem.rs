@@ -1,5 +1,7 @@
 //! DEM sampling on a GeoTIFF written here with GDAL, in another CRS than the survey's.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 use std::rc::Rc;
 
 use gdal::DriverManager;

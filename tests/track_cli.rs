@@ -1,6 +1,8 @@
 //! `geostride track`: background subtraction and KLT on real footage (OpenCV's vtest.avi, a
 //! fixed camera over a pedestrian street), and its errors.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use common::{data_dir, geostride};

@@ -4,6 +4,8 @@
 //! makes them again, and PedPy (installed from PyPI in a throwaway environment) reads the PeTrack
 //! file unchanged and gives geostride's densities and speeds within 2 %.
 
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
 mod common;
 
 use std::path::{Path, PathBuf};

@@ -7,8 +7,11 @@
 //! images, folders and videos into frames.
 
 pub mod coverage;
+#[cfg(feature = "opencv")]
 pub mod detect;
+#[cfg(feature = "opencv")]
 pub mod inputs;
+#[cfg(feature = "opencv")]
 pub mod oracle;
 pub mod refine;
 pub mod zhang;

@@ -3,13 +3,17 @@
 //! detector's boxes (`boxes`, `person`); `background` (an OpenCV adapter, the only module here
 //! that is not pure) finds moving people under a stationary camera.
 
+#[cfg(feature = "opencv")]
 pub mod background;
 pub mod boxes;
 pub mod colour;
 pub mod error_fit;
 pub mod morph;
+#[cfg(all(feature = "opencv", feature = "onnx"))]
 pub mod neural;
+#[cfg(feature = "onnx")]
 pub mod onnx;
+#[cfg(feature = "opencv")]
 pub mod opencv_dnn;
 pub mod person;
 pub mod simulated;

@@ -228,6 +228,21 @@ impl Backend {
     }
 }
 
+impl super::person::FrameBoxes for NeuralDetector {
+    fn boxes(
+        &mut self,
+        bgr: &[u8],
+        wh: [usize; 2],
+    ) -> Result<Vec<([f64; 4], f64)>, crate::PluginError> {
+        Ok(self
+            .detect(bgr, wh)
+            .map_err(|e| crate::PluginError::from(e.to_string()))?
+            .into_iter()
+            .map(|d| (d.xywh, d.score))
+            .collect())
+    }
+}
+
 /// A loaded detector.
 pub struct NeuralDetector {
     path: PathBuf,

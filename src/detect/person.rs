@@ -7,13 +7,23 @@ use nalgebra::Vector2;
 use super::boxes::{BoxFilter, FilterCounts, FilterError, RawBox, filter_frame};
 use super::{Detection, Detector, ErrorModel, FrameDetections, FrameView, head_from_box};
 
+/// What finds a frame's people as it comes (the neural detector, `detect::neural`): the frame's
+/// BGR bytes and size (pixels) to boxes `[x, y, w, h]` in pixels with their scores.
+pub trait FrameBoxes: Send {
+    fn boxes(
+        &mut self,
+        bgr: &[u8],
+        wh: [usize; 2],
+    ) -> Result<Vec<([f64; 4], f64)>, crate::PluginError>;
+}
+
 /// Boxes from a file or a neural detector, filtered frame by frame (the shadow test looks at the
 /// frame's pixels).
 pub struct BoxesDetector {
     /// The boxes sorted by frame (a map of small vectors took four times the memory).
     boxes: Vec<RawBox>,
     /// Or the model that finds each frame's, on every `.1`-th frame.
-    model: Option<(super::neural::NeuralDetector, usize)>,
+    model: Option<(Box<dyn FrameBoxes>, usize)>,
     filter: BoxFilter,
     counts: FilterCounts,
     frames: usize,
@@ -35,7 +45,7 @@ impl BoxesDetector {
 
     /// Boxes found by `model` in each frame as it comes.
     pub fn from_model(
-        model: super::neural::NeuralDetector,
+        model: Box<dyn FrameBoxes>,
         stride: usize,
         filter: BoxFilter,
     ) -> Result<BoxesDetector, FilterError> {
@@ -58,13 +68,12 @@ impl Detector for BoxesDetector {
                 return Ok(vec![(frame.index, Vec::new())]);
             }
             self.boxes = m
-                .detect(frame.bgr, [frame.width, frame.height])
-                .map_err(|e| crate::PluginError::from(e.to_string()))?
+                .boxes(frame.bgr, [frame.width, frame.height])?
                 .into_iter()
-                .map(|d| RawBox {
+                .map(|(bbox, score)| RawBox {
                     frame: frame.index,
-                    bbox: d.xywh,
-                    score: d.score,
+                    bbox,
+                    score,
                     label: None,
                     line: 0,
                 })

@@ -2,6 +2,7 @@
 //! GeoJSON (`geojson`, pure formatting) and GeoPackage through GDAL (`gis`, an adapter).
 
 pub mod geojson;
+#[cfg(feature = "gdal")]
 pub mod gis;
 pub mod qgis_style;
 

@@ -145,7 +145,7 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
     let net =
         NeuralDetector::load(&model, &settings).map_err(|e| x.input("model", e.to_string()))?;
     let filter = o.filter(x.px_per_m);
-    let inner = BoxesDetector::from_model(net, o.stride, filter)
+    let inner = BoxesDetector::from_model(Box::new(net), o.stride, filter)
         .map_err(|e| x.input(e.key, e.to_string()))?;
     Ok(heads_from_bodies(Box::new(inner), &o.body(), x))
 }

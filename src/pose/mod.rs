@@ -4,6 +4,7 @@
 pub mod attitude;
 pub mod hover;
 pub mod joint;
+#[cfg(feature = "opencv")]
 pub mod oracle;
 pub mod refine;
 pub mod solve;

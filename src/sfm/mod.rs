@@ -10,13 +10,18 @@ pub mod cache;
 pub mod colmap;
 pub mod exif;
 pub mod georef;
+#[cfg(feature = "opencv")]
 pub mod job;
 pub mod matching;
 pub mod reconstruct;
+#[cfg(feature = "opencv")]
 pub mod reference;
 pub mod register;
+#[cfg(feature = "opencv")]
 pub mod register_job;
+#[cfg(feature = "opencv")]
 pub mod sift;
+#[cfg(feature = "opencv")]
 pub mod topview;
 pub mod tracks;
 

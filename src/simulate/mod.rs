@@ -6,8 +6,10 @@ pub mod gcp_view;
 pub mod noise;
 pub mod people;
 pub mod plan;
+#[cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 pub mod project;
 pub mod render;
+#[cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 pub mod run;
 pub mod scene;
 pub mod truth;

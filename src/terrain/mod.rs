@@ -7,6 +7,7 @@
 pub mod deck;
 pub mod dem;
 pub mod plane;
+#[cfg(feature = "gdal")]
 pub mod raster;
 
 use nalgebra::{Vector2, Vector3};

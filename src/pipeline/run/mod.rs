@@ -25,8 +25,8 @@ use crate::cache::{StageCache, build_id, cache_gone, in_batches, stage_key};
 
 use super::chunk_pass::{ScanError, ScanTimes};
 use super::pose_outputs::{PoseRun, write_pose_outputs};
-use super::project::{GroundSection, Loaded};
-use crate::camera::{Camera, formats, presets};
+use super::project::Loaded;
+use crate::camera::Camera;
 use crate::detect::Detection;
 use crate::export::gis::write_geopackage;
 use crate::export::{PointCov, Trajectory, TrajectoryPoint};
@@ -38,15 +38,13 @@ use crate::pose::{GcpObservation, PoseSettings, solve_pose};
 use crate::progress::Progress;
 use crate::projection::{WorldPoint, project};
 use crate::smooth::Observation;
-use crate::survey::Role;
 use crate::survey::crs::{Crs, HeightKind, Transform, UsedOperations};
-use crate::survey::frame::Origin;
-use crate::survey::load::{Framed, LoadOptions, load_framed};
-use crate::survey::read::{HeightChoice, ReadOptions};
-use crate::terrain::{DeckProfile, HeightSurface, Plane};
+use crate::survey::load::Framed;
+use crate::terrain::HeightSurface;
 use crate::track::ImageTrack;
 
 mod export_stage;
+mod inputs;
 mod model_pose;
 mod pose_stage;
 mod project_stage;
@@ -56,6 +54,8 @@ mod track_stage;
 mod views_stage;
 
 use export_stage::export_stage;
+pub use inputs::{MAX_HEIGHTS, check_known_inputs, check_recorded_inputs, parse_heights};
+use inputs::{ground, load_survey, picked, project_camera, read_heights};
 use pose_stage::pose_stage;
 use project_stage::project_stage;
 use scan_stage::scan_stage;
@@ -73,83 +73,6 @@ pub enum ChunkMode {
     Only(std::ops::Range<usize>),
     /// None (`geostride merge`): a chunk not done is an error.
     None,
-}
-
-/// Refuses, naming the project key, an input whose bytes differ from its record in `known` (a
-/// split run's inputs: a video replaced after the split would make segments of another video).
-/// A file whose size and time are as recorded is taken as unchanged, as everywhere else.
-pub fn check_known_inputs(
-    l: &Loaded,
-    known: &[KnownInput],
-    split_dir: &Path,
-) -> Result<(), RunError> {
-    for (role, path) in l.input_files() {
-        let shown = path.display().to_string();
-        let Some(k) = known.iter().find(|k| k.path == shown) else {
-            continue;
-        };
-        let (section, key) = role.split_once('.').unwrap_or((role, ""));
-        let changed = |how: String| {
-            RunError::Input(l.error(
-                section,
-                key,
-                format!(
-                    "{shown}: {how} since it was split into {}: the segments would be of another file; split again",
-                    split_dir.display()
-                ),
-            ))
-        };
-        let now = match size_and_time(&path) {
-            Some(now) => now,
-            None => return Err(changed("gone".into())),
-        };
-        if now.0 != k.bytes {
-            return Err(changed(format!("{} bytes now, {} then", now.0, k.bytes)));
-        }
-        if file_record(role, &path, known)?.sha256 != k.sha256 {
-            return Err(changed("its content changed".into()));
-        }
-    }
-    Ok(())
-}
-
-/// The inputs of `l` hashed now and compared with a finished run's `recorded` ones (`geostride
-/// render` draws that run's views: a changed input would make it a new run). Gives the records
-/// as known inputs, so that the run does not read the files again.
-pub fn check_recorded_inputs(
-    l: &Loaded,
-    recorded: &[InputRecord],
-    run_dir: &Path,
-) -> Result<Vec<KnownInput>, RunError> {
-    let mut known = Vec::new();
-    for (role, path) in l.input_files() {
-        let now = file_record(role, &path, &[])?;
-        let (section, key) = role.split_once('.').unwrap_or((role, ""));
-        // By role and content: the run may have named the file by another path.
-        let same = recorded
-            .iter()
-            .any(|r| r.role == now.role && r.sha256 == now.sha256);
-        if !same {
-            return Err(RunError::Input(l.error(
-                section,
-                key,
-                format!(
-                    "{}: not the file the run in {} read (changed since, or another): render draws that run's views; run the project again (geostride run) for new ones",
-                    now.path,
-                    run_dir.display()
-                ),
-            )));
-        }
-        if let Some((bytes, modified_ns)) = size_and_time(&path) {
-            known.push(KnownInput {
-                path: now.path,
-                bytes,
-                modified_ns,
-                sha256: now.sha256,
-            });
-        }
-    }
-    Ok(known)
 }
 
 /// What writing one export format gave: files, warnings, and the WGS 84 transformations used.
@@ -213,219 +136,6 @@ struct WorldTrack {
     height_sd_m: f64,
     height_source: String,
     points: Vec<(usize, WorldPoint)>,
-}
-
-/// The camera of the project, scaled to the video.
-fn project_camera(l: &Loaded, width: u32, height: u32) -> Result<Camera, RunError> {
-    let spec = &l.project.camera.calibration;
-    let cal = match presets::preset(spec) {
-        Some(c) => c,
-        None => formats::read(&l.resolve(spec), None).map_err(RunError::from_input)?,
-    };
-    let cam = cal.camera;
-    match cam.image_size {
-        Some(s) if s.width == width && s.height == height => Ok(cam),
-        Some(s) => cam.scaled_to(width, height).ok_or_else(|| {
-            RunError::Input(l.error("camera", "calibration", format!("the calibration is for {}x{}, the video is {width}x{height}: another aspect ratio", s.width, s.height)))
-        }),
-        None => Ok(cam.with_image_size(width, height)),
-    }
-}
-
-fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
-    let s = &l.project.survey;
-    let origin = match &s.origin {
-        Some(o) => Some(
-            o.parse::<Origin>()
-                .map_err(|e| RunError::Input(l.error("survey", "origin", e)))?,
-        ),
-        None => None,
-    };
-    let opts = LoadOptions {
-        read: ReadOptions {
-            crs: s.crs.clone(),
-            height: s.height.as_deref().map(|h| {
-                if h == "ellipsoidal" {
-                    HeightChoice::Ellipsoidal
-                } else {
-                    HeightChoice::Orthometric
-                }
-            }),
-            ..ReadOptions::default()
-        },
-        picks: s.picks.iter().map(|p| l.resolve(p)).collect(),
-        check_prefix: Some(s.check_prefix.clone()),
-        check: s.check.clone(),
-        disable: Vec::new(),
-        origin,
-    };
-    load_framed(&l.resolve(&s.gcps), &opts).map_err(RunError::from_input)
-}
-
-/// The picks of the picked frame: (frame, control, check), checked like `geostride pose` checks
-/// them (inside the image, one per point, heights) and the frame inside the video.
-fn picked(
-    l: &Loaded,
-    framed: &Framed,
-    size: (u32, u32),
-    frames: Option<usize>,
-) -> Result<(usize, Vec<GcpObservation>, Vec<GcpObservation>), RunError> {
-    let s = &l.project.survey;
-    let input = |key: &str, m: String| RunError::Input(l.error("survey", key, m));
-    let images = framed.picked_images();
-    let video_name = Path::new(&l.project.video.path)
-        .file_name()
-        .map(|f| f.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let image = images
-        .keys()
-        .find(|k| k.starts_with(&format!("{video_name}#")))
-        .or_else(|| (images.len() == 1).then(|| images.keys().next()).flatten())
-        .cloned()
-        .ok_or_else(|| {
-            input(
-                "picks",
-                format!(
-                    "no picks of '{video_name}#N' (the frame N of the video); the picks name {:?}",
-                    images.keys().take(10).collect::<Vec<_>>()
-                ),
-            )
-        })?;
-    let frame = match (l.project.pose.picks_frame(), image.rsplit_once('#')) {
-        (Some(f), _) => f,
-        (None, Some((_, n))) => n.parse().map_err(|_| {
-            input(
-                "picks",
-                format!(
-                    "the picks' image '{}' should end in '#N', N the frame number (from 0)",
-                    crate::io::clip(&image, 60)
-                ),
-            )
-        })?,
-        (None, None) => 0,
-    };
-    if let Some(n) = frames
-        && frame >= n
-    {
-        let key = if l.project.pose.picks_frame().is_some() {
-            RunError::Input(l.error(
-                "pose",
-                "picks_frame",
-                format!("frame {frame} is beyond the {n} frame(s) processed"),
-            ))
-        } else {
-            input(
-                "picks",
-                format!("the picks are on frame {frame}, beyond the {n} frame(s) processed"),
-            )
-        };
-        return Err(key);
-    }
-    let seen = framed
-        .observations(&image, s.pick_sigma_px, s.gcp_sigma_m, Some(size))
-        .map_err(RunError::from_input)?;
-    if seen.control.len() < 4 {
-        return Err(input(
-            "picks",
-            format!(
-                "image '{image}' has picks of {} control point(s); a pose needs at least 4",
-                seen.control.len()
-            ),
-        ));
-    }
-    Ok((frame, seen.control, seen.check))
-}
-
-/// The ground of the project in the site frame.
-fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunError> {
-    let control: Vec<Vector3<f64>> = framed
-        .survey
-        .points
-        .iter()
-        .zip(&framed.local)
-        .filter(|(p, _)| p.role == Role::Control)
-        .map(|(_, x)| *x)
-        .collect();
-    let err = |key: &str, m: String| RunError::Input(l.error("ground", key, m));
-    match &l.project.ground {
-        GroundSection::Plane { height_m: Some(h) } => {
-            Ok(Box::new(Plane::from_gradient(0.0, 0.0, *h)))
-        }
-        GroundSection::Plane { height_m: None } => {
-            let (plane, _) = Plane::fit(&control).map_err(|e| {
-                err(
-                    "height_m",
-                    format!("fitting a plane to the control GCPs: {e}"),
-                )
-            })?;
-            Ok(Box::new(plane))
-        }
-        GroundSection::Deck {
-            centre_line,
-            width_m,
-            stations,
-            degree,
-        } => {
-            let line = centre_line
-                .iter()
-                .map(|p| {
-                    framed
-                        .frame
-                        .local_from_source(&Vector3::new(p[0], p[1], f64::NAN))
-                        .map(|x| x.xy())
-                })
-                .collect::<Result<Vec<Vector2<f64>>, _>>()
-                .map_err(|e| err("centre_line", e.to_string()))?;
-            if stations.is_empty() {
-                let (deck, _) = DeckProfile::fit_polynomial(line, 0.0, *width_m, *degree, &control)
-                    .map_err(|e| {
-                        if matches!(e, crate::terrain::deck::DeckError::TooFewPoints { got: 0, .. }) {
-                            err(
-                                "centre_line",
-                                format!("none of the {} control GCPs lies on the deck ({width_m} m wide along the centre line): check the centre line and the survey's CRS (survey.crs, or the GCP file's own)", control.len()),
-                            )
-                        } else {
-                            err(
-                                "degree",
-                                format!("fitting the deck profile to the control GCPs: {e}"),
-                            )
-                        }
-                    })?;
-                Ok(Box::new(deck))
-            } else {
-                Ok(Box::new(DeckProfile {
-                    centre_line: line,
-                    start_s: 0.0,
-                    width_m: *width_m,
-                    alignment: crate::terrain::deck::VerticalAlignment::Stations(
-                        stations.iter().map(|s| (s[0], s[1])).collect(),
-                    ),
-                }))
-            }
-        }
-        GroundSection::LocalPlanes { model, window_m } => {
-            let points = model_pose::model_points_in_site(l, &l.resolve(model), framed)?;
-            Ok(Box::new(crate::terrain::LocalPlanes::new(
-                points, *window_m,
-            )))
-        }
-        GroundSection::Dem { path } => {
-            let (grid, wkt) = crate::terrain::raster::load(&l.resolve(path))
-                .map_err(|e| err("path", e.to_string()))?;
-            // The DEM surface keeps its own handle on the site frame (PROJ handles are not shared).
-            let origin = match &l.project.survey.origin {
-                Some(o) => o.parse::<Origin>().map_err(|e| err("path", e))?,
-                None => Origin::Centroid,
-            };
-            let frame = std::rc::Rc::new(
-                crate::survey::frame::SiteFrame::new(&framed.survey, &origin)
-                    .map_err(|e| err("path", e.to_string()))?,
-            );
-            let dem = crate::survey::frame::dem_surface(frame, grid, &wkt)
-                .map_err(|e| err("path", e.to_string()))?;
-            Ok(Box::new(dem))
-        }
-    }
 }
 
 /// Runs a project into `out`. Every input is read and checked before anything is written, so
@@ -634,18 +344,8 @@ fn prepare<'a>(
 ) -> Result<Prepared<'a>, RunError> {
     let p = &l.project;
     let files = l.input_files();
-    let mut guard = crate::io::Inputs::new(files.iter().map(|(_, f)| f));
-    guard.add(&l.path);
-    // A model is read as a whole: nothing of the run goes inside it.
-    if let super::settings::PoseSection::Model(m) = &p.pose {
-        guard.add_folder(l.resolve(&m.model));
-    }
-    if let super::project::GroundSection::LocalPlanes { model, .. } = &p.ground {
-        guard.add_folder(l.resolve(model));
-    }
+    let guard = inputs::input_guard(l);
     guard.check_dir(out).map_err(output_error)?;
-
-    let mut warnings = Vec::new();
 
     // Inputs and their checksums: every one is part of every stage's key.
     let inputs = files
@@ -654,35 +354,16 @@ fn prepare<'a>(
         .collect::<Result<Vec<_>, _>>()?;
     let sums: Vec<&str> = inputs.iter().map(|i| i.sha256.as_str()).collect();
 
-    let video = l.resolve(&p.video.path);
-    let reader = crate::video::source::FrameReader::open(&video)
-        .map_err(|e| RunError::Input(l.error("video", "path", e.to_string())))?;
-    let (fps, width, height, frame_count) =
-        (reader.fps, reader.width, reader.height, reader.frame_count);
-    drop(reader);
-    if !(fps > 0.0) {
-        return Err(RunError::Input(l.error(
-            "video",
-            "path",
-            "the video states no frame rate",
-        )));
-    }
-    let max_frames = p.video.duration_s.map(|d| (d * fps).ceil() as usize);
-    let frames_total = match (frame_count, max_frames) {
-        (Some(c), Some(m)) => Some(c.min(m)),
-        (c, m) => c.or(m),
-    };
+    let inputs::VideoFacts {
+        path: video,
+        fps,
+        width,
+        height,
+        frames_total,
+    } = inputs::video_facts(l)?;
     let camera = project_camera(l, width, height)?;
     let framed = load_survey(l)?;
-    warnings.extend(framed.survey.warnings.iter().cloned());
-    warnings.extend(framed.survey.dropped.iter().map(|d| {
-        format!(
-            "{}:{}: dropped: {}",
-            framed.survey.source.display(),
-            d.line,
-            d.reason
-        )
-    }));
+    let warnings = inputs::survey_warnings(&framed);
     let model = match &p.pose {
         super::settings::PoseSection::Model(m) => Some(model_pose::open_model(
             l,
@@ -721,42 +402,8 @@ fn prepare<'a>(
         Some(h) => read_heights(&l.resolve(h))?,
         None => BTreeMap::new(),
     };
-    let out_crs = match &p.export.crs {
-        Some(c) => Some(
-            Crs::new(c).map_err(|e| RunError::Input(l.error("export", "crs", e.to_string())))?,
-        ),
-        None => None,
-    };
-    let transform = match (&out_crs, &framed.frame.crs) {
-        (Some(o), Some(s)) => Some(
-            Transform::new(s, o)
-                .map_err(|e| RunError::Input(l.error("export", "crs", e.to_string())))?,
-        ),
-        (Some(_), None) => {
-            return Err(RunError::Input(l.error(
-                "export",
-                "crs",
-                "the GCP file has no CRS to convert from",
-            )));
-        }
-        _ => None,
-    };
-    let frames = frames_total.ok_or_else(|| {
-        RunError::Input(l.error(
-            "video",
-            "duration_s",
-            "the video states no frame count: give the seconds to process",
-        ))
-    })?;
-    if frames > MAX_FRAMES {
-        return Err(RunError::Input(l.error(
-            "video",
-            "duration_s",
-            format!(
-                "{frames} frames to process: more than a day at 120 frames a second ({MAX_FRAMES}); a damaged video states a wrong count: give the seconds to process"
-            ),
-        )));
-    }
+    let (out_crs, transform) = inputs::output_transform(l, &framed)?;
+    let frames = inputs::frames_to_process(l, frames_total)?;
     let grid = super::chunk_pass::ChunkGrid::new(frames, fps, p.video.chunk_s, p.video.overlap_s);
     let scan_key = stage_key(
         "scan",
@@ -773,70 +420,23 @@ fn prepare<'a>(
         ),
     );
     let cache = StageCache::new(out.join(".stages"));
-    // The colour detector's palette is learnt once, before the chunks (each detects with it);
-    // a video of one chunk learns it in its one pass, from the same frames (no frame is
-    // decoded twice).
-    let (detector, palette) = match &p.detect {
-        super::settings::DetectSection::Colour(c)
-            if grid.chunks() == 1 && !matches!(p.track, super::settings::TrackSection::Klt(_)) =>
-        {
-            (
-                Some(super::detectors::colour(c, px_per_m, Some(frames))),
-                None,
-            )
-        }
-        super::settings::DetectSection::Colour(c) => {
-            let key = stage_key("palette", &[&scan_key], &());
-            let palette = match cache.load::<crate::detect::colour::Palette>("palette", &key) {
-                Some(pal) => pal,
-                None => {
-                    let bar = progress.stage("palette");
-                    bar.set_length(c.sample_frames as u64);
-                    let pal = super::detectors::learn_palette(c, &video, px_per_m, frames)
-                        .map_err(|e| {
-                            RunError::Input(l.error("detect", p.detect.failure_key(), e))
-                        })?;
-                    bar.inc(c.sample_frames as u64);
-                    pal
-                }
-            };
-            (None, Some((palette, key)))
-        }
-        // The merge detects nothing (its chunks were checked and made by the segments): an
-        // hour's box file is not read.
-        _ if *mode == ChunkMode::None => (None, None),
-        _ => (
-            Some(super::registry::detector(
-                &p.detect,
-                &super::detectors::DetectorInputs {
-                    l,
-                    video: &video,
-                    camera: &camera,
-                    first_pose: &first_pose,
-                    px_per_m,
-                    frames: frames_total,
-                },
-            )?),
-            None,
-        ),
-    };
-
-    guard.create_dir(out).map_err(output_error)?;
-    guard
-        .create_dir(&out.join(".stages"))
-        .map_err(output_error)?;
-    // Not `create_dir`: segments on other machines may be writing their chunks here (their
-    // temporaries' process ids mean nothing on this one). `run` and `merge` clear it.
-    let chunks_dir = out.join(".stages").join("chunks");
-    std::fs::create_dir_all(&chunks_dir).map_err(|source| RunError::Io {
-        path: chunks_dir.clone(),
-        source,
-    })?;
-    // pose/ is written only when the pose stage runs; a killed one's temporaries go now.
-    crate::io::remove_stale_temps(&out.join("pose")).map_err(|source| RunError::Io {
-        path: out.join("pose"),
-        source,
-    })?;
+    let (detector, palette) = first_detector(
+        l,
+        &FirstDetector {
+            cache: &cache,
+            progress,
+            mode,
+            grid: &grid,
+            scan_key: &scan_key,
+            video: &video,
+            camera: &camera,
+            first_pose: &first_pose,
+            px_per_m,
+            frames,
+            frames_total,
+        },
+    )?;
+    make_out_dirs(&guard, out)?;
     let palette = match palette {
         Some((pal, key)) => {
             cache.store("palette", &key, &pal)?;
@@ -876,6 +476,117 @@ fn prepare<'a>(
         inputs,
         warnings,
     })
+}
+
+/// What [`first_detector`] needs beside the project.
+struct FirstDetector<'a> {
+    cache: &'a StageCache,
+    progress: &'a dyn StageProgress,
+    mode: &'a ChunkMode,
+    grid: &'a super::chunk_pass::ChunkGrid,
+    scan_key: &'a str,
+    video: &'a Path,
+    camera: &'a Camera,
+    first_pose: &'a crate::geom::Rigid3,
+    px_per_m: f64,
+    frames: usize,
+    frames_total: Option<usize>,
+}
+
+/// The detector made now, to check its inputs, for the first chunk computed (`None`: made for
+/// each chunk), and the colour palette learnt before the chunks with its cache key.
+#[allow(clippy::type_complexity)]
+fn first_detector(
+    l: &Loaded,
+    x: &FirstDetector<'_>,
+) -> Result<
+    (
+        Option<Box<dyn crate::detect::Detector>>,
+        Option<(crate::detect::colour::Palette, String)>,
+    ),
+    RunError,
+> {
+    // The colour detector's palette is learnt once, before the chunks (each detects with it);
+    // a video of one chunk learns it in its one pass, from the same frames (no frame is
+    // decoded twice).
+    let p = &l.project;
+    let FirstDetector {
+        cache,
+        progress,
+        mode,
+        grid,
+        scan_key,
+        video,
+        camera,
+        first_pose,
+        px_per_m,
+        frames,
+        frames_total,
+    } = *x;
+    Ok(match &p.detect {
+        super::settings::DetectSection::Colour(c)
+            if grid.chunks() == 1 && !matches!(p.track, super::settings::TrackSection::Klt(_)) =>
+        {
+            (
+                Some(super::detectors::colour(c, px_per_m, Some(frames))),
+                None,
+            )
+        }
+        super::settings::DetectSection::Colour(c) => {
+            let key = stage_key("palette", &[scan_key], &());
+            let palette = match cache.load::<crate::detect::colour::Palette>("palette", &key) {
+                Some(pal) => pal,
+                None => {
+                    let bar = progress.stage("palette");
+                    bar.set_length(c.sample_frames as u64);
+                    let pal = super::detectors::learn_palette(c, video, px_per_m, frames).map_err(
+                        |e| RunError::Input(l.error("detect", p.detect.failure_key(), e)),
+                    )?;
+                    bar.inc(c.sample_frames as u64);
+                    pal
+                }
+            };
+            (None, Some((palette, key)))
+        }
+        // The merge detects nothing (its chunks were checked and made by the segments): an
+        // hour's box file is not read.
+        _ if *mode == ChunkMode::None => (None, None),
+        _ => (
+            Some(super::registry::detector(
+                &p.detect,
+                &super::detectors::DetectorInputs {
+                    l,
+                    video,
+                    camera,
+                    first_pose,
+                    px_per_m,
+                    frames: frames_total,
+                },
+            )?),
+            None,
+        ),
+    })
+}
+
+/// The output folder and its stage cache's folders, once every input is checked.
+fn make_out_dirs(guard: &crate::io::Inputs, out: &Path) -> Result<(), RunError> {
+    guard.create_dir(out).map_err(output_error)?;
+    guard
+        .create_dir(&out.join(".stages"))
+        .map_err(output_error)?;
+    // Not `create_dir`: segments on other machines may be writing their chunks here (their
+    // temporaries' process ids mean nothing on this one). `run` and `merge` clear it.
+    let chunks_dir = out.join(".stages").join("chunks");
+    std::fs::create_dir_all(&chunks_dir).map_err(|source| RunError::Io {
+        path: chunks_dir.clone(),
+        source,
+    })?;
+    // pose/ is written only when the pose stage runs; a killed one's temporaries go now.
+    crate::io::remove_stale_temps(&out.join("pose")).map_err(|source| RunError::Io {
+        path: out.join("pose"),
+        source,
+    })?;
+    Ok(())
 }
 
 /// What [`prepare`] gives.
@@ -1046,73 +757,4 @@ impl Wgs84 {
         }
         (operations, notes)
     }
-}
-
-/// Known head heights from a heights file (`parse_heights`).
-fn read_heights(path: &Path) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
-    let text = crate::io::FileCtx { path }.read_text("a CSV of heights")?;
-    parse_heights(path, &text)
-}
-
-/// The most rows of a heights file (tracks of a day of a marathon are fewer).
-pub const MAX_HEIGHTS: usize = 1_000_000;
-
-/// Known head heights, `id,height_m[,sd_m]` per line (a header is optional): track id to
-/// (height, σ), metres. `path` names the file in messages.
-pub fn parse_heights(
-    path: &Path,
-    text: &str,
-) -> Result<BTreeMap<usize, (f64, f64)>, crate::io::FileError> {
-    let ctx = crate::io::FileCtx { path };
-    let lines = text.lines().count();
-    if lines > MAX_HEIGHTS {
-        return Err(ctx.err(
-            None,
-            None,
-            format!("{lines} lines: a heights file has at most {MAX_HEIGHTS}, one per track"),
-        ));
-    }
-    // id -> (height, σ, line)
-    let mut out: BTreeMap<usize, (f64, f64, usize)> = BTreeMap::new();
-    for row in ctx.lines(text) {
-        let (line, l) = row?;
-        let f: Vec<&str> = l.split(',').map(str::trim).collect();
-        if l.trim().is_empty() || (line == 1 && f[0].parse::<f64>().is_err()) {
-            continue;
-        }
-        ctx.field_count(&f, line, 2, 3, "id,height_m[,sd_m]")?;
-        let id = ctx.whole(f[0], line, "id")?;
-        let h = ctx.number(f[1], line, "height_m")?;
-        let sd = match f.get(2).filter(|s| !s.is_empty()) {
-            Some(s) => {
-                let sd = ctx.number(s, line, "sd_m")?;
-                if sd < 0.0 {
-                    return Err(ctx.err(
-                        Some(line),
-                        Some("sd_m"),
-                        format!("a σ cannot be negative, found {sd}"),
-                    ));
-                }
-                sd
-            }
-            None => 0.0,
-        };
-        if !(h > 0.0 && h < 3.0) {
-            return Err(ctx.err(
-                Some(line),
-                Some("height_m"),
-                format!("a head height of {h} m is not plausible (expected 0 to 3 m)"),
-            ));
-        }
-        if let Some((_, _, first)) = out.insert(id as usize, (h, sd, line)) {
-            return Err(ctx.at(
-                line,
-                format!("track {id} has a height on line {first} already; keep one"),
-            ));
-        }
-    }
-    Ok(out
-        .into_iter()
-        .map(|(k, (h, sd, _))| (k, (h, sd)))
-        .collect())
 }

@@ -343,6 +343,7 @@ fn head_up(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::terrain::DeckProfile;
     use crate::terrain::deck::VerticalAlignment;
 
     #[test]

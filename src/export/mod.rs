@@ -117,6 +117,52 @@ pub fn image_tracks_csv(tracks: &[crate::track::ImageTrack]) -> String {
     s
 }
 
+/// A run's export formats (`[export] formats`), each written by its own writer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportFormat {
+    /// `trajectories.csv`.
+    Csv,
+    /// `trajectories.geojson` and `positions.geojson` (WGS 84).
+    GeoJson,
+    /// `trajectories.gpkg` (the output CRS).
+    GeoPackage,
+    /// `trajectories.txt`, PeTrack's text.
+    PeTrack,
+    /// `tracks_mot.txt`, the image tracks as MOTChallenge text.
+    Mot,
+    /// `detections.csv`.
+    Detections,
+}
+
+impl ExportFormat {
+    /// Every format, in the order of the default list.
+    pub const ALL: [ExportFormat; 6] = [
+        ExportFormat::Csv,
+        ExportFormat::GeoJson,
+        ExportFormat::GeoPackage,
+        ExportFormat::PeTrack,
+        ExportFormat::Mot,
+        ExportFormat::Detections,
+    ];
+
+    /// The name a project file gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            ExportFormat::Csv => "csv",
+            ExportFormat::GeoJson => "geojson",
+            ExportFormat::GeoPackage => "gpkg",
+            ExportFormat::PeTrack => "petrack",
+            ExportFormat::Mot => "mot",
+            ExportFormat::Detections => "detections",
+        }
+    }
+
+    /// The format of a name; `None` for any other.
+    pub fn parse(name: &str) -> Option<ExportFormat> {
+        ExportFormat::ALL.into_iter().find(|f| f.name() == name)
+    }
+}
+
 /// The trajectories as CSV: one row per point.
 pub fn trajectories_csv(trajectories: &[Trajectory]) -> String {
     text_of(|w| write_trajectories_csv(w, trajectories.iter().map(Ok)))
@@ -287,6 +333,15 @@ pub fn write_mot_in_order<T: std::borrow::Borrow<ImageTrack>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn export_formats_are_named_once() {
+        for f in ExportFormat::ALL {
+            assert_eq!(ExportFormat::parse(f.name()), Some(f));
+        }
+        assert_eq!(ExportFormat::parse("shp"), None);
+    }
+
     use crate::track::TrackPoint;
     use nalgebra::Matrix2;
 

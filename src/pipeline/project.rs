@@ -191,7 +191,7 @@ impl Default for ProjectionSection {
     }
 }
 
-/// The export formats, by name.
+/// The export formats, by name ([`crate::export::ExportFormat::name`]).
 pub const EXPORT_FORMATS: [&str; 6] = ["csv", "geojson", "gpkg", "petrack", "mot", "detections"];
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -660,7 +660,7 @@ fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
         .check()
         .map_err(|(key, m)| l.error("smooth", key, m))?;
     for f in &p.export.formats {
-        if !EXPORT_FORMATS.contains(&f.as_str()) {
+        if crate::export::ExportFormat::parse(f).is_none() {
             return Err(l.error(
                 "export",
                 "formats",

@@ -1,10 +1,171 @@
 //! Stage 6, `export`.
 
 use super::*;
+use crate::export::ExportFormat;
+use crate::survey::crs::HeightKind;
 
 /// [`cache_gone`] as an I/O error, for the writers.
 fn gone(cache: &StageCache, stage: &str) -> std::io::Error {
     std::io::Error::other(cache_gone(cache, stage).to_string())
+}
+
+/// What every format's writer reads: the output folder, the run's facts and the stage caches
+/// (the context is not shared by threads).
+struct ExportInputs<'a> {
+    out: &'a Path,
+    fps: f64,
+    origin_note: &'a str,
+    crs_wkt: String,
+    out_crs_spec: Option<String>,
+    height_kind: &'a HeightKind,
+    cache: &'a StageCache,
+    smooth_key: &'a str,
+    track_key: &'a str,
+    /// The scan's chunks: (stage, key).
+    chunks: Vec<(String, String)>,
+}
+
+impl ExportInputs<'_> {
+    /// The trajectories read back from the smooth stage's cache, one at a time.
+    fn trajectories(&self) -> std::io::Result<crate::cache::CachedSeq<Trajectory>> {
+        self.cache
+            .read_seq::<Trajectory>("smooth", self.smooth_key)
+            .map_err(|e| std::io::Error::other(e.to_string()))
+    }
+
+    /// The file `name` written piece by piece into its temporary (an hour's outputs never stand
+    /// whole in memory); a failed write leaves no file.
+    fn put(
+        &self,
+        name: &str,
+        fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>,
+        w: &mut Written,
+    ) -> Result<(), RunError> {
+        let path = self.out.join(name);
+        crate::io::write_atomic_with(&path, |w| fill(w)).map_err(|source| RunError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        w.outputs.push(name.to_string());
+        Ok(())
+    }
+}
+
+/// One format's files: one writer per [`ExportFormat`].
+fn write_format(f: ExportFormat, x: &ExportInputs) -> Result<Written, RunError> {
+    let mut w = Written::default();
+    match f {
+        ExportFormat::Csv => x.put(
+            "trajectories.csv",
+            &mut |o| crate::export::write_trajectories_csv(o, x.trajectories()?),
+            &mut w,
+        )?,
+        ExportFormat::PeTrack => {
+            let note = format!("site frame ({}), metres", x.origin_note);
+            x.put(
+                "trajectories.txt",
+                &mut |o| crate::export::write_petrack_txt(o, x.trajectories()?, x.fps, &note),
+                &mut w,
+            )?
+        }
+        // The image tracks and the detections are read back from the stage caches a track and
+        // a chunk at a time: a long video's are not held in memory for these files.
+        ExportFormat::Mot => x.put(
+            "tracks_mot.txt",
+            &mut |o| {
+                let tracks = x
+                    .cache
+                    .read_seq::<ImageTrack>("track", x.track_key)
+                    .map_err(|e| std::io::Error::other(e.to_string()))?;
+                crate::export::write_mot_in_order(o, tracks)
+            },
+            &mut w,
+        )?,
+        ExportFormat::Detections => {
+            x.put("detections.csv", &mut |o| write_detections(o, x), &mut w)?
+        }
+        ExportFormat::GeoPackage => {
+            // Two passes: the lines, then the positions.
+            let each = || -> Box<dyn Iterator<Item = std::io::Result<Trajectory>>> {
+                match x.trajectories() {
+                    Ok(seq) => Box::new(seq),
+                    Err(e) => Box::new(std::iter::once(Err(e))),
+                }
+            };
+            write_geopackage(&x.out.join("trajectories.gpkg"), &x.crs_wkt, each)?;
+            w.outputs.push("trajectories.gpkg".into());
+        }
+        ExportFormat::GeoJson => write_geojson(x, &mut w)?,
+    }
+    Ok(w)
+}
+
+/// `detections.csv`: every chunk's detections, read back a chunk at a time.
+fn write_detections(o: &mut dyn std::io::Write, x: &ExportInputs) -> std::io::Result<()> {
+    use crate::detect::error_fit::{DETECTIONS_HEADER, write_detection_rows};
+    writeln!(o, "{DETECTIONS_HEADER}")?;
+    for (stage, key) in &x.chunks {
+        let chunk = x
+            .cache
+            .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
+            .ok_or_else(|| gone(x.cache, stage))?;
+        if chunk.end > chunk.start {
+            write_detection_rows(o, chunk.start, &chunk.detections)?;
+        }
+    }
+    Ok(())
+}
+
+/// `trajectories.geojson` and `positions.geojson`: RFC 7946, WGS 84 longitude, latitude and
+/// ellipsoidal height, through PROJ (its own handles: this runs on a worker thread). Both files
+/// are written together, a trajectory at a time, each converted once.
+fn write_geojson(x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
+    let Some(spec) = &x.out_crs_spec else {
+        w.warnings
+            .push("GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written".into());
+        return Ok(());
+    };
+    let mut wgs = Wgs84::new(spec, x.height_kind)?;
+    let mut failed: Option<RunError> = None;
+    let mut both =
+        |lines: &mut dyn std::io::Write, points: &mut dyn std::io::Write| -> std::io::Result<()> {
+            let mut l = crate::export::geojson::Features::new(lines);
+            let mut p = crate::export::geojson::Features::new(points);
+            for t in x.trajectories()? {
+                let t = &t?;
+                let c = match wgs.convert(t) {
+                    Ok(c) => c,
+                    Err(e) => {
+                        failed = Some(e);
+                        return Err(std::io::Error::other("conversion to WGS 84"));
+                    }
+                };
+                l.line(t, &c)?;
+                p.points(t, &c)?;
+            }
+            l.finish()?;
+            p.finish()
+        };
+    let lines_path = x.out.join("trajectories.geojson");
+    let points_path = x.out.join("positions.geojson");
+    let written = crate::io::write_atomic_with(&lines_path, |lw| {
+        // The message names the file at fault.
+        crate::io::write_atomic_with(&points_path, |pw| both(lw, pw))
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", points_path.display())))
+    });
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    written.map_err(|source| RunError::Io {
+        path: lines_path.clone(),
+        source,
+    })?;
+    w.outputs.push("trajectories.geojson".into());
+    w.outputs.push("positions.geojson".into());
+    let (operations, notes) = wgs.report();
+    w.warnings.extend(notes);
+    w.transformations = operations;
+    Ok(())
 }
 
 /// Stage 6: the output files (always written: cheap, and the files must be there). Returns
@@ -15,179 +176,55 @@ pub(super) fn export_stage(
     track_key: &str,
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
-    let out = ctx.out;
-    let p = &ctx.l.project;
-    let fps = ctx.fps;
+    use rayon::prelude::*;
     let framed = &ctx.framed;
-    let out_crs = &ctx.out_crs;
     let t0 = Instant::now();
     let mut outputs = Vec::new();
-    let crs_wkt = out_crs
-        .as_ref()
-        .or(framed.frame.crs.as_ref())
-        .map(|c| c.wkt.clone())
-        .unwrap_or_default();
-    // Each file written piece by piece into its temporary (an hour's outputs never stand whole
-    // in memory); a failed write leaves no file.
-    let put = |name: &str,
-               fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>,
-               outputs: &mut Vec<String>|
-     -> Result<(), RunError> {
-        let path = out.join(name);
-        crate::io::write_atomic_with(&path, |w| fill(w)).map_err(|source| RunError::Io {
-            path: path.clone(),
-            source,
-        })?;
-        outputs.push(name.to_string());
-        Ok(())
+    let crs = ctx.out_crs.as_ref().or(framed.frame.crs.as_ref());
+    let x = ExportInputs {
+        out: ctx.out,
+        fps: ctx.fps,
+        origin_note: &framed.frame.origin_note,
+        crs_wkt: crs.map(|c| c.wkt.clone()).unwrap_or_default(),
+        out_crs_spec: crs.map(|c| c.spec.clone()),
+        height_kind: &framed.frame.height,
+        cache: &ctx.cache,
+        smooth_key,
+        track_key,
+        chunks: (0..ctx.grid.chunks())
+            .map(|c| {
+                (
+                    super::scan_stage::chunk_stage(c),
+                    super::scan_stage::chunk_key(ctx, c),
+                )
+            })
+            .collect(),
     };
-    // Every writer reads the trajectories back from the smooth stage's cache, one at a time.
-    let cache = &ctx.cache;
-    let trajs = || {
-        cache
-            .read_seq::<Trajectory>("smooth", smooth_key)
-            .map_err(|e| std::io::Error::other(e.to_string()))
-    };
-    // The formats are independent files: written side by side.
-    use rayon::prelude::*;
-    let origin_note = &framed.frame.origin_note;
-    let out_crs_spec = out_crs
-        .as_ref()
-        .or(framed.frame.crs.as_ref())
-        .map(|c| c.spec.clone());
-    let height_kind = &framed.frame.height;
-    // What the writers read back from the stage caches (the context is not shared by threads).
-    let chunks: Vec<(String, String)> = (0..ctx.grid.chunks())
-        .map(|c| {
-            (
-                super::scan_stage::chunk_stage(c),
-                super::scan_stage::chunk_key(ctx, c),
-            )
+    let formats = ctx
+        .l
+        .project
+        .export
+        .formats
+        .iter()
+        .map(|f| {
+            ExportFormat::parse(f).ok_or_else(|| {
+                RunError::Input(
+                    ctx.l
+                        .error("export", "formats", format!("unknown format '{f}'")),
+                )
+            })
         })
-        .collect();
-    let write = |f: &String| -> Result<Written, RunError> {
-        let mut w = Written::default();
-        let outputs = &mut w.outputs;
-        match f.as_str() {
-            "csv" => put(
-                "trajectories.csv",
-                &mut |w| crate::export::write_trajectories_csv(w, trajs()?),
-                outputs,
-            )?,
-            "petrack" => {
-                let note = format!("site frame ({origin_note}), metres");
-                put(
-                    "trajectories.txt",
-                    &mut |w| crate::export::write_petrack_txt(w, trajs()?, fps, &note),
-                    outputs,
-                )?
-            }
-            // The image tracks and the detections are read back from the stage caches a track
-            // and a chunk at a time: a long video's are not held in memory for these files.
-            "mot" => put(
-                "tracks_mot.txt",
-                &mut |w| {
-                    let tracks = cache
-                        .read_seq::<ImageTrack>("track", track_key)
-                        .map_err(|e| std::io::Error::other(e.to_string()))?;
-                    crate::export::write_mot_in_order(w, tracks)
-                },
-                outputs,
-            )?,
-            "detections" => put(
-                "detections.csv",
-                &mut |w| {
-                    use crate::detect::error_fit::{DETECTIONS_HEADER, write_detection_rows};
-                    writeln!(w, "{DETECTIONS_HEADER}")?;
-                    for (stage, key) in &chunks {
-                        let chunk = cache
-                            .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
-                            .ok_or_else(|| gone(cache, stage))?;
-                        if chunk.end > chunk.start {
-                            write_detection_rows(w, chunk.start, &chunk.detections)?;
-                        }
-                    }
-                    Ok(())
-                },
-                outputs,
-            )?,
-            "gpkg" => {
-                // Two passes: the lines, then the positions.
-                let each = || -> Box<dyn Iterator<Item = std::io::Result<Trajectory>>> {
-                    match trajs() {
-                        Ok(seq) => Box::new(seq),
-                        Err(e) => Box::new(std::iter::once(Err(e))),
-                    }
-                };
-                write_geopackage(&out.join("trajectories.gpkg"), &crs_wkt, each)?;
-                outputs.push("trajectories.gpkg".into());
-            }
-            "geojson" => {
-                let Some(spec) = &out_crs_spec else {
-                    w.warnings.push(
-                        "GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written"
-                            .into(),
-                    );
-                    return Ok(w);
-                };
-                // RFC 7946: WGS 84 longitude, latitude and ellipsoidal height, through PROJ
-                // (its own handles: this runs on a worker thread). Both files are written
-                // together, a trajectory at a time, each converted once.
-                let mut wgs = Wgs84::new(spec, height_kind)?;
-                let mut failed: Option<RunError> = None;
-                let mut both = |lines: &mut dyn std::io::Write,
-                                points: &mut dyn std::io::Write|
-                 -> std::io::Result<()> {
-                    let mut l = crate::export::geojson::Features::new(lines);
-                    let mut p = crate::export::geojson::Features::new(points);
-                    for t in trajs()? {
-                        let t = &t?;
-                        let c = match wgs.convert(t) {
-                            Ok(c) => c,
-                            Err(e) => {
-                                failed = Some(e);
-                                return Err(std::io::Error::other("conversion to WGS 84"));
-                            }
-                        };
-                        l.line(t, &c)?;
-                        p.points(t, &c)?;
-                    }
-                    l.finish()?;
-                    p.finish()
-                };
-                let lines_path = out.join("trajectories.geojson");
-                let points_path = out.join("positions.geojson");
-                let written = crate::io::write_atomic_with(&lines_path, |lw| {
-                    // The message names the file at fault.
-                    crate::io::write_atomic_with(&points_path, |pw| both(lw, pw)).map_err(|e| {
-                        std::io::Error::new(e.kind(), format!("{}: {e}", points_path.display()))
-                    })
-                });
-                if let Some(e) = failed {
-                    return Err(e);
-                }
-                written.map_err(|source| RunError::Io {
-                    path: lines_path.clone(),
-                    source,
-                })?;
-                outputs.push("trajectories.geojson".into());
-                outputs.push("positions.geojson".into());
-                let (operations, notes) = wgs.report();
-                w.warnings.extend(notes);
-                w.transformations = operations;
-            }
-            _ => unreachable!("checked when the project was read"),
-        }
-        Ok(w)
-    };
+        .collect::<Result<Vec<_>, _>>()?;
+    let x = &x;
+    let write = |f: &ExportFormat| write_format(*f, x);
     // The GeoPackage takes longest (SQLite and its spatial index): it starts at once on a
     // thread of its own; the results keep the formats' order.
-    let formats = &p.export.formats;
+    let formats = &formats;
     let write = &write;
     let written: Vec<Result<Written, RunError>> = std::thread::scope(|scope| {
         let gpkg = formats
             .iter()
-            .position(|f| f == "gpkg")
+            .position(|f| *f == ExportFormat::GeoPackage)
             .map(|k| (k, scope.spawn(move || write(&formats[k]))));
         // The others on the threads left beside the GeoPackage's (three threads on two cores
         // slowed the GeoPackage, the longest).

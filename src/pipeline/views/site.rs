@@ -182,31 +182,7 @@ pub fn site_image(v: &Views) -> Result<(Vec<(String, String)>, Vec<String>), Vie
             vec!["no site image: no frame has a pose".into()],
         ));
     };
-    // The ground seen: the image border unprojected in each chosen frame.
-    let (w, h) = (f64::from(v.size.0), f64::from(v.size.1));
-    let mut border = Vec::new();
-    for k in 0..=20 {
-        let t = f64::from(k) / 20.0;
-        border.extend([
-            Vector2::new(t * (w - 1.0), 0.0),
-            Vector2::new(t * (w - 1.0), h - 1.0),
-            Vector2::new(0.0, t * (h - 1.0)),
-            Vector2::new(w - 1.0, t * (h - 1.0)),
-        ]);
-    }
-    let (mut lo, mut hi) = (
-        Vector2::repeat(f64::INFINITY),
-        Vector2::repeat(f64::NEG_INFINITY),
-    );
-    for &f in &frames {
-        let pose = v.poses[f].as_ref().expect("chosen frames have poses");
-        for uv in &border {
-            if let Some(p) = intersect(v.camera, pose, v.ground, 0.0, uv) {
-                lo = lo.inf(&p.xy());
-                hi = hi.sup(&p.xy());
-            }
-        }
-    }
+    let (lo, hi) = ground_extent(v, &frames);
     if !(lo.x.is_finite() && hi.x > lo.x && hi.y > lo.y) {
         return Ok((
             Vec::new(),
@@ -219,59 +195,7 @@ pub fn site_image(v: &Views) -> Result<(Vec<(String, String)>, Vec<String>), Vie
         })?,
         None => SiteAffine::identity(),
     };
-    // The GSD: the video's at the image centre on the ground, or the project's.
-    let pose = v.poses[first].as_ref().expect("has a pose");
-    let centre = Vector2::new(w / 2.0, h / 2.0);
-    let video_gsd = match (
-        intersect(v.camera, pose, v.ground, 0.0, &centre),
-        intersect(
-            v.camera,
-            pose,
-            v.ground,
-            0.0,
-            &(centre + Vector2::new(1.0, 0.0)),
-        ),
-    ) {
-        (Some(a), Some(b)) => (a - b).xy().norm(),
-        _ => 0.05,
-    };
-    let mut gsd = v.settings.site_gsd_m.unwrap_or_else(|| nice_up(video_gsd));
-    // The box in the CRS.
-    let corners =
-        [lo, Vector2::new(hi.x, lo.y), hi, Vector2::new(lo.x, hi.y)].map(|p| affine.to_crs(&p));
-    let (cx0, cx1) = corners
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| {
-            (a.0.min(p.x), a.1.max(p.x))
-        });
-    let (cy0, cy1) = corners
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| {
-            (a.0.min(p.y), a.1.max(p.y))
-        });
-    let side = ((cx1 - cx0).max(cy1 - cy0)) / gsd;
-    if side > MAX_SIDE as f64 {
-        let coarser = nice_up((cx1 - cx0).max(cy1 - cy0) / MAX_SIDE as f64);
-        warnings.push(format!(
-            "site image: {gsd} m would make {side:.0} px; {coarser} m taken (at most {MAX_SIDE} px a side)"
-        ));
-        gsd = coarser;
-    }
-    let x0 = (cx0 / gsd).floor() * gsd;
-    let y_top = (cy1 / gsd).ceil() * gsd;
-    let grid = Grid {
-        x0,
-        y_top,
-        gsd,
-        width: ((cx1 - x0) / gsd).ceil() as usize,
-        height: ((y_top - cy0) / gsd).ceil() as usize,
-    };
-    if affine.max_residual_m > gsd / 10.0 {
-        warnings.push(format!(
-            "site image: the output CRS departs from the site frame's affine map by up to {:.3} m over the site",
-            affine.max_residual_m
-        ));
-    }
+    let (grid, gsd) = site_grid(v, first, &lo, &hi, &affine, &mut warnings);
     // The ground under each pixel (once: the same for every frame).
     let heights = ground_points(v.ground, &grid, &affine);
     // Each frame on the grid (read by checked seeks), then the median.
@@ -346,6 +270,104 @@ pub fn site_image(v: &Views) -> Result<(Vec<(String, String)>, Vec<String>), Vie
         files.push((title.into(), name.into()));
     }
     Ok((files, warnings))
+}
+
+/// The ground seen, as the site frame's box (`lo`, `hi`): the image border unprojected in each
+/// chosen frame (an empty box when none reaches the ground).
+fn ground_extent(v: &Views, frames: &[usize]) -> (Vector2<f64>, Vector2<f64>) {
+    let (w, h) = (f64::from(v.size.0), f64::from(v.size.1));
+    let mut border = Vec::new();
+    for k in 0..=20 {
+        let t = f64::from(k) / 20.0;
+        border.extend([
+            Vector2::new(t * (w - 1.0), 0.0),
+            Vector2::new(t * (w - 1.0), h - 1.0),
+            Vector2::new(0.0, t * (h - 1.0)),
+            Vector2::new(w - 1.0, t * (h - 1.0)),
+        ]);
+    }
+    let (mut lo, mut hi) = (
+        Vector2::repeat(f64::INFINITY),
+        Vector2::repeat(f64::NEG_INFINITY),
+    );
+    for &f in frames {
+        let pose = v.poses[f].as_ref().expect("chosen frames have poses");
+        for uv in &border {
+            if let Some(p) = intersect(v.camera, pose, v.ground, 0.0, uv) {
+                lo = lo.inf(&p.xy());
+                hi = hi.sup(&p.xy());
+            }
+        }
+    }
+    (lo, hi)
+}
+
+/// The site image's grid in the output CRS: at the video's ground sample distance at the image
+/// centre (rounded up to a nice number) or the project's, coarser when the image would be over
+/// `MAX_SIDE` pixels a side; and the GSD taken.
+fn site_grid(
+    v: &Views,
+    first: usize,
+    lo: &Vector2<f64>,
+    hi: &Vector2<f64>,
+    affine: &SiteAffine,
+    warnings: &mut Vec<String>,
+) -> (Grid, f64) {
+    let (w, h) = (f64::from(v.size.0), f64::from(v.size.1));
+    // The GSD: the video's at the image centre on the ground, or the project's.
+    let pose = v.poses[first].as_ref().expect("has a pose");
+    let centre = Vector2::new(w / 2.0, h / 2.0);
+    let video_gsd = match (
+        intersect(v.camera, pose, v.ground, 0.0, &centre),
+        intersect(
+            v.camera,
+            pose,
+            v.ground,
+            0.0,
+            &(centre + Vector2::new(1.0, 0.0)),
+        ),
+    ) {
+        (Some(a), Some(b)) => (a - b).xy().norm(),
+        _ => 0.05,
+    };
+    let mut gsd = v.settings.site_gsd_m.unwrap_or_else(|| nice_up(video_gsd));
+    // The box in the CRS.
+    let corners =
+        [*lo, Vector2::new(hi.x, lo.y), *hi, Vector2::new(lo.x, hi.y)].map(|p| affine.to_crs(&p));
+    let (cx0, cx1) = corners
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| {
+            (a.0.min(p.x), a.1.max(p.x))
+        });
+    let (cy0, cy1) = corners
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| {
+            (a.0.min(p.y), a.1.max(p.y))
+        });
+    let side = ((cx1 - cx0).max(cy1 - cy0)) / gsd;
+    if side > MAX_SIDE as f64 {
+        let coarser = nice_up((cx1 - cx0).max(cy1 - cy0) / MAX_SIDE as f64);
+        warnings.push(format!(
+            "site image: {gsd} m would make {side:.0} px; {coarser} m taken (at most {MAX_SIDE} px a side)"
+        ));
+        gsd = coarser;
+    }
+    let x0 = (cx0 / gsd).floor() * gsd;
+    let y_top = (cy1 / gsd).ceil() * gsd;
+    let grid = Grid {
+        x0,
+        y_top,
+        gsd,
+        width: ((cx1 - x0) / gsd).ceil() as usize,
+        height: ((y_top - cy0) / gsd).ceil() as usize,
+    };
+    if affine.max_residual_m > gsd / 10.0 {
+        warnings.push(format!(
+            "site image: the output CRS departs from the site frame's affine map by up to {:.3} m over the site",
+            affine.max_residual_m
+        ));
+    }
+    (grid, gsd)
 }
 
 /// Pixels between the ground heights computed exactly: a local plane is a robust fit to the

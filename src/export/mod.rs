@@ -135,7 +135,7 @@ pub enum ExportFormat {
 }
 
 impl ExportFormat {
-    /// Every format, in the order of the default list.
+    /// Every format: a run's default list, in this order.
     pub const ALL: [ExportFormat; 6] = [
         ExportFormat::Csv,
         ExportFormat::GeoJson,

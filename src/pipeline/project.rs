@@ -191,15 +191,12 @@ impl Default for ProjectionSection {
     }
 }
 
-/// The export formats, by name ([`crate::export::ExportFormat::name`]).
-pub const EXPORT_FORMATS: [&str; 6] = ["csv", "geojson", "gpkg", "petrack", "mot", "detections"];
-
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct ExportSection {
     /// Output CRS [default: the GCP file's].
     pub crs: Option<String>,
-    /// Any of [`EXPORT_FORMATS`].
+    /// Names of [`crate::export::ExportFormat`]s [default: all of them].
     pub formats: Vec<String>,
 }
 
@@ -207,7 +204,9 @@ impl Default for ExportSection {
     fn default() -> Self {
         ExportSection {
             crs: None,
-            formats: EXPORT_FORMATS.map(String::from).to_vec(),
+            formats: crate::export::ExportFormat::ALL
+                .map(|f| f.name().to_string())
+                .to_vec(),
         }
     }
 }

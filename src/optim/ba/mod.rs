@@ -404,6 +404,36 @@ fn grain(items: usize, observations: usize) -> usize {
     (items.saturating_mul(GRAIN) / observations.max(1)).max(1)
 }
 
+/// `fold` over `items` (with their indices) in fixed chunks of `chunk` run side by side, the
+/// chunks' results combined in order from `zero`: the same bits on any number of threads, however
+/// the work is stolen (rayon's `fold`/`reduce` sums in pieces that depend on who steals what, so a
+/// large problem's sums differed in the last bits from run to run). A problem of one chunk is one
+/// fold, as rayon did for a problem too small to split.
+pub(super) fn fold_in_order<T: Sync, A: Send>(
+    items: &[T],
+    chunk: usize,
+    zero: impl Fn() -> A + Sync + Send,
+    fold: impl Fn(A, (usize, &T)) -> A + Sync + Send,
+    combine: impl Fn(A, A) -> A,
+) -> A {
+    let chunk = chunk.max(1);
+    let parts: Vec<A> = items
+        .par_chunks(chunk)
+        .enumerate()
+        .map(|(c, xs)| {
+            xs.iter()
+                .enumerate()
+                .fold(zero(), |a, (k, x)| fold(a, (c * chunk + k, x)))
+        })
+        .collect();
+    parts.into_iter().fold(zero(), combine)
+}
+
+/// The chunk of [`fold_in_order`] over a problem's points: two grains, the least rayon split.
+fn point_chunk(points: usize, observations: usize) -> usize {
+    2 * grain(points, observations)
+}
+
 /// Images beyond which `Auto` goes iterative.
 const DENSE_MAX_IMAGES: usize = 200;
 

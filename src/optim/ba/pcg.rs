@@ -27,12 +27,11 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
                 .collect::<Vec<_>>(),
         )
     };
-    let (b_plus, schur) = st
-        .coupling()
-        .par_iter()
-        .with_min_len(grain(p.points.len(), p.observations.len()))
-        .enumerate()
-        .fold(zero, |(mut b, mut blocks), (j, ks)| {
+    let (b_plus, schur) = fold_in_order(
+        st.coupling(),
+        point_chunk(p.points.len(), p.observations.len()),
+        zero,
+        |(mut b, mut blocks), (j, ks)| {
             let t = v_inv[j] * n.g_point[j];
             for &k in ks {
                 let (pk, ik) = lay.of(p, obs[k].camera);
@@ -43,13 +42,14 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
             }
             add_unit_blocks(p, lay, n, ks, &v_inv[j], &mut blocks);
             (b, blocks)
-        })
-        .reduce(zero, |(b1, mut m1), (b2, m2)| {
+        },
+        |(b1, mut m1), (b2, m2)| {
             for (x, y) in m1.iter_mut().zip(m2) {
                 *x += y;
             }
             (b1 + b2, m1)
-        });
+        },
+    );
     let b = b_plus - &n.g_cam;
     // The camera blocks' own part of each unit: JᵀJ + D/Δ restricted to it.
     let mut own: Vec<DMatrix<f64>> = lay
@@ -92,32 +92,29 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
         z
     };
     let apply = |x: &DVector<f64>| -> DVector<f64> {
-        let minus = st
-            .coupling()
-            .par_iter()
-            .with_min_len(grain(p.points.len(), p.observations.len()))
-            .enumerate()
-            .fold(
-                || DVector::<f64>::zeros(dim),
-                |mut acc, (j, ks)| {
-                    let mut t = Vector3::zeros();
-                    for &k in ks {
-                        let (pk, ik) = lay.of(p, obs[k].camera);
-                        t += n.w_pose[k].transpose() * x.fixed_rows::<6>(pk)
-                            + n.w_intr[k].transpose() * x.fixed_rows::<M>(ik);
-                    }
-                    let t = v_inv[j] * t;
-                    for &k in ks {
-                        let (pk, ik) = lay.of(p, obs[k].camera);
-                        let mut rows = acc.fixed_rows_mut::<6>(pk);
-                        rows += n.w_pose[k] * t;
-                        let mut rows = acc.fixed_rows_mut::<M>(ik);
-                        rows += n.w_intr[k] * t;
-                    }
-                    acc
-                },
-            )
-            .reduce(|| DVector::<f64>::zeros(dim), |a, b| a + b);
+        let minus = fold_in_order(
+            st.coupling(),
+            point_chunk(p.points.len(), p.observations.len()),
+            || DVector::<f64>::zeros(dim),
+            |mut acc, (j, ks)| {
+                let mut t = Vector3::zeros();
+                for &k in ks {
+                    let (pk, ik) = lay.of(p, obs[k].camera);
+                    t += n.w_pose[k].transpose() * x.fixed_rows::<6>(pk)
+                        + n.w_intr[k].transpose() * x.fixed_rows::<M>(ik);
+                }
+                let t = v_inv[j] * t;
+                for &k in ks {
+                    let (pk, ik) = lay.of(p, obs[k].camera);
+                    let mut rows = acc.fixed_rows_mut::<6>(pk);
+                    rows += n.w_pose[k] * t;
+                    let mut rows = acc.fixed_rows_mut::<M>(ik);
+                    rows += n.w_intr[k] * t;
+                }
+                acc
+            },
+            |a, b| a + b,
+        );
         camera_block_product(p, lay, n, damping, x) - minus
     };
     let mut x = DVector::zeros(dim);

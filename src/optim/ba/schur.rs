@@ -347,55 +347,49 @@ pub(super) fn reduced_system<const M: usize>(
     let obs = &p.observations;
     let dim = lay.dim;
     // Σ W V⁻¹ Wᵀ and Σ W V⁻¹ g, accumulated point by point in parallel.
-    let (s_minus, b_plus) = st
-        .coupling()
-        .par_iter()
-        .with_min_len(grain(p.points.len(), p.observations.len()))
-        .enumerate()
-        .fold(
-            || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim)),
-            |(mut s, mut b), (j, ks)| {
-                let vi = &v_inv[j];
-                let wv: Vec<(Mat63, SMatrix<f64, M, 3>)> = ks
-                    .iter()
-                    .map(|&k| (n.w_pose[k] * vi, n.w_intr[k] * vi))
-                    .collect();
-                for (&ka, (wpa, wia)) in ks.iter().zip(&wv) {
-                    let (pa, ia) = lay.of(p, obs[ka].camera);
-                    let mut rows = b.fixed_rows_mut::<6>(pa);
-                    rows += wpa * n.g_point[j];
-                    let mut rows = b.fixed_rows_mut::<M>(ia);
-                    rows += wia * n.g_point[j];
-                    // The lower triangle only (blocks on or below the diagonal): S is
-                    // symmetric, mirrored once at the end.
-                    for &kb in ks {
-                        let (pb, ib) = lay.of(p, obs[kb].camera);
-                        let (wp, wi) = (n.w_pose[kb].transpose(), n.w_intr[kb].transpose());
-                        if pa >= pb {
-                            let mut view = s.fixed_view_mut::<6, 6>(pa, pb);
-                            view += wpa * wp;
-                        }
-                        if pa >= ib {
-                            let mut view = s.fixed_view_mut::<6, M>(pa, ib);
-                            view += wpa * wi;
-                        }
-                        if ia >= pb {
-                            let mut view = s.fixed_view_mut::<M, 6>(ia, pb);
-                            view += wia * wp;
-                        }
-                        if ia >= ib {
-                            let mut view = s.fixed_view_mut::<M, M>(ia, ib);
-                            view += wia * wi;
-                        }
+    let (s_minus, b_plus) = fold_in_order(
+        st.coupling(),
+        point_chunk(p.points.len(), p.observations.len()),
+        || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim)),
+        |(mut s, mut b), (j, ks)| {
+            let vi = &v_inv[j];
+            let wv: Vec<(Mat63, SMatrix<f64, M, 3>)> = ks
+                .iter()
+                .map(|&k| (n.w_pose[k] * vi, n.w_intr[k] * vi))
+                .collect();
+            for (&ka, (wpa, wia)) in ks.iter().zip(&wv) {
+                let (pa, ia) = lay.of(p, obs[ka].camera);
+                let mut rows = b.fixed_rows_mut::<6>(pa);
+                rows += wpa * n.g_point[j];
+                let mut rows = b.fixed_rows_mut::<M>(ia);
+                rows += wia * n.g_point[j];
+                // The lower triangle only (blocks on or below the diagonal): S is
+                // symmetric, mirrored once at the end.
+                for &kb in ks {
+                    let (pb, ib) = lay.of(p, obs[kb].camera);
+                    let (wp, wi) = (n.w_pose[kb].transpose(), n.w_intr[kb].transpose());
+                    if pa >= pb {
+                        let mut view = s.fixed_view_mut::<6, 6>(pa, pb);
+                        view += wpa * wp;
+                    }
+                    if pa >= ib {
+                        let mut view = s.fixed_view_mut::<6, M>(pa, ib);
+                        view += wpa * wi;
+                    }
+                    if ia >= pb {
+                        let mut view = s.fixed_view_mut::<M, 6>(ia, pb);
+                        view += wia * wp;
+                    }
+                    if ia >= ib {
+                        let mut view = s.fixed_view_mut::<M, M>(ia, ib);
+                        view += wia * wi;
                     }
                 }
-                (s, b)
-            },
-        )
-        .reduce(
-            || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim)),
-            |(s1, b1), (s2, b2)| (s1 + s2, b1 + b2),
-        );
+            }
+            (s, b)
+        },
+        |(s1, b1), (s2, b2)| (s1 + s2, b1 + b2),
+    );
     let mut s = -s_minus;
     s.fill_upper_triangle_with_lower_triangle();
     for i in 0..p.poses.len() {

@@ -58,44 +58,16 @@ pub const COLUMNS_42_EXTRA: [&str; 15] = [
     "Author",
 ];
 
-pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, SurveyError> {
-    let table = read_table(
-        ctx,
-        text,
-        opts.delimiter.unwrap_or_else(|| sniff_delimiter(text)),
-    )?;
-    let mut rows = table.rows.into_iter();
-    let header = rows
-        .next()
-        .ok_or_else(|| ctx.err(Some(1), None, "empty file: expected a header line"))?;
-    let mut index: HashMap<String, usize> = HashMap::new();
-    for (i, h) in header.fields.iter().enumerate() {
-        if index.insert(h.trim().to_ascii_lowercase(), i).is_some() {
-            return Err(ctx.err(Some(header.line), Some(h), "appears twice in the header"));
-        }
-    }
-    let col = |name: &str| index.get(&name.to_ascii_lowercase()).copied();
-    let need = |name: &str| {
-        col(name).ok_or_else(|| {
-            ctx.err(
-                Some(header.line),
-                Some(name),
-                format!(
-                    "missing; an Emlid CSV has the columns {} (42-column exports add {})",
-                    COLUMNS_27.join(", "),
-                    COLUMNS_42_EXTRA.join(", ")
-                ),
-            )
-        })
-    };
-    let name_col = need("Name")?;
-    let cs_col = col("CS name");
-
-    // CRS: --crs, else the CS name column (one for all rows).
+/// The CRS: `--crs`, else the CS name column (one for all rows).
+fn crs_of(
+    ctx: &Ctx,
+    rows: &[super::table::Row],
+    cs_col: Option<usize>,
+    opts: &ReadOptions,
+) -> Result<String, SurveyError> {
     let mut cs_names: Vec<(usize, String)> = Vec::new();
-    let rows: Vec<_> = rows.collect();
     if let Some(c) = cs_col {
-        for r in &rows {
+        for r in rows {
             if let Some(v) = r.fields.get(c).map(|s| s.trim()).filter(|s| !s.is_empty())
                 && !cs_names.iter().any(|(_, n)| n == v)
             {
@@ -117,7 +89,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             ),
         ));
     }
-    let crs_spec = match (&opts.crs, cs_names.first()) {
+    Ok(match (&opts.crs, cs_names.first()) {
         (Some(c), _) => c.clone(),
         (None, Some((line, name))) => {
             Crs::new(name).map_err(|e| {
@@ -139,18 +111,42 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
                 "no CRS: the CS name column is missing or empty; pass --crs",
             ));
         }
-    };
-    let crs = Crs::new(&crs_spec).map_err(|e| ctx.err(None, None, e.to_string()))?;
+    })
+}
 
-    let projected = crs.horizontal == Horizontal::Projected;
-    let (xc, yc) = if projected {
-        (need("Easting")?, need("Northing")?)
-    } else {
-        (need("Longitude")?, need("Latitude")?)
-    };
-    let elev_col = col("Elevation");
-    let ell_col = col("Ellipsoidal height");
-    // Which height: --height, else what the CRS implies, else compare the two columns.
+/// The file's own longitude and latitude against its easting and northing `xy` in `crs`.
+fn check_lon_lat(
+    ctx: &Ctx,
+    crs: &Crs,
+    line: usize,
+    (x, y): (f64, f64),
+    (lon, lat): (f64, f64),
+) -> Result<(), SurveyError> {
+    let (clon, clat) = crs
+        .to_lon_lat(x, y)
+        .map_err(|e| ctx.at(line, e.to_string()))?;
+    if (clon - lon).abs() > 0.01 || (clat - lat).abs() > 0.01 {
+        return Err(ctx.err(
+            Some(line),
+            Some("Longitude"),
+            format!(
+                "the file gives longitude {lon}, latitude {lat}, but its easting and northing in {} are at {clon:.5}, {clat:.5}: is the CRS right?",
+                crs.label()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Which height and its column: `--height`, else what the CRS implies.
+fn height_column(
+    ctx: &Ctx,
+    header_line: usize,
+    opts: &ReadOptions,
+    crs: &Crs,
+    elev_col: Option<usize>,
+    ell_col: Option<usize>,
+) -> Result<(HeightChoice, usize), SurveyError> {
     let choice = match opts.height {
         Some(h) => h,
         None => match crs.height_kind {
@@ -161,19 +157,90 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     let zc = match choice {
         HeightChoice::Orthometric => elev_col.ok_or_else(|| {
             ctx.err(
-                Some(header.line),
+                Some(header_line),
                 Some("Elevation"),
                 "missing (pass --height ellipsoidal to use Ellipsoidal height)",
             )
         })?,
         HeightChoice::Ellipsoidal => ell_col.ok_or_else(|| {
             ctx.err(
-                Some(header.line),
+                Some(header_line),
                 Some("Ellipsoidal height"),
                 "missing (pass --height orthometric to use Elevation)",
             )
         })?,
     };
+    Ok((choice, zc))
+}
+
+/// The header's columns, by name in any case.
+struct Columns {
+    index: HashMap<String, usize>,
+    line: usize,
+}
+
+impl Columns {
+    fn of(ctx: &Ctx, header: &super::table::Row) -> Result<Columns, SurveyError> {
+        let mut index: HashMap<String, usize> = HashMap::new();
+        for (i, h) in header.fields.iter().enumerate() {
+            if index.insert(h.trim().to_ascii_lowercase(), i).is_some() {
+                return Err(ctx.err(Some(header.line), Some(h), "appears twice in the header"));
+            }
+        }
+        Ok(Columns {
+            index,
+            line: header.line,
+        })
+    }
+
+    fn col(&self, name: &str) -> Option<usize> {
+        self.index.get(&name.to_ascii_lowercase()).copied()
+    }
+
+    fn need(&self, ctx: &Ctx, name: &str) -> Result<usize, SurveyError> {
+        self.col(name).ok_or_else(|| {
+            ctx.err(
+                Some(self.line),
+                Some(name),
+                format!(
+                    "missing; an Emlid CSV has the columns {} (42-column exports add {})",
+                    COLUMNS_27.join(", "),
+                    COLUMNS_42_EXTRA.join(", ")
+                ),
+            )
+        })
+    }
+}
+
+pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, SurveyError> {
+    let table = read_table(
+        ctx,
+        text,
+        opts.delimiter.unwrap_or_else(|| sniff_delimiter(text)),
+    )?;
+    let mut rows = table.rows.into_iter();
+    let header = rows
+        .next()
+        .ok_or_else(|| ctx.err(Some(1), None, "empty file: expected a header line"))?;
+    let columns = Columns::of(ctx, &header)?;
+    let col = |name: &str| columns.col(name);
+    let need = |name: &str| columns.need(ctx, name);
+    let name_col = need("Name")?;
+    let cs_col = col("CS name");
+
+    let rows: Vec<_> = rows.collect();
+    let crs_spec = crs_of(ctx, &rows, cs_col, opts)?;
+    let crs = Crs::new(&crs_spec).map_err(|e| ctx.err(None, None, e.to_string()))?;
+
+    let projected = crs.horizontal == Horizontal::Projected;
+    let (xc, yc) = if projected {
+        (need("Easting")?, need("Northing")?)
+    } else {
+        (need("Longitude")?, need("Latitude")?)
+    };
+    let elev_col = col("Elevation");
+    let ell_col = col("Ellipsoidal height");
+    let (choice, zc) = height_column(ctx, header.line, opts, &crs, elev_col, ell_col)?;
     let rms = [
         col("Easting RMS"),
         col("Northing RMS"),
@@ -230,20 +297,13 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
             && lon.is_finite()
             && lat.is_finite()
         {
-            let (x, y) = (gcp.position.x, gcp.position.y);
-            let (clon, clat) = crs
-                .to_lon_lat(x, y)
-                .map_err(|e| ctx.at(r.line, e.to_string()))?;
-            if (clon - lon).abs() > 0.01 || (clat - lat).abs() > 0.01 {
-                return Err(ctx.err(
-                    Some(r.line),
-                    Some("Longitude"),
-                    format!(
-                        "the file gives longitude {lon}, latitude {lat}, but its easting and northing in {} are at {clon:.5}, {clat:.5}: is the CRS right?",
-                        crs.label()
-                    ),
-                ));
-            }
+            check_lon_lat(
+                ctx,
+                &crs,
+                r.line,
+                (gcp.position.x, gcp.position.y),
+                (lon, lat),
+            )?;
         }
         if let (Some(e), Some(h)) = (elev_col, ell_col)
             && let (Ok(a), Ok(b)) = (cell(r, e).parse::<f64>(), cell(r, h).parse::<f64>())

@@ -78,26 +78,21 @@ fn parse_role(ctx: &Ctx, text: &str, line: usize) -> Result<Role, SurveyError> {
     }
 }
 
-pub(super) fn read(
+/// Column indices: `--columns`, else (Metashape) a header comment or the default order; and the
+/// header's width, when there is one (it bounds every row's). A header row is taken off `rows`.
+fn column_map(
     ctx: &Ctx,
-    text: &str,
+    comments: &[(usize, String)],
+    rows: &mut Vec<Row>,
     opts: &ReadOptions,
     format: SurveyFormat,
-) -> Result<Survey, SurveyError> {
-    let table = read_table(
-        ctx,
-        text,
-        opts.delimiter.unwrap_or_else(|| sniff_delimiter(text)),
-    )?;
-    let mut rows: Vec<Row> = table.rows;
+) -> Result<(Vec<(Field, usize)>, Option<usize>), SurveyError> {
     let first_is_header = |rows: &[Row], x_index: usize| {
         rows.first()
             .and_then(|r| r.fields.get(x_index))
             .is_some_and(|f| f.trim().parse::<f64>().is_err())
     };
 
-    // Column indices: --columns, else (Metashape) a header comment or the default order. The
-    // header's width, when there is one, bounds every row's.
     let mut header_width: Option<usize> = None;
     let columns: Vec<(Field, usize)> = match &opts.columns {
         Some(map) => {
@@ -109,7 +104,7 @@ pub(super) fn read(
                 (Field::X, super::table::Column::Position(n)) => Some(n - 1),
                 _ => None,
             });
-            let header = if names_columns || x_pos.is_some_and(|x| first_is_header(&rows, x)) {
+            let header = if names_columns || x_pos.is_some_and(|x| first_is_header(rows, x)) {
                 Some(rows.remove(0))
             } else {
                 None
@@ -125,7 +120,7 @@ pub(super) fn read(
             ));
         }
         None => {
-            let from_comment = table.comments.iter().rev().find_map(|(_, c)| {
+            let from_comment = comments.iter().rev().find_map(|(_, c)| {
                 let fields = c
                     .split([',', '\t', ';'])
                     .map(str::to_string)
@@ -137,7 +132,7 @@ pub(super) fn read(
                     header_width = Some(width);
                     m
                 }
-                None if first_is_header(&rows, 1) => {
+                None if first_is_header(rows, 1) => {
                     let header = rows.remove(0);
                     header_width = Some(header.fields.len());
                     map_from_header(&header.fields).ok_or_else(|| {
@@ -157,6 +152,22 @@ pub(super) fn read(
             }
         }
     };
+    Ok((columns, header_width))
+}
+
+pub(super) fn read(
+    ctx: &Ctx,
+    text: &str,
+    opts: &ReadOptions,
+    format: SurveyFormat,
+) -> Result<Survey, SurveyError> {
+    let table = read_table(
+        ctx,
+        text,
+        opts.delimiter.unwrap_or_else(|| sniff_delimiter(text)),
+    )?;
+    let mut rows: Vec<Row> = table.rows;
+    let (columns, header_width) = column_map(ctx, &table.comments, &mut rows, opts, format)?;
     let get = |f: Field| columns.iter().find(|(c, _)| *c == f).map(|(_, i)| *i);
 
     let crs = match (&opts.crs, crs_from_comments(&table.comments)) {

@@ -17,6 +17,35 @@ fn strip_comment(line: &str) -> &str {
     }
 }
 
+/// Names for unnamed points: their coordinates, to the millimetre (1e-8° for degrees), with
+/// `#2`, `#3`, ... where two points round to the same name.
+#[derive(Default)]
+struct Unnamed {
+    /// Coordinates as written -> generated name.
+    keys: HashMap<String, String>,
+    /// The generated names taken.
+    names: HashSet<String>,
+}
+
+impl Unnamed {
+    fn name(&mut self, written: &[&str], [x, y, z]: [f64; 3], decimals: usize) -> String {
+        let key = written.join(" ");
+        if let Some(n) = self.keys.get(&key) {
+            return n.clone();
+        }
+        let base = format!("{x:.decimals$},{y:.decimals$},{z:.3}");
+        let mut n = base.clone();
+        let mut k = 2;
+        while self.names.contains(&n) {
+            n = format!("{base}#{k}");
+            k += 1;
+        }
+        self.names.insert(n.clone());
+        self.keys.insert(key, n.clone());
+        n
+    }
+}
+
 pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, SurveyError> {
     let mut lines = text
         .lines()
@@ -38,9 +67,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
     } else {
         3
     };
-    // Coordinates text -> generated name, and the generated names taken.
-    let mut unnamed_keys: HashMap<String, String> = HashMap::new();
-    let mut unnamed_names: HashSet<String> = HashSet::new();
+    let mut unnamed = Unnamed::default();
     let mut index: HashMap<String, usize> = HashMap::new();
     // (point, image) -> line: a point is picked once per image.
     let mut picked: HashMap<(usize, String), usize> = HashMap::new();
@@ -65,24 +92,7 @@ pub(super) fn read(ctx: &Ctx, text: &str, opts: &ReadOptions) -> Result<Survey, 
         let v = ctx.number(f[4], line, "v")?;
         let name = match f.get(6) {
             Some(n) => n.to_string(),
-            None => {
-                let key = format!("{} {} {}", f[0], f[1], f[2]);
-                match unnamed_keys.get(&key) {
-                    Some(n) => n.clone(),
-                    None => {
-                        let base = format!("{x:.decimals$},{y:.decimals$},{z:.3}");
-                        let mut n = base.clone();
-                        let mut k = 2;
-                        while unnamed_names.contains(&n) {
-                            n = format!("{base}#{k}");
-                            k += 1;
-                        }
-                        unnamed_names.insert(n.clone());
-                        unnamed_keys.insert(key, n.clone());
-                        n
-                    }
-                }
-            }
+            None => unnamed.name(&f[..3], [x, y, z], decimals),
         };
         let position = Vector3::new(x, y, z);
         let obs = Observation {

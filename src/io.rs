@@ -713,9 +713,23 @@ pub(crate) fn csv_rows<'t>(
     Ok(rows)
 }
 
+/// The frame `N` of an image name `NAME#N` (a video's frame, as picks and `sfm register` name
+/// them): `None` without a `#`, an error when what follows the last `#` is not a frame number.
+pub fn frame_of_name(name: &str) -> Option<Result<usize, std::num::ParseIntError>> {
+    name.rsplit_once('#').map(|(_, n)| n.parse::<usize>())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_frame_is_read_from_the_end_of_a_name() {
+        assert_eq!(frame_of_name("video.mp4#120"), Some(Ok(120)));
+        assert_eq!(frame_of_name("a#b.mp4#7"), Some(Ok(7)));
+        assert!(matches!(frame_of_name("video.mp4#x"), Some(Err(_))));
+        assert_eq!(frame_of_name("IMG_0001.JPG"), None);
+    }
 
     #[test]
     fn iso8601_known_dates() {

@@ -23,12 +23,9 @@ fn picks_frame(args: &Args, image: &str) -> (usize, Option<String>) {
     if let Some(n) = args.picks_frame {
         return (n, None);
     }
-    match image
-        .rsplit_once('#')
-        .and_then(|(_, n)| n.parse::<usize>().ok())
-    {
-        Some(n) => (n, None),
-        None => (
+    match geostride::io::frame_of_name(image) {
+        Some(Ok(n)) => (n, None),
+        _ => (
             0,
             Some(format!(
                 "the picks' image '{image}' names no frame ('NAME#N'): taken as frame 0; say --picks-frame N otherwise"

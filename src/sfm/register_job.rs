@@ -149,6 +149,46 @@ pub fn pose_series_csv(series: &[PoseSample]) -> String {
     s
 }
 
+/// Which model images (of `m`) each of the `n_new` new ones is matched with: the `neighbours`
+/// nearest by EXIF GPS (`all`: the model's photos, then the new ones), else all of them (a video's
+/// frames have no EXIF GPS).
+fn model_images_to_match(
+    job: &RegisterJob,
+    all: &[PathBuf],
+    m: usize,
+    n_new: usize,
+) -> Vec<Vec<usize>> {
+    let gps: Option<Vec<GpsFix>> = if job.video.is_some() {
+        None
+    } else {
+        // Fixes far from the others' (another continent) are not used: then all are matched.
+        let metas: Vec<_> = all
+            .iter()
+            .map(|p| read_meta(p).unwrap_or_default())
+            .collect();
+        let names: Vec<String> = all.iter().map(|p| file_name(p)).collect();
+        super::job::consistent_gps(&metas, &names)
+            .fixes
+            .into_iter()
+            .collect()
+    };
+    match gps.as_ref().and_then(|g| enu_of(g)) {
+        Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..n_new)
+            .map(|i| {
+                let here = enu[m + i];
+                let mut by: Vec<(f64, usize)> =
+                    (0..m).map(|k| ((enu[k] - here).xy().norm(), k)).collect();
+                by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                by.into_iter()
+                    .take(job.neighbours)
+                    .map(|(_, k)| k)
+                    .collect()
+            })
+            .collect(),
+        _ => vec![(0..m).collect(); n_new],
+    }
+}
+
 /// Runs the registration; `features` and `matching` show their stages' progress.
 pub fn run_register(
     job: &RegisterJob,
@@ -221,38 +261,9 @@ pub fn run_register(
             mh: size.1,
         });
     }
-    // Which model images each new one is matched with (a video's frames have no EXIF GPS).
-    let gps: Option<Vec<GpsFix>> = if job.video.is_some() {
-        None
-    } else {
-        // Fixes far from the others' (another continent) are not used: then all are matched.
-        let metas: Vec<_> = all
-            .iter()
-            .map(|p| read_meta(p).unwrap_or_default())
-            .collect();
-        let names: Vec<String> = all.iter().map(|p| file_name(p)).collect();
-        super::job::consistent_gps(&metas, &names)
-            .fixes
-            .into_iter()
-            .collect()
-    };
-    let n_new = new_features.len();
     let m = reference.model.images.len();
-    let chosen: Vec<Vec<usize>> = match gps.as_ref().and_then(|g| enu_of(g)) {
-        Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..n_new)
-            .map(|i| {
-                let here = enu[m + i];
-                let mut by: Vec<(f64, usize)> =
-                    (0..m).map(|k| ((enu[k] - here).xy().norm(), k)).collect();
-                by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-                by.into_iter()
-                    .take(job.neighbours)
-                    .map(|(_, k)| k)
-                    .collect()
-            })
-            .collect(),
-        _ => vec![(0..m).collect(); n_new],
-    };
+    let n_new = new_features.len();
+    let chosen = model_images_to_match(job, &all, m, n_new);
     matching.set_length(chosen.iter().map(Vec::len).sum::<usize>() as u64);
     let mut per_image = Vec::new();
     for (i, name) in new_names.iter().enumerate() {
@@ -272,9 +283,8 @@ pub fn run_register(
         let frames: Vec<usize> = new_names
             .iter()
             .map(|n| {
-                n.rsplit('#')
-                    .next()
-                    .and_then(|f| f.parse().ok())
+                crate::io::frame_of_name(n)
+                    .and_then(Result::ok)
                     .unwrap_or(0)
             })
             .collect();

@@ -293,9 +293,12 @@ pub(super) fn picked(
                 ),
             )
         })?;
-    let frame = match (l.project.pose.picks_frame(), image.rsplit_once('#')) {
+    let frame = match (
+        l.project.pose.picks_frame(),
+        crate::io::frame_of_name(&image),
+    ) {
         (Some(f), _) => f,
-        (None, Some((_, n))) => n.parse().map_err(|_| {
+        (None, Some(n)) => n.map_err(|_| {
             input(
                 "picks",
                 format!(

@@ -110,145 +110,9 @@ pub fn decode(
             anchors,
             masks,
             strides,
-        } => {
-            if outputs.len() != masks.len() || strides.len() != masks.len() {
-                return Err(format!(
-                    "the model has {} output(s); the darknet layout names {} head(s)",
-                    outputs.len(),
-                    masks.len()
-                ));
-            }
-            for ((shape, data), (mask, &stride)) in outputs.iter().zip(masks.iter().zip(strides)) {
-                let [1, ch, gh, gw] = shape[..] else {
-                    return Err(format!(
-                        "a darknet head of shape {shape:?}, expected [1, C, H, W]"
-                    ));
-                };
-                let (ch, gh, gw) = (ch as usize, gh as usize, gw as usize);
-                let na = mask.len();
-                if na == 0 || ch % na != 0 || ch / na < 6 {
-                    return Err(format!(
-                        "a darknet head with {ch} channels for {na} anchors"
-                    ));
-                }
-                let per = ch / na;
-                let nc = per - 5;
-                let at = |a: usize, k: usize, y: usize, x: usize| {
-                    data[((a * per + k) * gh + y) * gw + x]
-                };
-                for (a, &m) in mask.iter().enumerate() {
-                    let anchor = anchors.get(m).ok_or("a mask names a missing anchor")?;
-                    for y in 0..gh {
-                        for x in 0..gw {
-                            let obj = sigmoid(at(a, 4, y, x));
-                            if obj < keep.min_score {
-                                continue;
-                            }
-                            let (mut best, mut best_c) = (0.0, 0);
-                            for c in 0..nc {
-                                if !keep.wants(c) {
-                                    continue;
-                                }
-                                let p = sigmoid(at(a, 5 + c, y, x));
-                                if p > best {
-                                    (best, best_c) = (p, c);
-                                }
-                            }
-                            let score = obj * best;
-                            if score < keep.min_score {
-                                continue;
-                            }
-                            let cx = (x as f64 + sigmoid(at(a, 0, y, x))) * stride;
-                            let cy = (y as f64 + sigmoid(at(a, 1, y, x))) * stride;
-                            let w = f64::from(at(a, 2, y, x)).exp() * anchor[0];
-                            let h = f64::from(at(a, 3, y, x)).exp() * anchor[1];
-                            out.push(RawBox {
-                                xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-                                score,
-                                class: best_c,
-                            });
-                        }
-                    }
-                }
-            }
-        }
-        Layout::Yolov5 | Layout::Yolox => {
-            let (data, [n, per]) = single(outputs, "[1, N, 5+C]", 6)?;
-            // YOLOX's candidates on the grids of strides 8, 16, 32, in that order.
-            let grid = matches!(layout, Layout::Yolox).then(|| yolox_grid(input_wh));
-            if let Some(g) = &grid
-                && g.len() != n
-            {
-                return Err(format!(
-                    "{n} candidates; a YOLOX model at {}x{} has {}",
-                    input_wh[0],
-                    input_wh[1],
-                    g.len()
-                ));
-            }
-            for i in 0..n {
-                let v = &data[i * per..(i + 1) * per];
-                let obj = f64::from(v[4]);
-                if obj < keep.min_score {
-                    continue;
-                }
-                let Some((best_c, best)) = (0..per - 5)
-                    .filter(|&c| keep.wants(c))
-                    .map(|c| (c, f64::from(v[5 + c])))
-                    .max_by(|a, b| a.1.total_cmp(&b.1))
-                else {
-                    continue;
-                };
-                let score = obj * best;
-                if score < keep.min_score {
-                    continue;
-                }
-                let (cx, cy, w, h) = match &grid {
-                    Some(g) => {
-                        let (gx, gy, s) = g[i];
-                        (
-                            (f64::from(v[0]) + gx) * s,
-                            (f64::from(v[1]) + gy) * s,
-                            f64::from(v[2]).exp() * s,
-                            f64::from(v[3]).exp() * s,
-                        )
-                    }
-                    None => (
-                        f64::from(v[0]),
-                        f64::from(v[1]),
-                        f64::from(v[2]),
-                        f64::from(v[3]),
-                    ),
-                };
-                out.push(RawBox {
-                    xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-                    score,
-                    class: best_c,
-                });
-            }
-        }
-        Layout::Yolov8 => {
-            let (data, [per, n]) = single(outputs, "[1, 4+C, N]", 5)?;
-            let at = |k: usize, i: usize| f64::from(data[k * n + i]);
-            for i in 0..n {
-                let Some((best_c, score)) = (0..per - 4)
-                    .filter(|&c| keep.wants(c))
-                    .map(|c| (c, at(4 + c, i)))
-                    .max_by(|a, b| a.1.total_cmp(&b.1))
-                else {
-                    continue;
-                };
-                if score < keep.min_score {
-                    continue;
-                }
-                let (cx, cy, w, h) = (at(0, i), at(1, i), at(2, i), at(3, i));
-                out.push(RawBox {
-                    xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-                    score,
-                    class: best_c,
-                });
-            }
-        }
+        } => decode_darknet(anchors, masks, strides, outputs, keep, &mut out)?,
+        Layout::Yolov5 | Layout::Yolox => decode_yolov5(layout, outputs, input_wh, keep, &mut out)?,
+        Layout::Yolov8 => decode_yolov8(outputs, keep, &mut out)?,
     }
     // A value that is not a number (a broken export) makes no box: NaN passes every `<` test.
     out.retain(|b| {
@@ -258,6 +122,169 @@ pub fn decode(
             && b.xywh[3] > 0.0
     });
     Ok(out)
+}
+
+/// [`decode`] of darknet's heads `[1, A·(5+C), H, W]`, one per mask.
+fn decode_darknet(
+    anchors: &[[f64; 2]],
+    masks: &[Vec<usize>],
+    strides: &[f64],
+    outputs: &[(Vec<i64>, Vec<f32>)],
+    keep: &Keep,
+    out: &mut Vec<RawBox>,
+) -> Result<(), String> {
+    if outputs.len() != masks.len() || strides.len() != masks.len() {
+        return Err(format!(
+            "the model has {} output(s); the darknet layout names {} head(s)",
+            outputs.len(),
+            masks.len()
+        ));
+    }
+    for ((shape, data), (mask, &stride)) in outputs.iter().zip(masks.iter().zip(strides)) {
+        let [1, ch, gh, gw] = shape[..] else {
+            return Err(format!(
+                "a darknet head of shape {shape:?}, expected [1, C, H, W]"
+            ));
+        };
+        let (ch, gh, gw) = (ch as usize, gh as usize, gw as usize);
+        let na = mask.len();
+        if na == 0 || ch % na != 0 || ch / na < 6 {
+            return Err(format!(
+                "a darknet head with {ch} channels for {na} anchors"
+            ));
+        }
+        let per = ch / na;
+        let nc = per - 5;
+        let at = |a: usize, k: usize, y: usize, x: usize| data[((a * per + k) * gh + y) * gw + x];
+        for (a, &m) in mask.iter().enumerate() {
+            let anchor = anchors.get(m).ok_or("a mask names a missing anchor")?;
+            for y in 0..gh {
+                for x in 0..gw {
+                    let obj = sigmoid(at(a, 4, y, x));
+                    if obj < keep.min_score {
+                        continue;
+                    }
+                    let (mut best, mut best_c) = (0.0, 0);
+                    for c in 0..nc {
+                        if !keep.wants(c) {
+                            continue;
+                        }
+                        let p = sigmoid(at(a, 5 + c, y, x));
+                        if p > best {
+                            (best, best_c) = (p, c);
+                        }
+                    }
+                    let score = obj * best;
+                    if score < keep.min_score {
+                        continue;
+                    }
+                    let cx = (x as f64 + sigmoid(at(a, 0, y, x))) * stride;
+                    let cy = (y as f64 + sigmoid(at(a, 1, y, x))) * stride;
+                    let w = f64::from(at(a, 2, y, x)).exp() * anchor[0];
+                    let h = f64::from(at(a, 3, y, x)).exp() * anchor[1];
+                    out.push(RawBox {
+                        xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
+                        score,
+                        class: best_c,
+                    });
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// [`decode`] of YOLOv5's or YOLOX's one output `[1, N, 5+C]`.
+fn decode_yolov5(
+    layout: &Layout,
+    outputs: &[(Vec<i64>, Vec<f32>)],
+    input_wh: [usize; 2],
+    keep: &Keep,
+    out: &mut Vec<RawBox>,
+) -> Result<(), String> {
+    let (data, [n, per]) = single(outputs, "[1, N, 5+C]", 6)?;
+    // YOLOX's candidates on the grids of strides 8, 16, 32, in that order.
+    let grid = matches!(layout, Layout::Yolox).then(|| yolox_grid(input_wh));
+    if let Some(g) = &grid
+        && g.len() != n
+    {
+        return Err(format!(
+            "{n} candidates; a YOLOX model at {}x{} has {}",
+            input_wh[0],
+            input_wh[1],
+            g.len()
+        ));
+    }
+    for i in 0..n {
+        let v = &data[i * per..(i + 1) * per];
+        let obj = f64::from(v[4]);
+        if obj < keep.min_score {
+            continue;
+        }
+        let Some((best_c, best)) = (0..per - 5)
+            .filter(|&c| keep.wants(c))
+            .map(|c| (c, f64::from(v[5 + c])))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+        else {
+            continue;
+        };
+        let score = obj * best;
+        if score < keep.min_score {
+            continue;
+        }
+        let (cx, cy, w, h) = match &grid {
+            Some(g) => {
+                let (gx, gy, s) = g[i];
+                (
+                    (f64::from(v[0]) + gx) * s,
+                    (f64::from(v[1]) + gy) * s,
+                    f64::from(v[2]).exp() * s,
+                    f64::from(v[3]).exp() * s,
+                )
+            }
+            None => (
+                f64::from(v[0]),
+                f64::from(v[1]),
+                f64::from(v[2]),
+                f64::from(v[3]),
+            ),
+        };
+        out.push(RawBox {
+            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
+            score,
+            class: best_c,
+        });
+    }
+    Ok(())
+}
+
+/// [`decode`] of YOLOv8's one output `[1, 4+C, N]`.
+fn decode_yolov8(
+    outputs: &[(Vec<i64>, Vec<f32>)],
+    keep: &Keep,
+    out: &mut Vec<RawBox>,
+) -> Result<(), String> {
+    let (data, [per, n]) = single(outputs, "[1, 4+C, N]", 5)?;
+    let at = |k: usize, i: usize| f64::from(data[k * n + i]);
+    for i in 0..n {
+        let Some((best_c, score)) = (0..per - 4)
+            .filter(|&c| keep.wants(c))
+            .map(|c| (c, at(4 + c, i)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+        else {
+            continue;
+        };
+        if score < keep.min_score {
+            continue;
+        }
+        let (cx, cy, w, h) = (at(0, i), at(1, i), at(2, i), at(3, i));
+        out.push(RawBox {
+            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
+            score,
+            class: best_c,
+        });
+    }
+    Ok(())
 }
 
 /// The one output `[1, a, b]` of a single-output layout (`form` for messages): its values and

@@ -375,6 +375,96 @@ pub(super) fn frame_from_file_name(name: &str) -> Option<usize> {
     stem[start..end].parse().ok()
 }
 
+/// The person categories' ids as JSON text (integer and string ids both work): those named
+/// "person", or COCO's 1 without categories.
+fn coco_person_ids<'a>(
+    ctx: FileCtx<'a>,
+    categories: Option<&Value>,
+    at: &dyn Fn(&str, usize) -> At<'a>,
+) -> Result<HashSet<String>, FileError> {
+    let mut person_ids = HashSet::new();
+    match categories {
+        None => {
+            person_ids.insert("1".to_string());
+        }
+        Some(Value::Array(cats)) => {
+            let mut names = Vec::new();
+            for (i, c) in cats.iter().enumerate() {
+                let name = c.get("name").and_then(Value::as_str).unwrap_or("");
+                let Some(id) = c.get("id") else {
+                    return Err(at("categories", i)
+                        .err("categories.id", "missing; expected the category id"));
+                };
+                if name.eq_ignore_ascii_case("person") {
+                    person_ids.insert(id.to_string());
+                }
+                names.push(name.to_string());
+            }
+            if person_ids.is_empty() {
+                return Err(ctx.err(
+                    None,
+                    Some("categories"),
+                    format!("no category named 'person' (found: {})", names.join(", ")),
+                ));
+            }
+        }
+        Some(v) => {
+            return Err(ctx.err(
+                None,
+                Some("categories"),
+                format!("expected an array, found {}", show(v)),
+            ));
+        }
+    }
+    Ok(person_ids)
+}
+
+/// Image id -> frame, when the file lists its images.
+fn coco_frames<'a>(
+    ctx: FileCtx<'a>,
+    images: Option<&Value>,
+    at: &dyn Fn(&str, usize) -> At<'a>,
+) -> Result<Option<HashMap<String, usize>>, FileError> {
+    Ok(match images {
+        None => None,
+        Some(Value::Array(imgs)) => {
+            let mut map = HashMap::new();
+            for (i, img) in imgs.iter().enumerate() {
+                let at = at("images", i);
+                let Some(id) = img.get("id") else {
+                    return Err(at.err("images.id", "missing; expected the image id"));
+                };
+                let frame = match img.get("frame_index").or_else(|| img.get("frame_id")) {
+                    Some(f) => json_frame(at, "frame_index", f)?,
+                    None => {
+                        let name = img.get("file_name").and_then(Value::as_str).unwrap_or("");
+                        frame_from_file_name(name).ok_or_else(|| {
+                            at.err(
+                                "images.file_name",
+                                format!("no digits in '{}' and no 'frame_index'; expected the frame number in the file name or a 'frame_index'", crate::io::clip(name, 60)),
+                            )
+                        })?
+                    }
+                };
+                if map.insert(id.to_string(), frame).is_some() {
+                    return Err(at.err(
+                        "images.id",
+                        format!("the image id {} is used twice", show(id)),
+                    ));
+                }
+            }
+            Some(map)
+        }
+        Some(v) => {
+            return Err(ctx.err(
+                None,
+                Some("images"),
+                format!("expected an array, found {}", show(v)),
+            ));
+        }
+    })
+}
+
 /// A results list `[{image_id, category_id, bbox, score}]` (image_id the 0-based frame) or a
 /// dataset `{images, annotations, categories}`. Only people are kept: the categories named
 /// "person" when categories are given, else category_id 1 (COCO's person) or none.
@@ -420,81 +510,8 @@ pub(super) fn parse_coco(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileEr
         _ => return Err(ctx.err(None, None, "expected a COCO results list or dataset")),
     };
 
-    // Category ids as JSON text, so that integer and string ids both work.
-    let mut person_ids = HashSet::new();
-    match categories {
-        None => {
-            person_ids.insert("1".to_string());
-        }
-        Some(Value::Array(cats)) => {
-            let mut names = Vec::new();
-            for (i, c) in cats.iter().enumerate() {
-                let name = c.get("name").and_then(Value::as_str).unwrap_or("");
-                let Some(id) = c.get("id") else {
-                    return Err(at("categories", i)
-                        .err("categories.id", "missing; expected the category id"));
-                };
-                if name.eq_ignore_ascii_case("person") {
-                    person_ids.insert(id.to_string());
-                }
-                names.push(name.to_string());
-            }
-            if person_ids.is_empty() {
-                return Err(ctx.err(
-                    None,
-                    Some("categories"),
-                    format!("no category named 'person' (found: {})", names.join(", ")),
-                ));
-            }
-        }
-        Some(v) => {
-            return Err(ctx.err(
-                None,
-                Some("categories"),
-                format!("expected an array, found {}", show(v)),
-            ));
-        }
-    }
-
-    // Image id -> frame, when the file lists its images.
-    let frames: Option<HashMap<String, usize>> = match images {
-        None => None,
-        Some(Value::Array(imgs)) => {
-            let mut map = HashMap::new();
-            for (i, img) in imgs.iter().enumerate() {
-                let at = at("images", i);
-                let Some(id) = img.get("id") else {
-                    return Err(at.err("images.id", "missing; expected the image id"));
-                };
-                let frame = match img.get("frame_index").or_else(|| img.get("frame_id")) {
-                    Some(f) => json_frame(at, "frame_index", f)?,
-                    None => {
-                        let name = img.get("file_name").and_then(Value::as_str).unwrap_or("");
-                        frame_from_file_name(name).ok_or_else(|| {
-                            at.err(
-                                "images.file_name",
-                                format!("no digits in '{}' and no 'frame_index'; expected the frame number in the file name or a 'frame_index'", crate::io::clip(name, 60)),
-                            )
-                        })?
-                    }
-                };
-                if map.insert(id.to_string(), frame).is_some() {
-                    return Err(at.err(
-                        "images.id",
-                        format!("the image id {} is used twice", show(id)),
-                    ));
-                }
-            }
-            Some(map)
-        }
-        Some(v) => {
-            return Err(ctx.err(
-                None,
-                Some("images"),
-                format!("expected an array, found {}", show(v)),
-            ));
-        }
-    };
+    let person_ids = coco_person_ids(ctx, categories, &at)?;
+    let frames = coco_frames(ctx, images, &at)?;
 
     let mut out = Vec::new();
     for (i, a) in annotations.iter().enumerate() {

@@ -101,32 +101,7 @@ impl ColourDetector {
                     score: 0.5,
                 });
             }
-            // Fragments of one hat (cut by an arm, say): small pieces close together are one.
-            let centroid = |p: &[(usize, usize)]| {
-                let n = p.len() as f64;
-                p.iter().fold((0.0, 0.0), |a, q| {
-                    (a.0 + q.0 as f64 / n, a.1 + q.1 as f64 / n)
-                })
-            };
-            let small = |p: &[(usize, usize)]| (p.len() as f64) < 0.6 * area_hat;
-            let mut merged = true;
-            while merged {
-                merged = false;
-                'outer: for i in 0..blobs.len() {
-                    for j in i + 1..blobs.len() {
-                        let (a, b) = (centroid(&blobs[i]), centroid(&blobs[j]));
-                        if small(&blobs[i])
-                            && small(&blobs[j])
-                            && (a.0 - b.0).hypot(a.1 - b.1) < 2.0 * r_hat
-                        {
-                            let other = blobs.swap_remove(j);
-                            blobs[i].extend(other);
-                            merged = true;
-                            break 'outer;
-                        }
-                    }
-                }
-            }
+            merge_fragments(&mut blobs, area_hat, r_hat);
             for pixels in blobs {
                 let whole = crate::detect::morph::split(&pixels, 1).remove(0);
                 let area = whole.area as f64;
@@ -173,5 +148,35 @@ impl ColourDetector {
             }
         }
         out
+    }
+}
+
+/// Fragments of one hat (cut by an arm, say): small pieces (under 0.6 of a hat's area) whose
+/// centroids are within two hat radii are one blob.
+fn merge_fragments(blobs: &mut Vec<Vec<(usize, usize)>>, area_hat: f64, r_hat: f64) {
+    let centroid = |p: &[(usize, usize)]| {
+        let n = p.len() as f64;
+        p.iter().fold((0.0, 0.0), |a, q| {
+            (a.0 + q.0 as f64 / n, a.1 + q.1 as f64 / n)
+        })
+    };
+    let small = |p: &[(usize, usize)]| (p.len() as f64) < 0.6 * area_hat;
+    let mut merged = true;
+    while merged {
+        merged = false;
+        'outer: for i in 0..blobs.len() {
+            for j in i + 1..blobs.len() {
+                let (a, b) = (centroid(&blobs[i]), centroid(&blobs[j]));
+                if small(&blobs[i])
+                    && small(&blobs[j])
+                    && (a.0 - b.0).hypot(a.1 - b.1) < 2.0 * r_hat
+                {
+                    let other = blobs.swap_remove(j);
+                    blobs[i].extend(other);
+                    merged = true;
+                    break 'outer;
+                }
+            }
+        }
     }
 }

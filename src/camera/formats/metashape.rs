@@ -77,14 +77,8 @@ fn line_of(doc: &roxmltree::Document, node: roxmltree::Node) -> usize {
     doc.text_pos_at(node.range().start).row as usize
 }
 
-pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
-    let doc = roxmltree::Document::parse(text).map_err(|e| {
-        ctx.err(
-            Some(e.pos().row as usize),
-            None,
-            format!("not valid XML: {e}"),
-        )
-    })?;
+/// A Metashape 1.5+ frame calibration's root: not OpenCV's XML, not PhotoScan 1.4's, a pinhole.
+fn check_root(ctx: &Ctx, doc: &roxmltree::Document) -> Result<(), FormatError> {
     let root = doc.root_element();
     if root.tag_name().name() == "opencv_storage" {
         return Err(ctx.err(
@@ -96,7 +90,7 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
     }
     if root.tag_name().name() != "calibration" {
         return Err(ctx.err(
-            Some(line_of(&doc, root)),
+            Some(line_of(doc, root)),
             None,
             format!(
                 "expected a Metashape <calibration> root element, found <{}>",
@@ -109,7 +103,7 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
         let kind = p.text().unwrap_or("").trim();
         if kind != "frame" {
             return Err(ctx.err(
-                Some(line_of(&doc, p)),
+                Some(line_of(doc, p)),
                 Some("projection"),
                 format!(
                     "only frame (pinhole) cameras are supported, found '{}'",
@@ -120,12 +114,26 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
     }
     if child("fx").is_some() && child("f").is_none() {
         return Err(ctx.err(
-            child("fx").map(|n| line_of(&doc, n)),
+            child("fx").map(|n| line_of(doc, n)),
             Some("fx"),
             "this is a PhotoScan 1.4-or-older calibration (fx/fy elements), whose conventions \
              differ; export the calibration again from Metashape 1.5 or later",
         ));
     }
+    Ok(())
+}
+
+pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
+    let doc = roxmltree::Document::parse(text).map_err(|e| {
+        ctx.err(
+            Some(e.pos().row as usize),
+            None,
+            format!("not valid XML: {e}"),
+        )
+    })?;
+    check_root(ctx, &doc)?;
+    let root = doc.root_element();
+    let child = |name: &str| root.children().find(|n| n.has_tag_name(name));
     let number = |name: &str, required: bool| -> Result<Option<f64>, FormatError> {
         match child(name) {
             None if required => Err(ctx.err(

@@ -83,6 +83,63 @@ fn round_length(x: f64) -> f64 {
         .unwrap_or(p)
 }
 
+/// The view's extent: the points' 1st to 99th percentiles and every camera (a unit square when
+/// there is nothing).
+fn extent(
+    pts: &[Vector3<f64>],
+    cams: &[(usize, Vector3<f64>, Vector3<f64>)],
+) -> (Vector2<f64>, Vector2<f64>) {
+    let (mut lo, mut hi) = (
+        Vector2::repeat(f64::INFINITY),
+        Vector2::repeat(f64::NEG_INFINITY),
+    );
+    for d in 0..2 {
+        if pts.len() >= 10 {
+            let mut v: Vec<f64> = pts.iter().map(|p| p[d]).collect();
+            lo[d] = percentile(&mut v, 0.01);
+            hi[d] = percentile(&mut v, 0.99);
+        }
+        for (_, c, _) in cams {
+            lo[d] = lo[d].min(c[d]);
+            hi[d] = hi[d].max(c[d]);
+        }
+    }
+    if !lo.iter().all(|v| v.is_finite()) {
+        lo = Vector2::new(-1.0, -1.0);
+        hi = Vector2::new(1.0, 1.0);
+    }
+    (lo, hi)
+}
+
+/// The surveyed points at their surveyed positions (only in the site frame), `to_px` from the
+/// site frame to the canvas.
+fn draw_surveyed(
+    canvas: &mut Canvas,
+    run: &SfmRun,
+    to_px: &dyn Fn(&Vector3<f64>) -> Vector2<f64>,
+) -> Result<(), ImageError> {
+    if let Some(g) = &run.report.georef {
+        for p in &g.points {
+            let q = to_px(&Vector3::from(p.position_m));
+            let colour = match p.role {
+                PointRole::Control => [255, 60, 60],
+                PointRole::Check => [80, 200, 255],
+            };
+            let a = 8.0;
+            let tri = [
+                q + Vector2::new(0.0, -a),
+                q + Vector2::new(a * 0.87, a * 0.5),
+                q + Vector2::new(-a * 0.87, a * 0.5),
+            ];
+            for k in 0..3 {
+                canvas.line(&tri[k], &tri[(k + 1) % 3], colour, 2)?;
+            }
+            canvas.text(&(q + Vector2::new(10.0, 12.0)), &p.name, 0.45, colour, 1)?;
+        }
+    }
+    Ok(())
+}
+
 /// Draws the top view of `run` (with its surveyed points' adjusted positions when
 /// georeferenced) into `path`.
 pub fn write_topview(path: &Path, run: &SfmRun) -> Result<(), ImageError> {
@@ -100,26 +157,7 @@ pub fn write_topview(path: &Path, run: &SfmRun) -> Result<(), ImageError> {
             Some((i, view(&p.centre()), axes * axis))
         })
         .collect();
-    // Extent: the points' 1st to 99th percentiles and every camera.
-    let (mut lo, mut hi) = (
-        Vector2::repeat(f64::INFINITY),
-        Vector2::repeat(f64::NEG_INFINITY),
-    );
-    for d in 0..2 {
-        if pts.len() >= 10 {
-            let mut v: Vec<f64> = pts.iter().map(|p| p[d]).collect();
-            lo[d] = percentile(&mut v, 0.01);
-            hi[d] = percentile(&mut v, 0.99);
-        }
-        for (_, c, _) in &cams {
-            lo[d] = lo[d].min(c[d]);
-            hi[d] = hi[d].max(c[d]);
-        }
-    }
-    if !lo.iter().all(|v| v.is_finite()) {
-        lo = Vector2::new(-1.0, -1.0);
-        hi = Vector2::new(1.0, 1.0);
-    }
+    let (lo, hi) = extent(&pts, &cams);
     let span = (hi - lo).map(|v| v.max(1e-6));
     let scale = (SIZE_PX - 2.0 * MARGIN_PX) / span.x.max(span.y);
     let w = (span.x * scale + 2.0 * MARGIN_PX).round().max(400.0);
@@ -183,26 +221,7 @@ pub fn write_topview(path: &Path, run: &SfmRun) -> Result<(), ImageError> {
             1,
         )?;
     }
-    // Surveyed points at their surveyed positions (only in the site frame).
-    if let Some(g) = &run.report.georef {
-        for p in &g.points {
-            let q = to_px(&view(&Vector3::from(p.position_m)));
-            let colour = match p.role {
-                PointRole::Control => [255, 60, 60],
-                PointRole::Check => [80, 200, 255],
-            };
-            let a = 8.0;
-            let tri = [
-                q + Vector2::new(0.0, -a),
-                q + Vector2::new(a * 0.87, a * 0.5),
-                q + Vector2::new(-a * 0.87, a * 0.5),
-            ];
-            for k in 0..3 {
-                canvas.line(&tri[k], &tri[(k + 1) % 3], colour, 2)?;
-            }
-            canvas.text(&(q + Vector2::new(10.0, 12.0)), &p.name, 0.45, colour, 1)?;
-        }
-    }
+    draw_surveyed(&mut canvas, run, &|p| to_px(&view(p)))?;
     // Scale bar, north arrow and a caption.
     let unit = if run.report.frame == "model" {
         "model units"

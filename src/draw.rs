@@ -417,6 +417,65 @@ fn label(v: f64, step: f64) -> String {
     format!("{v:.decimals$}")
 }
 
+/// A chart's axes: x from `x0` to `x1`, y from `y0` to `y1` in steps of `y_step`.
+struct ChartRanges {
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y_step: f64,
+    y1: f64,
+}
+
+impl ChartRanges {
+    /// The data's range, the x axis from 0 when asked, y from 0 or from the data, rounded out to
+    /// nice steps.
+    fn of(chart: &Chart) -> ChartRanges {
+        let pts = chart
+            .series
+            .iter()
+            .flat_map(|s| s.xy.iter())
+            .filter(|(x, y)| x.is_finite() && y.is_finite());
+        let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+        let mut y_min = f64::INFINITY;
+        for &(x, y) in pts {
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+            y1 = y1.max(y);
+            y_min = y_min.min(y);
+        }
+        if !x0.is_finite() {
+            (x0, x1) = (0.0, 1.0);
+        }
+        if chart.x_from_zero {
+            x0 = x0.min(0.0);
+        }
+        if x1 <= x0 {
+            x1 = x0 + 1.0;
+        }
+        let (y0, y_step, y1) = if chart.y_from_data && y_min.is_finite() && y_min > 0.0 {
+            // At least a few millimetres of span, centred on flat data.
+            let span = (y1 - y_min).max(1e-3 * y1.abs()).max(1e-6);
+            let step = nice_step(span, 5.0);
+            let lo = ((y_min - 0.05 * span) / step).floor() * step;
+            (
+                lo,
+                step,
+                ((y1 + 0.05 * span) / step).ceil().max(lo / step + 1.0) * step,
+            )
+        } else {
+            let step = nice_step(if y1 > 0.0 { y1 } else { 1.0 }, 5.0);
+            (0.0, step, (y1 / step).ceil().max(1.0) * step)
+        };
+        ChartRanges {
+            x0,
+            x1,
+            y0,
+            y_step,
+            y1,
+        }
+    }
+}
+
 /// Draws a chart on a white canvas of `width` × `height` pixels. The y axis starts at 0.
 pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, ImageError> {
     let mut c = Canvas::blank(width, height, [255, 255, 255])?;
@@ -425,42 +484,13 @@ pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, Imag
         f64::from(width) - left - right,
         f64::from(height) - top - bottom,
     );
-    let pts = chart
-        .series
-        .iter()
-        .flat_map(|s| s.xy.iter())
-        .filter(|(x, y)| x.is_finite() && y.is_finite());
-    let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
-    let mut y_min = f64::INFINITY;
-    for &(x, y) in pts {
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y1 = y1.max(y);
-        y_min = y_min.min(y);
-    }
-    if !x0.is_finite() {
-        (x0, x1) = (0.0, 1.0);
-    }
-    if chart.x_from_zero {
-        x0 = x0.min(0.0);
-    }
-    if x1 <= x0 {
-        x1 = x0 + 1.0;
-    }
-    let (y0, y_step, y1) = if chart.y_from_data && y_min.is_finite() && y_min > 0.0 {
-        // At least a few millimetres of span, centred on flat data.
-        let span = (y1 - y_min).max(1e-3 * y1.abs()).max(1e-6);
-        let step = nice_step(span, 5.0);
-        let lo = ((y_min - 0.05 * span) / step).floor() * step;
-        (
-            lo,
-            step,
-            ((y1 + 0.05 * span) / step).ceil().max(lo / step + 1.0) * step,
-        )
-    } else {
-        let step = nice_step(if y1 > 0.0 { y1 } else { 1.0 }, 5.0);
-        (0.0, step, (y1 / step).ceil().max(1.0) * step)
-    };
+    let ChartRanges {
+        x0,
+        x1,
+        y0,
+        y_step,
+        y1,
+    } = ChartRanges::of(chart);
     let to_px = |x: f64, y: f64| {
         Vector2::new(
             left + (x - x0) / (x1 - x0) * w,

@@ -44,6 +44,100 @@ fn reprojection_sq(pose: &Rigid3, world: &[Vector3<f64>], xy: &[Vector2<f64>]) -
     sum
 }
 
+/// The `k` null vectors of `MᵀM` (3k unknowns: the control points in the camera frame), the
+/// eigenvectors of its `k` smallest eigenvalues.
+fn null_vectors(alphas: &[Vec<f64>], xy: &[Vector2<f64>], k: usize) -> Vec<DVector<f64>> {
+    let d = 3 * k;
+    let mut mtm = DMatrix::<f64>::zeros(d, d);
+    let mut row_u = vec![0.0; d];
+    let mut row_v = vec![0.0; d];
+    for (a, m) in alphas.iter().zip(xy) {
+        for j in 0..k {
+            row_u[3 * j] = a[j];
+            row_u[3 * j + 1] = 0.0;
+            row_u[3 * j + 2] = -a[j] * m.x;
+            row_v[3 * j] = 0.0;
+            row_v[3 * j + 1] = a[j];
+            row_v[3 * j + 2] = -a[j] * m.y;
+        }
+        for r in 0..d {
+            for c in r..d {
+                mtm[(r, c)] += row_u[r] * row_u[c] + row_v[r] * row_v[c];
+            }
+        }
+    }
+    for r in 0..d {
+        for c in 0..r {
+            mtm[(r, c)] = mtm[(c, r)];
+        }
+    }
+    let eig = SymmetricEigen::new(mtm);
+    let mut order: Vec<usize> = (0..d).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    order
+        .iter()
+        .take(k)
+        .map(|&i| eig.eigenvectors.column(i).into())
+        .collect()
+}
+
+/// Candidate weights β of the null vectors: one vector scaled by the distances, two and three
+/// linearised in the products βᵢβⱼ.
+fn beta_candidates(
+    null: &[DVector<f64>],
+    pairs: &[(usize, usize)],
+    rho: &[f64],
+    diff: impl Fn(&DVector<f64>, usize, usize) -> Vector3<f64>,
+) -> Vec<Vec<f64>> {
+    let mut candidates: Vec<Vec<f64>> = Vec::new();
+    // One null vector: the scale from the distances.
+    {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (p, &(a, b)) in pairs.iter().enumerate() {
+            let dv = diff(&null[0], a, b).norm();
+            num += dv * rho[p].sqrt();
+            den += dv * dv;
+        }
+        if den > 0.0 {
+            candidates.push(vec![num / den]);
+        }
+    }
+    // Two and three null vectors: linearised in the products βᵢβⱼ.
+    for nv in 2..=3usize {
+        let prods: Vec<(usize, usize)> =
+            (0..nv).flat_map(|i| (i..nv).map(move |j| (i, j))).collect();
+        if prods.len() > pairs.len() {
+            continue;
+        }
+        let mut l = DMatrix::<f64>::zeros(pairs.len(), prods.len());
+        for (p, &(a, b)) in pairs.iter().enumerate() {
+            for (q, &(i, j)) in prods.iter().enumerate() {
+                let dot = diff(&null[i], a, b).dot(&diff(&null[j], a, b));
+                l[(p, q)] = if i == j { dot } else { 2.0 * dot };
+            }
+        }
+        let svd = l.svd(true, true);
+        let Ok(bb) = svd.solve(&DVector::from_column_slice(&rho), 1e-12) else {
+            continue;
+        };
+        // βᵢ from the diagonal products, signs from the cross products with β₀.
+        let b0 = bb[0].abs().sqrt();
+        if b0 == 0.0 {
+            continue;
+        }
+        let mut betas = vec![b0];
+        for i in 1..nv {
+            let q = prods
+                .iter()
+                .position(|&pq| pq == (0, i))
+                .expect("product (0, i)");
+            betas.push(bb[q] / b0);
+        }
+        candidates.push(betas);
+    }
+    candidates
+}
+
 /// Pose from n ≥ 4 world points and their undistorted normalised image coordinates `(x/z, y/z)`.
 pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<Rigid3, EstimateError> {
     assert_eq!(world.len(), xy.len(), "world and image points must pair up");
@@ -100,37 +194,7 @@ pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<Rigid3, Estim
         })
         .collect();
     let d = 3 * k;
-    let mut mtm = DMatrix::<f64>::zeros(d, d);
-    let mut row_u = vec![0.0; d];
-    let mut row_v = vec![0.0; d];
-    for (a, m) in alphas.iter().zip(xy) {
-        for j in 0..k {
-            row_u[3 * j] = a[j];
-            row_u[3 * j + 1] = 0.0;
-            row_u[3 * j + 2] = -a[j] * m.x;
-            row_v[3 * j] = 0.0;
-            row_v[3 * j + 1] = a[j];
-            row_v[3 * j + 2] = -a[j] * m.y;
-        }
-        for r in 0..d {
-            for c in r..d {
-                mtm[(r, c)] += row_u[r] * row_u[c] + row_v[r] * row_v[c];
-            }
-        }
-    }
-    for r in 0..d {
-        for c in 0..r {
-            mtm[(r, c)] = mtm[(c, r)];
-        }
-    }
-    let eig = SymmetricEigen::new(mtm);
-    let mut order: Vec<usize> = (0..d).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let null: Vec<DVector<f64>> = order
-        .iter()
-        .take(k)
-        .map(|&i| eig.eigenvectors.column(i).into())
-        .collect();
+    let null = null_vectors(&alphas, xy, k);
 
     let pairs: Vec<(usize, usize)> = (0..k)
         .flat_map(|a| (a + 1..k).map(move |b| (a, b)))
@@ -148,52 +212,7 @@ pub fn epnp(world: &[Vector3<f64>], xy: &[Vector2<f64>]) -> Result<Rigid3, Estim
         )
     };
 
-    let mut candidates: Vec<Vec<f64>> = Vec::new();
-    // One null vector: the scale from the distances.
-    {
-        let (mut num, mut den) = (0.0, 0.0);
-        for (p, &(a, b)) in pairs.iter().enumerate() {
-            let dv = diff(&null[0], a, b).norm();
-            num += dv * rho[p].sqrt();
-            den += dv * dv;
-        }
-        if den > 0.0 {
-            candidates.push(vec![num / den]);
-        }
-    }
-    // Two and three null vectors: linearised in the products βᵢβⱼ.
-    for nv in 2..=3usize {
-        let prods: Vec<(usize, usize)> =
-            (0..nv).flat_map(|i| (i..nv).map(move |j| (i, j))).collect();
-        if prods.len() > pairs.len() {
-            continue;
-        }
-        let mut l = DMatrix::<f64>::zeros(pairs.len(), prods.len());
-        for (p, &(a, b)) in pairs.iter().enumerate() {
-            for (q, &(i, j)) in prods.iter().enumerate() {
-                let dot = diff(&null[i], a, b).dot(&diff(&null[j], a, b));
-                l[(p, q)] = if i == j { dot } else { 2.0 * dot };
-            }
-        }
-        let svd = l.svd(true, true);
-        let Ok(bb) = svd.solve(&DVector::from_column_slice(&rho), 1e-12) else {
-            continue;
-        };
-        // βᵢ from the diagonal products, signs from the cross products with β₀.
-        let b0 = bb[0].abs().sqrt();
-        if b0 == 0.0 {
-            continue;
-        }
-        let mut betas = vec![b0];
-        for i in 1..nv {
-            let q = prods
-                .iter()
-                .position(|&pq| pq == (0, i))
-                .expect("product (0, i)");
-            betas.push(bb[q] / b0);
-        }
-        candidates.push(betas);
-    }
+    let candidates = beta_candidates(&null, &pairs, &rho, diff);
 
     let mut best: Option<(f64, Rigid3)> = None;
     for betas in candidates {

@@ -274,6 +274,71 @@ pub fn evaluate_matches(
     evaluate_inner(truth, estimated, ignored, threshold_m, true)
 }
 
+/// One frame's truth `t` and estimates `e` paired: last frame's correspondences that still hold
+/// within `threshold_m`, then a global assignment of the rest; the pairs and which are used.
+fn frame_pairs(
+    t: &[Sample],
+    e: &[Sample],
+    last_match: &HashMap<usize, usize>,
+    threshold_m: f64,
+) -> (Vec<(usize, usize)>, Vec<bool>, Vec<bool>) {
+    let mut t_used = vec![false; t.len()];
+    let mut e_used = vec![false; e.len()];
+    let mut pairs: Vec<(usize, usize)> = Vec::new();
+    // Keep last frame's correspondences that still hold.
+    for (i, a) in t.iter().enumerate() {
+        if let Some(&h) = last_match.get(&a.id)
+            && let Some(j) = e.iter().position(|b| b.id == h)
+            && !e_used[j]
+            && (a.position - e[j].position).norm() <= threshold_m
+        {
+            t_used[i] = true;
+            e_used[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    let ti: Vec<usize> = (0..t.len()).filter(|&i| !t_used[i]).collect();
+    let ej: Vec<usize> = (0..e.len()).filter(|&j| !e_used[j]).collect();
+    let cost: Vec<Vec<f64>> = ti
+        .iter()
+        .map(|&i| {
+            ej.iter()
+                .map(|&j| (t[i].position - e[j].position).norm())
+                .collect()
+        })
+        .collect();
+    for (k, m) in assign(&cost, threshold_m).into_iter().enumerate() {
+        if let Some(m) = m {
+            pairs.push((ti[k], ej[m]));
+            t_used[ti[k]] = true;
+            e_used[ej[m]] = true;
+        }
+    }
+    (pairs, t_used, e_used)
+}
+
+/// RMSE, mean and 95th percentile of the matched errors (sorted here; NaN without any).
+fn error_stats(errors: &mut [f64]) -> (f64, f64, f64) {
+    errors.sort_by(f64::total_cmp);
+    let n_match = errors.len();
+    let rmse = if n_match > 0 {
+        (errors.iter().map(|e| e * e).sum::<f64>() / n_match as f64).sqrt()
+    } else {
+        f64::NAN
+    };
+    let mean = if n_match > 0 {
+        errors.iter().sum::<f64>() / n_match as f64
+    } else {
+        f64::NAN
+    };
+    let p95 = if n_match > 0 {
+        errors[((0.95 * n_match as f64).ceil() as usize).clamp(1, n_match) - 1]
+    } else {
+        f64::NAN
+    };
+    (rmse, mean, p95)
+}
+
 /// The pairs are kept only when asked for: 64 bytes each, a gigabyte for a 200 MB table.
 fn evaluate_inner(
     truth: &[Sample],
@@ -327,38 +392,7 @@ fn evaluate_inner(
                 }
             }
         }
-        let mut t_used = vec![false; t.len()];
-        let mut e_used = vec![false; e.len()];
-        let mut pairs: Vec<(usize, usize)> = Vec::new();
-        // Keep last frame's correspondences that still hold.
-        for (i, a) in t.iter().enumerate() {
-            if let Some(&h) = last_match.get(&a.id)
-                && let Some(j) = e.iter().position(|b| b.id == h)
-                && !e_used[j]
-                && (a.position - e[j].position).norm() <= threshold_m
-            {
-                t_used[i] = true;
-                e_used[j] = true;
-                pairs.push((i, j));
-            }
-        }
-        let ti: Vec<usize> = (0..t.len()).filter(|&i| !t_used[i]).collect();
-        let ej: Vec<usize> = (0..e.len()).filter(|&j| !e_used[j]).collect();
-        let cost: Vec<Vec<f64>> = ti
-            .iter()
-            .map(|&i| {
-                ej.iter()
-                    .map(|&j| (t[i].position - e[j].position).norm())
-                    .collect()
-            })
-            .collect();
-        for (k, m) in assign(&cost, threshold_m).into_iter().enumerate() {
-            if let Some(m) = m {
-                pairs.push((ti[k], ej[m]));
-                t_used[ti[k]] = true;
-                e_used[ej[m]] = true;
-            }
-        }
+        let (pairs, t_used, e_used) = frame_pairs(t, e, &last_match, threshold_m);
         for &(i, j) in &pairs {
             let (a, b) = (&t[i], &e[j]);
             if let Some(&h) = last_match.get(&a.id)
@@ -408,23 +442,8 @@ fn evaluate_inner(
     } else {
         1.0
     };
-    errors.sort_by(f64::total_cmp);
     let n_match = errors.len();
-    let rmse = if n_match > 0 {
-        (errors.iter().map(|e| e * e).sum::<f64>() / n_match as f64).sqrt()
-    } else {
-        f64::NAN
-    };
-    let mean = if n_match > 0 {
-        errors.iter().sum::<f64>() / n_match as f64
-    } else {
-        f64::NAN
-    };
-    let p95 = if n_match > 0 {
-        errors[((0.95 * n_match as f64).ceil() as usize).clamp(1, n_match) - 1]
-    } else {
-        f64::NAN
-    };
+    let (rmse, mean, p95) = error_stats(&mut errors);
     let ratio =
         |id: &usize| matched_frames.get(id).copied().unwrap_or(0) as f64 / truth_frames[id] as f64;
     let tracked_90 = truth_ids.iter().filter(|id| ratio(id) >= 0.9).count();

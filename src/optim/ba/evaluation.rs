@@ -4,6 +4,7 @@ use super::*;
 
 /// Residuals and Jacobians at one point of the parameter space (weighted by the loss, fixed
 /// parameters' columns zeroed).
+#[derive(Clone)]
 pub(super) struct Evaluation<const M: usize> {
     pub(super) residuals: Vec<Vector2<f64>>,
     pub(super) j_pose: Vec<Mat26>,

@@ -179,6 +179,127 @@ pub(super) fn on_pool<R: Send>(observations: usize, f: impl FnOnce() -> R + Send
     }
 }
 
+impl BaIteration {
+    /// An iteration's record, not accepted, with no change, ratio or time yet.
+    fn at(
+        iteration: usize,
+        cost: f64,
+        gradient_max_norm: f64,
+        step_norm: f64,
+        radius: f64,
+    ) -> BaIteration {
+        BaIteration {
+            iteration,
+            cost,
+            cost_change: 0.0,
+            gradient_max_norm,
+            step_norm,
+            rho: f64::NAN,
+            radius,
+            accepted: false,
+            seconds: 0.0,
+        }
+    }
+}
+
+/// The one trust-region controller of geostride's least-squares solvers, with the settings' radii.
+fn trust_region(s: &BaSettings) -> Damping {
+    Damping::with_limits(
+        1.0 / s.initial_radius,
+        1.0 / s.max_radius,
+        1.0 / s.min_radius,
+    )
+}
+
+/// The problem, its priors and its memory checked before any work.
+fn check_before<const M: usize>(
+    p: &Problem<M>,
+    priors: &Priors,
+    settings: &BaSettings,
+) -> Result<(), BaError> {
+    p.check()?;
+    check_priors(p, priors)?;
+    let needed = p.memory_estimate(settings.linear_solver);
+    if needed > settings.max_memory_bytes {
+        return Err(BaError::TooLarge {
+            needed,
+            limit: settings.max_memory_bytes,
+        });
+    }
+    Ok(())
+}
+
+/// The gradient of the unscaled problem, Jᵀr (the scaled one divided by the scales): its largest
+/// component.
+fn gradient_max_norm<const M: usize>(
+    n: &Normal<M>,
+    s_cam: &DVector<f64>,
+    s_point: &[Vector3<f64>],
+) -> f64 {
+    n.g_cam.component_div(s_cam).amax().max(
+        n.g_point
+            .iter()
+            .zip(s_point)
+            .map(|(g, sc)| g.component_div(sc).amax())
+            .fold(0.0, f64::max),
+    )
+}
+
+/// The norm of every parameter.
+fn x_norm<const M: usize>(p: &Problem<M>) -> f64 {
+    (p.poses.iter().flatten().map(|v| v * v).sum::<f64>()
+        + p.intrinsics.iter().flatten().map(|v| v * v).sum::<f64>()
+        + p.points.iter().flatten().map(|v| v * v).sum::<f64>())
+    .sqrt()
+}
+
+/// The step in the problem's own variables (the scaled Schur step times the scales) and the
+/// model's decrease −(Jδ)ᵀ(r + Jδ/2); `None` when it cannot be computed.
+#[allow(clippy::type_complexity)]
+fn unscaled_step<const M: usize>(
+    p: &Problem<M>,
+    priors: &Priors,
+    at: &Linearisation<M>,
+    e: &Evaluation<M>,
+    (d_cam, d_point): (&DVector<f64>, &[Vector3<f64>]),
+    radius: f64,
+    s: &BaSettings,
+) -> Option<(DVector<f64>, Vec<Vector3<f64>>, f64)> {
+    schur_step(
+        p,
+        at.st,
+        at.lay,
+        at.n,
+        d_cam,
+        d_point,
+        radius,
+        (s.linear_solver, s.iterative_tolerance),
+    )
+    .map(|(y_cam, y_point)| {
+        let delta_cam = y_cam.component_mul(at.s_cam);
+        let delta_point: Vec<Vector3<f64>> = y_point
+            .iter()
+            .zip(at.s_point)
+            .map(|(y, sp)| y.component_mul(sp))
+            .collect();
+        let model_change = model_decrease(p, priors, at.lay, e, &delta_cam, &delta_point);
+        (delta_cam, delta_point, model_change)
+    })
+}
+
+/// The covariance at the solution from its last normal equations, `sigma_px` or the residuals'.
+fn covariance_at<const M: usize>(
+    p: &Problem<M>,
+    priors: &Priors,
+    at: &Linearisation<M>,
+    e: &Evaluation<M>,
+    sigma_px: Option<f64>,
+) -> Result<CameraCovariance, BaError> {
+    let freedom = Freedom::of(p, priors, at.lay);
+    let sigma = sigma_px.unwrap_or_else(|| freedom.sigma(&e.residuals));
+    from_normal(p, at, &freedom, sigma, sigma * sigma)
+}
+
 /// The adjustment; with `covariance` (its `sigma_px`), the covariance from the last normal
 /// equations too.
 fn adjust_on_pool<const M: usize>(
@@ -189,54 +310,20 @@ fn adjust_on_pool<const M: usize>(
     covariance: Option<Option<f64>>,
 ) -> Result<(BaSummary, Option<CameraCovariance>), BaError> {
     let start = Instant::now();
-    p.check()?;
-    check_priors(p, priors)?;
-    let needed = p.memory_estimate(settings.linear_solver);
-    if needed > settings.max_memory_bytes {
-        return Err(BaError::TooLarge {
-            needed,
-            limit: settings.max_memory_bytes,
-        });
-    }
+    check_before(p, priors, settings)?;
     let s = settings;
     let st = Structure::new(p);
     let lay = Layout::new(p);
     let mut e = evaluate(p, model, priors, s.loss).map_err(|k| projection_error(p, k))?;
     // The trial evaluation's buffers, swapped with `e` when a step is accepted.
-    let mut spare = Evaluation {
-        residuals: e.residuals.clone(),
-        j_pose: e.j_pose.clone(),
-        j_intr: e.j_intr.clone(),
-        j_point: e.j_point.clone(),
-        cost: e.cost,
-    };
+    let mut spare = e.clone();
     let initial_cost = e.cost;
     let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
     let mut n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
     let diag_of = |n: &Normal<M>| clamped_diagonals(&lay, n, s.min_diagonal, s.max_diagonal);
     let (mut d_cam, mut d_point) = diag_of(&n);
-    // The gradient of the unscaled problem, Jᵀr: the scaled one divided by the scales.
-    let gradient_max = |n: &Normal<M>| -> f64 {
-        n.g_cam.component_div(&s_cam).amax().max(
-            n.g_point
-                .iter()
-                .zip(&s_point)
-                .map(|(g, sc)| g.component_div(sc).amax())
-                .fold(0.0, f64::max),
-        )
-    };
-    let x_norm = |p: &Problem<M>| -> f64 {
-        (p.poses.iter().flatten().map(|v| v * v).sum::<f64>()
-            + p.intrinsics.iter().flatten().map(|v| v * v).sum::<f64>()
-            + p.points.iter().flatten().map(|v| v * v).sum::<f64>())
-        .sqrt()
-    };
-    // The one trust-region controller of geostride's least-squares solvers.
-    let mut region = Damping::with_limits(
-        1.0 / s.initial_radius,
-        1.0 / s.max_radius,
-        1.0 / s.min_radius,
-    );
+    let gradient_max = |n: &Normal<M>| gradient_max_norm(n, &s_cam, &s_point);
+    let mut region = trust_region(s);
     let mut iterations = Vec::new();
     let mut accepted_steps = 0;
     let mut invalid = 0;
@@ -247,26 +334,14 @@ fn adjust_on_pool<const M: usize>(
     while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
         let t0 = Instant::now();
         // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
-        let step = schur_step(
-            p,
-            &st,
-            &lay,
-            &n,
-            &d_cam,
-            &d_point,
-            region.radius(),
-            (s.linear_solver, s.iterative_tolerance),
-        )
-        .map(|(y_cam, y_point)| {
-            let delta_cam = y_cam.component_mul(&s_cam);
-            let delta_point: Vec<Vector3<f64>> = y_point
-                .iter()
-                .zip(&s_point)
-                .map(|(y, sp)| y.component_mul(sp))
-                .collect();
-            let model_change = model_decrease(p, priors, &lay, &e, &delta_cam, &delta_point);
-            (delta_cam, delta_point, model_change)
-        });
+        let at = Linearisation {
+            st: &st,
+            lay: &lay,
+            n: &n,
+            s_cam: &s_cam,
+            s_point: &s_point,
+        };
+        let step = unscaled_step(p, priors, &at, &e, (&d_cam, &d_point), region.radius(), s);
         let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
             (dc.norm_squared() + dp.iter().map(|d| d.norm_squared()).sum::<f64>()).sqrt()
         });
@@ -276,15 +351,16 @@ fn adjust_on_pool<const M: usize>(
             invalid += 1;
             region.reject();
             iterations.push(BaIteration {
-                iteration: iterations.len() + 1,
-                cost: e.cost,
                 cost_change: 0.0,
-                gradient_max_norm: gradient_max(&n),
-                step_norm,
                 rho: f64::NAN,
-                radius: region.radius(),
-                accepted: false,
                 seconds: t0.elapsed().as_secs_f64(),
+                ..BaIteration::at(
+                    iterations.len() + 1,
+                    e.cost,
+                    gradient_max(&n),
+                    step_norm,
+                    region.radius(),
+                )
             });
             if invalid >= 5 {
                 termination = BaTermination::Failure;
@@ -301,15 +377,15 @@ fn adjust_on_pool<const M: usize>(
         let new_cost = if trial { spare.cost } else { f64::INFINITY };
         let xn = x_norm(p);
         let mut record = BaIteration {
-            iteration: iterations.len() + 1,
-            cost: new_cost,
             cost_change: e.cost - new_cost,
-            gradient_max_norm: gradient_max(&n),
-            step_norm,
             rho: (e.cost - new_cost) / model_change,
-            radius: region.radius(),
-            accepted: false,
-            seconds: 0.0,
+            ..BaIteration::at(
+                iterations.len() + 1,
+                new_cost,
+                gradient_max(&n),
+                step_norm,
+                region.radius(),
+            )
         };
         // Where the candidate's Jacobians cannot be evaluated, the step is rejected.
         let accepted = if step_norm <= s.parameter_tolerance * (xn + s.parameter_tolerance) {
@@ -352,8 +428,6 @@ fn adjust_on_pool<const M: usize>(
     let cov = match covariance {
         None => None,
         Some(sigma_px) => {
-            let freedom = Freedom::of(p, priors, &lay);
-            let sigma = sigma_px.unwrap_or_else(|| freedom.sigma(&e.residuals));
             let at = Linearisation {
                 st: &st,
                 lay: &lay,
@@ -361,7 +435,7 @@ fn adjust_on_pool<const M: usize>(
                 s_cam: &s_cam,
                 s_point: &s_point,
             };
-            Some(from_normal(p, &at, &freedom, sigma, sigma * sigma)?)
+            Some(covariance_at(p, priors, &at, &e, sigma_px)?)
         }
     };
     let summary = BaSummary {

@@ -571,6 +571,55 @@ fn json_report(l: &Loaded) -> JsonReport<'_> {
     }
 }
 
+/// The points' positions converted from `src` to `dst` (heights written unchanged; a change of
+/// height kind refused), with a note when the datum changes.
+fn converted_positions(
+    points: &[geostride::survey::Gcp],
+    height: &HeightKind,
+    src: &Crs,
+    dst: &Crs,
+    notes: &mut Vec<String>,
+) -> anyhow::Result<Vec<Vector3<f64>>> {
+    if let (k, HeightKind::Orthometric(_) | HeightKind::Ellipsoidal) = (height, &dst.height_kind) {
+        let same = matches!(
+            (k, &dst.height_kind),
+            (HeightKind::Ellipsoidal, HeightKind::Ellipsoidal)
+                | (HeightKind::Orthometric(_), HeightKind::Orthometric(_))
+        );
+        if !same {
+            return Err(bad_input(anyhow!(
+                "the target CRS {} has {} heights but the survey's are {}; geostride does not convert heights between kinds",
+                dst.label(),
+                dst.height_kind,
+                k
+            )));
+        }
+    }
+    if src.geodetic_name != dst.geodetic_name {
+        notes.push(format!(
+            "the datum changes ({} -> {}): PROJ's best available transformation is used; without its grid files it can be off by up to a metre",
+            src.geodetic_name, dst.geodetic_name
+        ));
+    }
+    let t = Transform::new(src, dst).map_err(bad_input)?;
+    let positions = points
+        .iter()
+        .map(|p| {
+            // The height goes through the operation as cs2cs takes it (a datum's
+            // rotation moves a point by its height's lever); it is written unchanged.
+            let h = if p.position.z.is_finite() {
+                p.position.z
+            } else {
+                0.0
+            };
+            t.apply_3d(p.position.x, p.position.y, h)
+                .map(|(x, y, _)| Vector3::new(x, y, p.position.z))
+        })
+        .collect::<Result<_, _>>()
+        .map_err(bad_input)?;
+    Ok(positions)
+}
+
 /// Writes the converted survey; returns notes for the user.
 fn convert(
     l: &Loaded,
@@ -610,45 +659,7 @@ fn convert(
             )));
         }
         (Some(src), Some(dst)) if src.spec != dst.spec => {
-            if let (k, HeightKind::Orthometric(_) | HeightKind::Ellipsoidal) =
-                (&s.height, &dst.height_kind)
-            {
-                let same = matches!(
-                    (k, &dst.height_kind),
-                    (HeightKind::Ellipsoidal, HeightKind::Ellipsoidal)
-                        | (HeightKind::Orthometric(_), HeightKind::Orthometric(_))
-                );
-                if !same {
-                    return Err(bad_input(anyhow!(
-                        "the target CRS {} has {} heights but the survey's are {}; geostride does not convert heights between kinds",
-                        dst.label(),
-                        dst.height_kind,
-                        k
-                    )));
-                }
-            }
-            if src.geodetic_name != dst.geodetic_name {
-                notes.push(format!(
-                    "the datum changes ({} -> {}): PROJ's best available transformation is used; without its grid files it can be off by up to a metre",
-                    src.geodetic_name, dst.geodetic_name
-                ));
-            }
-            let t = Transform::new(src, dst).map_err(bad_input)?;
-            s.points
-                .iter()
-                .map(|p| {
-                    // The height goes through the operation as cs2cs takes it (a datum's
-                    // rotation moves a point by its height's lever); it is written unchanged.
-                    let h = if p.position.z.is_finite() {
-                        p.position.z
-                    } else {
-                        0.0
-                    };
-                    t.apply_3d(p.position.x, p.position.y, h)
-                        .map(|(x, y, _)| Vector3::new(x, y, p.position.z))
-                })
-                .collect::<Result<_, _>>()
-                .map_err(bad_input)?
+            converted_positions(&s.points, &s.height, src, dst, &mut notes)?
         }
         _ => s.points.iter().map(|p| p.position).collect(),
     };

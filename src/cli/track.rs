@@ -79,22 +79,9 @@ struct Report {
     outputs: Vec<String>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    // A head a few pixels across to a thousand: beyond, the tracker's gates mean nothing.
-    if !(1.0..=10_000.0).contains(&args.px_per_m) {
-        return Err(bad_input(anyhow!(
-            "--px-per-m {}: expected 1 to 10000 pixels a metre at head height",
-            args.px_per_m
-        )));
-    }
-    if !(args.min_area_m2 < args.max_area_m2) {
-        return Err(bad_input(anyhow!(
-            "--min-area-m2 {} is not below --max-area-m2 {}: a person's area lies between them",
-            args.min_area_m2,
-            args.max_area_m2
-        )));
-    }
-    let detector: Box<dyn Detector> = match args.detect.as_str() {
+/// The detector the arguments name: an external detector's boxes or background subtraction.
+fn detector_of(args: &Args) -> anyhow::Result<Box<dyn Detector>> {
+    Ok(match args.detect.as_str() {
         "boxes" => {
             let path = args.boxes.as_ref().ok_or_else(|| {
                 bad_input(anyhow!(
@@ -130,7 +117,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 geostride::pipeline::detectors::background_settings(&section, args.px_per_m);
             Box::new(BackgroundDetector::new(settings).map_err(|e| bad_input(anyhow!(e)))?)
         }
-    };
+    })
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    // A head a few pixels across to a thousand: beyond, the tracker's gates mean nothing.
+    if !(1.0..=10_000.0).contains(&args.px_per_m) {
+        return Err(bad_input(anyhow!(
+            "--px-per-m {}: expected 1 to 10000 pixels a metre at head height",
+            args.px_per_m
+        )));
+    }
+    if !(args.min_area_m2 < args.max_area_m2) {
+        return Err(bad_input(anyhow!(
+            "--min-area-m2 {} is not below --max-area-m2 {}: a person's area lies between them",
+            args.min_area_m2,
+            args.max_area_m2
+        )));
+    }
+    let detector = detector_of(&args)?;
     // A video that cannot be opened is the user's to fix (exit 2).
     geostride::video::source::FrameReader::open(&args.video).map_err(|e| bad_input(anyhow!(e)))?;
     super::create_output_dir(&args.out, std::iter::once(&args.video).chain(&args.boxes))?;

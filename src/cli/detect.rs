@@ -133,10 +133,8 @@ fn write_preview(
     Ok(())
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    if args.every == 0 {
-        return Err(bad_input(anyhow!("--every 0: give N ≥ 1")));
-    }
+/// The detector's settings from the flags, checked as the project's are (named by the flags).
+fn settings_of(args: &Args) -> anyhow::Result<NeuralSettings> {
     if args.mean.len() != 3 || args.std.len() != 3 {
         return Err(bad_input(anyhow!(
             "--mean and --std take three numbers each, comma-separated (0.485,0.456,0.406)"
@@ -172,6 +170,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         bad_input(anyhow!("--{} {message}", flag.replace('_', "-")))
     })?;
+    Ok(settings)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.every == 0 {
+        return Err(bad_input(anyhow!("--every 0: give N ≥ 1")));
+    }
+    let settings = settings_of(&args)?;
     if args.max_frames == Some(0) {
         return Err(bad_input(anyhow!("--max-frames 0: give N ≥ 1")));
     }

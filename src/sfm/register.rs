@@ -87,22 +87,22 @@ fn whole(t: &str) -> Option<i64> {
     t.parse::<i64>().ok()
 }
 
-/// A COLMAP text model from its three files' texts (`(path, text)`, the paths for messages):
-/// one camera, finite numbers in range, ids whole and unique, every point an image observes
-/// in points3D.txt, names that stay inside the images' folder.
-pub fn parse_model(
-    cameras: (&Path, &str),
-    images: (&Path, &str),
-    points: (&Path, &str),
-) -> Result<Model, ModelError> {
-    let bad = |path: &Path, line: usize, message: String| ModelError {
+/// A model file's error at `line`.
+fn bad(path: &Path, line: usize, message: String) -> ModelError {
+    ModelError {
         path: path.to_path_buf(),
         line: Some(line),
         message,
-    };
-    let content = |(_, l): &(usize, &str)| !l.starts_with('#') && !l.trim().is_empty();
-    // cameras.txt: one camera.
-    let (path, text) = cameras;
+    }
+}
+
+/// A line that is neither a comment nor blank.
+fn content((_, l): &(usize, &str)) -> bool {
+    !l.starts_with('#') && !l.trim().is_empty()
+}
+
+/// cameras.txt: its one camera, with its image size and id.
+fn parse_camera(path: &Path, text: &str) -> Result<(Camera, u32, u32, i64), ModelError> {
     let mut camera = None;
     for (k, l) in text.lines().enumerate().filter(content) {
         if camera.is_some() {
@@ -172,10 +172,14 @@ pub fn parse_model(
             .map_err(|(field, message)| bad(path, k + 1, format!("{field}: {message}")))?;
         camera = Some((c, w, h, id));
     }
-    let (camera, width, height, camera_id) =
-        camera.ok_or_else(|| bad(path, 1, "no camera in the file".into()))?;
-    // points3D.txt: ids to indices.
-    let (path, text) = points;
+    camera.ok_or_else(|| bad(path, 1, "no camera in the file".into()))
+}
+
+/// points3D.txt: the points, and their ids to indices.
+fn parse_points(
+    path: &Path,
+    text: &str,
+) -> Result<(Vec<Vector3<f64>>, HashMap<i64, usize>), ModelError> {
     let mut points = Vec::new();
     let mut index_of: HashMap<i64, usize> = HashMap::new();
     for (k, l) in text.lines().enumerate().filter(content) {
@@ -209,8 +213,17 @@ pub fn parse_model(
         }
         points.push(Vector3::new(xyz[0], xyz[1], xyz[2]));
     }
-    // images.txt: a head line, then its points' line (empty for an image without points).
-    let (path, text) = images;
+    Ok((points, index_of))
+}
+
+/// images.txt: a head line, then its points' line (empty for an image without points).
+fn parse_images(
+    path: &Path,
+    text: &str,
+    camera_id: i64,
+    (width, height): (u32, u32),
+    index_of: &HashMap<i64, usize>,
+) -> Result<Vec<ModelImage>, ModelError> {
     let mut lines = text.lines().enumerate();
     let mut images = Vec::new();
     let mut ids = std::collections::HashSet::new();
@@ -329,6 +342,21 @@ pub fn parse_model(
             point_of,
         });
     }
+    Ok(images)
+}
+
+/// A COLMAP text model from its three files' texts (`(path, text)`, the paths for messages):
+/// one camera, finite numbers in range, ids whole and unique, every point an image observes
+/// in points3D.txt, names that stay inside the images' folder.
+pub fn parse_model(
+    cameras: (&Path, &str),
+    images: (&Path, &str),
+    points: (&Path, &str),
+) -> Result<Model, ModelError> {
+    let (camera, width, height, camera_id) = parse_camera(cameras.0, cameras.1)?;
+    let (points, index_of) = parse_points(points.0, points.1)?;
+    let (path, text) = images;
+    let images = parse_images(path, text, camera_id, (width, height), &index_of)?;
     if images.is_empty() {
         return Err(bad(path, 1, "no registered image in the model".into()));
     }

@@ -156,6 +156,63 @@ fn frame_pose(
     None
 }
 
+/// The joint refinement's inputs: the poses of the key frames that join it (at most
+/// `JOINT_MAX`, evenly spread among the solved ones), their inlying picks with σ grown by
+/// √(key frames seeing the pick), and which key frames join.
+fn joint_inputs(
+    key_frames: &[KeyFrame],
+    key_obs: &[Vec<(usize, GcpObservation)>],
+    n_gcps: usize,
+) -> (Vec<Rigid3>, Vec<JointObs>, Vec<bool>) {
+    let mut poses = Vec::new();
+    let mut jobs = Vec::new();
+    // At most JOINT_MAX key frames, evenly spread, join the refinement (a crowd covering the
+    // ground renews the reference almost every frame; the GCPs are as well fixed by a hundred
+    // frames as by a thousand, and its cost grows with the cube of the frames); the others are
+    // refined on their own in step 3 like every other frame.
+    let solved_keys = key_frames.iter().filter(|k| k.solution.is_ok()).count();
+    let mut in_joint = vec![false; key_frames.len()];
+    {
+        let mut n = 0;
+        for (i, k) in key_frames.iter().enumerate() {
+            if k.solution.is_ok() {
+                in_joint[i] = spread_pick(n, solved_keys, JOINT_MAX);
+                n += 1;
+            }
+        }
+    }
+    for ((k, obs), _) in key_frames
+        .iter()
+        .zip(key_obs)
+        .zip(&in_joint)
+        .filter(|(_, joint)| **joint)
+    {
+        let Ok(sol) = &k.solution else { continue };
+        let pose_index = poses.len();
+        poses.push(sol.cam_from_world);
+        for ((j, o), r) in obs.iter().zip(&sol.residuals) {
+            if !r.outlier {
+                jobs.push(JointObs {
+                    pose: pose_index,
+                    point: *j,
+                    uv: o.uv,
+                    sigma_px: o.sigma_px,
+                });
+            }
+        }
+    }
+    // A pick carried from one frame repeats that frame's picking error in every key frame: it is
+    // one measurement, not one per key frame, so its σ grows with √(key frames seeing it).
+    let mut seen_in = vec![0usize; n_gcps];
+    for o in &jobs {
+        seen_in[o.point] += 1;
+    }
+    for o in &mut jobs {
+        o.sigma_px *= (seen_in[o.point] as f64).sqrt();
+    }
+    (poses, jobs, in_joint)
+}
+
 /// Solves every frame. `tracks` are the stabiliser's, in frame order.
 pub fn solve_hover(
     camera: &Camera,
@@ -200,52 +257,7 @@ pub fn solve_hover(
         key_obs.push(obs);
     }
     // 2. Joint refinement of the solved key frames with the GCPs.
-    let mut poses = Vec::new();
-    let mut jobs = Vec::new();
-    // At most JOINT_MAX key frames, evenly spread, join the refinement (a crowd covering the
-    // ground renews the reference almost every frame; the GCPs are as well fixed by a hundred
-    // frames as by a thousand, and its cost grows with the cube of the frames); the others are
-    // refined on their own in step 3 like every other frame.
-    let solved_keys = key_frames.iter().filter(|k| k.solution.is_ok()).count();
-    let mut in_joint = vec![false; key_frames.len()];
-    {
-        let mut n = 0;
-        for (i, k) in key_frames.iter().enumerate() {
-            if k.solution.is_ok() {
-                in_joint[i] = spread_pick(n, solved_keys, JOINT_MAX);
-                n += 1;
-            }
-        }
-    }
-    for ((k, obs), _) in key_frames
-        .iter()
-        .zip(&key_obs)
-        .zip(&in_joint)
-        .filter(|(_, joint)| **joint)
-    {
-        let Ok(sol) = &k.solution else { continue };
-        let pose_index = poses.len();
-        poses.push(sol.cam_from_world);
-        for ((j, o), r) in obs.iter().zip(&sol.residuals) {
-            if !r.outlier {
-                jobs.push(JointObs {
-                    pose: pose_index,
-                    point: *j,
-                    uv: o.uv,
-                    sigma_px: o.sigma_px,
-                });
-            }
-        }
-    }
-    // A pick carried from one frame repeats that frame's picking error in every key frame: it is
-    // one measurement, not one per key frame, so its σ grows with √(key frames seeing it).
-    let mut seen_in = vec![0usize; gcps.len()];
-    for o in &jobs {
-        seen_in[o.point] += 1;
-    }
-    for o in &mut jobs {
-        o.sigma_px *= (seen_in[o.point] as f64).sqrt();
-    }
+    let (poses, jobs, in_joint) = joint_inputs(&key_frames, &key_obs, gcps.len());
     if poses.is_empty() {
         let why = key_frames
             .first()
@@ -331,31 +343,36 @@ pub fn solve_hover(
         progress.inc(1);
     }
     // 4. Interpolate the frames that could not be solved.
+    let out = fill_gaps(&frames, tracks)?;
+    Ok(HoverResult {
+        key_frames,
+        joint,
+        frames: out,
+    })
+}
+
+/// Every frame's pose: the solved ones as they are, the others interpolated between the nearest
+/// solved ones (held at the ends) and flagged.
+fn fill_gaps(
+    frames: &[Option<FramePose>],
+    tracks: &[FrameTrack],
+) -> Result<Vec<FramePose>, PoseError> {
     let solved_idx: Vec<usize> = (0..frames.len()).filter(|&i| frames[i].is_some()).collect();
     if solved_idx.is_empty() {
         return Err(PoseError::Degenerate(
             "no frame has 4 usable carried picks".into(),
         ));
     }
+    let pose_of = |k: usize| frames[k].as_ref().expect("solved").cam_from_world;
     let mut out = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
         if let Some(f) = f {
             out.push(f.clone());
             continue;
         }
-        let before = solved_idx.iter().rev().find(|&&s| s < i).copied();
-        let after = solved_idx.iter().find(|&&s| s > i).copied();
-        let pose = match (before, after) {
-            (Some(a), Some(b)) => {
-                let (pa, pb) = (
-                    frames[a].as_ref().expect("solved").cam_from_world,
-                    frames[b].as_ref().expect("solved").cam_from_world,
-                );
-                pa.interpolate(&pb, (i - a) as f64 / (b - a) as f64)
-            }
-            (Some(a), None) => frames[a].as_ref().expect("solved").cam_from_world,
-            (None, Some(b)) => frames[b].as_ref().expect("solved").cam_from_world,
-            (None, None) => unreachable!("some frame is solved"),
+        let pose = match super::gap_neighbours(&solved_idx, i) {
+            (a, b, t) if a != b => pose_of(a).interpolate(&pose_of(b), t),
+            (a, _, _) => pose_of(a),
         };
         out.push(FramePose {
             index: tracks[i].index,
@@ -369,11 +386,7 @@ pub fn solve_hover(
             interpolated: true,
         });
     }
-    Ok(HoverResult {
-        key_frames,
-        joint,
-        frames: out,
-    })
+    Ok(out)
 }
 
 /// Solves a video whose tracks carry the picks of `control` then `check` GCPs (in that order):

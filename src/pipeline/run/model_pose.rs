@@ -399,23 +399,11 @@ fn fill_unplaced(placed: &[Option<Placed>]) -> Option<Vec<FramePoseData>> {
                 mean_reprojection_px: Some(p.rms_px),
             },
             None => {
-                let after = known.iter().copied().find(|&k| k > i);
-                let before = known.iter().copied().rev().find(|&k| k < i);
-                let (a, b) = match (before, after) {
-                    (Some(a), Some(b)) => (a, b),
-                    (Some(a), None) => (a, a),
-                    (None, Some(b)) => (b, b),
-                    (None, None) => unreachable!("some frame is placed"),
-                };
+                let (a, b, t) = crate::pose::gap_neighbours(&known, i);
                 let (pa, pb) = (
                     placed[a].as_ref().expect("known"),
                     placed[b].as_ref().expect("known"),
                 );
-                let t = if a == b {
-                    0.0
-                } else {
-                    (i - a) as f64 / (b - a) as f64
-                };
                 let pose = pa.pose.interpolate(&pb.pose, t);
                 // The gap's own motion is unknown: at least the neighbours' σ, plus how far the
                 // camera moved across it.

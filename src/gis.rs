@@ -68,7 +68,9 @@ fn spatial_indexes(ds: &Dataset) -> Result<(), String> {
     let layers: Vec<(String, String)> = ds
         .layers()
         .filter_map(|l| {
+            // SAFETY: `l` is a live layer of the open dataset `ds`; GDAL returns its own string, never null.
             let geom = unsafe { gdal_sys::OGR_L_GetGeometryColumn(l.c_layer()) };
+            // SAFETY: a NUL-terminated string the layer owns (an empty one without a geometry column), copied at once.
             let geom = unsafe { std::ffi::CStr::from_ptr(geom) }
                 .to_string_lossy()
                 .into_owned();
@@ -179,6 +181,7 @@ pub fn write_dataset(
             gdal::config::set_config_option("OGR_SQLITE_CACHE", "8")
                 .map_err(|e| cannot("write", &e))?;
         }
+        // SAFETY: resets this thread's GDAL error state; takes nothing.
         unsafe { gdal_sys::CPLErrorReset() };
         let mut ds = driver
             .create_vector_only(&tmp)
@@ -195,7 +198,9 @@ pub fn write_dataset(
         ds.close().map_err(|e| cannot("finish", &e))?;
         // GDAL 3.6 does not return errors from closing (a full disk while GeoJSON's last bytes
         // are written): its error state and the file's end say whether it is whole.
+        // SAFETY: reads this thread's GDAL error state; takes nothing.
         if unsafe { gdal_sys::CPLGetLastErrorType() } >= gdal_sys::CPLErr::CE_Failure {
+            // SAFETY: GDAL's last message on this thread, an empty string when none: never null, copied at once.
             let msg = unsafe { std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg()) };
             return Err(cannot("write", &msg.to_string_lossy()));
         }
@@ -274,11 +279,14 @@ pub fn write_geotiff(
             band.write((0, 0), (width, height), &mut buf)
                 .map_err(|e| cannot("write", &e))?;
         }
+        // SAFETY: resets this thread's GDAL error state; takes nothing.
         unsafe { gdal_sys::CPLErrorReset() };
         ds.close().map_err(|e| cannot("finish", &e))?;
         // GDAL 3.6 does not return errors from closing (a full disk while the last tiles are
         // flushed): its error state, and reading every pixel back, say whether it is whole.
+        // SAFETY: reads this thread's GDAL error state; takes nothing.
         if unsafe { gdal_sys::CPLGetLastErrorType() } >= gdal_sys::CPLErr::CE_Failure {
+            // SAFETY: GDAL's last message on this thread, an empty string when none: never null, copied at once.
             let msg = unsafe { std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg()) };
             return Err(cannot("write", &msg.to_string_lossy()));
         }

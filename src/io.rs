@@ -384,6 +384,7 @@ fn process_alive(pid: u32) -> bool {
             return false;
         };
         // Signal 0 checks existence; EPERM means it exists under another user.
+        // SAFETY: signal 0 sends nothing: it only asks whether `pid` exists.
         let r = unsafe { libc::kill(pid, 0) };
         r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
     }
@@ -635,6 +636,7 @@ impl Inputs {
 pub fn resident_bytes() -> Option<u64> {
     let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
     let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    // SAFETY: sysconf reads a constant of the system.
     let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
     u64::try_from(page).ok().map(|p| pages * p)
 }

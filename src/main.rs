@@ -7,6 +7,7 @@ use cli::{BadInput, Cli};
 fn main() {
     // Die quietly on a closed pipe (`geostride ... | head`) instead of panicking on the write.
     #[cfg(unix)]
+    // SAFETY: the default action for SIGPIPE, set before any other thread runs.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }

@@ -139,3 +139,33 @@ fn the_library_names_neither_clap_nor_anyhow() {
         "src/lib.rs must not declare the cli module"
     );
 }
+
+/// Every `unsafe` block says why it is sound: a `// SAFETY:` line just above it.
+#[test]
+fn every_unsafe_block_says_why_it_is_sound() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut missing = Vec::new();
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        for (i, l) in lines.iter().enumerate() {
+            let code = l.trim_start();
+            if code.starts_with("//") || !(code.contains("unsafe {") || code.ends_with("unsafe")) {
+                continue;
+            }
+            if !lines[i.saturating_sub(3)..i]
+                .iter()
+                .any(|p| p.contains("// SAFETY:"))
+            {
+                missing.push(format!("{}:{}", f.display(), i + 1));
+            }
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "unsafe blocks without a // SAFETY: line above them:\n{}",
+        missing.join("\n")
+    );
+}

@@ -63,6 +63,7 @@ struct Pj {
 impl Drop for Pj {
     fn drop(&mut self) {
         if !self.ptr.is_null() {
+            // SAFETY: a non-null object made here, destroyed once (its context outlives it).
             unsafe {
                 sys::proj_destroy(self.ptr);
             }
@@ -77,6 +78,7 @@ struct Context {
 
 impl Drop for Context {
     fn drop(&mut self) {
+        // SAFETY: every object made in the context holds it, so none is left; destroyed once.
         unsafe {
             sys::proj_context_destroy(self.ptr);
         }
@@ -95,8 +97,10 @@ const CACHE_SIZE: usize = 64;
 
 impl Context {
     fn new() -> Self {
+        // SAFETY: takes nothing; a null result is PROJ's default context, which every call accepts.
         let ptr = unsafe { sys::proj_context_create() };
         // Quiet: errors are reported through our own messages.
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         unsafe {
             sys::proj_log_level(ptr, sys::PJ_LOG_LEVEL_PJ_LOG_NONE);
         }
@@ -119,6 +123,7 @@ impl Context {
             f(c.get_or_init(|| {
                 let mut cat = Catalogue::default();
                 let mut n = 0;
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 let list = unsafe {
                     sys::proj_get_crs_info_list_from_database(
                         self.ptr,
@@ -131,6 +136,7 @@ impl Context {
                     return cat;
                 }
                 for i in 0..usize::try_from(n).unwrap_or(0) {
+                    // SAFETY: `i` < `n`, the length PROJ returned with the list.
                     let info = unsafe { &**list.add(i) };
                     let (Some(a), Some(c)) = (c_str_opt(info.auth_name), c_str_opt(info.code))
                     else {
@@ -153,6 +159,7 @@ impl Context {
                         }
                     }
                 }
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe { sys::proj_crs_info_list_destroy(list) };
                 cat
             }))
@@ -160,6 +167,7 @@ impl Context {
     }
 
     fn last_error(&self) -> String {
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         unsafe {
             let code = sys::proj_context_errno(self.ptr);
             let s = sys::proj_context_errno_string(self.ptr, code);
@@ -187,6 +195,7 @@ fn c_str_opt(p: *const std::os::raw::c_char) -> Option<String> {
     if p.is_null() {
         None
     } else {
+        // SAFETY: a non-null, NUL-terminated string PROJ owns, copied at once.
         Some(unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
     }
 }
@@ -421,6 +430,7 @@ impl Crs {
         }
         let obj = if is_wkt(&normalised) {
             ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe {
                     sys::proj_create_from_wkt(
                         ctx.ptr,
@@ -441,6 +451,7 @@ impl Crs {
             if let Some((code, _)) = code {
                 let cc = CString::new(code).map_err(|_| err("contains a NUL byte".into()))?;
                 ctx.wrap(
+                    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                     unsafe { sys::proj_create(ctx.ptr, cc.as_ptr()) },
                     spec,
                     unknown,
@@ -449,6 +460,7 @@ impl Crs {
                 if !name_like(&normalised) {
                     return Err(err(unknown.into()));
                 }
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 let list = unsafe {
                     sys::proj_create_from_name(
                         ctx.ptr,
@@ -464,6 +476,7 @@ impl Crs {
                 if list.is_null() {
                     return Err(err(unknown.into()));
                 }
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 let found = unsafe {
                     if sys::proj_list_get_count(list) > 0 {
                         sys::proj_list_get(ctx.ptr, list, 0)
@@ -471,38 +484,47 @@ impl Crs {
                         ptr::null_mut()
                     }
                 };
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe { sys::proj_list_destroy(list) };
                 ctx.wrap(found, spec, unknown)?
             }
         } else {
             ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) },
                 spec,
                 unknown,
             )?
         };
         let mut crs = obj;
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let mut ty = unsafe { sys::proj_get_type(crs.ptr) };
         if ty == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
             crs = ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe { sys::proj_get_source_crs(ctx.ptr, crs.ptr) },
                 spec,
                 "bound CRS without a source",
             )?;
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             ty = unsafe { sys::proj_get_type(crs.ptr) };
         }
         // PROJ strings make nameless ("unknown") CRSs: the specification is the better name.
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let name = c_str_opt(unsafe { sys::proj_get_name(crs.ptr) })
             .filter(|n| !n.is_empty() && n != "unknown")
             .unwrap_or_else(|| spec.trim().to_string());
         let id = match (
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             c_str_opt(unsafe { sys::proj_get_id_auth_name(crs.ptr, 0) }),
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             c_str_opt(unsafe { sys::proj_get_id_code(crs.ptr, 0) }),
         ) {
             (Some(a), Some(c)) => Some(format!("{a}:{c}")),
             _ => None,
         };
         let wkt_of = |pj: &Pj| -> Result<String, CrsError> {
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             c_str_opt(unsafe {
                 sys::proj_as_wkt(ctx.ptr, pj.ptr, sys::PJ_WKT_TYPE_PJ_WKT2_2019, ptr::null())
             })
@@ -513,19 +535,24 @@ impl Crs {
         let (horizontal_crs, height_kind) = match ty {
             sys::PJ_TYPE_PJ_TYPE_COMPOUND_CRS => {
                 let h = ctx.wrap(
+                    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                     unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 0) },
                     spec,
                     "compound CRS without a horizontal part",
                 )?;
                 let v = ctx.wrap(
+                    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                     unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 1) },
                     spec,
                     "compound CRS without a vertical part",
                 )?;
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 let vname = c_str_opt(unsafe { sys::proj_get_name(v.ptr) });
                 let mut h = h;
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 if unsafe { sys::proj_get_type(h.ptr) } == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
                     h = ctx.wrap(
+                        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                         unsafe { sys::proj_get_source_crs(ctx.ptr, h.ptr) },
                         spec,
                         "bound CRS without a source",
@@ -550,6 +577,7 @@ impl Crs {
                 )));
             }
         };
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let hty = unsafe { sys::proj_get_type(horizontal_crs.ptr) };
         let horizontal = match hty {
             sys::PJ_TYPE_PJ_TYPE_PROJECTED_CRS => Horizontal::Projected,
@@ -563,25 +591,31 @@ impl Crs {
             }
         };
         let geodetic = ctx.wrap(
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             unsafe { sys::proj_crs_get_geodetic_crs(ctx.ptr, horizontal_crs.ptr) },
             spec,
             "no geodetic CRS",
         )?;
         // The datum (an ensemble's common name for WGS 84, ETRS89), which says whether two CRSs
         // share one.
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let datum = unsafe { sys::proj_crs_get_datum_forced(ctx.ptr, geodetic.ptr) };
         let geodetic_name = if datum.is_null() {
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             c_str_opt(unsafe { sys::proj_get_name(geodetic.ptr) }).unwrap_or_default()
         } else {
             let datum = Pj { ptr: datum };
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             c_str_opt(unsafe { sys::proj_get_name(datum.ptr) }).unwrap_or_default()
         };
         let ell = ctx.wrap(
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             unsafe { sys::proj_get_ellipsoid(ctx.ptr, geodetic.ptr) },
             spec,
             "no ellipsoid",
         )?;
         let (mut a, mut b, mut computed, mut inv_f) = (0.0, 0.0, 0, 0.0);
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let ok = unsafe {
             sys::proj_ellipsoid_get_parameters(
                 ctx.ptr,
@@ -604,6 +638,7 @@ impl Crs {
         // The geodetic CRS of the same datum: no datum change, so no grid or Helmert involved.
         let conversion = |from: &Pj, to: &Pj, what: &str| -> Result<Pj, CrsError> {
             let raw = ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe {
                     sys::proj_create_crs_to_crs_from_pj(
                         ctx.ptr,
@@ -617,6 +652,7 @@ impl Crs {
                 what,
             )?;
             ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
                 unsafe { sys::proj_normalize_for_visualization(ctx.ptr, raw.ptr) },
                 spec,
                 what,
@@ -682,6 +718,7 @@ impl Crs {
         let c = sys::PJ_COORD {
             v: [x, y, 0.0, f64::INFINITY],
         };
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let v = unsafe { sys::proj_trans(op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
         if v[0].is_finite() && v[1].is_finite() {
             Ok((v[0], v[1]))
@@ -708,6 +745,7 @@ impl Crs {
 fn area_of_use(ctx: &Context, obj: &Pj) -> Option<AreaOfUse> {
     let (mut w, mut s, mut e, mut n) = (0.0, 0.0, 0.0, 0.0);
     let mut name: *const std::os::raw::c_char = ptr::null();
+    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
     let ok = unsafe {
         sys::proj_get_area_of_use(ctx.ptr, obj.ptr, &mut w, &mut s, &mut e, &mut n, &mut name)
     };
@@ -722,12 +760,14 @@ fn area_of_use(ctx: &Context, obj: &Pj) -> Option<AreaOfUse> {
 }
 
 fn axis_unit(ctx: &Context, crs: &Pj) -> Option<f64> {
+    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
     let cs = unsafe { sys::proj_crs_get_coordinate_system(ctx.ptr, crs.ptr) };
     if cs.is_null() {
         return None;
     }
     let cs = Pj { ptr: cs };
     let mut factor = 0.0;
+    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
     let ok = unsafe {
         sys::proj_cs_get_axis_info(
             ctx.ptr,
@@ -784,6 +824,7 @@ impl Transform {
             })
         };
         let (src, dst) = (c_spec(source)?, c_spec(target)?);
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let raw = unsafe {
             sys::proj_create_crs_to_crs(ctx.ptr, src.as_ptr(), dst.as_ptr(), ptr::null_mut())
         };
@@ -791,6 +832,7 @@ impl Transform {
             return Err(fail(&ctx));
         }
         let raw = Pj { ptr: raw };
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let op = unsafe { sys::proj_normalize_for_visualization(ctx.ptr, raw.ptr) };
         if op.is_null() {
             return Err(fail(&ctx));
@@ -813,6 +855,7 @@ impl Transform {
         let c = sys::PJ_COORD {
             v: [x, y, h, f64::INFINITY],
         };
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let v = unsafe { sys::proj_trans(self.op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
         if v[..3].iter().all(|a| a.is_finite()) {
             Ok((v[0], v[1], v[2]))
@@ -836,12 +879,15 @@ impl Transform {
     /// The operation used for the last point converted, as an operation of its own (PROJ
     /// clones it: tens of microseconds).
     fn last_used(&self) -> Option<(Pj, OperationInfo)> {
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let op = unsafe { sys::proj_trans_get_last_used_operation(self.op.ptr) };
         if op.is_null() {
             return None;
         }
         let op = Pj { ptr: op };
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let name = c_str_opt(unsafe { sys::proj_get_name(op.ptr) }).unwrap_or_default();
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let acc = unsafe { sys::proj_coordoperation_get_accuracy(self.ctx.ptr, op.ptr) };
         Some((
             op,
@@ -868,6 +914,7 @@ impl Transform {
             let c = sys::PJ_COORD {
                 v: [x, y, h, f64::INFINITY],
             };
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
             let v = unsafe { sys::proj_trans(op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
             v[0].to_bits() == out.0.to_bits()
                 && v[1].to_bits() == out.1.to_bits()

@@ -180,7 +180,7 @@ pub(super) fn on_pool<R: Send>(observations: usize, f: impl FnOnce() -> R + Send
 }
 
 impl BaIteration {
-    /// An iteration's record, not accepted, with no change, ratio or time yet.
+    /// The record of an iteration, not accepted, with no change, ratio or time yet.
     fn at(
         iteration: usize,
         cost: f64,
@@ -202,7 +202,7 @@ impl BaIteration {
     }
 }
 
-/// The one trust-region controller of geostride's least-squares solvers, with the settings' radii.
+/// The one trust-region controller of the least-squares solvers, with the radii of the settings.
 fn trust_region(s: &BaSettings) -> Damping {
     Damping::with_limits(
         1.0 / s.initial_radius,
@@ -253,8 +253,8 @@ fn x_norm<const M: usize>(p: &Problem<M>) -> f64 {
     .sqrt()
 }
 
-/// The step in the problem's own variables (the scaled Schur step times the scales) and the
-/// model's decrease −(Jδ)ᵀ(r + Jδ/2); `None` when it cannot be computed.
+/// The step in the variables of the problem (the scaled Schur step times the scales) and the
+/// decrease of the model, −(Jδ)ᵀ(r + Jδ/2); `None` when it cannot be computed.
 #[allow(clippy::type_complexity)]
 fn unscaled_step<const M: usize>(
     p: &Problem<M>,
@@ -287,7 +287,8 @@ fn unscaled_step<const M: usize>(
     })
 }
 
-/// The covariance at the solution from its last normal equations, `sigma_px` or the residuals'.
+/// The covariance at the solution from its last normal equations, with `sigma_px` or the σ of
+/// the residuals.
 fn covariance_at<const M: usize>(
     p: &Problem<M>,
     priors: &Priors,

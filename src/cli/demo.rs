@@ -251,6 +251,20 @@ impl Row {
             target,
         }
     }
+
+    /// A value in the first column only.
+    fn one(label: &'static str, value: String, target: &'static str) -> Row {
+        Row::new(label, [value, String::new()], target)
+    }
+
+    /// The calibration's worst parameter error in units of its σ.
+    fn calibration(c: &CalibrationCheck, target: &'static str) -> Row {
+        Row::one(
+            "calibration (worst |est − truth| / σ)",
+            format!("{:.2}", c.worst_sigmas),
+            target,
+        )
+    }
 }
 
 /// The RMSE checks of the runs with the heights known and with the default: targets in that
@@ -403,6 +417,75 @@ impl DemoRun<'_> {
         let (e, c) = check_run(&out, truth, ignored, &self.dir.join(self.accuracy))?;
         Ok((report, e, c))
     }
+}
+
+/// The bridge and group demos' two runs: `project(None)` with the default head height into
+/// `run/` (with its annotated video), then `project(Some("heights.csv"))` with every person's
+/// true height known into `run-heights/`; both checked against `DIR/truth/heads.csv`.
+/// `texts`: each run's project header and step label.
+fn height_runs(
+    args: &Args,
+    dir: &Path,
+    project: &dyn Fn(Option<&str>) -> anyhow::Result<Project>,
+    texts: [(&str, &str); 2],
+) -> anyhow::Result<HeightRuns> {
+    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
+    let mut results = Vec::new();
+    let mut known = None;
+    let files = [
+        ("project.toml", "run", "accuracy-default.csv"),
+        (
+            "project-heights.toml",
+            "run-heights",
+            "accuracy-heights.csv",
+        ),
+    ];
+    for (k, ((file, out, accuracy), (what, step))) in files.into_iter().zip(texts).enumerate() {
+        let heights = (k == 1).then_some("heights.csv");
+        if heights.is_some() {
+            known = Some(write_known_heights(dir, &truth)?);
+        }
+        let mut p = project(heights)?;
+        p.output.video = heights.is_none();
+        let run = DemoRun {
+            dir,
+            file,
+            what,
+            step,
+            out,
+            accuracy,
+        };
+        results.push(run.run(args, &p, &truth, &ignored)?);
+    }
+    let (ids, people) = known.expect("the second run");
+    let [
+        (report, default_eval, default_cons),
+        (_, known_eval, known_cons),
+    ]: [_; 2] = results.try_into().map_err(|_| anyhow!("two runs"))?;
+    Ok(HeightRuns {
+        report,
+        evals: [known_eval, default_eval],
+        cons: [known_cons, default_cons],
+        ids,
+        people,
+        truth,
+        ignored,
+    })
+}
+
+/// What `height_runs` gives.
+struct HeightRuns {
+    /// The default run's.
+    report: RunReport,
+    /// The evaluations and their stated uncertainty: heights known, then the default.
+    evals: [Evaluation; 2],
+    cons: [Consistency; 2],
+    /// Track id → person, and every person's true height (`write_known_heights`).
+    ids: std::collections::HashMap<usize, usize>,
+    people: std::collections::HashMap<usize, f64>,
+    /// The true heads, and those neither matched nor missed.
+    truth: Vec<Sample>,
+    ignored: Vec<Sample>,
 }
 
 /// Writes a scene's project file, its header saying what it is.
@@ -565,6 +648,54 @@ fn calibrate_scene(
     Ok((calibration, truth_cam))
 }
 
+/// The run's camera poses against the truth: the GCPs' mean reprojection through both, per frame.
+fn pose_check(
+    dir: &Path,
+    truth_cam: &geostride::camera::Camera,
+    report: &RunReport,
+) -> anyhow::Result<PoseCheck> {
+    let truth_poses = read_poses(&dir.join("truth/camera.csv")).map_err(|e| anyhow!(e))?;
+    let est_poses = read_poses(&dir.join("run/pose/poses.csv")).map_err(|e| anyhow!(e))?;
+    let gcps: Vec<_> = read_gcps(&dir.join("truth/gcps.csv"))
+        .map_err(|e| anyhow!(e))?
+        .into_iter()
+        .map(|g| g.1)
+        .collect();
+    let (mut worst_px, mut sum_px) = (0.0f64, 0.0);
+    for ((_, t), (_, e)) in truth_poses.iter().zip(&est_poses) {
+        let m = mean_reprojection_px(truth_cam, t, e, &gcps)
+            .ok_or_else(|| anyhow!("a GCP is behind the camera"))?;
+        worst_px = worst_px.max(m);
+        sum_px += m;
+    }
+    Ok(PoseCheck {
+        frames: est_poses.len(),
+        key_frames: report
+            .stages
+            .iter()
+            .find(|s| s.name == "pose")
+            .and_then(|s| s.counts.get("key_frames"))
+            .copied()
+            .unwrap_or(0.0) as usize,
+        mean_px: sum_px / est_poses.len().max(1) as f64,
+        worst_px,
+    })
+}
+
+/// The rows under the bridge demo's accuracy table: the heights, the poses, the calibration.
+fn bridge_rows(height_rms: f64, pose: &PoseCheck, calibration: &CalibrationCheck) -> [Row; 3] {
+    let pose_px = [pose.mean_px, pose.worst_px].map(|v| format!("{v:.3} px"));
+    [
+        Row::new(
+            "heights' RMS about 1.7 m (σ stated)",
+            [String::new(), format!("{height_rms:.3} m")],
+            "0.1 m",
+        ),
+        Row::new("camera pose vs truth (mean / worst)", pose_px, "≤ 1 px"),
+        Row::calibration(calibration, "≤ 5"),
+    ]
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     // The output folder before any work: not a file, not holding or inside the survey.
     let survey: Vec<&std::path::Path> = args.survey.iter().map(PathBuf::as_path).collect();
@@ -596,62 +727,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (calibration, truth_cam) =
         calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
 
-    // 3. Run the project: default head height.
-    let mut hats = hats_project(&scene, "camera.yaml", None)
-        .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
-    // The annotated video of the main run (`annotated.mp4`).
-    hats.output.video = true;
-    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
-    let (report, default_eval, default_cons) = DemoRun {
-        dir: &dir,
-        file: "project.toml",
-        what: "Hats: the colour detector, association tracking.",
-        step: "3. ",
-        out: "run",
-        accuracy: "accuracy-default.csv",
-    }
-    .run(&args, &hats, &truth, &ignored)?;
+    // 3. Run the project with the default head height, then 4. with every person's height
+    // known (as measured before an event).
+    let runs = height_runs(
+        &args,
+        &dir,
+        &|heights| {
+            hats_project(&scene, "camera.yaml", heights)
+                .map_err(|e| anyhow!("{}: {e}", scene_path.display()))
+        },
+        [
+            ("Hats: the colour detector, association tracking.", "3. "),
+            (
+                "Hats, with every person's height known (heights.csv, by track id).",
+                "4. With every person's height known: ",
+            ),
+        ],
+    )?;
+    let [known_eval, default_eval] = runs.evals;
+    let [known_cons, default_cons] = runs.cons;
+    let (report, ids, people) = (runs.report, runs.ids, runs.people);
 
-    // The poses against the truth.
-    let truth_poses = read_poses(&dir.join("truth/camera.csv")).map_err(|e| anyhow!(e))?;
-    let est_poses = read_poses(&dir.join("run/pose/poses.csv")).map_err(|e| anyhow!(e))?;
-    let gcps: Vec<_> = read_gcps(&dir.join("truth/gcps.csv"))
-        .map_err(|e| anyhow!(e))?
-        .into_iter()
-        .map(|g| g.1)
-        .collect();
-    let (mut worst_px, mut sum_px) = (0.0f64, 0.0);
-    for ((_, t), (_, e)) in truth_poses.iter().zip(&est_poses) {
-        let m = mean_reprojection_px(&truth_cam, t, e, &gcps)
-            .ok_or_else(|| anyhow!("a GCP is behind the camera"))?;
-        worst_px = worst_px.max(m);
-        sum_px += m;
-    }
-    let pose = PoseCheck {
-        frames: est_poses.len(),
-        key_frames: report
-            .stages
-            .iter()
-            .find(|s| s.name == "pose")
-            .and_then(|s| s.counts.get("key_frames"))
-            .copied()
-            .unwrap_or(0.0) as usize,
-        mean_px: sum_px / est_poses.len().max(1) as f64,
-        worst_px,
-    };
-
-    // 4. The same with every person's height known (as measured before an event).
-    let (ids, people) = write_known_heights(&dir, &truth)?;
-    let hats_h = hats_project(&scene, "camera.yaml", Some("heights.csv"))?;
-    let (_, known_eval, known_cons) = DemoRun {
-        dir: &dir,
-        file: "project-heights.toml",
-        what: "Hats, with every person's height known (heights.csv, by track id).",
-        step: "4. With every person's height known: ",
-        out: "run-heights",
-        accuracy: "accuracy-heights.csv",
-    }
-    .run(&args, &hats_h, &truth, &ignored)?;
+    let pose = pose_check(&dir, &truth_cam, &report)?;
 
     // 5. The accuracy table.
     let [known_check, default_check] =
@@ -726,26 +823,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mota_row(&known_eval, &default_eval),
     ]);
     rows.extend(uncertainty_rows(&known_cons, &default_cons));
-    let after = [
-        Row::new(
-            "heights' RMS about 1.7 m (σ stated)",
-            [String::new(), format!("{height_rms:.3} m")],
-            "0.1 m",
-        ),
-        Row::new(
-            "camera pose vs truth (mean / worst)",
-            [
-                format!("{:.3} px", pose.mean_px),
-                format!("{:.3} px", pose.worst_px),
-            ],
-            "≤ 1 px",
-        ),
-        Row::new(
-            "calibration (worst |est − truth| / σ)",
-            [format!("{:.2}", calibration.worst_sigmas), String::new()],
-            "≤ 5",
-        ),
-    ];
+    let after = bridge_rows(height_rms, &pose, &calibration);
     let head = ["heights known", "1.7 m default", "target"];
     print_table(json, (38, 12), head, &rows);
     coverage_scope_note(json, &args, &scene);
@@ -841,28 +919,11 @@ struct CrowdReport {
 /// `geostride demo --crowd`: runners without hats, an external detector's boxes (simulated from
 /// the truth with noise, misses and false alarms), KLT tracking, checked against the truth.
 fn run_crowd(args: Args) -> anyhow::Result<()> {
-    use geostride::detect::simulated::{SimulatedDetector, mot_text, read_truth_boxes};
     let started = std::time::Instant::now();
     let json = args.json;
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/marathon-stream")?;
     let sim = simulate_step(&args, "geostride demo --crowd", &scene, &scene_path, &dir)?;
-    let truth_boxes = read_truth_boxes(&dir.join("truth/boxes.csv")).map_err(|e| anyhow!(e))?;
-    let detector = SimulatedDetector {
-        seed: scene.seed,
-        ..SimulatedDetector::default()
-    };
-    let size = (f64::from(sim.image_size[0]), f64::from(sim.image_size[1]));
-    let boxes = detector.detect(&truth_boxes, size);
-    geostride::io::write_atomic(&dir.join("boxes.txt"), mot_text(&boxes).as_bytes())?;
-    say!(
-        json,
-        "   {} detector boxes (edge σ {} px, {:.0} % misses, {:.0} % false alarms, half of them shadows) in {}",
-        boxes.len(),
-        detector.edge_sd_px,
-        100.0 * detector.miss_rate,
-        100.0 * detector.false_alarm_rate,
-        dir.join("boxes.txt").display()
-    );
+    let (truth_boxes, boxes) = detector_boxes(json, &scene, &dir, sim.image_size)?;
     // A few shadows marked on the first frames, as a user would: the middle of shadow boxes.
     let samples: Vec<[f64; 5]> = truth_boxes
         .iter()
@@ -896,44 +957,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     print_stages(json, &report);
 
     // 3. This detector's own error model, from heads marked in a few frames.
-    let annotations = dir.join("annotations.csv");
-    let heads = read_samples(
-        &dir.join("truth/heads.csv"),
-        ["frame", "person", "px", "py"],
-    )?;
-    let mut text = String::from("frame,x_px,y_px\n");
-    let mut annotated = std::collections::BTreeSet::new();
-    for h in heads
-        .samples
-        .iter()
-        .filter(|h| h.frame % ANNOTATE_EVERY == 0 && h.frame < ANNOTATE_EVERY * ANNOTATED_FRAMES)
-    {
-        annotated.insert(h.frame);
-        let _ = writeln!(text, "{},{:.2},{:.2}", h.frame, h.position.x, h.position.y);
-    }
-    geostride::io::write_atomic(&annotations, text.as_bytes())?;
-    let fit_args = super::fit_error::Args {
-        detections: paper_dir.join("detections.csv"),
-        annotations: annotations.clone(),
-        annotation_columns: "frame,x_px,y_px".into(),
-        width: None,
-        gate: 25.0,
-        profile: false,
-        json: false,
-    };
-    say!(
-        json,
-        "\n3. Fitting the detector's error model to heads marked in {} frames (simulated annotation: the truth's head pixels, every {}th frame of the first {:.0} s)\n   $ geostride fit-error --detections {} --annotations {}",
-        annotated.len(),
-        ANNOTATE_EVERY,
-        (ANNOTATE_EVERY * ANNOTATED_FRAMES) as f64 / scene.fps,
-        fit_args.detections.display(),
-        annotations.display()
-    );
-    let (pairing, error_fit, _) = super::fit_error::fit(&fit_args)?;
-    for line in super::fit_error::report_lines(&pairing, &error_fit) {
-        say!(json, "   {line}");
-    }
+    let error_fit = fit_detector_error(json, &scene, &dir, &paper_dir)?;
     let fitted_project = dir.join("project-fitted.toml");
     let mut fitted = crowd.clone();
     if let DetectSection::Boxes(b) = &mut fitted.detect {
@@ -978,30 +1002,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         min_frames,
         brief
     );
-    let both = |f: &dyn Fn(&Evaluation) -> String| [f(&pe), f(&e)];
-    let mut rows = error_rows(&pe, &e, "≤ 0.25 m");
-    rows.extend([
-        Row::new(
-            "people tracked over ≥ 80 % of their time in view",
-            both(&|e| format!("{:.1} %", 100.0 * mostly_of(e))),
-            "≥ 97 %",
-        ),
-        Row::new(
-            "ID switches",
-            both(&|e| format!("{} ({:.1} %)", e.id_switches, 100.0 * e.id_switch_rate)),
-            "≤ 2 %",
-        ),
-        Row::new(
-            "MOTA / IDF1",
-            both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
-            "",
-        ),
-        Row::new(
-            "tracks (estimated / true)",
-            both(&|e| format!("{} / {}", e.estimated_tracks, e.truth_tracks)),
-            "",
-        ),
-    ]);
+    let mut rows = crowd_rows(&pe, &e);
     rows.extend(uncertainty_rows(&pcons, &cons));
     print_table(
         json,
@@ -1045,6 +1046,119 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         passed: failed.is_empty(),
     };
     finish("crowd demo", json, &dir, &out, &failed, out.seconds)
+}
+
+/// The crowd demo's detector: boxes simulated from the true ones with noise, misses and false
+/// alarms, written to `DIR/boxes.txt`; the true boxes and the simulated ones.
+fn detector_boxes(
+    json: bool,
+    scene: &Scene,
+    dir: &Path,
+    image_size: [u32; 2],
+) -> anyhow::Result<(
+    Vec<geostride::detect::simulated::TruthBox>,
+    Vec<geostride::detect::simulated::ScoredBox>,
+)> {
+    use geostride::detect::simulated::{SimulatedDetector, mot_text, read_truth_boxes};
+    let truth_boxes = read_truth_boxes(&dir.join("truth/boxes.csv")).map_err(|e| anyhow!(e))?;
+    let detector = SimulatedDetector {
+        seed: scene.seed,
+        ..SimulatedDetector::default()
+    };
+    let size = (f64::from(image_size[0]), f64::from(image_size[1]));
+    let boxes = detector.detect(&truth_boxes, size);
+    geostride::io::write_atomic(&dir.join("boxes.txt"), mot_text(&boxes).as_bytes())?;
+    say!(
+        json,
+        "   {} detector boxes (edge σ {} px, {:.0} % misses, {:.0} % false alarms, half of them shadows) in {}",
+        boxes.len(),
+        detector.edge_sd_px,
+        100.0 * detector.miss_rate,
+        100.0 * detector.false_alarm_rate,
+        dir.join("boxes.txt").display()
+    );
+    Ok((truth_boxes, boxes))
+}
+
+/// Heads marked in a few frames (simulated annotation: the truth's head pixels) written to
+/// `DIR/annotations.csv`, and the detector's error model fitted to them and to the detections
+/// of the run in `paper_dir`, as `geostride fit-error` does.
+fn fit_detector_error(
+    json: bool,
+    scene: &Scene,
+    dir: &Path,
+    paper_dir: &Path,
+) -> anyhow::Result<geostride::detect::error_fit::ErrorFit> {
+    let annotations = dir.join("annotations.csv");
+    let heads = read_samples(
+        &dir.join("truth/heads.csv"),
+        ["frame", "person", "px", "py"],
+    )?;
+    let mut text = String::from("frame,x_px,y_px\n");
+    let mut annotated = std::collections::BTreeSet::new();
+    for h in heads
+        .samples
+        .iter()
+        .filter(|h| h.frame % ANNOTATE_EVERY == 0 && h.frame < ANNOTATE_EVERY * ANNOTATED_FRAMES)
+    {
+        annotated.insert(h.frame);
+        let _ = writeln!(text, "{},{:.2},{:.2}", h.frame, h.position.x, h.position.y);
+    }
+    geostride::io::write_atomic(&annotations, text.as_bytes())?;
+    let fit_args = super::fit_error::Args {
+        detections: paper_dir.join("detections.csv"),
+        annotations: annotations.clone(),
+        annotation_columns: "frame,x_px,y_px".into(),
+        width: None,
+        gate: 25.0,
+        profile: false,
+        json: false,
+    };
+    say!(
+        json,
+        "\n3. Fitting the detector's error model to heads marked in {} frames (simulated annotation: the truth's head pixels, every {}th frame of the first {:.0} s)\n   $ geostride fit-error --detections {} --annotations {}",
+        annotated.len(),
+        ANNOTATE_EVERY,
+        (ANNOTATE_EVERY * ANNOTATED_FRAMES) as f64 / scene.fps,
+        fit_args.detections.display(),
+        annotations.display()
+    );
+    let (pairing, error_fit, _) = super::fit_error::fit(&fit_args)?;
+    for line in super::fit_error::report_lines(&pairing, &error_fit) {
+        say!(json, "   {line}");
+    }
+    Ok(error_fit)
+}
+
+/// The crowd demo's table rows, the paper's model's and the fitted one's, before the
+/// uncertainty rows.
+fn crowd_rows(pe: &Evaluation, e: &Evaluation) -> Vec<Row> {
+    let mostly_of = |e: &Evaluation| e.mostly_tracked as f64 / e.truth_tracks.max(1) as f64;
+    let both = |f: &dyn Fn(&Evaluation) -> String| [f(pe), f(e)];
+    let mut rows = error_rows(pe, e, "≤ 0.25 m");
+    rows.extend([
+        Row::new(
+            "people tracked over ≥ 80 % of their time in view",
+            both(&|e| format!("{:.1} %", 100.0 * mostly_of(e))),
+            "≥ 97 %",
+        ),
+        Row::new(
+            "ID switches",
+            both(&|e| format!("{} ({:.1} %)", e.id_switches, 100.0 * e.id_switch_rate)),
+            "≤ 2 %",
+        ),
+        Row::new(
+            "MOTA / IDF1",
+            both(&|e| format!("{:.3} / {:.3}", e.mota, e.idf1)),
+            "",
+        ),
+        Row::new(
+            "tracks (estimated / true)",
+            both(&|e| format!("{} / {}", e.estimated_tracks, e.truth_tracks)),
+            "",
+        ),
+    ]);
+    rows
 }
 
 fn print_stages(json: bool, r: &RunReport) {

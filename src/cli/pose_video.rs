@@ -7,13 +7,13 @@ use anyhow::{Context, anyhow};
 use serde::Serialize;
 
 use super::bad_input;
-use super::pose::{Args, camera_for, choose_image, seen_in};
+use super::pose::{Args, Seen, camera_for, choose_image, seen_in};
 use super::survey::read_framed;
 use geostride::io::write_atomic;
 use geostride::pipeline::pose_outputs::{PoseRun, write_pose_outputs};
-use geostride::pipeline::scan::{ScanJob, scan};
+use geostride::pipeline::scan::{ScanJob, Scanned, scan};
 use geostride::pose::PoseSettings;
-use geostride::pose::hover::solve_with_checks;
+use geostride::pose::hover::{HoverResult, solve_with_checks};
 use geostride::pose::stabilise::StabiliseSettings;
 use geostride::progress::NoProgress;
 use geostride::video::source::FrameReader;
@@ -90,12 +90,98 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     drop(reader);
 
     // Tracking pass: the picks of control and check points travel together.
-    let settings = StabiliseSettings {
-        min_features: args.min_features,
-        min_fraction: args.key_fraction,
-        max_interval: args.key_every.map(|s| (s * fps).round().max(1.0) as usize),
-        ..StabiliseSettings::default()
+    let scanned = track_picks(args, video, max_frames, fps, pick_frame, &seen)?;
+    let tracks = &scanned.tracks;
+    if tracks.len() <= pick_frame {
+        return Err(bad_input(anyhow!(
+            "{}: the video has {} frame(s); the picks are on frame {pick_frame}",
+            video.display(),
+            tracks.len()
+        )));
+    }
+
+    // Poses from the control picks; the check picks are evaluated afterwards.
+    let pose_settings = PoseSettings {
+        threshold_px: args.threshold,
+        seed: args.seed,
+        loss: args.loss,
+        ..PoseSettings::default()
     };
+    let (result, check_mean) = solve_with_checks(
+        &camera,
+        &seen.control,
+        &seen.check,
+        tracks,
+        &pose_settings,
+        &NoProgress,
+    )
+    .map_err(|e| bad_input(anyhow!("{}: {e}", video.display())))?;
+    let run = PoseRun {
+        camera: &camera,
+        result: &result,
+        tracks,
+        check_mean: &check_mean,
+        fps,
+        framed: &framed,
+        control: &seen.control,
+    };
+    let written = write_pose_outputs(out, &run)?;
+
+    // Report.
+    let stats = FrameStats::of(&result, &seen, &check_mean);
+    let t = framed.frame.tangent.as_ref();
+    let summary = Summary {
+        video: video.display().to_string(),
+        frames: tracks.len(),
+        fps,
+        image_size: [scanned.width, scanned.height],
+        camera: &camera_source,
+        picks_frame: pick_frame,
+        crs: framed.frame.crs.as_ref().map(|c| c.label()),
+        height: framed.frame.height.to_string(),
+        site_frame: &framed.frame.origin_note,
+        site_origin: t.map(|t| {
+            [
+                t.origin.lat.to_degrees(),
+                t.origin.lon.to_degrees(),
+                t.origin.h,
+            ]
+        }),
+        key_frames: result.key_frames.iter().map(|k| k.index).collect(),
+        key_frames_failed: result.failed_key_frames(),
+        frames_interpolated: stats.interpolated,
+        mean_reprojection_px: stats.mean_px,
+        max_reprojection_px: stats.worst.1,
+        check_mean_reprojection_px: stats.check_mean_px,
+        joint_chi2: result.joint.chi2,
+        largest_gcp_shift_m: stats.largest_shift_m,
+    };
+    let json_path = out.join("pose.json");
+    write_atomic(
+        &json_path,
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )
+    .with_context(|| json_path.display().to_string())?;
+    let counts = (seen.control.len(), seen.check.len());
+    print!(
+        "{}",
+        report_text(&summary, &result, &stats, counts, note, &written)?
+    );
+    Ok(())
+}
+
+/// Every frame's track of the picks of `seen` (control, then check points) from `pick_frame`
+/// on, key frames chosen as `args` say.
+fn track_picks(
+    args: &Args,
+    video: &Path,
+    max_frames: Option<usize>,
+    fps: f64,
+    pick_frame: usize,
+    seen: &Seen,
+) -> anyhow::Result<Scanned> {
+    let settings =
+        StabiliseSettings::key_frames(args.min_features, args.key_fraction, args.key_every, fps);
     let picks = seen
         .control
         .iter()
@@ -118,127 +204,79 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     )
     .map_err(|e| bad_input(anyhow!(e)))?;
     bar.finish_and_clear();
-    let scanned_size = (scanned.width, scanned.height);
-    let tracks = scanned.tracks;
-    if tracks.len() <= pick_frame {
-        return Err(bad_input(anyhow!(
-            "{}: the video has {} frame(s); the picks are on frame {pick_frame}",
-            video.display(),
-            tracks.len()
-        )));
+    Ok(scanned)
+}
+
+/// The figures of the report beyond the result's own.
+struct FrameStats {
+    /// Mean of the frames' mean reprojection errors, pixels.
+    mean_px: f64,
+    /// The worst frame and its mean reprojection error, pixels.
+    worst: (usize, f64),
+    interpolated: usize,
+    check_mean_px: Option<f64>,
+    /// How far the joint refinement moved a GCP from its survey, metres.
+    largest_shift_m: f64,
+}
+
+impl FrameStats {
+    fn of(result: &HoverResult, seen: &Seen, check_mean: &[Option<f64>]) -> Self {
+        let means: Vec<(usize, f64)> = result
+            .frames
+            .iter()
+            .filter_map(|f| f.mean_reprojection_px.map(|m| (f.index, m)))
+            .collect();
+        let check_all: Vec<f64> = check_mean.iter().flatten().copied().collect();
+        FrameStats {
+            mean_px: means.iter().map(|m| m.1).sum::<f64>() / means.len().max(1) as f64,
+            worst: means
+                .iter()
+                .copied()
+                .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a }),
+            interpolated: result.frames.iter().filter(|f| f.interpolated).count(),
+            check_mean_px: (!check_all.is_empty())
+                .then(|| check_all.iter().sum::<f64>() / check_all.len() as f64),
+            largest_shift_m: result
+                .joint
+                .points
+                .iter()
+                .zip(&seen.control)
+                .map(|(p, g)| (p - g.world).norm())
+                .fold(0.0, f64::max),
+        }
     }
+}
 
-    // Poses from the control picks; the check picks are evaluated afterwards.
-    let nc = seen.control.len();
-    let pose_settings = PoseSettings {
-        threshold_px: args.threshold,
-        seed: args.seed,
-        loss: args.loss,
-        ..PoseSettings::default()
-    };
-    let (result, check_mean) = solve_with_checks(
-        &camera,
-        &seen.control,
-        &seen.check,
-        &tracks,
-        &pose_settings,
-        &NoProgress,
-    )
-    .map_err(|e| bad_input(anyhow!("{}: {e}", video.display())))?;
-    let run = PoseRun {
-        camera: &camera,
-        result: &result,
-        tracks: &tracks,
-        check_mean: &check_mean,
-        fps,
-        framed: &framed,
-        control: &seen.control,
-    };
-    let written = write_pose_outputs(out, &run)?;
-
-    // Report.
-    let means: Vec<(usize, f64)> = result
-        .frames
-        .iter()
-        .filter_map(|f| f.mean_reprojection_px.map(|m| (f.index, m)))
-        .collect();
-    let mean = means.iter().map(|m| m.1).sum::<f64>() / means.len().max(1) as f64;
-    let worst = means
-        .iter()
-        .copied()
-        .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
-    let interpolated = result.frames.iter().filter(|f| f.interpolated).count();
-    let key_idx: Vec<usize> = result.key_frames.iter().map(|k| k.index).collect();
-    let failed: Vec<usize> = result
-        .key_frames
-        .iter()
-        .filter(|k| k.solution.is_err())
-        .map(|k| k.index)
-        .collect();
-    let shifts: Vec<f64> = result
-        .joint
-        .points
-        .iter()
-        .zip(&seen.control)
-        .map(|(p, g)| (p - g.world).norm())
-        .collect();
-    let check_all: Vec<f64> = check_mean.iter().flatten().copied().collect();
-    let check_avg =
-        (!check_all.is_empty()).then(|| check_all.iter().sum::<f64>() / check_all.len() as f64);
-    let t = framed.frame.tangent.as_ref();
-    let summary = Summary {
-        video: video.display().to_string(),
-        frames: tracks.len(),
-        fps,
-        image_size: [scanned_size.0, scanned_size.1],
-        camera: &camera_source,
-        picks_frame: pick_frame,
-        crs: framed.frame.crs.as_ref().map(|c| c.label()),
-        height: framed.frame.height.to_string(),
-        site_frame: &framed.frame.origin_note,
-        site_origin: t.map(|t| {
-            [
-                t.origin.lat.to_degrees(),
-                t.origin.lon.to_degrees(),
-                t.origin.h,
-            ]
-        }),
-        key_frames: key_idx.clone(),
-        key_frames_failed: failed.clone(),
-        frames_interpolated: interpolated,
-        mean_reprojection_px: mean,
-        max_reprojection_px: worst.1,
-        check_mean_reprojection_px: check_avg,
-        joint_chi2: result.joint.chi2,
-        largest_gcp_shift_m: shifts.iter().copied().fold(0.0, f64::max),
-    };
-    let json_path = out.join("pose.json");
-    write_atomic(
-        &json_path,
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
-    )
-    .with_context(|| json_path.display().to_string())?;
-
+/// What `pose --video` prints; `counts`: the control and check points picked.
+fn report_text(
+    summary: &Summary,
+    result: &HoverResult,
+    stats: &FrameStats,
+    counts: (usize, usize),
+    note: Option<String>,
+    written: &[PathBuf],
+) -> anyhow::Result<String> {
     let mut s = String::new();
     writeln!(
         s,
-        "Video {}: {} frame(s) of {}x{} at {:.3} fps; picks of {} control and {} check point(s) on frame {pick_frame}",
-        video.display(),
-        tracks.len(),
-        scanned_size.0,
-        scanned_size.1,
-        fps,
-        nc,
-        seen.check.len()
+        "Video {}: {} frame(s) of {}x{} at {:.3} fps; picks of {} control and {} check point(s) on frame {}",
+        summary.video,
+        summary.frames,
+        summary.image_size[0],
+        summary.image_size[1],
+        summary.fps,
+        counts.0,
+        counts.1,
+        summary.picks_frame
     )?;
     if let Some(n) = note {
         writeln!(s, "  note: {n}")?;
     }
-    writeln!(s, "  camera: {camera_source}")?;
+    writeln!(s, "  camera: {}", summary.camera)?;
     writeln!(
         s,
         "Key frames: {} ({})",
-        key_idx.len(),
+        summary.key_frames.len(),
         result
             .key_frames
             .iter()
@@ -260,25 +298,24 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         s,
         "Joint refinement of {} key frame(s) and {} GCP(s): χ² {:.1}, largest GCP shift {:.3} m",
         result.joint.poses.len(),
-        seen.control.len(),
+        counts.0,
         result.joint.chi2,
         summary.largest_gcp_shift_m
     )?;
     writeln!(
         s,
         "Frames: {} solved, {} interpolated; mean reprojection error {:.3} px (worst frame {} at {:.3} px)",
-        tracks.len() - interpolated,
-        interpolated,
-        mean,
-        worst.0,
-        worst.1
+        summary.frames - stats.interpolated,
+        stats.interpolated,
+        stats.mean_px,
+        stats.worst.0,
+        stats.worst.1
     )?;
-    if let Some(c) = check_avg {
+    if let Some(c) = stats.check_mean_px {
         writeln!(s, "Check points: mean reprojection error {c:.3} px")?;
     }
     for w in written {
         writeln!(s, "Written: {}", w.display())?;
     }
-    print!("{s}");
-    Ok(())
+    Ok(s)
 }

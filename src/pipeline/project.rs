@@ -357,7 +357,8 @@ fn within_section(text: &str, line: usize, message: &str) -> usize {
             let v = l
                 .split_once('=')
                 .map(|(_, v)| v.split('#').next().unwrap_or("").trim());
-            if v.is_some_and(|v| v.trim_matches(|c| c == '"' || c == '\'') == value) {
+            // A value may be quoted with either quote mark.
+            if v.is_some_and(|v| v.trim_matches(|c| matches!(c, '\u{22}' | '\u{27}')) == value) {
                 return i + 1;
             }
         }

@@ -73,6 +73,17 @@ pub struct HoverResult {
     pub frames: Vec<FramePose>,
 }
 
+impl HoverResult {
+    /// The key frames whose pose was not solved.
+    pub fn failed_key_frames(&self) -> Vec<usize> {
+        self.key_frames
+            .iter()
+            .filter(|k| k.solution.is_err())
+            .map(|k| k.index)
+            .collect()
+    }
+}
+
 /// Pixel covariance of a carried pick: its σ, plus the adjusted GCP's covariance projected.
 fn obs_info(
     camera: &Camera,

@@ -37,6 +37,24 @@ pub struct StabiliseSettings {
     pub max_pick_jump_px: f64,
 }
 
+impl StabiliseSettings {
+    /// Key frames renewed below `min_features` agreeing features or `min_fraction` of the
+    /// reference's, and at least every `every_s` seconds of a video at `fps` when given.
+    pub fn key_frames(
+        min_features: usize,
+        min_fraction: f64,
+        every_s: Option<f64>,
+        fps: f64,
+    ) -> Self {
+        StabiliseSettings {
+            min_features,
+            min_fraction,
+            max_interval: every_s.map(|s| (s * fps).round().max(1.0) as usize),
+            ..StabiliseSettings::default()
+        }
+    }
+}
+
 impl Default for StabiliseSettings {
     fn default() -> Self {
         StabiliseSettings {

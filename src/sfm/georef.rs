@@ -310,6 +310,20 @@ fn rms_of(residuals: &[[f64; 3]]) -> Option<Rms> {
     })
 }
 
+/// Each pick's offset from the projection of `x` in its image, pixels (picks in images without
+/// a pose, or where `x` does not project, left out).
+fn pick_offsets<'a>(
+    camera: &'a Camera,
+    poses: &'a [Option<Rigid3>],
+    picks: &'a [Pick],
+    x: &'a Vector3<f64>,
+) -> impl Iterator<Item = Vector2<f64>> + 'a {
+    picks.iter().filter_map(|p| {
+        let uv = camera.project(&poses[p.image]?.apply(x)).ok()?;
+        Some(uv - p.uv)
+    })
+}
+
 /// The picks' distances from the projections of `x`, pixels.
 fn pick_errors_px(
     camera: &Camera,
@@ -317,12 +331,8 @@ fn pick_errors_px(
     picks: &[Pick],
     x: &Vector3<f64>,
 ) -> Vec<f64> {
-    picks
-        .iter()
-        .filter_map(|p| {
-            let uv = camera.project(&poses[p.image]?.apply(x)).ok()?;
-            Some((uv - p.uv).norm())
-        })
+    pick_offsets(camera, poses, picks, x)
+        .map(|d| d.norm())
         .collect()
 }
 
@@ -333,12 +343,8 @@ fn pick_rms_px(
     picks: &[Pick],
     x: &Vector3<f64>,
 ) -> Option<f64> {
-    let d: Vec<f64> = picks
-        .iter()
-        .filter_map(|p| {
-            let uv = camera.project(&poses[p.image]?.apply(x)).ok()?;
-            Some((uv - p.uv).norm_squared())
-        })
+    let d: Vec<f64> = pick_offsets(camera, poses, picks, x)
+        .map(|d| d.norm_squared())
         .collect();
     (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64).sqrt())
 }
@@ -377,7 +383,7 @@ pub fn georeference(
             ..p.clone()
         })
         .collect();
-    let mut centres: Vec<CentreMeasurement> = centres
+    let centres: Vec<CentreMeasurement> = centres
         .iter()
         .copied()
         .filter(|c| registered(c.image))
@@ -390,6 +396,83 @@ pub fn georeference(
     };
 
     // 1. The first placement.
+    let placement = first_placement(r, &points, &centres, s, &mut left_out)?;
+    let mut model = r.clone();
+    transform(&mut model, &placement.sim);
+    let centres = agreeing_centres(
+        &model,
+        centres,
+        placement.placed_by,
+        s,
+        &name_of,
+        &mut left_out,
+    )?;
+
+    // 2. The adjustment.
+    let images: Vec<usize> = (0..model.poses.len()).filter(|&i| registered(i)).collect();
+    let adjusted = adjust_placed(
+        &mut model,
+        &AdjustmentInputs {
+            pixels,
+            sigmas,
+            points: &points,
+            rejected: &placement.rejected,
+            centres: &centres,
+            images: &images,
+        },
+        s,
+        &mut left_out,
+    )?;
+
+    // 3. Residuals.
+    let residuals = point_residuals(
+        &model,
+        &adjusted.problem,
+        &points,
+        &placement.rejected,
+        &adjusted.gcp_slot,
+        &mut left_out,
+    );
+    let centre_residuals: Vec<[f64; 3]> = centres
+        .iter()
+        .map(|c| (model.poses[c.image].expect("registered").centre() - c.position).into())
+        .collect();
+    let report = GeorefReport {
+        placed_by: placement.placed_by.into(),
+        left_out,
+        control_rms: rms_of(&residuals_of_role(&residuals, PointRole::Control)),
+        check_rms: rms_of(&residuals_of_role(&residuals, PointRole::Check)),
+        control_rms_px: px_of_role(&residuals, PointRole::Control),
+        check_rms_px: px_of_role(&residuals, PointRole::Check),
+        control_mean_px: control_mean_px(&residuals),
+        centres_rms: rms_of(&centre_residuals),
+        points: residuals,
+        scale: placement.sim.scale,
+        camera_sigma: adjusted.camera_sigma,
+        sigma_scale: adjusted.sigma_scale,
+    };
+    *r = model;
+    Ok(report)
+}
+
+/// The first placement of a model in the site frame, and which control points it left out.
+struct Placement {
+    sim: Similarity,
+    /// "control points" or "camera centres".
+    placed_by: &'static str,
+    /// Per surveyed point: left out by the placement.
+    rejected: Vec<bool>,
+}
+
+/// A robust similarity from the triangulated control points (three or more), else from the
+/// measured camera centres; control points it leaves out are listed in `left_out`.
+fn first_placement(
+    r: &Reconstruction,
+    points: &[GroundPoint],
+    centres: &[CentreMeasurement],
+    s: &GeorefSettings,
+    left_out: &mut Vec<(String, String)>,
+) -> Result<Placement, GeorefError> {
     let mut control_model = Vec::new();
     let mut control_site = Vec::new();
     let mut control_index = Vec::new();
@@ -404,7 +487,7 @@ pub fn georeference(
         }
     }
     let mut rejected = vec![false; points.len()];
-    let (sim, placed_by) = if control_model.len() >= 3 {
+    if control_model.len() >= 3 {
         let (sim, keep) = robust_similarity(&control_model, &control_site, s.outlier_m)
             .ok_or_else(|| GeorefError::NotEnough {
                 control: control_model.len(),
@@ -422,26 +505,13 @@ pub fn georeference(
                 ));
             }
         }
-        (sim, "control points")
-    } else if centres.len() >= 3 {
-        let src: Vec<Vector3<f64>> = centres
-            .iter()
-            .map(|c| r.poses[c.image].expect("registered").centre())
-            .collect();
-        let dst: Vec<Vector3<f64>> = centres.iter().map(|c| c.position).collect();
-        let collinear = || GeorefError::NotEnough {
-            control: control_model.len(),
-            centres: format!(", and the {} camera centres are collinear", centres.len()),
-        };
-        let mut thresholds: Vec<f64> = centres.iter().map(|c| centre_threshold_m(c, s)).collect();
-        thresholds.sort_by(f64::total_cmp);
-        let (sim, keep) = robust_similarity(&src, &dst, thresholds[thresholds.len() / 2])
-            .ok_or_else(collinear)?;
-        if keep.iter().filter(|k| **k).count() < 3 {
-            return Err(collinear());
-        }
-        (sim, "camera centres")
-    } else {
+        return Ok(Placement {
+            sim,
+            placed_by: "control points",
+            rejected,
+        });
+    }
+    if centres.len() < 3 {
         return Err(GeorefError::NotEnough {
             control: control_model.len(),
             centres: format!(
@@ -449,12 +519,40 @@ pub fn georeference(
                 centres.len()
             ),
         });
+    }
+    let src: Vec<Vector3<f64>> = centres
+        .iter()
+        .map(|c| r.poses[c.image].expect("registered").centre())
+        .collect();
+    let dst: Vec<Vector3<f64>> = centres.iter().map(|c| c.position).collect();
+    let collinear = || GeorefError::NotEnough {
+        control: control_model.len(),
+        centres: format!(", and the {} camera centres are collinear", centres.len()),
     };
-    let mut model = r.clone();
-    transform(&mut model, &sim);
+    let mut thresholds: Vec<f64> = centres.iter().map(|c| centre_threshold_m(c, s)).collect();
+    thresholds.sort_by(f64::total_cmp);
+    let (sim, keep) =
+        robust_similarity(&src, &dst, thresholds[thresholds.len() / 2]).ok_or_else(collinear)?;
+    if keep.iter().filter(|k| **k).count() < 3 {
+        return Err(collinear());
+    }
+    Ok(Placement {
+        sim,
+        placed_by: "camera centres",
+        rejected,
+    })
+}
 
-    // The measured centres against the placement: one far off is left out; most of them far
-    // off means the centres and the control points are not of one frame.
+/// The measured centres against the placed `model`: one far off is left out (and listed);
+/// most of them far off means the centres and the control points are not of one frame.
+fn agreeing_centres(
+    model: &Reconstruction,
+    centres: Vec<CentreMeasurement>,
+    placed_by: &str,
+    s: &GeorefSettings,
+    name_of: &dyn Fn(usize) -> String,
+    left_out: &mut Vec<(String, String)>,
+) -> Result<Vec<CentreMeasurement>, GeorefError> {
     let far: Vec<(usize, f64)> = centres
         .iter()
         .enumerate()
@@ -488,16 +586,115 @@ pub fn georeference(
         ));
     }
     let far_set: Vec<usize> = far.iter().map(|f| f.0).collect();
-    centres = centres
+    Ok(centres
         .into_iter()
         .enumerate()
         .filter(|(k, _)| !far_set.contains(k))
         .map(|(_, c)| c)
-        .collect();
+        .collect())
+}
 
-    // 2. The adjustment: the model's points, then the control points picked in a registered
-    // image (one pick is enough: the survey holds the point), with priors.
-    let images: Vec<usize> = (0..model.poses.len()).filter(|&i| registered(i)).collect();
+/// The adjusted problem, where each control point went in it, and the cameras' σ.
+struct Adjusted {
+    problem: Problem<{ crate::camera::N_PARAMS }>,
+    /// Per surveyed point: its index among the problem's points, for a control point in it.
+    gcp_slot: Vec<Option<usize>>,
+    camera_sigma: Vec<Option<CameraSigma>>,
+    sigma_scale: f64,
+}
+
+/// What the adjustment of a placed model observes.
+struct AdjustmentInputs<'a> {
+    /// Per image, its features' pixels and (when known) their relative σ.
+    pixels: &'a [Vec<Vector2<f64>>],
+    sigmas: Option<&'a [Vec<f64>]>,
+    /// The surveyed points, and which of them the placement left out.
+    points: &'a [GroundPoint],
+    rejected: &'a [bool],
+    /// The measured centres that agree with the placement.
+    centres: &'a [CentreMeasurement],
+    /// The registered images.
+    images: &'a [usize],
+}
+
+/// Adjusts the placed `model` with the control points and the centres of `inputs` as priors
+/// and writes the result back into it.
+fn adjust_placed(
+    model: &mut Reconstruction,
+    inputs: &AdjustmentInputs,
+    s: &GeorefSettings,
+    left_out: &mut Vec<(String, String)>,
+) -> Result<Adjusted, GeorefError> {
+    let (mut problem, priors, gcp_slot) = adjustment_problem(model, inputs, left_out);
+    problem.fixed_intrinsics = vec![[true; crate::camera::N_PARAMS]];
+    if s.refine_intrinsics {
+        for k in [param::FX, param::FY, param::K1, param::K2] {
+            problem.fixed_intrinsics[0][k] = false;
+        }
+    }
+    for loss in [RobustLoss::Huber(2.0), RobustLoss::Squared] {
+        let settings = BaSettings {
+            loss,
+            max_iterations: 100,
+            ..BaSettings::default()
+        };
+        adjust(&mut problem, &BrownConrady, &priors, &settings)
+            .map_err(|e| GeorefError::Adjustment(e.to_string()))?;
+    }
+    // σ as stated: each observation's σ is its own (the features' from their residuals).
+    let cov: Option<CameraCovariance> = covariance(
+        &problem,
+        &BrownConrady,
+        &priors,
+        RobustLoss::Squared,
+        Some(1.0),
+    )
+    .ok();
+    let sigma_scale = prior_sigma_scale(&problem, &priors);
+    let mut sigmas_out = vec![None; model.poses.len()];
+    for (k, &i) in inputs.images.iter().enumerate() {
+        model.poses[i] = Some(rigid_pose(&problem.poses[k]));
+        if let Some(c) = &cov {
+            let block = nalgebra::Matrix6::from_iterator(c.pose(k).iter().copied());
+            let mut sigma = camera_sigma(&problem.poses[k], &block);
+            sigma.centre_m = sigma.centre_m.map(|v| v * sigma_scale);
+            sigma.rotation_deg *= sigma_scale;
+            sigmas_out[i] = Some(sigma);
+        }
+    }
+    model.camera.set_params(&problem.intrinsics[0]);
+    for (k, p) in model.points.iter_mut().enumerate() {
+        p.xyz = Vector3::from(problem.points[k]);
+    }
+    model.mean_reprojection_px = model.mean_reprojection(inputs.pixels);
+    Ok(Adjusted {
+        problem,
+        gcp_slot,
+        camera_sigma: sigmas_out,
+        sigma_scale,
+    })
+}
+
+/// The adjustment as a problem: the model's points, then the control points picked in a
+/// registered image (one pick is enough: the survey holds the point), with priors; the control
+/// points' slots among the problem's points.
+fn adjustment_problem(
+    model: &Reconstruction,
+    inputs: &AdjustmentInputs,
+    left_out: &mut Vec<(String, String)>,
+) -> (
+    Problem<{ crate::camera::N_PARAMS }>,
+    Priors,
+    Vec<Option<usize>>,
+) {
+    let AdjustmentInputs {
+        pixels,
+        sigmas,
+        points,
+        rejected,
+        centres,
+        images,
+    } = *inputs;
     let mut slot = vec![usize::MAX; model.poses.len()];
     for (k, &i) in images.iter().enumerate() {
         slot[i] = k;
@@ -555,7 +752,7 @@ pub fn georeference(
             .points
             .push(PointPrior::new(at, p.position.into(), p.sigma_m.into()));
     }
-    for c in &centres {
+    for c in centres {
         priors.centres.push(CentrePrior {
             camera: slot[c.image],
             position: c.position.into(),
@@ -573,32 +770,12 @@ pub fn georeference(
         observations,
     );
     problem.sigma_px = sigma_px;
-    problem.fixed_intrinsics = vec![[true; crate::camera::N_PARAMS]];
-    if s.refine_intrinsics {
-        for k in [param::FX, param::FY, param::K1, param::K2] {
-            problem.fixed_intrinsics[0][k] = false;
-        }
-    }
-    for loss in [RobustLoss::Huber(2.0), RobustLoss::Squared] {
-        let settings = BaSettings {
-            loss,
-            max_iterations: 100,
-            ..BaSettings::default()
-        };
-        adjust(&mut problem, &BrownConrady, &priors, &settings)
-            .map_err(|e| GeorefError::Adjustment(e.to_string()))?;
-    }
-    // σ as stated: each observation's σ is its own (the features' from their residuals).
-    let cov: Option<CameraCovariance> = covariance(
-        &problem,
-        &BrownConrady,
-        &priors,
-        RobustLoss::Squared,
-        Some(1.0),
-    )
-    .ok();
-    // The surveyed points' and the centres' residuals in units of their σ: when they spread
-    // more than their σ say, so do the cameras.
+    (problem, priors, gcp_slot)
+}
+
+/// The surveyed points' and the centres' residuals in units of their σ, as an RMS of at least
+/// one: when they spread more than their σ say, so do the cameras.
+fn prior_sigma_scale(problem: &Problem<{ crate::camera::N_PARAMS }>, priors: &Priors) -> f64 {
     let (mut z2, mut nz) = (0.0, 0usize);
     for p in &priors.points {
         let x = Vector3::from(problem.points[p.point]);
@@ -612,29 +789,24 @@ pub fn georeference(
         z2 += d.component_div(&Vector3::from(c.sigma)).norm_squared();
         nz += 3;
     }
-    let sigma_scale = if nz > 0 {
+    if nz > 0 {
         (z2 / nz as f64).sqrt().max(1.0)
     } else {
         1.0
-    };
-    let mut sigmas_out = vec![None; model.poses.len()];
-    for (k, &i) in images.iter().enumerate() {
-        model.poses[i] = Some(rigid_pose(&problem.poses[k]));
-        if let Some(c) = &cov {
-            let block = nalgebra::Matrix6::from_iterator(c.pose(k).iter().copied());
-            let mut sigma = camera_sigma(&problem.poses[k], &block);
-            sigma.centre_m = sigma.centre_m.map(|v| v * sigma_scale);
-            sigma.rotation_deg *= sigma_scale;
-            sigmas_out[i] = Some(sigma);
-        }
     }
-    model.camera.set_params(&problem.intrinsics[0]);
-    for (k, p) in model.points.iter_mut().enumerate() {
-        p.xyz = Vector3::from(problem.points[k]);
-    }
-    model.mean_reprojection_px = model.mean_reprojection(pixels);
+}
 
-    // 3. Residuals.
+/// Every surveyed point's residual after the adjustment: a control point's from its adjusted
+/// position, a check point's triangulated from its picks; an unpicked check point is listed in
+/// `left_out`.
+fn point_residuals(
+    model: &Reconstruction,
+    problem: &Problem<{ crate::camera::N_PARAMS }>,
+    points: &[GroundPoint],
+    rejected: &[bool],
+    gcp_slot: &[Option<usize>],
+    left_out: &mut Vec<(String, String)>,
+) -> Vec<PointResidual> {
     let mut residuals = Vec::new();
     for (k, p) in points.iter().enumerate() {
         if rejected[k] {
@@ -666,53 +838,40 @@ pub fn georeference(
             sigma_m: p.sigma_m.into(),
         });
     }
-    let of_role = |role: PointRole| -> Vec<[f64; 3]> {
-        residuals
-            .iter()
-            .filter(|x| x.role == role)
-            .filter_map(|x| x.residual_m)
-            .collect()
-    };
-    let px_of_role = |role: PointRole| -> Option<f64> {
-        let (mut s2, mut m) = (0.0, 0usize);
-        for x in residuals.iter().filter(|x| x.role == role) {
-            if let Some(px) = x.rms_px {
-                s2 += px * px * x.images as f64;
-                m += x.images;
-            }
-        }
-        (m > 0).then(|| (s2 / m as f64).sqrt())
-    };
-    let control_mean_px = {
-        let (mut sum, mut m) = (0.0, 0usize);
-        for x in residuals.iter().filter(|x| x.role == PointRole::Control) {
-            if let Some(px) = x.estimate_mean_px {
-                sum += px * x.images as f64;
-                m += x.images;
-            }
-        }
-        (m > 0).then(|| sum / m as f64)
-    };
-    let centre_residuals: Vec<[f64; 3]> = centres
+    residuals
+}
+
+/// The residuals, metres, of the points of one role that have one.
+fn residuals_of_role(residuals: &[PointResidual], role: PointRole) -> Vec<[f64; 3]> {
+    residuals
         .iter()
-        .map(|c| (model.poses[c.image].expect("registered").centre() - c.position).into())
-        .collect();
-    let report = GeorefReport {
-        placed_by: placed_by.into(),
-        left_out,
-        control_rms: rms_of(&of_role(PointRole::Control)),
-        check_rms: rms_of(&of_role(PointRole::Check)),
-        control_rms_px: px_of_role(PointRole::Control),
-        check_rms_px: px_of_role(PointRole::Check),
-        control_mean_px,
-        centres_rms: rms_of(&centre_residuals),
-        points: residuals,
-        scale: sim.scale,
-        camera_sigma: sigmas_out,
-        sigma_scale,
-    };
-    *r = model;
-    Ok(report)
+        .filter(|x| x.role == role)
+        .filter_map(|x| x.residual_m)
+        .collect()
+}
+
+/// RMS, pixels, of the picks of the points of one role against their surveyed positions.
+fn px_of_role(residuals: &[PointResidual], role: PointRole) -> Option<f64> {
+    let (mut s2, mut m) = (0.0, 0usize);
+    for x in residuals.iter().filter(|x| x.role == role) {
+        if let Some(px) = x.rms_px {
+            s2 += px * px * x.images as f64;
+            m += x.images;
+        }
+    }
+    (m > 0).then(|| (s2 / m as f64).sqrt())
+}
+
+/// Mean distance, pixels, of the control points' picks from their adjusted positions.
+fn control_mean_px(residuals: &[PointResidual]) -> Option<f64> {
+    let (mut sum, mut m) = (0.0, 0usize);
+    for x in residuals.iter().filter(|x| x.role == PointRole::Control) {
+        if let Some(px) = x.estimate_mean_px {
+            sum += px * x.images as f64;
+            m += x.images;
+        }
+    }
+    (m > 0).then(|| sum / m as f64)
 }
 
 #[cfg(test)]

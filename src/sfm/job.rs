@@ -425,6 +425,10 @@ fn check_centres_near_gcps(g: &GeorefInput) -> Result<(), SfmJobError> {
 pub const MAX_CENTRE_GCP_DISTANCE_M: f64 = 5000.0;
 
 /// Runs the job; `features` and `matching` show the progress of those two stages.
+///
+/// The chain: check the images (sizes, names, EXIF) → index the GCP picks → features → pairs
+/// → matches → reconstruction → placement (GCPs, else GPS) → report. An SfM step goes in as one
+/// function between two of these, taking the previous step's plain output.
 pub fn run_sfm(
     job: &SfmJob,
     features: &dyn Progress,
@@ -444,26 +448,7 @@ pub fn run_sfm(
         Some(_) => None,
         None => Some(exif_focal_35mm(&job.images, &metas)?),
     };
-    let header_size = match sizes[0] {
-        Some(first) if sizes.iter().all(|s| s.is_some()) => {
-            if let Some(k) = sizes.iter().position(|s| *s != Some(first)) {
-                let (width, height) = sizes[k].expect("all known");
-                return Err(SfmJobError::MixedSizes {
-                    path: job.images[k].clone(),
-                    width,
-                    height,
-                    first: job.images[0].clone(),
-                    first_w: first.0,
-                    first_h: first.1,
-                });
-            }
-            if let Some(c) = &job.camera {
-                given_camera(c, first.0, first.1)?;
-            }
-            Some(first)
-        }
-        _ => None,
-    };
+    let header_size = common_size(job, &sizes)?;
     let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
     let mut unmatched_names = Vec::new();
     if let Some(g) = &job.georef {
@@ -483,7 +468,6 @@ pub fn run_sfm(
     let cache = SfmCache::new(job.cache_dir.as_deref());
     let (found, feature_keys, features_cached) =
         extract_features(&job.images, &job.features, &cache, features)?;
-    let mut pairs_cached = 0;
     let seconds_features = t.elapsed().as_secs_f64();
     let (width, height) = (found[0].width, found[0].height);
     // Images whose headers geostride does not read: their picks are checked now.
@@ -497,78 +481,15 @@ pub fn run_sfm(
         )?);
     }
     let mut sfm_settings = job.sfm.clone();
-    let (camera, camera_source) = match &job.camera {
-        Some(c) => (given_camera(c, width, height)?, "given"),
-        None => {
-            let f35 = focal_35mm.expect("checked when no camera is given");
-            let f = focal_px_from_exif(
-                &PhotoMeta {
-                    focal_35mm: Some(f35),
-                    ..PhotoMeta::default()
-                },
-                width,
-                height,
-            )
-            .expect("a 35 mm focal length");
-            // Known only roughly: refined.
-            sfm_settings.refine_intrinsics = true;
-            let c = Camera::pinhole(
-                f,
-                f,
-                (f64::from(width) - 1.0) / 2.0,
-                (f64::from(height) - 1.0) / 2.0,
-            )
-            .with_image_size(width, height);
-            (c, "exif")
-        }
-    };
-    let t = Instant::now();
-    let n = found.len();
-    let gps = consistent_gps(&metas, &names);
-    let all_gps: Option<Vec<GpsFix>> = gps.fixes.iter().copied().collect();
-    let (chosen, pair_selection) = match &all_gps {
-        _ if job.sequential > 0 => (sequential_pairs(n, job.sequential), "sequential"),
-        Some(g) if job.gps_neighbours > 0 && n > job.gps_neighbours + 1 => {
-            (gps_neighbour_pairs(g, job.gps_neighbours), "gps-neighbours")
-        }
-        _ => (
-            (0..n)
-                .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
-                .collect(),
-            "all",
-        ),
-    };
-    matching.set_length(chosen.len() as u64);
-    let mut pairs = Vec::new();
-    let match_settings = format!("{:?}", job.matching);
-    for &(i, j) in &chosen {
-        let key = key_of(&[
-            feature_keys[i].as_bytes(),
-            feature_keys[j].as_bytes(),
-            match_settings.as_bytes(),
-        ]);
-        let matches = match cache.matches(&key) {
-            Some(m)
-                if m.iter()
-                    .all(|&(a, b)| a < found[i].len() && b < found[j].len()) =>
-            {
-                pairs_cached += 1;
-                m
-            }
-            _ => {
-                let m: Vec<(usize, usize)> = match_features(&found[i], &found[j], &job.matching)
-                    .iter()
-                    .map(|m| (m.a, m.b))
-                    .collect();
-                cache
-                    .store_matches(&key, &m)
-                    .map_err(|e| SfmJobError::Cache(e.to_string()))?;
-                m
-            }
-        };
-        pairs.push(PairMatches { i, j, matches });
-        matching.inc(1);
+    let (camera, camera_source) = job_camera(job, focal_35mm, width, height)?;
+    if camera_source == "exif" {
+        // Known only roughly: refined.
+        sfm_settings.refine_intrinsics = true;
     }
+    let t = Instant::now();
+    let gps = consistent_gps(&metas, &names);
+    let (chosen, pair_selection) = choose_pairs(job, found.len(), &gps);
+    let (pairs, pairs_cached) = match_pairs(job, &found, &feature_keys, &chosen, &cache, matching)?;
     let seconds_matching = t.elapsed().as_secs_f64();
     let keypoints: Vec<Vec<Vector2<f64>>> = found
         .iter()
@@ -613,30 +534,9 @@ pub fn run_sfm(
         "model"
     };
     let seconds_reconstruction = t.elapsed().as_secs_f64();
-    let mut seen = vec![0usize; n];
-    for p in &r.points {
-        for &(i, _) in &p.observations {
-            seen[i] += 1;
-        }
-    }
-    let observations: usize = seen.iter().sum();
-    let per_image = (0..n)
-        .map(|i| ImageReport {
-            name: names[i].clone(),
-            registered: r.poses[i].is_some(),
-            features: found[i].len(),
-            observations: seen[i],
-            reason: r.poses[i].is_none().then(|| {
-                format!(
-                    "fewer than {} of its features agree on a pose with the model's points \
-                     (too little overlap with the registered images, or too little texture)",
-                    job.sfm.min_pnp_inliers
-                )
-            }),
-        })
-        .collect();
+    let (observations, per_image) = image_reports(job, &r, &names, &found);
     let report = SfmReport {
-        images: n,
+        images: found.len(),
         registered: r.poses.iter().filter(|p| p.is_some()).count(),
         points: r.points.len(),
         observations,
@@ -671,6 +571,163 @@ pub fn run_sfm(
         height,
         report,
     })
+}
+
+/// The images' common size from their headers (none when a header is not read); a differing
+/// size, or a given camera of another size, is an error.
+fn common_size(
+    job: &SfmJob,
+    sizes: &[Option<(u32, u32)>],
+) -> Result<Option<(u32, u32)>, SfmJobError> {
+    match sizes[0] {
+        Some(first) if sizes.iter().all(|s| s.is_some()) => {
+            if let Some(k) = sizes.iter().position(|s| *s != Some(first)) {
+                let (width, height) = sizes[k].expect("all known");
+                return Err(SfmJobError::MixedSizes {
+                    path: job.images[k].clone(),
+                    width,
+                    height,
+                    first: job.images[0].clone(),
+                    first_w: first.0,
+                    first_h: first.1,
+                });
+            }
+            if let Some(c) = &job.camera {
+                given_camera(c, first.0, first.1)?;
+            }
+            Ok(Some(first))
+        }
+        _ => Ok(None),
+    }
+}
+
+/// The camera to start from and where it came from: the given one ("given"), else a pinhole
+/// from the EXIF 35 mm focal length ("exif", to be refined).
+fn job_camera(
+    job: &SfmJob,
+    focal_35mm: Option<f64>,
+    width: u32,
+    height: u32,
+) -> Result<(Camera, &'static str), SfmJobError> {
+    if let Some(c) = &job.camera {
+        return Ok((given_camera(c, width, height)?, "given"));
+    }
+    let f35 = focal_35mm.expect("checked when no camera is given");
+    let f = focal_px_from_exif(
+        &PhotoMeta {
+            focal_35mm: Some(f35),
+            ..PhotoMeta::default()
+        },
+        width,
+        height,
+    )
+    .expect("a 35 mm focal length");
+    let c = Camera::pinhole(
+        f,
+        f,
+        (f64::from(width) - 1.0) / 2.0,
+        (f64::from(height) - 1.0) / 2.0,
+    )
+    .with_image_size(width, height);
+    Ok((c, "exif"))
+}
+
+/// The image pairs to match and how they were chosen: a sequential window, the GPS
+/// neighbours when every image has a fix, else all pairs.
+fn choose_pairs(
+    job: &SfmJob,
+    n: usize,
+    gps: &ConsistentGps,
+) -> (Vec<(usize, usize)>, &'static str) {
+    let all_gps: Option<Vec<GpsFix>> = gps.fixes.iter().copied().collect();
+    match &all_gps {
+        _ if job.sequential > 0 => (sequential_pairs(n, job.sequential), "sequential"),
+        Some(g) if job.gps_neighbours > 0 && n > job.gps_neighbours + 1 => {
+            (gps_neighbour_pairs(g, job.gps_neighbours), "gps-neighbours")
+        }
+        _ => (
+            (0..n)
+                .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+                .collect(),
+            "all",
+        ),
+    }
+}
+
+/// The matches of each chosen pair, from the cache when it holds them; how many came from it.
+fn match_pairs(
+    job: &SfmJob,
+    found: &[Features],
+    feature_keys: &[String],
+    chosen: &[(usize, usize)],
+    cache: &SfmCache,
+    matching: &dyn Progress,
+) -> Result<(Vec<PairMatches>, usize), SfmJobError> {
+    matching.set_length(chosen.len() as u64);
+    let mut pairs = Vec::new();
+    let mut pairs_cached = 0;
+    let match_settings = format!("{:?}", job.matching);
+    for &(i, j) in chosen {
+        let key = key_of(&[
+            feature_keys[i].as_bytes(),
+            feature_keys[j].as_bytes(),
+            match_settings.as_bytes(),
+        ]);
+        let matches = match cache.matches(&key) {
+            Some(m)
+                if m.iter()
+                    .all(|&(a, b)| a < found[i].len() && b < found[j].len()) =>
+            {
+                pairs_cached += 1;
+                m
+            }
+            _ => {
+                let m: Vec<(usize, usize)> = match_features(&found[i], &found[j], &job.matching)
+                    .iter()
+                    .map(|m| (m.a, m.b))
+                    .collect();
+                cache
+                    .store_matches(&key, &m)
+                    .map_err(|e| SfmJobError::Cache(e.to_string()))?;
+                m
+            }
+        };
+        pairs.push(PairMatches { i, j, matches });
+        matching.inc(1);
+    }
+    Ok((pairs, pairs_cached))
+}
+
+/// Each image's line of the report, and the observations in all.
+fn image_reports(
+    job: &SfmJob,
+    r: &Reconstruction,
+    names: &[String],
+    found: &[Features],
+) -> (usize, Vec<ImageReport>) {
+    let n = found.len();
+    let mut seen = vec![0usize; n];
+    for p in &r.points {
+        for &(i, _) in &p.observations {
+            seen[i] += 1;
+        }
+    }
+    let per_image = (0..n)
+        .map(|i| ImageReport {
+            name: names[i].clone(),
+            registered: r.poses[i].is_some(),
+            features: found[i].len(),
+            observations: seen[i],
+            reason: r.poses[i].is_none().then(|| {
+                format!(
+                    "fewer than {} of its features agree on a pose with the model's points \
+                     (too little overlap with the registered images, or too little texture)",
+                    job.sfm.min_pnp_inliers
+                )
+            }),
+        })
+        .collect();
+    (seen.iter().sum(), per_image)
 }
 
 /// The image a pick or centre names: its file name, or its file name without the extension

@@ -204,37 +204,8 @@ pub fn simulate(
 
     // Camera poses first: they set the area to texture.
     let times: Vec<f64> = (0..frames).map(|i| i as f64 / scene.fps).collect();
-    let poses: Vec<CameraPose> = times
-        .iter()
-        .enumerate()
-        .map(|(i, &t)| {
-            let centre = match scene.camera.motion {
-                Motion::Follow { .. } => {
-                    let ps = poses_at(&people, &world, t);
-                    (!ps.is_empty()).then(|| {
-                        ps.iter().fold(Vector3::zeros(), |a, (_, p)| a + p.foot) / ps.len() as f64
-                    })
-                }
-                _ => None,
-            };
-            camera_pose(&scene.camera.motion, seed, i, t, centre)
-        })
-        .collect();
-    let (lo, hi) = view_box(camera, &world, &poses);
-    let gsd = poses
-        .iter()
-        .map(|p| p.centre.z)
-        .fold(f64::INFINITY, f64::min)
-        .max(1.0)
-        / camera.fx.max(camera.fy);
-    let texel = (0.7 * gsd).clamp(0.004, 0.05);
-    let settings = RenderSettings {
-        texel_m: texel,
-        sun,
-        image_noise: scene.output.image_noise,
-        seed,
-    };
-    let renderer = Renderer::new(&world, camera.clone(), (lo, hi), &settings);
+    let poses = camera_poses(scene, &people, &world, seed, &times);
+    let renderer = scene_renderer(scene, camera, &world, &poses, sun, seed);
 
     let mut sink = if scene.output.video && !over.no_video {
         Some(
@@ -254,17 +225,8 @@ pub fn simulate(
         .as_ref()
         .and_then(|s| s.path.file_name().map(|n| n.to_string_lossy().into_owned()));
 
-    let mut cam_csv = String::from(
-        "frame,time_s,centre_e_m,centre_n_m,centre_u_m,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
-    );
-    let mut heads_csv = String::from("frame,time_s,person,e_m,n_m,u_m,px,py,in_view\n");
-    // What a perfect person detector would box, and each person's shadow (a detector's typical
-    // false alarm): image boxes clipped to the frame.
-    let mut boxes_csv = String::from("frame,person,kind,x,y,w,h\n");
-    let mut seen = vec![false; people.len()];
+    let mut truth = TruthTables::new(people.len());
     progress.set_length(frames as u64);
-    let (w, h) = (f64::from(size.width), f64::from(size.height));
-    let light_amp = scene.people.light_change;
     for (i, (&t, pose)) in times.iter().zip(&poses).enumerate() {
         let present = poses_at(&people, &world, t);
         let bodies: Vec<Body> = present
@@ -280,7 +242,7 @@ pub fn simulate(
             Vec::new()
         };
         let light = 1.0
-            + light_amp
+            + scene.people.light_change
                 * (0.6 * (std::f64::consts::TAU * t / 17.0).sin()
                     + 0.4 * (std::f64::consts::TAU * t / 7.3 + 1.0).sin());
         let mut rgb = renderer.render(&FrameInput {
@@ -302,12 +264,175 @@ pub fn simulate(
             crate::imageio::write_rgb(&p, size.width, size.height, &rgb)
                 .map_err(|e| SimError::Output(e.to_string()))?;
         }
-        // Truth: camera (cam_from_world as OpenCV's rvec, tvec) and heads.
+        let frame = TruthFrame {
+            index: i,
+            time_s: t,
+            camera,
+            pose,
+        };
+        truth.add_camera(&frame);
+        truth.add_boxes(&frame, &present, &bodies, &shadows);
+        truth.add_heads(&frame, &present);
+        progress.inc(1);
+    }
+    let (video, codec) = match sink {
+        Some(s) => {
+            let codec = s.codec.to_string();
+            (
+                Some(s.finish().map_err(|e| SimError::Output(e.to_string()))?),
+                Some(codec),
+            )
+        }
+        None => (None, None),
+    };
+    let people_in_view = truth.seen.iter().filter(|s| **s).count();
+    let mut files = truth.write(&out.join("truth"), &people, hat.is_some())?;
+    files.extend(write_gcps(
+        scene,
+        &world,
+        camera,
+        &poses[0],
+        out,
+        seed,
+        video_name.as_deref(),
+    )?);
+    files.extend(write_checkerboards(scene, camera, out, seed)?);
+    files.extend(write_survey_flight(scene, &world, camera, out, seed, &sun)?);
+    files.push(write_scene_meta(
+        scene, camera, out, seed, frames, duration,
+    )?);
+    if let Some(v) = &video {
+        files.push(v.clone());
+    }
+    Ok(Summary {
+        frames,
+        people: people.len(),
+        people_in_view,
+        image_size: [size.width, size.height],
+        video,
+        codec,
+        files,
+    })
+}
+
+/// The camera's pose at each of `times`; a following camera looks at the people's mean foot.
+fn camera_poses(
+    scene: &Scene,
+    people: &[Person],
+    world: &World,
+    seed: u64,
+    times: &[f64],
+) -> Vec<CameraPose> {
+    times
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| {
+            let centre = match scene.camera.motion {
+                Motion::Follow { .. } => {
+                    let ps = poses_at(people, world, t);
+                    (!ps.is_empty()).then(|| {
+                        ps.iter().fold(Vector3::zeros(), |a, (_, p)| a + p.foot) / ps.len() as f64
+                    })
+                }
+                _ => None,
+            };
+            camera_pose(&scene.camera.motion, seed, i, t, centre)
+        })
+        .collect()
+}
+
+/// The renderer for the area every pose sees, its texels a little finer than the finest ground
+/// sample distance.
+fn scene_renderer<'w>(
+    scene: &Scene,
+    camera: &Camera,
+    world: &'w World,
+    poses: &[CameraPose],
+    sun: Vector3<f64>,
+    seed: u64,
+) -> Renderer<'w> {
+    let (lo, hi) = view_box(camera, world, poses);
+    let gsd = poses
+        .iter()
+        .map(|p| p.centre.z)
+        .fold(f64::INFINITY, f64::min)
+        .max(1.0)
+        / camera.fx.max(camera.fy);
+    let texel = (0.7 * gsd).clamp(0.004, 0.05);
+    let settings = RenderSettings {
+        texel_m: texel,
+        sun,
+        image_noise: scene.output.image_noise,
+        seed,
+    };
+    Renderer::new(world, camera.clone(), (lo, hi), &settings)
+}
+
+/// One rendered frame, as the truth tables see it.
+struct TruthFrame<'a> {
+    index: usize,
+    time_s: f64,
+    camera: &'a Camera,
+    pose: &'a CameraPose,
+}
+
+impl TruthFrame<'_> {
+    /// The image box of `corners` clipped to the frame; none when a corner is behind the camera
+    /// or less than 2 px of it is left.
+    fn image_box(&self, corners: &mut dyn Iterator<Item = Vector3<f64>>) -> Option<[f64; 4]> {
+        let size = self.camera.image_size.expect("checked");
+        let (w, h) = (f64::from(size.width), f64::from(size.height));
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for c in corners {
+            let uv = self.pose.project(self.camera, &c)?;
+            b = [
+                b[0].min(uv.x),
+                b[1].min(uv.y),
+                b[2].max(uv.x),
+                b[3].max(uv.y),
+            ];
+        }
+        let (x0, y0) = (b[0].max(-0.5), b[1].max(-0.5));
+        let (x1, y1) = (b[2].min(w - 0.5), b[3].min(h - 0.5));
+        (x1 - x0 >= 2.0 && y1 - y0 >= 2.0).then_some([x0, y0, x1 - x0, y1 - y0])
+    }
+}
+
+/// The truth files' rows as the frames are rendered, and which people were ever in view.
+struct TruthTables {
+    cam_csv: String,
+    heads_csv: String,
+    /// What a perfect person detector would box, and each person's shadow (a detector's
+    /// typical false alarm): image boxes clipped to the frame.
+    boxes_csv: String,
+    seen: Vec<bool>,
+}
+
+impl TruthTables {
+    fn new(people: usize) -> Self {
+        TruthTables {
+            cam_csv: String::from(
+                "frame,time_s,centre_e_m,centre_n_m,centre_u_m,rvec_x,rvec_y,rvec_z,tvec_x,tvec_y,tvec_z\n",
+            ),
+            heads_csv: String::from("frame,time_s,person,e_m,n_m,u_m,px,py,in_view\n"),
+            boxes_csv: String::from("frame,person,kind,x,y,w,h\n"),
+            seen: vec![false; people],
+        }
+    }
+
+    /// The camera: cam_from_world as OpenCV's rvec, tvec.
+    fn add_camera(&mut self, f: &TruthFrame) {
+        let (i, t, pose) = (f.index, f.time_s, f.pose);
         let r_cw = pose.world_from_cam.transpose();
         let rvec = nalgebra::Rotation3::from_matrix_unchecked(r_cw).scaled_axis();
         let tvec = -(r_cw * pose.centre);
         let _ = writeln!(
-            cam_csv,
+            self.cam_csv,
             "{i},{t:.6},{:.6},{:.6},{:.6},{:.9},{:.9},{:.9},{:.6},{:.6},{:.6}",
             pose.centre.x,
             pose.centre.y,
@@ -319,29 +444,19 @@ pub fn simulate(
             tvec.y,
             tvec.z
         );
-        let image_box = |corners: &mut dyn Iterator<Item = Vector3<f64>>| -> Option<[f64; 4]> {
-            let mut b = [
-                f64::INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::NEG_INFINITY,
-            ];
-            for c in corners {
-                let uv = pose.project(camera, &c)?;
-                b = [
-                    b[0].min(uv.x),
-                    b[1].min(uv.y),
-                    b[2].max(uv.x),
-                    b[3].max(uv.y),
-                ];
-            }
-            let (x0, y0) = (b[0].max(-0.5), b[1].max(-0.5));
-            let (x1, y1) = (b[2].min(w - 0.5), b[3].min(h - 0.5));
-            (x1 - x0 >= 2.0 && y1 - y0 >= 2.0).then_some([x0, y0, x1 - x0, y1 - y0])
-        };
-        for (k, ((p, _), body)) in present.iter().zip(&bodies).enumerate() {
+    }
+
+    /// Each present person's body box and shadow box.
+    fn add_boxes(
+        &mut self,
+        f: &TruthFrame,
+        present: &[(&Person, Pose)],
+        bodies: &[Body],
+        shadows: &[Shadow],
+    ) {
+        for (k, ((p, _), body)) in present.iter().zip(bodies).enumerate() {
             let (lo, hi) = body.bounds;
-            let body_box = image_box(&mut (0..8).map(|k| {
+            let body_box = f.image_box(&mut (0..8).map(|k| {
                 Vector3::new(
                     if k & 1 == 0 { lo.x } else { hi.x },
                     if k & 2 == 0 { lo.y } else { hi.y },
@@ -354,7 +469,7 @@ pub fn simulate(
                     sh.axis * sh.semi_major,
                     Vector2::new(-sh.axis.y, sh.axis.x) * sh.semi_minor,
                 );
-                image_box(
+                f.image_box(
                     &mut [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
                         .into_iter()
                         .map(|(i, j)| {
@@ -366,14 +481,21 @@ pub fn simulate(
             for (kind, bx) in [("body", body_box), ("shadow", shadow_box)] {
                 if let Some(bx) = bx {
                     let _ = writeln!(
-                        boxes_csv,
-                        "{i},{},{kind},{:.2},{:.2},{:.2},{:.2}",
-                        p.id, bx[0], bx[1], bx[2], bx[3]
+                        self.boxes_csv,
+                        "{},{},{kind},{:.2},{:.2},{:.2},{:.2}",
+                        f.index, p.id, bx[0], bx[1], bx[2], bx[3]
                     );
                 }
             }
         }
-        for (p, ps) in &present {
+    }
+
+    /// Each present person's head top, in view or just outside it.
+    fn add_heads(&mut self, f: &TruthFrame, present: &[(&Person, Pose)]) {
+        let (i, t, pose, camera) = (f.index, f.time_s, f.pose, f.camera);
+        let size = camera.image_size.expect("checked");
+        let (w, h) = (f64::from(size.width), f64::from(size.height));
+        for (p, ps) in present {
             let Some(uv) = pose.project(camera, &ps.head_top) else {
                 continue;
             };
@@ -387,9 +509,9 @@ pub fn simulate(
             if !in_view && !inside(hat_px) {
                 continue;
             }
-            seen[p.id] |= in_view;
+            self.seen[p.id] |= in_view;
             let _ = writeln!(
-                heads_csv,
+                self.heads_csv,
                 "{i},{t:.6},{},{:.6},{:.6},{:.6},{:.4},{:.4},{}",
                 p.id,
                 ps.head_top.x,
@@ -400,59 +522,49 @@ pub fn simulate(
                 u8::from(in_view)
             );
         }
-        progress.inc(1);
     }
-    let mut files = Vec::new();
-    let (video, codec) = match sink {
-        Some(s) => {
-            let codec = s.codec.to_string();
-            (
-                Some(s.finish().map_err(|e| SimError::Output(e.to_string()))?),
-                Some(codec),
-            )
+
+    /// The truth tables and the people's table into `truth`; the paths written.
+    fn write(self, truth: &Path, people: &[Person], hats: bool) -> Result<Vec<PathBuf>, SimError> {
+        write_file(&truth.join("camera.csv"), &self.cam_csv)?;
+        write_file(&truth.join("heads.csv"), &self.heads_csv)?;
+        write_file(&truth.join("boxes.csv"), &self.boxes_csv)?;
+        let mut people_csv = String::from("person,height_m,speed_m_s,gait,start_s,hat\n");
+        for p in people {
+            let gait = match p.gait {
+                Gait::Walk => "walk",
+                Gait::Run => "run",
+            };
+            let _ = writeln!(
+                people_csv,
+                "{},{:.4},{:.4},{gait},{:.4},{}",
+                p.id,
+                p.height_m,
+                p.speed_m_s,
+                p.start_s,
+                u8::from(hats)
+            );
         }
-        None => (None, None),
-    };
-    let truth = out.join("truth");
-    write_file(&truth.join("camera.csv"), &cam_csv)?;
-    write_file(&truth.join("heads.csv"), &heads_csv)?;
-    write_file(&truth.join("boxes.csv"), &boxes_csv)?;
-    let mut people_csv = String::from("person,height_m,speed_m_s,gait,start_s,hat\n");
-    for p in &people {
-        let gait = match p.gait {
-            Gait::Walk => "walk",
-            Gait::Run => "run",
-        };
-        let _ = writeln!(
-            people_csv,
-            "{},{:.4},{:.4},{gait},{:.4},{}",
-            p.id,
-            p.height_m,
-            p.speed_m_s,
-            p.start_s,
-            u8::from(hat.is_some())
-        );
+        write_file(&truth.join("people.csv"), &people_csv)?;
+        Ok(vec![
+            truth.join("camera.csv"),
+            truth.join("heads.csv"),
+            truth.join("boxes.csv"),
+            truth.join("people.csv"),
+        ])
     }
-    write_file(&truth.join("people.csv"), &people_csv)?;
-    files.extend([
-        truth.join("camera.csv"),
-        truth.join("heads.csv"),
-        truth.join("boxes.csv"),
-        truth.join("people.csv"),
-    ]);
+}
 
-    files.extend(write_gcps(
-        scene,
-        &world,
-        camera,
-        &poses[0],
-        out,
-        seed,
-        video_name.as_deref(),
-    )?);
-    files.extend(write_checkerboards(scene, camera, out, seed)?);
-    files.extend(write_survey_flight(scene, &world, camera, out, seed, &sun)?);
-
+/// `truth/scene.json`: what the scene was run with.
+fn write_scene_meta(
+    scene: &Scene,
+    camera: &Camera,
+    out: &Path,
+    seed: u64,
+    frames: usize,
+    duration: f64,
+) -> Result<PathBuf, SimError> {
+    let size = camera.image_size.expect("checked");
     let meta = serde_json::json!({
         "name": scene.name,
         "seed": seed,
@@ -465,24 +577,12 @@ pub fn simulate(
         "sun": {"azimuth_deg": scene.people.sun_azimuth_deg, "elevation_deg": scene.people.sun_elevation_deg},
         "frames_in_site_frame": "east, north, up in metres from the site origin",
     });
-    let meta_path = truth.join("scene.json");
+    let meta_path = out.join("truth").join("scene.json");
     write_file(
         &meta_path,
         &(serde_json::to_string_pretty(&meta).expect("json") + "\n"),
     )?;
-    files.push(meta_path);
-    if let Some(v) = &video {
-        files.push(v.clone());
-    }
-    Ok(Summary {
-        frames,
-        people: people.len(),
-        people_in_view: seen.iter().filter(|s| **s).count(),
-        image_size: [size.width, size.height],
-        video,
-        codec,
-        files,
-    })
+    Ok(meta_path)
 }
 
 /// RTK-like noise of a surveyed position: σ horizontal and vertical in metres, the horizontal

@@ -413,6 +413,7 @@ impl Scene {
             ctx.err(line, None, format!("not a valid scene: {}", e.message()))
         })?;
         let bad = |field: &str, m: &str| Err(ctx.err(None, Some(field), m.to_string()));
+        let bad_field = |(field, m): Bad| ctx.err(None, Some(field), m);
         if let Some((section, key)) = crate::io::toml_nonfinite_key(text) {
             let field = if section.is_empty() {
                 key
@@ -440,200 +441,17 @@ impl Scene {
             "stream" | "group" => {}
             _ => return bad("people.mode", "must be 'stream' or 'group'"),
         }
-        let pp = &scene.people;
-        if pp.height_m[0] <= 0.5 || pp.height_m[0] > 2.5 || !(0.0..=0.5).contains(&pp.height_m[1]) {
-            return bad(
-                "people.height_m",
-                "expected [mean, sd] with a mean from 0.5 to 2.5 m and an sd from 0 to 0.5 m",
-            );
-        }
-        let speed_ok = pp.speed_m_s[0] > 0.0
-            && pp.speed_m_s[0] <= 15.0
-            && (0.0..=pp.speed_m_s[0] / 2.0).contains(&pp.speed_m_s[1]);
-        if !speed_ok {
-            return bad(
-                "people.speed_m_s",
-                "expected [mean, sd] with a mean from 0 to 15 m/s and an sd up to half the mean",
-            );
-        }
-        if pp.count > 10_000 {
-            return bad("people.count", "at most 10000");
-        }
-        if !(pp.rate_per_s > 0.0 && pp.rate_per_s <= 50.0) {
-            return bad("people.rate_per_s", "must be in (0, 50]");
-        }
-        if !(0.0..=60.0).contains(&pp.lane_changes_per_min) {
-            return bad("people.lane_changes_per_min", "must be from 0 to 60");
-        }
-        if !(0.0..=1.0).contains(&pp.light_change) {
-            return bad("people.light_change", "must be from 0 to 1");
-        }
-        if !(0.0..=5.0).contains(&pp.min_spacing_m) {
-            return bad("people.min_spacing_m", "must be from 0 to 5 m");
-        }
-        if !(1.0..=89.0).contains(&pp.sun_elevation_deg) {
-            return bad(
-                "people.sun_elevation_deg",
-                "must be between 1 and 89 degrees",
-            );
-        }
+        check_people(&scene.people).map_err(bad_field)?;
         if !(0.0..=10.0).contains(&scene.ground_detail) {
             return bad("ground_detail", "must be from 0 to 10");
         }
         if let Some(f) = &scene.survey_flight {
-            if !(5.0..=500.0).contains(&f.altitude_m) {
-                return bad("survey_flight.altitude_m", "must be from 5 to 500 m");
-            }
-            if !(f.area[0][0] < f.area[1][0] && f.area[0][1] < f.area[1][1]) {
-                return bad(
-                    "survey_flight.area",
-                    "expected [[min_e, min_n], [max_e, max_n]] with min < max",
-                );
-            }
-            if !((0.0..=0.95).contains(&f.forward_overlap)
-                && (0.0..=0.95).contains(&f.side_overlap))
-            {
-                return bad(
-                    "survey_flight.forward_overlap",
-                    "overlaps must be from 0 to 0.95",
-                );
-            }
-            if f.obliques > 64 || !(0.0..=70.0).contains(&f.oblique_deg) {
-                return bad(
-                    "survey_flight.obliques",
-                    "at most 64 oblique photos, tilted 0 to 70 degrees",
-                );
-            }
-            let [w, h] = f.image_size;
-            if !((64..=MAX_SIDE_PX).contains(&w) && (64..=MAX_SIDE_PX).contains(&h)) {
-                return bad(
-                    "survey_flight.image_size",
-                    &format!("expected [width, height] from 64 to {MAX_SIDE_PX} pixels"),
-                );
-            }
-            if !(f.rtk_noise_m.iter().all(|v| (0.0..=10.0).contains(v))
-                && (0.0..=10.0).contains(&f.jitter_deg))
-            {
-                return bad(
-                    "survey_flight.rtk_noise_m",
-                    "expected two σ from 0 to 10 m, and a jitter from 0 to 10 degrees",
-                );
-            }
+            check_survey_flight(f).map_err(bad_field)?;
         }
-        let o = &scene.output;
-        if o.checkerboards > 100 {
-            return bad("output.checkerboards", "at most 100");
-        }
-        if !(o.gcp_noise_m.iter().all(|v| (0.0..=10.0).contains(v))) {
-            return bad("output.gcp_noise_m", "expected two σ from 0 to 10 m");
-        }
-        if !(0.0..=100.0).contains(&o.pick_noise_px) {
-            return bad("output.pick_noise_px", "must be from 0 to 100 px");
-        }
-        if !(0.0..=100.0).contains(&o.image_noise) {
-            return bad("output.image_noise", "must be from 0 to 100");
-        }
-        let jitter_ok = |j: f64| (0.0..=10.0).contains(&j);
-        match &scene.camera.motion {
-            Motion::Path {
-                waypoints,
-                speed_m_s,
-                jitter_deg,
-                ..
-            } => {
-                if waypoints.is_empty() || !(*speed_m_s > 0.0) {
-                    return bad(
-                        "camera.waypoints",
-                        "a path needs waypoints and a positive speed_m_s",
-                    );
-                }
-                if !jitter_ok(*jitter_deg) {
-                    return bad("camera.motion.jitter_deg", "must be from 0 to 10 degrees");
-                }
-            }
-            Motion::Hover {
-                drift_m,
-                drift_period_s,
-                jitter_deg,
-                ..
-            } => {
-                if !(*drift_m >= 0.0 && *drift_period_s > 0.0 && jitter_ok(*jitter_deg)) {
-                    return bad(
-                        "camera.motion",
-                        "drift_m must not be negative, drift_period_s positive, jitter_deg from 0 to 10",
-                    );
-                }
-            }
-            Motion::Follow {
-                altitude_m,
-                jitter_deg,
-                ..
-            } => {
-                if !(*altitude_m > 2.0 && jitter_ok(*jitter_deg)) {
-                    return bad(
-                        "camera.motion",
-                        "altitude_m must be above 2 m, jitter_deg from 0 to 10",
-                    );
-                }
-            }
-        }
-        match &scene.ground {
-            Ground::Deck {
-                width_m,
-                length_m,
-                height_m,
-                camber_m,
-                ..
-            } => {
-                // People walk at least 0.45 m from the parapets.
-                if !(*width_m >= 1.0 && *length_m > 0.0 && *length_m <= 2000.0) {
-                    return bad(
-                        "ground.width_m",
-                        "a deck needs a width of at least 1 m and a length up to 2000 m",
-                    );
-                }
-                if !(*height_m >= 0.0 && camber_m.abs() <= *length_m) {
-                    return bad(
-                        "ground.height_m",
-                        "height_m must not be negative and camber_m no more than the length",
-                    );
-                }
-            }
-            Ground::Track {
-                lanes,
-                lane_width_m,
-                straight_m,
-                radius_m,
-                ..
-            } => {
-                let track_ok = (1..=12).contains(lanes)
-                    && (0.9..=5.0).contains(lane_width_m)
-                    && *straight_m > 0.0
-                    && *straight_m <= 1000.0
-                    && (1.0..=1000.0).contains(radius_m);
-                if !track_ok {
-                    return bad(
-                        "ground",
-                        "a track needs 1 to 12 lanes of 0.9 to 5 m, straights up to 1000 m and a radius of 1 to 1000 m",
-                    );
-                }
-            }
-        }
-        let mut names = std::collections::HashSet::new();
-        for g in &scene.gcp {
-            if !names.insert(g.name.as_str()) {
-                return bad(
-                    "gcp.name",
-                    &format!("two GCPs are named '{}'", crate::io::clip(&g.name, 40)),
-                );
-            }
-            if g.name.trim().is_empty() || g.name.contains([',', '\n', '"']) {
-                return bad(
-                    "gcp.name",
-                    "a GCP name must be non-empty text without commas or quotes",
-                );
-            }
-        }
+        check_output(&scene.output).map_err(bad_field)?;
+        check_motion(&scene.camera.motion).map_err(bad_field)?;
+        check_ground(&scene.ground).map_err(bad_field)?;
+        check_gcp_names(&scene.gcp).map_err(bad_field)?;
         if matches!(scene.camera.motion, Motion::Follow { .. }) && scene.people.mode != "group" {
             return bad(
                 "camera.motion",
@@ -657,6 +475,228 @@ impl Scene {
             scene_path.parent().unwrap_or(Path::new(".")).join(p)
         }
     }
+}
+
+/// A scene field that fails its check, and why.
+type Bad = (&'static str, String);
+
+fn bad<T>(field: &'static str, m: &str) -> Result<T, Bad> {
+    Err((field, m.to_string()))
+}
+
+/// The people's section within what the simulator models.
+fn check_people(pp: &PeopleSpec) -> Result<(), Bad> {
+    if pp.height_m[0] <= 0.5 || pp.height_m[0] > 2.5 || !(0.0..=0.5).contains(&pp.height_m[1]) {
+        return bad(
+            "people.height_m",
+            "expected [mean, sd] with a mean from 0.5 to 2.5 m and an sd from 0 to 0.5 m",
+        );
+    }
+    let speed_ok = pp.speed_m_s[0] > 0.0
+        && pp.speed_m_s[0] <= 15.0
+        && (0.0..=pp.speed_m_s[0] / 2.0).contains(&pp.speed_m_s[1]);
+    if !speed_ok {
+        return bad(
+            "people.speed_m_s",
+            "expected [mean, sd] with a mean from 0 to 15 m/s and an sd up to half the mean",
+        );
+    }
+    if pp.count > 10_000 {
+        return bad("people.count", "at most 10000");
+    }
+    if !(pp.rate_per_s > 0.0 && pp.rate_per_s <= 50.0) {
+        return bad("people.rate_per_s", "must be in (0, 50]");
+    }
+    if !(0.0..=60.0).contains(&pp.lane_changes_per_min) {
+        return bad("people.lane_changes_per_min", "must be from 0 to 60");
+    }
+    if !(0.0..=1.0).contains(&pp.light_change) {
+        return bad("people.light_change", "must be from 0 to 1");
+    }
+    if !(0.0..=5.0).contains(&pp.min_spacing_m) {
+        return bad("people.min_spacing_m", "must be from 0 to 5 m");
+    }
+    if !(1.0..=89.0).contains(&pp.sun_elevation_deg) {
+        return bad(
+            "people.sun_elevation_deg",
+            "must be between 1 and 89 degrees",
+        );
+    }
+    Ok(())
+}
+
+/// The survey flight's section.
+fn check_survey_flight(f: &SurveyFlightSpec) -> Result<(), Bad> {
+    if !(5.0..=500.0).contains(&f.altitude_m) {
+        return bad("survey_flight.altitude_m", "must be from 5 to 500 m");
+    }
+    if !(f.area[0][0] < f.area[1][0] && f.area[0][1] < f.area[1][1]) {
+        return bad(
+            "survey_flight.area",
+            "expected [[min_e, min_n], [max_e, max_n]] with min < max",
+        );
+    }
+    if !((0.0..=0.95).contains(&f.forward_overlap) && (0.0..=0.95).contains(&f.side_overlap)) {
+        return bad(
+            "survey_flight.forward_overlap",
+            "overlaps must be from 0 to 0.95",
+        );
+    }
+    if f.obliques > 64 || !(0.0..=70.0).contains(&f.oblique_deg) {
+        return bad(
+            "survey_flight.obliques",
+            "at most 64 oblique photos, tilted 0 to 70 degrees",
+        );
+    }
+    let [w, h] = f.image_size;
+    if !((64..=MAX_SIDE_PX).contains(&w) && (64..=MAX_SIDE_PX).contains(&h)) {
+        return bad(
+            "survey_flight.image_size",
+            &format!("expected [width, height] from 64 to {MAX_SIDE_PX} pixels"),
+        );
+    }
+    if !(f.rtk_noise_m.iter().all(|v| (0.0..=10.0).contains(v))
+        && (0.0..=10.0).contains(&f.jitter_deg))
+    {
+        return bad(
+            "survey_flight.rtk_noise_m",
+            "expected two σ from 0 to 10 m, and a jitter from 0 to 10 degrees",
+        );
+    }
+    Ok(())
+}
+
+/// The output section's counts and noise.
+fn check_output(o: &OutputSpec) -> Result<(), Bad> {
+    if o.checkerboards > 100 {
+        return bad("output.checkerboards", "at most 100");
+    }
+    if !(o.gcp_noise_m.iter().all(|v| (0.0..=10.0).contains(v))) {
+        return bad("output.gcp_noise_m", "expected two σ from 0 to 10 m");
+    }
+    if !(0.0..=100.0).contains(&o.pick_noise_px) {
+        return bad("output.pick_noise_px", "must be from 0 to 100 px");
+    }
+    if !(0.0..=100.0).contains(&o.image_noise) {
+        return bad("output.image_noise", "must be from 0 to 100");
+    }
+    Ok(())
+}
+
+/// The camera's motion.
+fn check_motion(motion: &Motion) -> Result<(), Bad> {
+    let jitter_ok = |j: f64| (0.0..=10.0).contains(&j);
+    match motion {
+        Motion::Path {
+            waypoints,
+            speed_m_s,
+            jitter_deg,
+            ..
+        } => {
+            if waypoints.is_empty() || !(*speed_m_s > 0.0) {
+                return bad(
+                    "camera.waypoints",
+                    "a path needs waypoints and a positive speed_m_s",
+                );
+            }
+            if !jitter_ok(*jitter_deg) {
+                return bad("camera.motion.jitter_deg", "must be from 0 to 10 degrees");
+            }
+        }
+        Motion::Hover {
+            drift_m,
+            drift_period_s,
+            jitter_deg,
+            ..
+        } => {
+            if !(*drift_m >= 0.0 && *drift_period_s > 0.0 && jitter_ok(*jitter_deg)) {
+                return bad(
+                    "camera.motion",
+                    "drift_m must not be negative, drift_period_s positive, jitter_deg from 0 to 10",
+                );
+            }
+        }
+        Motion::Follow {
+            altitude_m,
+            jitter_deg,
+            ..
+        } => {
+            if !(*altitude_m > 2.0 && jitter_ok(*jitter_deg)) {
+                return bad(
+                    "camera.motion",
+                    "altitude_m must be above 2 m, jitter_deg from 0 to 10",
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The ground's size.
+fn check_ground(ground: &Ground) -> Result<(), Bad> {
+    match ground {
+        Ground::Deck {
+            width_m,
+            length_m,
+            height_m,
+            camber_m,
+            ..
+        } => {
+            // People walk at least 0.45 m from the parapets.
+            if !(*width_m >= 1.0 && *length_m > 0.0 && *length_m <= 2000.0) {
+                return bad(
+                    "ground.width_m",
+                    "a deck needs a width of at least 1 m and a length up to 2000 m",
+                );
+            }
+            if !(*height_m >= 0.0 && camber_m.abs() <= *length_m) {
+                return bad(
+                    "ground.height_m",
+                    "height_m must not be negative and camber_m no more than the length",
+                );
+            }
+        }
+        Ground::Track {
+            lanes,
+            lane_width_m,
+            straight_m,
+            radius_m,
+            ..
+        } => {
+            let track_ok = (1..=12).contains(lanes)
+                && (0.9..=5.0).contains(lane_width_m)
+                && *straight_m > 0.0
+                && *straight_m <= 1000.0
+                && (1.0..=1000.0).contains(radius_m);
+            if !track_ok {
+                return bad(
+                    "ground",
+                    "a track needs 1 to 12 lanes of 0.9 to 5 m, straights up to 1000 m and a radius of 1 to 1000 m",
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// GCP names: unique, non-empty, writable to CSV.
+fn check_gcp_names(gcps: &[GcpSpec]) -> Result<(), Bad> {
+    let mut names = std::collections::HashSet::new();
+    for g in gcps {
+        if !names.insert(g.name.as_str()) {
+            return bad(
+                "gcp.name",
+                &format!("two GCPs are named '{}'", crate::io::clip(&g.name, 40)),
+            );
+        }
+        if g.name.trim().is_empty() || g.name.contains([',', '\n', '"']) {
+            return bad(
+                "gcp.name",
+                "a GCP name must be non-empty text without commas or quotes",
+            );
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -404,7 +404,6 @@ impl Crs {
         };
         let normalised = normalise_spec(spec);
         let c = CString::new(normalised.clone()).map_err(|_| err("contains a NUL byte".into()))?;
-        let unknown = "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string, WKT or a CRS's exact name)";
         // An AUTH:CODE (or urn:ogc:def:crs:AUTH::CODE) PROJ's database does not hold fails here.
         if let Some((auth, code)) = auth_code(&normalised)
             && !ctx.with_catalogue(|c| {
@@ -428,74 +427,7 @@ impl Crs {
                 "a PROJ string needs +proj= (expected an EPSG code such as EPSG:32631, or a PROJ string such as +proj=utm +zone=31 +datum=WGS84)".into(),
             ));
         }
-        let obj = if is_wkt(&normalised) {
-            ctx.wrap(
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                unsafe {
-                    sys::proj_create_from_wkt(
-                        ctx.ptr,
-                        c.as_ptr(),
-                        ptr::null(),
-                        ptr::null_mut(),
-                        ptr::null_mut(),
-                    )
-                },
-                spec,
-                "PROJ cannot read it as WKT",
-            )?
-        } else if is_crs_name(&normalised) {
-            // A name is looked up exactly: PROJ's approximate matching takes a third of a
-            // second and may pick another CRS of a similar name (Belge 1972 for BD72). Names in
-            // the CRS list by their code; others (aliases) through PROJ's exact name search.
-            let code = ctx.with_catalogue(|c| c.names.get(&normalised.to_lowercase()).cloned());
-            if let Some((code, _)) = code {
-                let cc = CString::new(code).map_err(|_| err("contains a NUL byte".into()))?;
-                ctx.wrap(
-                    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                    unsafe { sys::proj_create(ctx.ptr, cc.as_ptr()) },
-                    spec,
-                    unknown,
-                )?
-            } else {
-                if !name_like(&normalised) {
-                    return Err(err(unknown.into()));
-                }
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                let list = unsafe {
-                    sys::proj_create_from_name(
-                        ctx.ptr,
-                        ptr::null(),
-                        c.as_ptr(),
-                        ptr::null(),
-                        0,
-                        0,
-                        1,
-                        ptr::null(),
-                    )
-                };
-                if list.is_null() {
-                    return Err(err(unknown.into()));
-                }
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                let found = unsafe {
-                    if sys::proj_list_get_count(list) > 0 {
-                        sys::proj_list_get(ctx.ptr, list, 0)
-                    } else {
-                        ptr::null_mut()
-                    }
-                };
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                unsafe { sys::proj_list_destroy(list) };
-                ctx.wrap(found, spec, unknown)?
-            }
-        } else {
-            ctx.wrap(
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) },
-                spec,
-                unknown,
-            )?
-        };
+        let obj = create_object(&ctx, spec, &normalised, &c)?;
         let mut crs = obj;
         // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let mut ty = unsafe { sys::proj_get_type(crs.ptr) };
@@ -532,51 +464,7 @@ impl Crs {
         };
         let wkt = wkt_of(&crs)?;
         let area_of_use = area_of_use(&ctx, &crs);
-        let (horizontal_crs, height_kind) = match ty {
-            sys::PJ_TYPE_PJ_TYPE_COMPOUND_CRS => {
-                let h = ctx.wrap(
-                    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                    unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 0) },
-                    spec,
-                    "compound CRS without a horizontal part",
-                )?;
-                let v = ctx.wrap(
-                    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                    unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 1) },
-                    spec,
-                    "compound CRS without a vertical part",
-                )?;
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                let vname = c_str_opt(unsafe { sys::proj_get_name(v.ptr) });
-                let mut h = h;
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                if unsafe { sys::proj_get_type(h.ptr) } == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
-                    h = ctx.wrap(
-                        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                        unsafe { sys::proj_get_source_crs(ctx.ptr, h.ptr) },
-                        spec,
-                        "bound CRS without a source",
-                    )?;
-                }
-                (h, HeightKind::Orthometric(vname))
-            }
-            sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_3D_CRS => (crs, HeightKind::Ellipsoidal),
-            sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_2D_CRS | sys::PJ_TYPE_PJ_TYPE_PROJECTED_CRS => {
-                (crs, HeightKind::Unknown)
-            }
-            sys::PJ_TYPE_PJ_TYPE_GEOCENTRIC_CRS => {
-                return Err(err("geocentric (ECEF) coordinates are not supported as a survey CRS; convert them to a geographic or projected CRS".into()));
-            }
-            sys::PJ_TYPE_PJ_TYPE_ENGINEERING_CRS | sys::PJ_TYPE_PJ_TYPE_VERTICAL_CRS => {
-                return Err(err("not a geographic, projected or compound CRS".into()));
-            }
-            _ => {
-                return Err(err(format!(
-                    "'{}' is not a coordinate reference system (append +type=crs to a PROJ string?)",
-                    crate::io::clip(&normalised, 60)
-                )));
-            }
-        };
+        let (horizontal_crs, height_kind) = split_heights(&ctx, crs, ty, spec, &normalised)?;
         // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
         let hty = unsafe { sys::proj_get_type(horizontal_crs.ptr) };
         let horizontal = match hty {
@@ -590,80 +478,23 @@ impl Crs {
                 ));
             }
         };
-        let geodetic = ctx.wrap(
-            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-            unsafe { sys::proj_crs_get_geodetic_crs(ctx.ptr, horizontal_crs.ptr) },
-            spec,
-            "no geodetic CRS",
-        )?;
-        // The datum (an ensemble's common name for WGS 84, ETRS89), which says whether two CRSs
-        // share one.
-        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-        let datum = unsafe { sys::proj_crs_get_datum_forced(ctx.ptr, geodetic.ptr) };
-        let geodetic_name = if datum.is_null() {
-            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-            c_str_opt(unsafe { sys::proj_get_name(geodetic.ptr) }).unwrap_or_default()
-        } else {
-            let datum = Pj { ptr: datum };
-            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-            c_str_opt(unsafe { sys::proj_get_name(datum.ptr) }).unwrap_or_default()
-        };
-        let ell = ctx.wrap(
-            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-            unsafe { sys::proj_get_ellipsoid(ctx.ptr, geodetic.ptr) },
-            spec,
-            "no ellipsoid",
-        )?;
-        let (mut a, mut b, mut computed, mut inv_f) = (0.0, 0.0, 0, 0.0);
-        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-        let ok = unsafe {
-            sys::proj_ellipsoid_get_parameters(
-                ctx.ptr,
-                ell.ptr,
-                &mut a,
-                &mut b,
-                &mut computed,
-                &mut inv_f,
-            )
-        };
-        if ok == 0 || !(a > 0.0) {
-            return Err(err("cannot read its ellipsoid".into()));
-        }
-        let ellipsoid = Ellipsoid::from_axes(a, b);
+        let (geodetic, geodetic_name, ellipsoid) = geodetic_of(&ctx, &horizontal_crs, spec)?;
         let unit_m = if horizontal == Horizontal::Projected {
             axis_unit(&ctx, &horizontal_crs).unwrap_or(1.0)
         } else {
             1.0
         };
         // The geodetic CRS of the same datum: no datum change, so no grid or Helmert involved.
-        let conversion = |from: &Pj, to: &Pj, what: &str| -> Result<Pj, CrsError> {
-            let raw = ctx.wrap(
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                unsafe {
-                    sys::proj_create_crs_to_crs_from_pj(
-                        ctx.ptr,
-                        from.ptr,
-                        to.ptr,
-                        ptr::null_mut(),
-                        ptr::null(),
-                    )
-                },
-                spec,
-                what,
-            )?;
-            ctx.wrap(
-                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
-                unsafe { sys::proj_normalize_for_visualization(ctx.ptr, raw.ptr) },
-                spec,
-                what,
-            )
-        };
         let to_geodetic = conversion(
+            &ctx,
+            spec,
             &horizontal_crs,
             &geodetic,
             "cannot convert to latitude/longitude",
         )?;
         let from_geodetic = conversion(
+            &ctx,
+            spec,
             &geodetic,
             &horizontal_crs,
             "cannot convert from latitude/longitude",
@@ -740,6 +571,222 @@ impl Crs {
             None => self.name.clone(),
         }
     }
+}
+
+/// The PROJ object `spec` (normalised: `normalised`, as a C string `c`) names: WKT read as WKT, a
+/// CRS's name looked up exactly, anything else given to `proj_create`.
+fn create_object(ctx: &Context, spec: &str, normalised: &str, c: &CString) -> Result<Pj, CrsError> {
+    let err = |message: String| CrsError {
+        spec: spec.to_string(),
+        message,
+    };
+    let unknown = "PROJ does not know it (expected an EPSG code such as EPSG:32631, a PROJ string, WKT or a CRS's exact name)";
+    Ok(if is_wkt(normalised) {
+        ctx.wrap(
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            unsafe {
+                sys::proj_create_from_wkt(
+                    ctx.ptr,
+                    c.as_ptr(),
+                    ptr::null(),
+                    ptr::null_mut(),
+                    ptr::null_mut(),
+                )
+            },
+            spec,
+            "PROJ cannot read it as WKT",
+        )?
+    } else if is_crs_name(normalised) {
+        // A name is looked up exactly: PROJ's approximate matching takes a third of a
+        // second and may pick another CRS of a similar name (Belge 1972 for BD72). Names in
+        // the CRS list by their code; others (aliases) through PROJ's exact name search.
+        let code = ctx.with_catalogue(|c| c.names.get(&normalised.to_lowercase()).cloned());
+        if let Some((code, _)) = code {
+            let cc = CString::new(code).map_err(|_| err("contains a NUL byte".into()))?;
+            ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+                unsafe { sys::proj_create(ctx.ptr, cc.as_ptr()) },
+                spec,
+                unknown,
+            )?
+        } else {
+            if !name_like(normalised) {
+                return Err(err(unknown.into()));
+            }
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            let list = unsafe {
+                sys::proj_create_from_name(
+                    ctx.ptr,
+                    ptr::null(),
+                    c.as_ptr(),
+                    ptr::null(),
+                    0,
+                    0,
+                    1,
+                    ptr::null(),
+                )
+            };
+            if list.is_null() {
+                return Err(err(unknown.into()));
+            }
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            let found = unsafe {
+                if sys::proj_list_get_count(list) > 0 {
+                    sys::proj_list_get(ctx.ptr, list, 0)
+                } else {
+                    ptr::null_mut()
+                }
+            };
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            unsafe { sys::proj_list_destroy(list) };
+            ctx.wrap(found, spec, unknown)?
+        }
+    } else {
+        ctx.wrap(
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) },
+            spec,
+            unknown,
+        )?
+    })
+}
+
+/// A CRS of type `ty` as its horizontal part and the kind of its heights: a compound CRS split,
+/// a geocentric, engineering or vertical one refused.
+fn split_heights(
+    ctx: &Context,
+    crs: Pj,
+    ty: sys::PJ_TYPE,
+    spec: &str,
+    normalised: &str,
+) -> Result<(Pj, HeightKind), CrsError> {
+    let err = |message: String| CrsError {
+        spec: spec.to_string(),
+        message,
+    };
+    match ty {
+    sys::PJ_TYPE_PJ_TYPE_COMPOUND_CRS => {
+        let h = ctx.wrap(
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 0) },
+            spec,
+            "compound CRS without a horizontal part",
+        )?;
+        let v = ctx.wrap(
+            // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+            unsafe { sys::proj_crs_get_sub_crs(ctx.ptr, crs.ptr, 1) },
+            spec,
+            "compound CRS without a vertical part",
+        )?;
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        let vname = c_str_opt(unsafe { sys::proj_get_name(v.ptr) });
+        let mut h = h;
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        if unsafe { sys::proj_get_type(h.ptr) } == sys::PJ_TYPE_PJ_TYPE_BOUND_CRS {
+            h = ctx.wrap(
+                // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+                unsafe { sys::proj_get_source_crs(ctx.ptr, h.ptr) },
+                spec,
+                "bound CRS without a source",
+            )?;
+        }
+        Ok((h, HeightKind::Orthometric(vname)))
+    }
+    sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_3D_CRS => Ok((crs, HeightKind::Ellipsoidal)),
+    sys::PJ_TYPE_PJ_TYPE_GEOGRAPHIC_2D_CRS | sys::PJ_TYPE_PJ_TYPE_PROJECTED_CRS => {
+        Ok((crs, HeightKind::Unknown))
+    }
+    sys::PJ_TYPE_PJ_TYPE_GEOCENTRIC_CRS => {
+        Err(err("geocentric (ECEF) coordinates are not supported as a survey CRS; convert them to a geographic or projected CRS".into()))
+    }
+    sys::PJ_TYPE_PJ_TYPE_ENGINEERING_CRS | sys::PJ_TYPE_PJ_TYPE_VERTICAL_CRS => {
+        Err(err("not a geographic, projected or compound CRS".into()))
+    }
+    _ => {
+        Err(err(format!(
+            "'{}' is not a coordinate reference system (append +type=crs to a PROJ string?)",
+            crate::io::clip(normalised, 60)
+        )))
+    }
+    }
+}
+
+/// The geodetic CRS of `horizontal_crs`, its datum's name (an ensemble's common name for WGS 84,
+/// ETRS89: it says whether two CRSs share one) and its ellipsoid.
+fn geodetic_of(
+    ctx: &Context,
+    horizontal_crs: &Pj,
+    spec: &str,
+) -> Result<(Pj, String, Ellipsoid), CrsError> {
+    let err = |message: String| CrsError {
+        spec: spec.to_string(),
+        message,
+    };
+    let geodetic = ctx.wrap(
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        unsafe { sys::proj_crs_get_geodetic_crs(ctx.ptr, horizontal_crs.ptr) },
+        spec,
+        "no geodetic CRS",
+    )?;
+    // The datum (an ensemble's common name for WGS 84, ETRS89), which says whether two CRSs
+    // share one.
+    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+    let datum = unsafe { sys::proj_crs_get_datum_forced(ctx.ptr, geodetic.ptr) };
+    let geodetic_name = if datum.is_null() {
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        c_str_opt(unsafe { sys::proj_get_name(geodetic.ptr) }).unwrap_or_default()
+    } else {
+        let datum = Pj { ptr: datum };
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        c_str_opt(unsafe { sys::proj_get_name(datum.ptr) }).unwrap_or_default()
+    };
+    let ell = ctx.wrap(
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        unsafe { sys::proj_get_ellipsoid(ctx.ptr, geodetic.ptr) },
+        spec,
+        "no ellipsoid",
+    )?;
+    let (mut a, mut b, mut computed, mut inv_f) = (0.0, 0.0, 0, 0.0);
+    // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+    let ok = unsafe {
+        sys::proj_ellipsoid_get_parameters(
+            ctx.ptr,
+            ell.ptr,
+            &mut a,
+            &mut b,
+            &mut computed,
+            &mut inv_f,
+        )
+    };
+    if ok == 0 || !(a > 0.0) {
+        return Err(err("cannot read its ellipsoid".into()));
+    }
+    let ellipsoid = Ellipsoid::from_axes(a, b);
+    Ok((geodetic, geodetic_name, ellipsoid))
+}
+
+/// The operation from `from` to `to`, axes in longitude, latitude (or easting, northing) order.
+fn conversion(ctx: &Context, spec: &str, from: &Pj, to: &Pj, what: &str) -> Result<Pj, CrsError> {
+    let raw = ctx.wrap(
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        unsafe {
+            sys::proj_create_crs_to_crs_from_pj(
+                ctx.ptr,
+                from.ptr,
+                to.ptr,
+                ptr::null_mut(),
+                ptr::null(),
+            )
+        },
+        spec,
+        what,
+    )?;
+    ctx.wrap(
+        // SAFETY: the context and objects are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`); strings are NUL-terminated `CString`s that outlive the call; PROJ copies what it keeps.
+        unsafe { sys::proj_normalize_for_visualization(ctx.ptr, raw.ptr) },
+        spec,
+        what,
+    )
 }
 
 fn area_of_use(ctx: &Context, obj: &Pj) -> Option<AreaOfUse> {

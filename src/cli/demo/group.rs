@@ -111,29 +111,9 @@ fn frames_check(dir: &Path, report: &RunReport) -> anyhow::Result<FramesCheck> {
     })
 }
 
-pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
-    let started = std::time::Instant::now();
-    let json = args.json;
-    let (scene, scene_path, dir) = any_scene(&args, "surveys/track-group")?;
-    if scene.survey_flight.is_none() {
-        return Err(super::super::bad_input(anyhow!(
-            "{}: the group demo needs a [survey_flight] (the photos its reference model is built from)",
-            scene_path.display()
-        )));
-    }
-
-    // 1. Simulate.
-    let sim = simulate_step(&args, "geostride demo --group", &scene, &scene_path, &dir)?;
-    say!(
-        json,
-        "   survey flight in {}",
-        dir.join("survey/photos").display()
-    );
-
-    // 2. The camera from the checkerboards (the video's mode; the photos' is the same sensor).
-    let (calibration, _) = calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
-
-    // 3. The reference model from the survey flight.
+/// Step 3: the reference model built from the survey flight as `geostride sfm` does, in
+/// `DIR/model`, and its check.
+fn build_model(json: bool, dir: &Path) -> anyhow::Result<ModelCheck> {
     let words: Vec<String> = [
         "survey/photos",
         "--camera",
@@ -205,57 +185,57 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
         model.centres_rms_m[0],
         model.centres_rms_m[1]
     );
+    Ok(model)
+}
 
-    // 4. The run with the default head height.
-    let (truth, ignored) = truth_samples(&dir.join("truth/heads.csv"))?;
-    let mut p = group_project(&scene, "camera.yaml", "model", "survey/photos", None)
-        .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
-    p.output.video = true;
-    let (report, default_eval, default_cons) = DemoRun {
-        dir: &dir,
-        file: "project.toml",
-        what: "Group: every frame placed in the reference model (model/, from survey/photos), local ground planes, hats.",
-        step: "4. ",
-        out: "run",
-        accuracy: "accuracy-default.csv",
-    }
-    .run(&args, &p, &truth, &ignored)?;
-    let pose = frames_check(&dir, &report)?;
-    let (_, matches) = evaluate_matches(
-        &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
-        &ignored,
-        0.5,
-    );
-    let (full, runners) = runners_every_frame(&truth, &matches);
+/// The rows under the accuracy table: the camera's poses, the model's GCPs, the calibration.
+fn camera_rows(pose: &FramesCheck, model: &ModelCheck, calibration: &CalibrationCheck) -> [Row; 5] {
+    let centre_m = [pose.mean_centre_m, pose.worst_centre_m].map(|v| format!("{v:.4} m"));
+    [
+        Row::new(
+            "frames posed (measured / interpolated)",
+            [
+                format!("{} / {}", pose.measured, pose.interpolated),
+                format!("{} key", pose.key_frames),
+            ],
+            "all / 0",
+        ),
+        Row::new(
+            "camera centre vs truth (mean / worst)",
+            centre_m,
+            "≤ 0.05 m",
+        ),
+        Row::one(
+            "camera attitude vs truth (worst)",
+            format!("{:.4}°", pose.worst_attitude_deg),
+            "",
+        ),
+        Row::one(
+            "GCP picks vs model GCPs (mean)",
+            format!("{:.3} px", model.gcp_mean_px),
+            "≤ 0.9 px",
+        ),
+        Row::calibration(calibration, ""),
+    ]
+}
 
-    // 5. Every runner's height known.
-    write_known_heights(&dir, &truth)?;
-    let p_h = group_project(
-        &scene,
-        "camera.yaml",
-        "model",
-        "survey/photos",
-        Some("heights.csv"),
-    )?;
-    let (_, known_eval, known_cons) = DemoRun {
-        dir: &dir,
-        file: "project-heights.toml",
-        what: "Group, with every runner's height known (heights.csv, by track id).",
-        step: "5. With every runner's height known: ",
-        out: "run-heights",
-        accuracy: "accuracy-heights.csv",
-    }
-    .run(&args, &p_h, &truth, &ignored)?;
-
-    // 6. The accuracy table.
-    let [known_check, default_check] =
-        rmse_checks(&known_eval, &default_eval, [RMSE_KNOWN_M, RMSE_DEFAULT_M]);
-    let checks = [
-        known_check,
-        default_check,
+/// The group demo's targets: `rmse` (heights known, default), every one of `frames` posed,
+/// the centres, the GCP picks, `(full, runners, count)` runners tracked throughout, no ID
+/// switch in either of `evals`.
+fn group_checks(
+    rmse: [(bool, String); 2],
+    pose: &FramesCheck,
+    frames: usize,
+    model: &ModelCheck,
+    (full, runners, count): (usize, usize, usize),
+    evals: [&Evaluation; 2],
+) -> Vec<(bool, String)> {
+    let [known, default] = rmse;
+    vec![
+        known,
+        default,
         (
-            pose.measured == sim.frames && pose.frames == sim.frames,
+            pose.measured == frames && pose.frames == frames,
             "every frame posed from its own features".to_string(),
         ),
         (
@@ -267,17 +247,86 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
             format!("GCP picks within {GCP_MEAN_PX} px of the model's GCPs on average"),
         ),
         (
-            full == runners && runners == scene.people.count as usize,
+            full == runners && runners == count,
             format!(
                 "all {} runners tracked over every frame they are in view",
-                scene.people.count
+                count
             ),
         ),
         (
-            default_eval.id_switches == 0 && known_eval.id_switches == 0,
+            evals.iter().all(|e| e.id_switches == 0),
             "no ID switch".to_string(),
         ),
-    ];
+    ]
+}
+
+pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let json = args.json;
+    let (scene, scene_path, dir) = any_scene(&args, "surveys/track-group")?;
+    if scene.survey_flight.is_none() {
+        return Err(super::super::bad_input(anyhow!(
+            "{}: the group demo needs a [survey_flight] (the photos its reference model is built from)",
+            scene_path.display()
+        )));
+    }
+
+    // 1. Simulate.
+    let sim = simulate_step(&args, "geostride demo --group", &scene, &scene_path, &dir)?;
+    say!(
+        json,
+        "   survey flight in {}",
+        dir.join("survey/photos").display()
+    );
+
+    // 2. The camera from the checkerboards (the video's mode; the photos' is the same sensor).
+    let (calibration, _) = calibrate_scene(&args, &scene, &scene_path, &dir, sim.image_size)?;
+
+    // 3. The reference model from the survey flight.
+    let model = build_model(json, &dir)?;
+
+    // 4. The run with the default head height, then 5. with every runner's height known.
+    let runs = height_runs(
+        &args,
+        &dir,
+        &|heights| {
+            group_project(&scene, "camera.yaml", "model", "survey/photos", heights)
+                .map_err(|e| anyhow!("{}: {e}", scene_path.display()))
+        },
+        [
+            (
+                "Group: every frame placed in the reference model (model/, from survey/photos), local ground planes, hats.",
+                "4. ",
+            ),
+            (
+                "Group, with every runner's height known (heights.csv, by track id).",
+                "5. With every runner's height known: ",
+            ),
+        ],
+    )?;
+    let [known_eval, default_eval] = runs.evals;
+    let [known_cons, default_cons] = runs.cons;
+    let (report, truth, ignored) = (runs.report, runs.truth, runs.ignored);
+    let pose = frames_check(&dir, &report)?;
+    let (_, matches) = evaluate_matches(
+        &truth,
+        &track_samples(&dir.join("run/trajectories.csv"))?,
+        &ignored,
+        0.5,
+    );
+    let (full, runners) = runners_every_frame(&truth, &matches);
+
+    // 6. The accuracy table.
+    let [known_check, default_check] =
+        rmse_checks(&known_eval, &default_eval, [RMSE_KNOWN_M, RMSE_DEFAULT_M]);
+    let checks = group_checks(
+        [known_check, default_check],
+        &pose,
+        sim.frames,
+        &model,
+        (full, runners, scene.people.count as usize),
+        [&known_eval, &default_eval],
+    );
     say!(
         json,
         "\n6. Accuracy against the truth ({} runners, {} frames; matches within 0.5 m):",
@@ -296,39 +345,7 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
         mota_row(&known_eval, &default_eval),
     ]);
     rows.extend(uncertainty_rows(&known_cons, &default_cons));
-    let after = [
-        Row::new(
-            "frames posed (measured / interpolated)",
-            [
-                format!("{} / {}", pose.measured, pose.interpolated),
-                format!("{} key", pose.key_frames),
-            ],
-            "all / 0",
-        ),
-        Row::new(
-            "camera centre vs truth (mean / worst)",
-            [
-                format!("{:.4} m", pose.mean_centre_m),
-                format!("{:.4} m", pose.worst_centre_m),
-            ],
-            "≤ 0.05 m",
-        ),
-        Row::new(
-            "camera attitude vs truth (worst)",
-            [format!("{:.4}°", pose.worst_attitude_deg), String::new()],
-            "",
-        ),
-        Row::new(
-            "GCP picks vs model GCPs (mean)",
-            [format!("{:.3} px", model.gcp_mean_px), String::new()],
-            "≤ 0.9 px",
-        ),
-        Row::new(
-            "calibration (worst |est − truth| / σ)",
-            [format!("{:.2}", calibration.worst_sigmas), String::new()],
-            "",
-        ),
-    ];
+    let after = camera_rows(&pose, &model, &calibration);
     let head = ["heights known", "1.7 m default", "target"];
     print_table(json, (40, 12), head, &rows);
     print_table(json, (40, 12), ["", "", ""], &after);

@@ -74,12 +74,7 @@ pub(super) fn pose_stage(
                     })
                     .collect(),
                 key_frames: result.key_frames.iter().map(|k| k.index).collect(),
-                key_frames_failed: result
-                    .key_frames
-                    .iter()
-                    .filter(|k| k.solution.is_err())
-                    .map(|k| k.index)
-                    .collect(),
+                key_frames_failed: result.failed_key_frames(),
                 mean_reprojection_px: means.iter().sum::<f64>() / means.len().max(1) as f64,
                 max_reprojection_px: means.iter().copied().fold(0.0, f64::max),
                 check_mean_reprojection_px: (!checks.is_empty())

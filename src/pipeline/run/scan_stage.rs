@@ -57,12 +57,7 @@ fn compute_chunk(
     let p = &l.project;
     let fps = ctx.fps;
     let (min_features, key_fraction, key_every_s) = p.pose.key_frames();
-    let stabilise = StabiliseSettings {
-        min_features,
-        min_fraction: key_fraction,
-        max_interval: key_every_s.map(|s| (s * fps).round().max(1.0) as usize),
-        ..StabiliseSettings::default()
-    };
+    let stabilise = StabiliseSettings::key_frames(min_features, key_fraction, key_every_s, fps);
     let picks = ctx.control.iter().chain(&ctx.check).map(|o| o.uv).collect();
     let scale = TrackScale {
         px_per_m: ctx.px_per_m,

@@ -33,6 +33,9 @@ pub enum GisError {
     /// What the caller's layers reported.
     #[error("{0}")]
     Layers(String),
+    /// QGIS's style table could not be added.
+    #[error("cannot write the QGIS styles: {0}")]
+    Styles(#[source] gdal::errors::GdalError),
 }
 
 impl From<String> for GisError {
@@ -96,7 +99,7 @@ fn spatial_indexes(ds: &Dataset) -> Result<(), String> {
 /// Adds QGIS's `layer_styles` table to a GeoPackage being written: each `(layer, QML)` the
 /// style QGIS applies when the layer is opened. Registered as an attributes table; its time
 /// stamps fixed like the GeoPackage's.
-pub fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), String> {
+pub fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), GisError> {
     let q = |s: &str| s.replace('\'', "''");
     let mut sql = vec![
         "CREATE TABLE layer_styles (id INTEGER PRIMARY KEY AUTOINCREMENT, f_table_catalog TEXT(256), \
@@ -121,7 +124,7 @@ pub fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), St
     }
     for s in sql {
         ds.execute_sql(&s, None, gdal::vector::sql::Dialect::DEFAULT)
-            .map_err(|e| format!("cannot write the QGIS styles: {e}"))?;
+            .map_err(GisError::Styles)?;
     }
     Ok(())
 }

@@ -15,7 +15,7 @@ pub mod polygon;
 use nalgebra::Vector2;
 
 use crate::export::Trajectory;
-pub use polygon::ConvexPolygon;
+pub use polygon::{ConvexPolygon, PolygonError};
 
 /// One frame's measures in the measurement area.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]

@@ -2,6 +2,20 @@
 
 use nalgebra::Vector2;
 
+/// Why vertices do not make a convex polygon.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum PolygonError {
+    #[error("a vertex is not a number")]
+    NotANumber,
+    #[error("{0} vertices: a polygon needs 3 or more")]
+    TooFew(usize),
+    #[error("the vertices enclose no area")]
+    NoArea,
+    /// The vertex (counted from 1) where the boundary turns the other way, and its position.
+    #[error("not convex at vertex {vertex} ({x:.3}, {y:.3}): give a convex polygon in order")]
+    NotConvex { vertex: usize, x: f64, y: f64 },
+}
+
 /// A convex polygon, vertices counter-clockwise, no three in a row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ConvexPolygon {
@@ -21,26 +35,23 @@ fn signed_area2(v: &[Vector2<f64>]) -> f64 {
 
 impl ConvexPolygon {
     /// The polygon of `vertices` (either orientation), or why it is not a convex polygon.
-    pub fn new(mut vertices: Vec<Vector2<f64>>) -> Result<ConvexPolygon, String> {
+    pub fn new(mut vertices: Vec<Vector2<f64>>) -> Result<ConvexPolygon, PolygonError> {
         if vertices
             .iter()
             .any(|v| !(v.x.is_finite() && v.y.is_finite()))
         {
-            return Err("a vertex is not a number".into());
+            return Err(PolygonError::NotANumber);
         }
         // A closing vertex equal to the first is dropped.
         if vertices.len() > 1 && vertices.first() == vertices.last() {
             vertices.pop();
         }
         if vertices.len() < 3 {
-            return Err(format!(
-                "{} vertices: a polygon needs 3 or more",
-                vertices.len()
-            ));
+            return Err(PolygonError::TooFew(vertices.len()));
         }
         let a2 = signed_area2(&vertices);
         if a2.abs() < 1e-12 {
-            return Err("the vertices enclose no area".into());
+            return Err(PolygonError::NoArea);
         }
         if a2 < 0.0 {
             vertices.reverse();
@@ -49,12 +60,11 @@ impl ConvexPolygon {
         for i in 0..n {
             let (a, b, c) = (vertices[i], vertices[(i + 1) % n], vertices[(i + 2) % n]);
             if cross(&(b - a), &(c - b)) < -1e-12 * (b - a).norm() * (c - b).norm() {
-                return Err(format!(
-                    "not convex at vertex {} ({:.3}, {:.3}): give a convex polygon in order",
-                    (i + 1) % n + 1,
-                    b.x,
-                    b.y
-                ));
+                return Err(PolygonError::NotConvex {
+                    vertex: (i + 1) % n + 1,
+                    x: b.x,
+                    y: b.y,
+                });
             }
         }
         Ok(ConvexPolygon { vertices })
@@ -150,15 +160,20 @@ mod tests {
         assert!(
             ConvexPolygon::new(vec![v(0.0, 0.0), v(1.0, 0.0)])
                 .unwrap_err()
+                .to_string()
                 .contains("3 or more")
         );
         assert!(
             ConvexPolygon::new(vec![v(0.0, 0.0), v(1.0, 0.0), v(2.0, 0.0)])
                 .unwrap_err()
+                .to_string()
                 .contains("no area")
         );
         let dart = vec![v(0.0, 0.0), v(2.0, 0.0), v(1.0, 0.5), v(1.0, 2.0)];
-        assert!(ConvexPolygon::new(dart).unwrap_err().contains("not convex"));
+        assert!(matches!(
+            ConvexPolygon::new(dart).unwrap_err(),
+            PolygonError::NotConvex { .. }
+        ));
         // A closed ring (last = first) is accepted.
         assert!(
             ConvexPolygon::new(vec![v(0.0, 0.0), v(1.0, 0.0), v(0.0, 1.0), v(0.0, 0.0)]).is_ok()

@@ -322,7 +322,7 @@ impl NeuralDetector {
         }
         let layout = match (&settings.layout, darknet) {
             (Some(l), _) => l.clone(),
-            (None, Some(meta)) => darknet_layout(&meta).map_err(bad)?,
+            (None, Some(meta)) => darknet_layout(&meta).map_err(|e| bad(e.to_string()))?,
             (None, None) => {
                 // Told from one run's output shapes.
                 let mut m = model;
@@ -568,21 +568,22 @@ fn merge_cut(boxes: Vec<RawBox>) -> Vec<RawBox> {
     kept
 }
 
+/// A model's `darknet_yolo` metadata that is not readable: serde's message, clipped (a model's
+/// metadata can be megabytes and serde quotes what it could not take).
+#[derive(Debug, thiserror::Error)]
+#[error("its darknet_yolo metadata is not readable: {0}")]
+pub struct DarknetMetadataError(String);
+
 /// The darknet layout from a model's `darknet_yolo` metadata (`scripts/darknet_to_onnx.py`).
-pub fn darknet_layout(meta: &str) -> Result<Layout, String> {
+pub fn darknet_layout(meta: &str) -> Result<Layout, DarknetMetadataError> {
     #[derive(Deserialize)]
     struct Meta {
         anchors: Vec<[f64; 2]>,
         masks: Vec<Vec<usize>>,
         strides: Vec<f64>,
     }
-    // serde quotes the text it could not take: clipped, a model's metadata can be megabytes.
-    let m: Meta = serde_json::from_str(meta).map_err(|e| {
-        format!(
-            "its darknet_yolo metadata is not readable: {}",
-            crate::io::clip(&e.to_string(), 200)
-        )
-    })?;
+    let m: Meta = serde_json::from_str(meta)
+        .map_err(|e| DarknetMetadataError(crate::io::clip(&e.to_string(), 200)))?;
     Ok(Layout::Darknet {
         anchors: m.anchors,
         masks: m.masks,

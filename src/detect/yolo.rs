@@ -98,7 +98,7 @@ impl Keep<'_> {
 
 /// Decodes a model's outputs (shape, values; in the model's output order) for an input of
 /// `input_wh` pixels.
-pub fn decode(
+pub(crate) fn decode(
     layout: &Layout,
     outputs: &[(Vec<i64>, Vec<f32>)],
     input_wh: [usize; 2],

@@ -54,26 +54,47 @@ impl Manifest {
         out
     }
 
-    pub fn read(dir: &Path) -> Result<Manifest, String> {
+    pub fn read(dir: &Path) -> Result<Manifest, ClusterError> {
         let path = dir.join(MANIFEST);
-        let text = std::fs::read_to_string(&path).map_err(|e| {
-            format!(
-                "{}: {e}; is {} a folder made by 'geostride split'?",
-                path.display(),
-                dir.display()
-            )
+        let text = std::fs::read_to_string(&path).map_err(|e| ClusterError::NoManifest {
+            path: path.clone(),
+            dir: dir.to_path_buf(),
+            message: e.to_string(),
         })?;
-        let m: Manifest = serde_json::from_str(&text)
-            .map_err(|e| format!("{}: not a split manifest: {e}", path.display()))?;
+        let m: Manifest = serde_json::from_str(&text).map_err(|e| ClusterError::NotAManifest {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
         if m.format != FORMAT {
-            return Err(format!(
-                "{}: format '{}', expected '{FORMAT}' (split again with this geostride)",
-                path.display(),
-                m.format
-            ));
+            return Err(ClusterError::Format {
+                path,
+                format: m.format,
+            });
         }
         Ok(m)
     }
+}
+
+/// Why a split folder or a task's index cannot be used.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum ClusterError {
+    #[error("{}: {message}; is {} a folder made by 'geostride split'?", path.display(), dir.display())]
+    NoManifest {
+        path: PathBuf,
+        dir: PathBuf,
+        message: String,
+    },
+    #[error("{}: not a split manifest: {message}", path.display())]
+    NotAManifest { path: PathBuf, message: String },
+    #[error("{}: format '{format}', expected '{FORMAT}' (split again with this geostride)", path.display())]
+    Format { path: PathBuf, format: String },
+    #[error("{variable}='{value}' is not a segment index (0, 1, ...)")]
+    BadIndex {
+        variable: &'static str,
+        value: String,
+    },
+    #[error("no --index and none of {} is set: give the segment's index", INDEX_VARIABLES.join(", "))]
+    NoIndex,
 }
 
 /// The variables batch engines give each task of an array its index in: Slurm's job arrays,
@@ -86,19 +107,16 @@ pub const INDEX_VARIABLES: [&str; 3] = [
 
 /// The task's index from the first of [`INDEX_VARIABLES`] that is set (`get` reads a
 /// variable); an error names them when none is, or the value when it is not a number.
-pub fn index_from(get: impl Fn(&str) -> Option<String>) -> Result<usize, String> {
+pub fn index_from(get: impl Fn(&str) -> Option<String>) -> Result<usize, ClusterError> {
     for v in INDEX_VARIABLES {
         if let Some(s) = get(v) {
-            return s
-                .trim()
-                .parse()
-                .map_err(|_| format!("{v}='{s}' is not a segment index (0, 1, ...)"));
+            return s.trim().parse().map_err(|_| ClusterError::BadIndex {
+                variable: v,
+                value: s,
+            });
         }
     }
-    Err(format!(
-        "no --index and none of {} is set: give the segment's index",
-        INDEX_VARIABLES.join(", ")
-    ))
+    Err(ClusterError::NoIndex)
 }
 
 /// The batch resources of the Slurm jobs.
@@ -319,11 +337,13 @@ mod tests {
         assert!(
             index_from(env("SLURM_ARRAY_TASK_ID", "x"))
                 .unwrap_err()
+                .to_string()
                 .contains("'x'")
         );
         assert!(
             index_from(|_| None)
                 .unwrap_err()
+                .to_string()
                 .contains("SLURM_ARRAY_TASK_ID")
         );
     }

@@ -72,7 +72,7 @@ pub fn colour_with(c: &ColourSection, px_per_m: f64, palette: &Palette) -> Box<d
 /// The palette the colour detector learns over the whole video, learnt before the pass: the
 /// frames it samples are read on their own (checked seeks), so that every chunk of the video
 /// is detected with the one palette. Fails, in words, when no hat colour is found.
-pub fn learn_palette(
+pub(crate) fn learn_palette(
     c: &ColourSection,
     video: &Path,
     px_per_m: f64,

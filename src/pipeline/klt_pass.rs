@@ -84,34 +84,61 @@ pub fn klt_tracker(
     }
 }
 
+/// Why the tracking pass stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum KltPassError {
+    #[error(transparent)]
+    Video(#[from] crate::video::VideoError),
+    /// A frame could not be read or tracked.
+    #[error("{}: frame {frame}: {message}", video.display())]
+    Frame {
+        video: std::path::PathBuf,
+        frame: usize,
+        message: String,
+    },
+    /// The video ended before the frames scanned for detections.
+    #[error("{}: ended at frame {frame}, before the {scanned} frames scanned", video.display())]
+    Ended {
+        video: std::path::PathBuf,
+        frame: usize,
+        scanned: usize,
+    },
+}
+
 /// Tracks people through the video; `motion_at(f, x)` carries a point of frame `f − 1` into
 /// frame `f` (the identity for a fixed camera).
 pub fn klt_over_video(
     job: &KltPass,
     motion_at: &dyn Fn(usize, &Vector2<f64>) -> Vector2<f64>,
     bar: &dyn Progress,
-) -> Result<Vec<ImageTrack>, String> {
+) -> Result<Vec<ImageTrack>, KltPassError> {
     let KltParts {
         mut tracker,
         frames,
     } = klt_tracker(job.track, job.size, job.fps, job.person_m, job.px_per_m);
-    let video = job.video.display();
-    let mut reader =
-        crate::video::source::FrameReader::open(job.video).map_err(|e| e.to_string())?;
+    let mut reader = crate::video::source::FrameReader::open(job.video)?;
+    let failed = |frame: usize, message: String| KltPassError::Frame {
+        video: job.video.to_path_buf(),
+        frame,
+        message,
+    };
     for (f, dets) in job.detections.iter().enumerate() {
         let Some((_, gray)) = reader
             .next_gray_reusing()
-            .map_err(|e| format!("{video}: frame {f}: {e}"))?
+            .map_err(|e| failed(f, e.to_string()))?
         else {
-            return Err(format!(
-                "{video}: ended at frame {f}, before the {} frames scanned",
-                job.detections.len()
-            ));
+            return Err(KltPassError::Ended {
+                video: job.video.to_path_buf(),
+                frame: f,
+                scanned: job.detections.len(),
+            });
         };
-        let frame = frames.frame(f, gray).map_err(|e| e.to_string())?;
+        let frame = frames
+            .frame(f, gray)
+            .map_err(|e| failed(f, e.to_string()))?;
         tracker
             .update(f, frame, dets, motion_at)
-            .map_err(|e| format!("{video}: frame {f}: {e}"))?;
+            .map_err(|e| failed(f, e.to_string()))?;
         bar.inc(1);
     }
     Ok(tracker.finish())

@@ -330,7 +330,7 @@ pub fn default_walkable(
         hi,
         Vector2::new(lo.x, hi.y),
     ])
-    .map_err(ViewError::Failed)
+    .map_err(|e| ViewError::Failed(e.to_string()))
 }
 
 /// A colour for `t` from 0 (dark blue) through green to 1 (yellow-red): perceptually ordered.

@@ -4,6 +4,7 @@ pub mod chunk_pass;
 pub mod cluster;
 pub mod detectors;
 pub mod error;
+pub mod grounds;
 pub mod klt_pass;
 pub mod pose_outputs;
 pub mod project;

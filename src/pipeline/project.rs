@@ -7,6 +7,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::io::{FileCtx, FileError};
 
+use super::settings::GroundInput;
+pub use super::settings::GroundSection;
 use super::settings::with_default_kind;
 pub use super::settings::{
     AssociationSection, BackgroundSection, BodySettings, BoxesSection, ColourSection,
@@ -130,45 +132,6 @@ fn default_chunk_s() -> f64 {
 
 fn default_overlap_s() -> f64 {
     1.0
-}
-
-/// The ground under the people.
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
-pub enum GroundSection {
-    /// A plane: at `height_m` (site frame) or fitted to the control GCPs.
-    Plane {
-        #[serde(default)]
-        height_m: Option<f64>,
-    },
-    /// A deck along a centre line (coordinates in the GCP file's CRS), its height profile a
-    /// least-squares polynomial through the control GCPs on it (`degree`, 2 by default) or
-    /// stations `[[chainage, height], ...]` (site-frame heights).
-    Deck {
-        centre_line: Vec<[f64; 2]>,
-        width_m: f64,
-        #[serde(default)]
-        stations: Vec<[f64; 2]>,
-        #[serde(default = "default_degree")]
-        degree: usize,
-    },
-    /// A DEM raster in any CRS (heights of the survey's kind).
-    Dem { path: String },
-    /// Local planes fitted robustly to a reference model's points (`geostride sfm`'s output)
-    /// in a `window_m` square around each person (the paper: 2 m), wider where too few.
-    LocalPlanes {
-        model: String,
-        #[serde(default = "default_window")]
-        window_m: f64,
-    },
-}
-
-fn default_window() -> f64 {
-    2.0
-}
-
-fn default_degree() -> usize {
-    2
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -412,11 +375,12 @@ impl Loaded {
         {
             files.push(("detect.model", self.resolve(m)));
         }
-        if let GroundSection::Dem { path } = &p.ground {
-            files.push(("ground.path", self.resolve(path)));
-        }
-        if let GroundSection::LocalPlanes { model, .. } = &p.ground {
-            files.push(("ground.model", self.resolve(model).join("points3D.txt")));
+        match p.ground.reads() {
+            Some(GroundInput::File(path)) => files.push(("ground.path", self.resolve(path))),
+            Some(GroundInput::Model(dir)) => {
+                files.push(("ground.model", self.resolve(dir).join("points3D.txt")))
+            }
+            None => {}
         }
         if let PoseSection::Model(m) = &p.pose {
             for f in ["cameras.txt", "images.txt", "points3D.txt", "cameras.csv"] {
@@ -543,53 +507,13 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         ));
     }
     p.pose.check().map_err(|(key, m)| l.error("pose", key, m))?;
-    match &p.ground {
-        GroundSection::Deck {
-            centre_line,
-            width_m,
-            stations,
-            degree,
-        } => {
-            if centre_line.len() < 2 {
-                return Err(l.error(
-                    "ground",
-                    "centre_line",
-                    "a deck needs a centre line of at least 2 points",
-                ));
-            }
-            if !(*width_m > 0.0) {
-                return Err(l.error("ground", "width_m", "must be positive"));
-            }
-            if stations.len() == 1 {
-                return Err(l.error(
-                    "ground",
-                    "stations",
-                    "give at least 2 stations, or none to fit the GCPs",
-                ));
-            }
-            if stations.windows(2).any(|w| !(w[1][0] > w[0][0])) {
-                return Err(l.error(
-                    "ground",
-                    "stations",
-                    "stations are [chainage, height] with the chainages increasing",
-                ));
-            }
-            if *degree > 3 {
-                return Err(l.error(
-                    "ground",
-                    "degree",
-                    "a deck profile polynomial has degree 0 to 3",
-                ));
-            }
-        }
-        GroundSection::Dem { path } => exists(l, "ground", "path", path)?,
-        GroundSection::Plane { .. } => {}
-        GroundSection::LocalPlanes { model, window_m } => {
-            if !(*window_m > 0.0 && *window_m <= 50.0) {
-                return Err(l.error("ground", "window_m", "expected 0 to 50 metres"));
-            }
-            model_exists(l, "ground", "model", model)?;
-        }
+    p.ground
+        .check()
+        .map_err(|(key, m)| l.error("ground", key, m))?;
+    match p.ground.reads() {
+        Some(GroundInput::File(path)) => exists(l, "ground", "path", path)?,
+        Some(GroundInput::Model(dir)) => model_exists(l, "ground", "model", dir)?,
+        None => {}
     }
     if let super::settings::PoseSection::Model(m) = &p.pose {
         model_exists(l, "pose", "model", &m.model)?;

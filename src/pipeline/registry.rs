@@ -1,12 +1,14 @@
 //! The one place where a project's stage settings choose an implementation: adding a detector,
-//! a tracker or a smoother is a variant in `settings`, its module, and an arm here (the matches
+//! a tracker, a smoother or a ground is a variant in `settings`, its module, and an arm here (the matches
 //! are exhaustive, so the compiler lists every place a new kind must be handled).
 
 use super::detectors::{self, DetectorInputs};
 use super::error::RunError;
-use super::settings::{DetectSection, KltSection, SmoothSection, TrackSection};
+use super::grounds::{self, GroundInputs};
+use super::settings::{DetectSection, GroundSection, KltSection, SmoothSection, TrackSection};
 use crate::detect::Detector;
 use crate::smooth::{KalmanRts, SmoothSettings, Smoother, Unsmoothed};
+use crate::terrain::HeightSurface;
 use crate::track::Tracker;
 use crate::track::association::{AssociationSettings, AssociationTracker};
 
@@ -17,6 +19,23 @@ pub fn detector(d: &DetectSection, x: &DetectorInputs) -> Result<Box<dyn Detecto
         DetectSection::Boxes(b) => detectors::boxes(b, x),
         DetectSection::Background(b) => detectors::background(b, x),
         DetectSection::Onnx(o) => detectors::onnx(o, x),
+    }
+}
+
+/// The ground of a project's `[ground]`, in the site frame.
+pub fn ground(g: &GroundSection, x: &GroundInputs) -> Result<Box<dyn HeightSurface>, RunError> {
+    match g {
+        GroundSection::Plane { height_m } => grounds::plane(*height_m, x),
+        GroundSection::Deck {
+            centre_line,
+            width_m,
+            stations,
+            degree,
+        } => grounds::deck(centre_line, *width_m, stations, *degree, x),
+        GroundSection::Dem { path } => grounds::dem(path, x),
+        GroundSection::LocalPlanes { model, window_m } => {
+            grounds::local_planes(model, *window_m, x)
+        }
     }
 }
 

@@ -598,6 +598,111 @@ impl Default for KalmanRtsSection {
 #[serde(deny_unknown_fields)]
 pub struct NoSmoothing {}
 
+// ---- ground ----
+
+/// The ground under the people.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
+pub enum GroundSection {
+    /// A plane: at `height_m` (site frame) or fitted to the control GCPs.
+    Plane {
+        #[serde(default)]
+        height_m: Option<f64>,
+    },
+    /// A deck along a centre line (coordinates in the GCP file's CRS), its height profile a
+    /// least-squares polynomial through the control GCPs on it (`degree`, 2 by default) or
+    /// stations `[[chainage, height], ...]` (site-frame heights).
+    Deck {
+        centre_line: Vec<[f64; 2]>,
+        width_m: f64,
+        #[serde(default)]
+        stations: Vec<[f64; 2]>,
+        #[serde(default = "default_degree")]
+        degree: usize,
+    },
+    /// A DEM raster in any CRS (heights of the survey's kind).
+    Dem { path: String },
+    /// Local planes fitted robustly to a reference model's points (`geostride sfm`'s output)
+    /// in a `window_m` square around each person (the paper: 2 m), wider where too few.
+    LocalPlanes {
+        model: String,
+        #[serde(default = "default_window")]
+        window_m: f64,
+    },
+}
+
+fn default_window() -> f64 {
+    2.0
+}
+
+fn default_degree() -> usize {
+    2
+}
+
+impl GroundSection {
+    /// The checks of the section on its own (files are checked by the project).
+    pub fn check(&self) -> Result<(), Bad> {
+        match self {
+            GroundSection::Deck {
+                centre_line,
+                width_m,
+                stations,
+                degree,
+            } => {
+                if centre_line.len() < 2 {
+                    return bad(
+                        "centre_line",
+                        "a deck needs a centre line of at least 2 points",
+                    );
+                }
+                if !(*width_m > 0.0) {
+                    return bad("width_m", "must be positive");
+                }
+                if stations.len() == 1 {
+                    return bad(
+                        "stations",
+                        "give at least 2 stations, or none to fit the GCPs",
+                    );
+                }
+                if stations.windows(2).any(|w| !(w[1][0] > w[0][0])) {
+                    return bad(
+                        "stations",
+                        "stations are [chainage, height] with the chainages increasing",
+                    );
+                }
+                if *degree > 3 {
+                    return bad("degree", "a deck profile polynomial has degree 0 to 3");
+                }
+            }
+            GroundSection::LocalPlanes { window_m, .. } => {
+                if !(*window_m > 0.0 && *window_m <= 50.0) {
+                    return bad("window_m", "expected 0 to 50 metres");
+                }
+            }
+            GroundSection::Plane { .. } | GroundSection::Dem { .. } => {}
+        }
+        Ok(())
+    }
+
+    /// What the ground reads beside the project file, as written there.
+    pub fn reads(&self) -> Option<GroundInput<'_>> {
+        match self {
+            GroundSection::Dem { path } => Some(GroundInput::File(path)),
+            GroundSection::LocalPlanes { model, .. } => Some(GroundInput::Model(model)),
+            GroundSection::Plane { .. } | GroundSection::Deck { .. } => None,
+        }
+    }
+}
+
+/// A file or a folder a ground reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GroundInput<'a> {
+    /// A file (`path`): a DEM.
+    File(&'a str),
+    /// A reference model's folder (`model`), read whole.
+    Model(&'a str),
+}
+
 // ---- checks ----
 
 /// A bad value: its key and what was expected.

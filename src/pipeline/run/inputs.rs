@@ -1,23 +1,20 @@
 //! The run's inputs read and checked before any work: the camera for the video's size, the survey
-//! in its site frame, the picks, the ground, the head heights, the output CRS and the video's
-//! facts; and the checks that a split run's or a finished run's inputs are still those files.
-//! Every project error is mapped to its key and line here.
+//! in its site frame, the picks, the head heights, the output CRS and the video's facts (the
+//! ground is built by `registry::ground`, the pose source by `pose_source::open`); and the
+//! checks that a split run's or a finished run's inputs are still those files.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Vector2, Vector3};
-
-use super::super::project::{GroundSection, Loaded};
+use super::super::project::Loaded;
+use super::super::settings::GroundInput;
 use super::{InputRecord, KnownInput, MAX_FRAMES, RunError, file_record, size_and_time};
 use crate::camera::{Camera, formats, presets};
 use crate::pose::GcpObservation;
-use crate::survey::Role;
 use crate::survey::crs::{Crs, Transform};
 use crate::survey::frame::Origin;
 use crate::survey::load::{Framed, LoadOptions, load_framed};
 use crate::survey::read::{HeightChoice, ReadOptions};
-use crate::terrain::{DeckProfile, HeightSurface, Plane};
 
 /// Every input of the run, for the check that no output lands on one (a model is read as a
 /// whole: nothing of the run goes inside it).
@@ -29,7 +26,7 @@ pub(super) fn input_guard(l: &Loaded) -> crate::io::Inputs {
     if let super::super::settings::PoseSection::Model(m) = &p.pose {
         guard.add_folder(l.resolve(&m.model));
     }
-    if let GroundSection::LocalPlanes { model, .. } = &p.ground {
+    if let Some(GroundInput::Model(model)) = p.ground.reads() {
         guard.add_folder(l.resolve(model));
     }
     guard
@@ -339,98 +336,6 @@ pub(super) fn picked(
         ));
     }
     Ok((frame, seen.control, seen.check))
-}
-
-/// The ground of the project in the site frame.
-pub(super) fn ground(l: &Loaded, framed: &Framed) -> Result<Box<dyn HeightSurface>, RunError> {
-    let control: Vec<Vector3<f64>> = framed
-        .survey
-        .points
-        .iter()
-        .zip(&framed.local)
-        .filter(|(p, _)| p.role == Role::Control)
-        .map(|(_, x)| *x)
-        .collect();
-    let err = |key: &str, m: String| RunError::Input(l.error("ground", key, m));
-    match &l.project.ground {
-        GroundSection::Plane { height_m: Some(h) } => {
-            Ok(Box::new(Plane::from_gradient(0.0, 0.0, *h)))
-        }
-        GroundSection::Plane { height_m: None } => {
-            let (plane, _) = Plane::fit(&control).map_err(|e| {
-                err(
-                    "height_m",
-                    format!("fitting a plane to the control GCPs: {e}"),
-                )
-            })?;
-            Ok(Box::new(plane))
-        }
-        GroundSection::Deck {
-            centre_line,
-            width_m,
-            stations,
-            degree,
-        } => {
-            let line = centre_line
-                .iter()
-                .map(|p| {
-                    framed
-                        .frame
-                        .local_from_source(&Vector3::new(p[0], p[1], f64::NAN))
-                        .map(|x| x.xy())
-                })
-                .collect::<Result<Vec<Vector2<f64>>, _>>()
-                .map_err(|e| err("centre_line", e.to_string()))?;
-            if stations.is_empty() {
-                let (deck, _) = DeckProfile::fit_polynomial(line, 0.0, *width_m, *degree, &control)
-                    .map_err(|e| {
-                        if matches!(e, crate::terrain::deck::DeckError::TooFewPoints { got: 0, .. }) {
-                            err(
-                                "centre_line",
-                                format!("none of the {} control GCPs lies on the deck ({width_m} m wide along the centre line): check the centre line and the survey's CRS (survey.crs, or the GCP file's own)", control.len()),
-                            )
-                        } else {
-                            err(
-                                "degree",
-                                format!("fitting the deck profile to the control GCPs: {e}"),
-                            )
-                        }
-                    })?;
-                Ok(Box::new(deck))
-            } else {
-                Ok(Box::new(DeckProfile {
-                    centre_line: line,
-                    start_s: 0.0,
-                    width_m: *width_m,
-                    alignment: crate::terrain::deck::VerticalAlignment::Stations(
-                        stations.iter().map(|s| (s[0], s[1])).collect(),
-                    ),
-                }))
-            }
-        }
-        GroundSection::LocalPlanes { model, window_m } => {
-            let points = super::model_pose::model_points_in_site(l, &l.resolve(model), framed)?;
-            Ok(Box::new(crate::terrain::LocalPlanes::new(
-                points, *window_m,
-            )))
-        }
-        GroundSection::Dem { path } => {
-            let (grid, wkt) = crate::terrain::raster::load(&l.resolve(path))
-                .map_err(|e| err("path", e.to_string()))?;
-            // The DEM surface keeps its own handle on the site frame (PROJ handles are not shared).
-            let origin = match &l.project.survey.origin {
-                Some(o) => o.parse::<Origin>().map_err(|e| err("path", e))?,
-                None => Origin::Centroid,
-            };
-            let frame = std::rc::Rc::new(
-                crate::survey::frame::SiteFrame::new(&framed.survey, &origin)
-                    .map_err(|e| err("path", e.to_string()))?,
-            );
-            let dem = crate::survey::frame::dem_surface(frame, grid, &wkt)
-                .map_err(|e| err("path", e.to_string()))?;
-            Ok(Box::new(dem))
-        }
-    }
 }
 
 /// Known head heights from a heights file (`parse_heights`).

@@ -46,6 +46,7 @@ use crate::track::ImageTrack;
 mod export_stage;
 mod inputs;
 mod model_pose;
+mod pose_source;
 mod pose_stage;
 mod project_stage;
 mod scan_stage;
@@ -55,7 +56,7 @@ mod views_stage;
 
 use export_stage::export_stage;
 pub use inputs::{MAX_HEIGHTS, check_known_inputs, check_recorded_inputs, parse_heights};
-use inputs::{ground, load_survey, picked, project_camera, read_heights};
+use inputs::{load_survey, picked, project_camera, read_heights};
 use pose_stage::pose_stage;
 use project_stage::project_stage;
 use scan_stage::scan_stage;
@@ -366,33 +367,14 @@ fn prepare<'a>(
     let camera = project_camera(l, width, height)?;
     let framed = load_survey(l)?;
     let warnings = inputs::survey_warnings(&framed);
-    let model = match &p.pose {
-        super::settings::PoseSection::Model(m) => Some(model_pose::open_model(
-            l,
-            m,
-            &framed,
-            &out.join(".stages").join("model-features"),
-            progress.stage("model").as_ref(),
-        )?),
-        _ => None,
-    };
-    let (pick_frame, control, check) = match &model {
-        None => picked(l, &framed, (width, height), frames_total)?,
-        Some(_) => (0, Vec::new(), Vec::new()),
-    };
-    let surface = ground(l, &framed)?;
+    let pose = pose_source::open(l, &framed, (width, height), frames_total, out, progress)?;
+    let surface = super::registry::ground(
+        &p.ground,
+        &super::grounds::GroundInputs { l, framed: &framed },
+    )?;
 
     // The scale of a head in the image, from a pose of the first frame (the picked one).
-    let first_pose = match (&p.pose, &model) {
-        (super::settings::PoseSection::Model(m), Some(sm)) => {
-            model_pose::first_frame_pose(l, m, sm, &camera, &video)?
-        }
-        _ => {
-            solve_pose(&camera, &control, &PoseSettings::default())
-                .map_err(|e| RunError::Unusable(format!("the picks of frame {pick_frame}: {e}")))?
-                .cam_from_world
-        }
-    };
+    let first_pose = pose.first_pose(&camera, &video)?;
     let centre = first_pose.centre();
     let head_z = surface.height(&centre.xy()).ok_or_else(|| {
         RunError::Input(l.error("ground", "", "the ground is not defined below the camera"))
@@ -456,15 +438,12 @@ fn prepare<'a>(
         fps,
         camera,
         framed,
-        pick_frame,
-        control,
-        check,
+        pose,
         surface,
         px_per_m,
         heights,
         out_crs,
         transform,
-        model,
         first_pose,
         grid,
         scan_key,
@@ -615,16 +594,13 @@ struct Ctx<'a> {
     fps: f64,
     camera: Camera,
     framed: Framed,
-    pick_frame: usize,
-    control: Vec<GcpObservation>,
-    check: Vec<GcpObservation>,
+    /// Where every frame's pose comes from (the `[pose]` kind).
+    pose: Box<dyn pose_source::PoseSource + 'a>,
     surface: Box<dyn HeightSurface>,
     px_per_m: f64,
     heights: BTreeMap<usize, (f64, f64)>,
     out_crs: Option<Crs>,
     transform: Option<Transform>,
-    /// The reference model of a `model` pose, in the site frame.
-    model: Option<model_pose::SiteModel>,
     /// The first frame's pose (the picked frame's for a hovering camera).
     first_pose: Rigid3,
     /// The chunks the video is processed in.

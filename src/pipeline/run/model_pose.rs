@@ -2,14 +2,12 @@
 //! frames registered in it, the frames between carried from their key frame's 2D–3D points.
 
 use super::*;
-use crate::geom::similarity::{ScaleMode, Similarity, fit as fit_similarity};
+use crate::pipeline::grounds::site_from_model;
 use crate::pipeline::pose_outputs::{POSE_COLUMNS, csv_num, pose_columns};
 use crate::pipeline::settings::ModelSettings;
 use crate::sfm::FeatureSettings;
 use crate::sfm::matching::MatchSettings;
-use crate::sfm::reference::{
-    Reference, mask_features, model_max_features, pose_from_carried, read_geo_cameras,
-};
+use crate::sfm::reference::{Reference, mask_features, model_max_features, pose_from_carried};
 use crate::sfm::register::{RegisterSettings, Registration};
 use crate::sfm::register_job::{camera_series, write_pose_series};
 use crate::sfm::sift::for_video_frames;
@@ -24,56 +22,6 @@ pub(super) struct SiteModel {
     pub sigma_rotation_rad: f64,
     /// RMS of the model's cameras from their CRS positions after the move, metres.
     pub fit_rms_m: f64,
-}
-
-/// The transform from a model's frame to the site frame, from its cameras' CRS positions.
-fn site_from_model(
-    l: &Loaded,
-    section: &str,
-    dir: &Path,
-    framed: &Framed,
-) -> Result<(Similarity, f64, Vec<crate::sfm::reference::GeoCamera>), RunError> {
-    let cams = read_geo_cameras(dir).map_err(RunError::Input)?;
-    let model: Vec<Vector3<f64>> = cams.iter().map(|c| c.centre).collect();
-    let site = cams
-        .iter()
-        .map(|c| framed.frame.local_from_source(&c.crs))
-        .collect::<Result<Vec<_>, _>>()?;
-    let fit = fit_similarity(
-        &model,
-        &site,
-        &vec![1.0; model.len()],
-        ScaleMode::Fixed,
-        false,
-    )
-    .map_err(|e| RunError::Input(l.error(section, "model", format!("placing the model: {e}"))))?;
-    let rms = (fit.residuals.iter().map(|r| r.norm_squared()).sum::<f64>()
-        / fit.residuals.len() as f64)
-        .sqrt();
-    // The model's site frame and the run's differ by their origins only: anything more is a
-    // model of another survey, or another CRS.
-    if rms > 0.01 {
-        return Err(RunError::Input(l.error(
-            section,
-            "model",
-            format!(
-                "the model's cameras are {rms:.3} m RMS from their CRS positions moved into this run's frame: build the model with this project's GCP file and CRS"
-            ),
-        )));
-    }
-    Ok((fit.transform, rms, cams))
-}
-
-/// A model's points in the site frame (for the ground's local planes).
-pub(super) fn model_points_in_site(
-    l: &Loaded,
-    dir: &Path,
-    framed: &Framed,
-) -> Result<Vec<Vector3<f64>>, RunError> {
-    let model = crate::sfm::register::read_model(dir)
-        .map_err(|e| RunError::Input(l.error("ground", "model", e.to_string())))?;
-    let (s, _, _) = site_from_model(l, "ground", dir, framed)?;
-    Ok(model.points.iter().map(|p| s.apply(p)).collect())
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -506,84 +454,71 @@ pub(super) fn write_model_pose_outputs(
     Ok(())
 }
 
-/// Stage 2 for `[pose] kind = "model"`.
-pub(super) fn model_pose_stage(
-    ctx: &Ctx,
-    m: &ModelSettings,
-    scan_key: &str,
-    scan_data: &ScanData,
-    warnings: &mut Vec<String>,
-) -> Result<(PoseData, String, StageRecord), RunError> {
-    let p = &ctx.l.project;
-    let model = ctx.model.as_ref().expect("a model pose has its model");
-    let pose_key = stage_key("pose", &[scan_key], &(&p.survey, &p.pose, &p.ground));
-    let t0 = Instant::now();
-    let pose_dir = ctx.out.join("pose");
-    let (pose_data, status) = cached(
-        &ctx.cache,
-        ctx.progress,
-        "pose",
-        &pose_key,
-        pose_dir.join("poses.csv").is_file(),
-        || {
-            let bar = ctx.progress.stage("pose");
-            let poses = model_poses(ctx, m, model, scan_data, bar.as_ref())?;
-            ctx.guard.create_dir(&pose_dir).map_err(output_error)?;
-            write_model_pose_outputs(
-                &pose_dir,
-                &poses,
-                scan_data,
-                &ctx.framed,
-                Some(ctx.surface.as_ref()),
-                model,
-            )?;
-            let rms: Vec<f64> = poses
-                .frames
-                .iter()
-                .filter_map(|f| f.mean_reprojection_px)
-                .collect();
-            Ok(PoseData {
-                mean_reprojection_px: rms.iter().sum::<f64>() / rms.len().max(1) as f64,
-                max_reprojection_px: rms.iter().copied().fold(0.0, f64::max),
-                check_mean_reprojection_px: None,
-                frames: poses.frames,
-                key_frames: poses.key_frames,
-                key_frames_failed: poses.key_frames_failed,
-            })
-        },
-    )?;
-    if !pose_data.key_frames_failed.is_empty() {
-        warnings.push(format!(
-            "key frames not placed in the model (see pose/key_frames.csv): {:?}",
-            pose_data.key_frames_failed
-        ));
+/// A moving camera: key frames registered in a reference model, the frames between carried
+/// from their key frame's 2D–3D points.
+pub(super) struct Model<'a> {
+    pub l: &'a Loaded,
+    pub settings: &'a ModelSettings,
+    pub model: SiteModel,
+}
+
+impl super::pose_source::PoseSource for Model<'_> {
+    fn carried_picks(&self) -> (usize, Vec<Vector2<f64>>) {
+        (0, Vec::new())
     }
-    let interpolated = pose_data.frames.iter().filter(|f| f.interpolated).count();
-    if interpolated > 0 {
-        warnings.push(format!(
-            "{interpolated} frame(s) have interpolated poses, flagged in pose/poses.csv (their features did not place them in the model)"
-        ));
+
+    fn first_pose(&self, camera: &Camera, video: &Path) -> Result<Rigid3, RunError> {
+        first_frame_pose(self.l, self.settings, &self.model, camera, video)
     }
-    let record = StageRecord {
-        name: "pose".into(),
-        status,
-        seconds: t0.elapsed().as_secs_f64(),
-        counts: BTreeMap::from([
-            ("key_frames".into(), pose_data.key_frames.len() as f64),
+
+    fn stage_key(&self, scan_key: &str) -> String {
+        let p = &self.l.project;
+        stage_key("pose", &[scan_key], &(&p.survey, &p.pose, &p.ground))
+    }
+
+    fn poses(&self, ctx: &Ctx, scan: &ScanData, pose_dir: &Path) -> Result<PoseData, RunError> {
+        let bar = ctx.progress.stage("pose");
+        let poses = model_poses(ctx, self.settings, &self.model, scan, bar.as_ref())?;
+        ctx.guard.create_dir(pose_dir).map_err(output_error)?;
+        write_model_pose_outputs(
+            pose_dir,
+            &poses,
+            scan,
+            &ctx.framed,
+            Some(ctx.surface.as_ref()),
+            &self.model,
+        )?;
+        let rms: Vec<f64> = poses
+            .frames
+            .iter()
+            .filter_map(|f| f.mean_reprojection_px)
+            .collect();
+        Ok(PoseData {
+            mean_reprojection_px: rms.iter().sum::<f64>() / rms.len().max(1) as f64,
+            max_reprojection_px: rms.iter().copied().fold(0.0, f64::max),
+            check_mean_reprojection_px: None,
+            frames: poses.frames,
+            key_frames: poses.key_frames,
+            key_frames_failed: poses.key_frames_failed,
+        })
+    }
+
+    fn notes(&self) -> super::pose_source::PoseNotes {
+        super::pose_source::PoseNotes {
+            failed: "key frames not placed in the model (see pose/key_frames.csv)",
+            interpolated: ", flagged in pose/poses.csv (their features did not place them in the model)",
+        }
+    }
+
+    fn own_counts(&self, data: &PoseData) -> Vec<(String, f64)> {
+        vec![
             (
                 "key_frames_failed".into(),
-                pose_data.key_frames_failed.len() as f64,
+                data.key_frames_failed.len() as f64,
             ),
-            (
-                "mean_reprojection_px".into(),
-                pose_data.mean_reprojection_px,
-            ),
-            ("max_reprojection_px".into(), pose_data.max_reprojection_px),
-            ("interpolated_frames".into(), interpolated as f64),
-            ("model_fit_rms_m".into(), model.fit_rms_m),
-        ]),
-    };
-    Ok((pose_data, pose_key, record))
+            ("model_fit_rms_m".into(), self.model.fit_rms_m),
+        ]
+    }
 }
 
 #[cfg(test)]

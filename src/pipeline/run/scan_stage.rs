@@ -58,7 +58,7 @@ fn compute_chunk(
     let fps = ctx.fps;
     let (min_features, key_fraction, key_every_s) = p.pose.key_frames();
     let stabilise = StabiliseSettings::key_frames(min_features, key_fraction, key_every_s, fps);
-    let picks = ctx.control.iter().chain(&ctx.check).map(|o| o.uv).collect();
+    let (pick_frame, picks) = ctx.pose.carried_picks();
     let scale = TrackScale {
         px_per_m: ctx.px_per_m,
         fps,
@@ -82,7 +82,7 @@ fn compute_chunk(
             video: &ctx.video,
             grid: ctx.grid,
             index: c,
-            stabilise: (stabilise, ctx.pick_frame, picks),
+            stabilise: (stabilise, pick_frame, picks),
             detector,
             tracker,
         },

@@ -1,0 +1,174 @@
+//! Where every frame's pose comes from: the project's `[pose]` kind, chosen once in [`open`].
+
+use super::*;
+use crate::pipeline::settings::PoseSection;
+
+/// A way of posing every frame of the video.
+///
+/// Implemented by [`Hover`] (a hovering camera: GCP picks on one frame, carried through the
+/// video by the scan's stabiliser, solved by `pose::hover`) and by `model_pose::Model` (a
+/// moving camera: key frames registered in a reference model built by `geostride sfm`, the
+/// frames between carried from their key frame's 2D–3D points). [`open`] makes the project's
+/// one; `prepare` asks it for the first frame's pose (a head's scale in the image, before the
+/// scan) and the picks the scan carries; the pose stage asks it for every frame's pose and
+/// wraps the answer in the stage cache and the report. A new kind implements this trait, gets
+/// a `[pose]` variant in `settings::PoseSection` and one arm in [`open`].
+pub(super) trait PoseSource {
+    /// The frame whose picks the scan carries through the video, and those picks' pixels
+    /// (none for a source that does not use picks).
+    fn carried_picks(&self) -> (usize, Vec<Vector2<f64>>);
+
+    /// The first frame's `cam_from_world`, checked before the long work.
+    fn first_pose(&self, camera: &Camera, video: &Path) -> Result<Rigid3, RunError>;
+
+    /// The pose stage's cache key, from the scan's and the sections the source reads.
+    fn stage_key(&self, scan_key: &str) -> String;
+
+    /// Every frame's pose from the scan, the `pose/` files written into `pose_dir` (made by
+    /// the source, through `ctx.guard`).
+    fn poses(&self, ctx: &Ctx, scan: &ScanData, pose_dir: &Path) -> Result<PoseData, RunError>;
+
+    /// What the warnings say after "key frames …: [list]" and "N frame(s) have interpolated
+    /// poses…".
+    fn notes(&self) -> PoseNotes;
+
+    /// The report's counts beyond those of every source (key frames, mean and largest
+    /// reprojection error, interpolated frames).
+    fn own_counts(&self, data: &PoseData) -> Vec<(String, f64)>;
+}
+
+/// A source's words for its warnings.
+pub(super) struct PoseNotes {
+    /// Before the list of key frames not posed.
+    pub failed: &'static str,
+    /// After "N frame(s) have interpolated poses".
+    pub interpolated: &'static str,
+}
+
+/// The project's pose source, its inputs read and checked (the model opened, the picks found).
+pub(super) fn open<'a>(
+    l: &'a Loaded,
+    framed: &Framed,
+    size: (u32, u32),
+    frames_total: Option<usize>,
+    out: &Path,
+    progress: &dyn StageProgress,
+) -> Result<Box<dyn PoseSource + 'a>, RunError> {
+    Ok(match &l.project.pose {
+        PoseSection::Hover(_) => {
+            let (pick_frame, control, check) = picked(l, framed, size, frames_total)?;
+            Box::new(Hover {
+                l,
+                pick_frame,
+                control,
+                check,
+            })
+        }
+        PoseSection::Model(m) => Box::new(model_pose::Model {
+            l,
+            settings: m,
+            model: model_pose::open_model(
+                l,
+                m,
+                framed,
+                &out.join(".stages").join("model-features"),
+                progress.stage("model").as_ref(),
+            )?,
+        }),
+    })
+}
+
+/// A hovering camera: the picks of one frame carried to every frame, key frames solved from
+/// them (P3P + MSAC, refinement, a joint adjustment of the key frames and the GCPs).
+pub(super) struct Hover<'a> {
+    l: &'a Loaded,
+    /// The picked frame, and its control and check points' picks.
+    pick_frame: usize,
+    control: Vec<GcpObservation>,
+    check: Vec<GcpObservation>,
+}
+
+impl PoseSource for Hover<'_> {
+    fn carried_picks(&self) -> (usize, Vec<Vector2<f64>>) {
+        let picks = self.control.iter().chain(&self.check).map(|o| o.uv);
+        (self.pick_frame, picks.collect())
+    }
+
+    fn first_pose(&self, camera: &Camera, _video: &Path) -> Result<Rigid3, RunError> {
+        Ok(solve_pose(camera, &self.control, &PoseSettings::default())
+            .map_err(|e| {
+                RunError::Unusable(format!("the picks of frame {}: {e}", self.pick_frame))
+            })?
+            .cam_from_world)
+    }
+
+    fn stage_key(&self, scan_key: &str) -> String {
+        let p = &self.l.project;
+        stage_key("pose", &[scan_key], &(&p.survey, &p.pose))
+    }
+
+    fn poses(&self, ctx: &Ctx, scan: &ScanData, pose_dir: &Path) -> Result<PoseData, RunError> {
+        let (result, check_mean) = solve_with_checks(
+            &ctx.camera,
+            &self.control,
+            &self.check,
+            &scan.tracks,
+            &PoseSettings::default(),
+            ctx.progress.stage("pose").as_ref(),
+        )
+        .map_err(|e| RunError::Unusable(format!("{}: {e}", ctx.video.display())))?;
+        ctx.guard.create_dir(pose_dir).map_err(output_error)?;
+        write_pose_outputs(
+            pose_dir,
+            &PoseRun {
+                camera: &ctx.camera,
+                result: &result,
+                tracks: &scan.tracks,
+                check_mean: &check_mean,
+                fps: ctx.fps,
+                framed: &ctx.framed,
+                control: &self.control,
+            },
+        )?;
+        let means: Vec<f64> = result
+            .frames
+            .iter()
+            .filter_map(|f| f.mean_reprojection_px)
+            .collect();
+        let checks: Vec<f64> = check_mean.iter().flatten().copied().collect();
+        Ok(PoseData {
+            frames: result
+                .frames
+                .iter()
+                .map(|f| FramePoseData {
+                    frame: f.index,
+                    rotation: *f.cam_from_world.rotation.matrix(),
+                    translation: f.cam_from_world.translation,
+                    covariance: f.covariance,
+                    interpolated: f.interpolated,
+                    mean_reprojection_px: f.mean_reprojection_px,
+                })
+                .collect(),
+            key_frames: result.key_frames.iter().map(|k| k.index).collect(),
+            key_frames_failed: result.failed_key_frames(),
+            mean_reprojection_px: means.iter().sum::<f64>() / means.len().max(1) as f64,
+            max_reprojection_px: means.iter().copied().fold(0.0, f64::max),
+            check_mean_reprojection_px: (!checks.is_empty())
+                .then(|| checks.iter().sum::<f64>() / checks.len() as f64),
+        })
+    }
+
+    fn notes(&self) -> PoseNotes {
+        PoseNotes {
+            failed: "key frames not solved (too few carried picks)",
+            interpolated: " (fewer than 4 usable picks)",
+        }
+    }
+
+    fn own_counts(&self, data: &PoseData) -> Vec<(String, f64)> {
+        data.check_mean_reprojection_px
+            .map(|c| ("check_mean_reprojection_px".to_string(), c))
+            .into_iter()
+            .collect()
+    }
+}

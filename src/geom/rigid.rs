@@ -136,26 +136,13 @@ impl Mul for Rigid3 {
 /// `exp(w + δw) ≈ exp(J_l(w)·δw)·exp(w)` with `J_l` the left Jacobian of SO(3), and
 /// `t + δt' = exp(δθ)·t + δt` gives `δt = δt' − δθ × t`.
 pub fn tangent_from_angle_axis(w: &Vector3<f64>, t: &Vector3<f64>) -> Matrix6<f64> {
-    let jl = so3_left_jacobian(w);
+    let jl = super::so3::left_jacobian(w);
     let mut m = Matrix6::zeros();
     m.fixed_view_mut::<3, 3>(0, 0).copy_from(&jl);
     m.fixed_view_mut::<3, 3>(3, 0).copy_from(&(skew(t) * jl));
     m.fixed_view_mut::<3, 3>(3, 3)
         .copy_from(&Matrix3::identity());
     m
-}
-
-/// The left Jacobian of SO(3): `exp(w + δ) ≈ exp(J_l(w)·δ)·exp(w)`.
-pub fn so3_left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
-    let theta = w.norm();
-    let k = skew(w);
-    if theta < 1e-6 {
-        return Matrix3::identity() + 0.5 * k + k * k / 6.0;
-    }
-    let t2 = theta * theta;
-    Matrix3::identity()
-        + (1.0 - theta.cos()) / t2 * k
-        + (theta - theta.sin()) / (t2 * theta) * k * k
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
 //! Rotations as angle-axis vectors (SO(3)): the rotation matrix and the left Jacobian, what the
-//! bundle adjuster's pose parameters and Jacobians are made of.
+//! bundle adjuster's and the pose refinement's parameters and Jacobians are made of.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -15,7 +15,9 @@ pub fn rotation(w: &Vector3<f64>) -> Matrix3<f64> {
     }
 }
 
-/// The left Jacobian of SO(3): `∂(R(w)·X)/∂w = −[R(w)·X]ₓ · J(w)`.
+/// The left Jacobian of SO(3): `exp(w + δ) ≈ exp(J_l(w)·δ)·exp(w)`, so that
+/// `∂(R(w)·X)/∂w = −[R(w)·X]ₓ · J_l(w)` (the bundle adjuster's, the pose refinement's and
+/// `rigid::tangent_from_angle_axis`'s one).
 pub fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
     let theta2 = w.norm_squared();
     let k = w.cross_matrix();

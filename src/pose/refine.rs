@@ -11,7 +11,7 @@ use crate::camera::Camera;
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt, TerminationReason};
 use nalgebra::{DVector, Dyn, OMatrix, Owned, U6};
 
-use crate::geom::rigid::so3_left_jacobian;
+use crate::geom::so3::left_jacobian;
 use crate::geom::{Rigid3, skew};
 use crate::optim::{LmSettings, RobustLoss, Termination};
 
@@ -159,7 +159,7 @@ impl LeastSquaresProblem<f64, Dyn, U6> for PoseProblem<'_> {
         let pose = self.pose();
         let dt = Vector3::new(self.x[3], self.x[4], self.x[5]);
         // p = exp(θ)·p₀ + δt, and exp(θ + ε) ≈ exp(J_l(θ)·ε)·exp(θ): ∂p/∂θ = −[p − δt]×·J_l(θ).
-        let jl = so3_left_jacobian(&Vector3::new(self.x[0], self.x[1], self.x[2]));
+        let jl = left_jacobian(&Vector3::new(self.x[0], self.x[1], self.x[2]));
         let mut out = OMatrix::<f64, Dyn, U6>::zeros(2 * self.obs.len());
         for (i, (o, u)) in self.obs.iter().zip(self.white).enumerate() {
             let p = pose.apply(&o.world);

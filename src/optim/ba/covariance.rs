@@ -91,13 +91,7 @@ fn covariance_on_pool<const M: usize>(
     // coefficients and radians would otherwise defeat the factorisation.
     let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
     let n = scaled_normal(p, priors, &st, &lay, &e, &s_cam, &s_point);
-    let at = Linearisation {
-        st: &st,
-        lay: &lay,
-        n: &n,
-        s_cam: &s_cam,
-        s_point: &s_point,
-    };
+    let at = Linearisation::new((&st, &lay), &n, (&s_cam, &s_point));
     from_normal(p, &at, &freedom, sigma, 1.0)
 }
 
@@ -146,6 +140,22 @@ pub(super) struct Linearisation<'a, const M: usize> {
     pub(super) n: &'a Normal<M>,
     pub(super) s_cam: &'a DVector<f64>,
     pub(super) s_point: &'a [Vector3<f64>],
+}
+
+impl<'a, const M: usize> Linearisation<'a, M> {
+    pub(super) fn new(
+        (st, lay): (&'a Structure, &'a Layout),
+        n: &'a Normal<M>,
+        (s_cam, s_point): (&'a DVector<f64>, &'a [Vector3<f64>]),
+    ) -> Self {
+        Linearisation {
+            st,
+            lay,
+            n,
+            s_cam,
+            s_point,
+        }
+    }
 }
 
 /// The covariances from the normal equations: their inverse (points eliminated) times

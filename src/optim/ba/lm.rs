@@ -335,13 +335,7 @@ fn adjust_on_pool<const M: usize>(
     while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
         let t0 = Instant::now();
         // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
-        let at = Linearisation {
-            st: &st,
-            lay: &lay,
-            n: &n,
-            s_cam: &s_cam,
-            s_point: &s_point,
-        };
+        let at = Linearisation::new((&st, &lay), &n, (&s_cam, &s_point));
         let step = unscaled_step(p, priors, &at, &e, (&d_cam, &d_point), region.radius(), s);
         let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
             (dc.norm_squared() + dp.iter().map(|d| d.norm_squared()).sum::<f64>()).sqrt()
@@ -429,13 +423,7 @@ fn adjust_on_pool<const M: usize>(
     let cov = match covariance {
         None => None,
         Some(sigma_px) => {
-            let at = Linearisation {
-                st: &st,
-                lay: &lay,
-                n: &n,
-                s_cam: &s_cam,
-                s_point: &s_point,
-            };
+            let at = Linearisation::new((&st, &lay), &n, (&s_cam, &s_point));
             Some(covariance_at(p, priors, &at, &e, sigma_px)?)
         }
     };

@@ -129,6 +129,30 @@ struct PoseData {
     check_mean_reprojection_px: Option<f64>,
 }
 
+impl PoseData {
+    /// The frames' poses and the key frames, with the mean and the largest of the frames'
+    /// reprojection errors (over the frames that have one).
+    fn new(
+        frames: Vec<FramePoseData>,
+        key_frames: Vec<usize>,
+        key_frames_failed: Vec<usize>,
+        check_mean_reprojection_px: Option<f64>,
+    ) -> PoseData {
+        let rms: Vec<f64> = frames
+            .iter()
+            .filter_map(|f| f.mean_reprojection_px)
+            .collect();
+        PoseData {
+            mean_reprojection_px: rms.iter().sum::<f64>() / rms.len().max(1) as f64,
+            max_reprojection_px: rms.iter().copied().fold(0.0, f64::max),
+            check_mean_reprojection_px,
+            frames,
+            key_frames,
+            key_frames_failed,
+        }
+    }
+}
+
 /// A track projected to the world.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct WorldTrack {

@@ -488,19 +488,12 @@ impl super::pose_source::PoseSource for Model<'_> {
             Some(ctx.surface.as_ref()),
             &self.model,
         )?;
-        let rms: Vec<f64> = poses
-            .frames
-            .iter()
-            .filter_map(|f| f.mean_reprojection_px)
-            .collect();
-        Ok(PoseData {
-            mean_reprojection_px: rms.iter().sum::<f64>() / rms.len().max(1) as f64,
-            max_reprojection_px: rms.iter().copied().fold(0.0, f64::max),
-            check_mean_reprojection_px: None,
-            frames: poses.frames,
-            key_frames: poses.key_frames,
-            key_frames_failed: poses.key_frames_failed,
-        })
+        Ok(PoseData::new(
+            poses.frames,
+            poses.key_frames,
+            poses.key_frames_failed,
+            None,
+        ))
     }
 
     fn notes(&self) -> super::pose_source::PoseNotes {

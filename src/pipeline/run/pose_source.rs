@@ -130,32 +130,25 @@ impl PoseSource for Hover<'_> {
                 control: &self.control,
             },
         )?;
-        let means: Vec<f64> = result
+        let checks: Vec<f64> = check_mean.iter().flatten().copied().collect();
+        let frames = result
             .frames
             .iter()
-            .filter_map(|f| f.mean_reprojection_px)
+            .map(|f| FramePoseData {
+                frame: f.index,
+                rotation: *f.cam_from_world.rotation.matrix(),
+                translation: f.cam_from_world.translation,
+                covariance: f.covariance,
+                interpolated: f.interpolated,
+                mean_reprojection_px: f.mean_reprojection_px,
+            })
             .collect();
-        let checks: Vec<f64> = check_mean.iter().flatten().copied().collect();
-        Ok(PoseData {
-            frames: result
-                .frames
-                .iter()
-                .map(|f| FramePoseData {
-                    frame: f.index,
-                    rotation: *f.cam_from_world.rotation.matrix(),
-                    translation: f.cam_from_world.translation,
-                    covariance: f.covariance,
-                    interpolated: f.interpolated,
-                    mean_reprojection_px: f.mean_reprojection_px,
-                })
-                .collect(),
-            key_frames: result.key_frames.iter().map(|k| k.index).collect(),
-            key_frames_failed: result.failed_key_frames(),
-            mean_reprojection_px: means.iter().sum::<f64>() / means.len().max(1) as f64,
-            max_reprojection_px: means.iter().copied().fold(0.0, f64::max),
-            check_mean_reprojection_px: (!checks.is_empty())
-                .then(|| checks.iter().sum::<f64>() / checks.len() as f64),
-        })
+        Ok(PoseData::new(
+            frames,
+            result.key_frames.iter().map(|k| k.index).collect(),
+            result.failed_key_frames(),
+            (!checks.is_empty()).then(|| checks.iter().sum::<f64>() / checks.len() as f64),
+        ))
     }
 
     fn notes(&self) -> PoseNotes {

@@ -4,11 +4,31 @@
 //! is the centre of the top-left pixel; transforms are named `dst_from_src`; metres, radians,
 //! pixels, seconds; distortion in OpenCV order `k1 k2 p1 p2 k3 k4 k5 k6`.
 //!
-//! Pure modules (`geom`, `camera`, `estimate`, `optim`, `detect`, `track`, `projection`,
-//! `smooth`, `evaluate`, and the algorithmic parts of `calibration`, `pose` and `simulate`) use
-//! nalgebra and std only; OpenCV, GDAL and PROJ stay in the adapters (`imageio`, `video`,
-//! `draw`, `calibration::detect`, `calibration::inputs`, `pipeline::scan`, `gis`, `export::gis`,
-//! `survey::crs`).
+//! # Entry points
+//!
+//! - A whole job: [`pipeline::project::load`] reads a project file, [`pipeline::run::run`] runs
+//!   it (scan, pose, track, project, smooth, export) into a folder, cached and resumable.
+//! - Calibration: [`calibration::calibrate`] from board views; [`camera::formats`] reads and
+//!   writes OpenCV YAML, Metashape XML and JSON calibrations.
+//! - Survey: [`survey::load::load_framed`] reads a GCP file (six formats, any CRS through PROJ)
+//!   into a local metric site frame.
+//! - Pose: [`pose::solve_pose`] for one image from GCP picks, [`pose::hover::solve_with_checks`]
+//!   for every frame of a hovering camera's video.
+//! - Structure from motion: [`sfm::job::run_sfm`] (features, matches, reconstruction,
+//!   georeferencing); [`optim::ba::adjust`] is the bundle adjuster underneath, a problem stated
+//!   as [`optim::ba::Problem`] and [`optim::ba::Priors`].
+//! - People: a [`detect::Detector`], a [`track::Tracker`], [`projection::project`] to the
+//!   ground through a [`terrain::HeightSurface`], [`smooth::smooth`] (Kalman + RTS with EM).
+//! - Checking: [`evaluate::evaluate`] against a truth; [`simulate::run::simulate`] makes scenes
+//!   with one.
+//!
+//! # Pure core and adapters
+//!
+//! The maths (`geom`, `camera`, `estimate`, `optim`, `detect`, `track`, `projection`, `smooth`,
+//! `terrain`, `sfm`'s solvers, `pose`, `evaluate`) uses nalgebra and std; OpenCV, GDAL + PROJ
+//! and ONNX Runtime stay in adapters behind the cargo features `opencv`, `gdal` and `onnx` (on
+//! by default). `cargo test --no-default-features` builds and tests the core without them
+//! (`docs/architecture.md`).
 
 // `!(x > 0.0)` is used on purpose: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

@@ -169,3 +169,104 @@ fn every_unsafe_block_says_why_it_is_sound() {
         missing.join("\n")
     );
 }
+
+/// A line's code with string and character literals emptied and a `//` comment cut off, so
+/// that braces inside them are not counted. `in_string` carries a string literal over lines.
+fn code_of(line: &str, in_string: &mut bool) -> String {
+    let mut out = String::new();
+    let chars: Vec<char> = line.chars().collect();
+    let mut i = 0;
+    while i < chars.len() {
+        let c = chars[i];
+        if *in_string {
+            match c {
+                '\\' => i += 1,
+                '"' => *in_string = false,
+                _ => {}
+            }
+        } else if c == '"' {
+            *in_string = true;
+        } else if c == '/' && chars.get(i + 1) == Some(&'/') {
+            break;
+        } else if c == '\'' {
+            // A character literal ('x', '\n', '\u{22}'); a lifetime has no closing quote near.
+            let close = if chars.get(i + 1) == Some(&'\\') {
+                let from = (i + 3).min(chars.len());
+                chars[from..].iter().position(|&d| d == '\'').map(|p| from + p)
+            } else {
+                (chars.get(i + 2) == Some(&'\'')).then_some(i + 2)
+            };
+            match close {
+                Some(k) => i = k,
+                None => out.push(c),
+            }
+        } else {
+            out.push(c);
+        }
+        i += 1;
+    }
+    out
+}
+
+/// No function in `src/` is longer than 150 lines (test modules aside): a longer one is a chain
+/// of steps that wants names.
+#[test]
+fn no_function_in_src_is_over_150_lines() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut long = Vec::new();
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let mut in_string = false;
+        let code: Vec<String> = text.lines().map(|l| code_of(l, &mut in_string)).collect();
+        // Where the test module starts, nothing more is counted.
+        let end = (0..code.len())
+            .find(|&k| {
+                code[k].trim() == "#[cfg(test)]"
+                    && code.get(k + 1).is_some_and(|n| n.trim_start().starts_with("mod "))
+            })
+            .unwrap_or(code.len());
+        let mut i = 0;
+        while i < end {
+            let l = code[i].trim_start();
+            let is_fn = ["fn ", "pub fn ", "pub(crate) fn ", "pub(super) fn ", "const fn "]
+                .iter()
+                .any(|p| l.starts_with(p))
+                || l.starts_with("pub(in ") && l.contains(") fn ");
+            if !is_fn {
+                i += 1;
+                continue;
+            }
+            let (mut depth, mut opened, mut j) = (0i64, false, i);
+            while j < end {
+                for c in code[j].chars() {
+                    match c {
+                        '{' => {
+                            depth += 1;
+                            opened = true;
+                        }
+                        '}' => depth -= 1,
+                        // A declaration without a body (a trait's).
+                        ';' if !opened && depth == 0 => break,
+                        _ => {}
+                    }
+                }
+                if (opened && depth <= 0) || (!opened && code[j].trim_end().ends_with(';')) {
+                    break;
+                }
+                j += 1;
+            }
+            let lines = j + 1 - i;
+            if lines > 150 {
+                long.push(format!("{}:{} ({lines} lines)", f.display(), i + 1));
+            }
+            i = if opened { j + 1 } else { i + 1 };
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "functions over 150 lines (split them into named steps):\n{}",
+        long.join("\n")
+    );
+}

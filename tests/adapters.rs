@@ -192,7 +192,10 @@ fn code_of(line: &str, in_string: &mut bool) -> String {
             // A character literal ('x', '\n', '\u{22}'); a lifetime has no closing quote near.
             let close = if chars.get(i + 1) == Some(&'\\') {
                 let from = (i + 3).min(chars.len());
-                chars[from..].iter().position(|&d| d == '\'').map(|p| from + p)
+                chars[from..]
+                    .iter()
+                    .position(|&d| d == '\'')
+                    .map(|p| from + p)
             } else {
                 (chars.get(i + 2) == Some(&'\'')).then_some(i + 2)
             };
@@ -224,15 +227,23 @@ fn no_function_in_src_is_over_150_lines() {
         let end = (0..code.len())
             .find(|&k| {
                 code[k].trim() == "#[cfg(test)]"
-                    && code.get(k + 1).is_some_and(|n| n.trim_start().starts_with("mod "))
+                    && code
+                        .get(k + 1)
+                        .is_some_and(|n| n.trim_start().starts_with("mod "))
             })
             .unwrap_or(code.len());
         let mut i = 0;
         while i < end {
             let l = code[i].trim_start();
-            let is_fn = ["fn ", "pub fn ", "pub(crate) fn ", "pub(super) fn ", "const fn "]
-                .iter()
-                .any(|p| l.starts_with(p))
+            let is_fn = [
+                "fn ",
+                "pub fn ",
+                "pub(crate) fn ",
+                "pub(super) fn ",
+                "const fn ",
+            ]
+            .iter()
+            .any(|p| l.starts_with(p))
                 || l.starts_with("pub(in ") && l.contains(") fn ");
             if !is_fn {
                 i += 1;

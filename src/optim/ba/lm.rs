@@ -121,7 +121,7 @@ pub(super) fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> R
         let (x, s) = (&q.position, &q.sigma);
         if !(x.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0)) {
             return Err(BaError::Invalid(format!(
-                "the prior on image {}'s centre needs a finite position and σ > 0, got {x:?} ± {s:?}",
+                "the prior on image {}\u{27}s centre needs a finite position and σ > 0, got {x:?} ± {s:?}",
                 q.camera
             )));
         }

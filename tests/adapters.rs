@@ -64,12 +64,18 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-#[test]
-fn only_adapters_name_opencv_gdal_or_proj() {
+/// `src/` and every Rust file under it, in order.
+fn src_files() -> (PathBuf, Vec<PathBuf>) {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let mut files = Vec::new();
     rust_files(&src, &mut files);
     files.sort();
+    (src, files)
+}
+
+#[test]
+fn only_adapters_name_opencv_gdal_or_proj() {
+    let (src, files) = src_files();
     let mut offenders = Vec::new();
     let mut still_needed = vec![false; NOT_YET_MOVED.len()];
     for f in &files {
@@ -106,9 +112,7 @@ fn only_adapters_name_opencv_gdal_or_proj() {
 /// (`src/main.rs` and `src/cli/`).
 #[test]
 fn the_library_names_neither_clap_nor_anyhow() {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
+    let (src, files) = src_files();
     let offenders: Vec<String> = files
         .iter()
         .filter_map(|f| {
@@ -143,9 +147,7 @@ fn the_library_names_neither_clap_nor_anyhow() {
 /// Every `unsafe` block says why it is sound: a `// SAFETY:` line just above it.
 #[test]
 fn every_unsafe_block_says_why_it_is_sound() {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
+    let (_, files) = src_files();
     let mut missing = Vec::new();
     for f in &files {
         let text = std::fs::read_to_string(f).unwrap();
@@ -215,9 +217,7 @@ fn code_of(line: &str, in_string: &mut bool) -> String {
 /// of steps that wants names.
 #[test]
 fn no_function_in_src_is_over_150_lines() {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
+    let (_, files) = src_files();
     let mut long = Vec::new();
     for f in &files {
         let text = std::fs::read_to_string(f).unwrap();

@@ -281,3 +281,40 @@ fn no_function_in_src_is_over_150_lines() {
         long.join("\n")
     );
 }
+
+/// No public library function returns `Result<_, String>`: a caller gets a typed error it can
+/// match (docs/conventions.md). `pub(crate)` and `pub(super)` helpers may.
+#[test]
+fn no_public_function_returns_a_string_error() {
+    let (src, files) = src_files();
+    let mut offenders = Vec::new();
+    for f in &files {
+        let rel = f
+            .strip_prefix(&src)
+            .unwrap()
+            .to_string_lossy()
+            .replace('\\', "/");
+        if rel == "main.rs" || rel.starts_with("cli/") {
+            continue;
+        }
+        let text = std::fs::read_to_string(f).unwrap();
+        for (i, _) in text.match_indices("pub fn ") {
+            // The signature: to its body or its end.
+            let rest = &text[i..];
+            let end = rest.find(['{', ';']).unwrap_or(rest.len());
+            let signature: String = rest[..end].split_whitespace().collect::<Vec<_>>().join(" ");
+            if let Some((_, returns)) = signature.split_once("->")
+                && returns.contains("Result<")
+                && returns.trim_end().ends_with(", String>")
+            {
+                let line = text[..i].lines().count() + 1;
+                offenders.push(format!("src/{rel}:{line}: {signature}"));
+            }
+        }
+    }
+    assert!(
+        offenders.is_empty(),
+        "public functions returning Result<_, String> (give them a thiserror type):\n{}",
+        offenders.join("\n")
+    );
+}

@@ -199,6 +199,7 @@ fn track_picks(
             max_frames,
             stabilise: Some((settings, pick_frame, picks)),
             detector: None,
+            tracker: None,
         },
         &bar,
     )

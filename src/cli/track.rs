@@ -7,15 +7,14 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, anyhow};
-use nalgebra::Vector2;
 
 use super::bad_input;
 use geostride::detect::Detector;
 use geostride::detect::background::{BackgroundDetector, Subtractor};
 use geostride::detect::boxes::{BoxFilter, BoxFormat, read_boxes};
 use geostride::detect::person::BoxesDetector;
-use geostride::pipeline::chunk_pass::ScanError;
-use geostride::pipeline::klt_pass::{KltPass, klt_over_video};
+use geostride::pipeline::chunk_pass::{ChunkTracker, ScanError};
+use geostride::pipeline::klt_pass::klt_tracker;
 use geostride::pipeline::scan::{ScanJob, scan};
 use geostride::pipeline::settings::KltSection;
 use geostride::track::ImageTrack;
@@ -137,7 +136,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let detector = detector_of(&args)?;
     // A video that cannot be opened is the user's to fix (exit 2).
-    geostride::video::source::FrameReader::open(&args.video).map_err(|e| bad_input(anyhow!(e)))?;
+    let reader = geostride::video::source::FrameReader::open(&args.video)
+        .map_err(|e| bad_input(anyhow!(e)))?;
+    let (size, fps) = ((reader.width, reader.height), reader.fps);
+    drop(reader);
     super::create_output_dir(&args.out, std::iter::once(&args.video).chain(&args.boxes))?;
     let bar = super::progress_bar(
         args.quiet || args.json,
@@ -145,12 +147,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "   scan {bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}]",
     );
     let t0 = Instant::now();
+    let track = KltSection::default();
+    // One decoding pass: the detector and the KLT tracker beside the decoder, as in a project's
+    // run (a fixed camera: no stabiliser).
+    let tracker = klt_tracker(&track, size, fps, None, args.px_per_m);
     let scanned = scan(
         ScanJob {
             video: &args.video,
             max_frames: args.max_frames,
             stabilise: None,
             detector: Some(detector),
+            tracker: Some(ChunkTracker::Klt(Box::new(tracker))),
         },
         &bar,
     )
@@ -160,31 +167,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     bar.finish_and_clear();
     let scan_s = t0.elapsed().as_secs_f64();
-
-    let bar = super::progress_bar(
-        args.quiet || args.json,
-        scanned.detections.len() as u64,
-        "  track {bar:40} {pos}/{len} [{elapsed_precise}<{eta_precise}]",
-    );
-    let t0 = Instant::now();
-    let track = KltSection::default();
-    let tracks = klt_over_video(
-        &KltPass {
-            video: &args.video,
-            detections: &scanned.detections,
-            size: (scanned.width, scanned.height),
-            fps: scanned.fps,
-            track: &track,
-            person_m: None,
-            px_per_m: args.px_per_m,
-        },
-        // A fixed camera.
-        &|_: usize, x: &Vector2<f64>| *x,
-        &bar,
-    )
-    .map_err(|e| anyhow!(e))?;
-    bar.finish_and_clear();
-    let track_s = t0.elapsed().as_secs_f64();
+    let track_s = scanned.times.track_s;
+    let tracks = scanned.image_tracks;
     // Short tracks are mostly false alarms, unless the video's start or end cut them.
     let min_frames = (track.min_length_s * scanned.fps).round() as usize;
     let last = scanned.frames.saturating_sub(1);

@@ -122,10 +122,13 @@ pub struct ChunkJob<'a> {
     pub video: &'a Path,
     pub grid: ChunkGrid,
     pub index: usize,
-    /// The stabiliser's settings, the picked frame and the picks.
-    pub stabilise: (StabiliseSettings, usize, Vec<Vector2<f64>>),
-    pub detector: Box<dyn Detector>,
-    pub tracker: ChunkTracker,
+    /// The stabiliser's settings, the picked frame and the picks (`None`: a fixed camera, no
+    /// frame tracks).
+    pub stabilise: Option<(StabiliseSettings, usize, Vec<Vector2<f64>>)>,
+    /// `None`: no detections.
+    pub detector: Option<Box<dyn Detector>>,
+    /// `None`: no image tracks.
+    pub tracker: Option<ChunkTracker>,
 }
 
 /// A chunk's results.
@@ -175,7 +178,7 @@ struct StabiliseJob<'a> {
     size: (u32, u32),
     first: usize,
     own_start: usize,
-    stabilise: (StabiliseSettings, usize, Vec<Vector2<f64>>),
+    stabilise: Option<(StabiliseSettings, usize, Vec<Vector2<f64>>)>,
     /// The size of a KLT tracker's working copy, when it wants the gray frames: made here, in
     /// the thread that has the gray frame.
     tracker_work: Option<opencv::core::Size>,
@@ -212,9 +215,8 @@ pub(super) fn stabiliser(
 fn stabilise_frames(
     job: StabiliseJob,
     frames: Receiver<Arc<Mat>>,
-    to_tracker: std::sync::mpsc::SyncSender<Stabilised>,
+    to_tracker: Option<std::sync::mpsc::SyncSender<Stabilised>>,
 ) -> Result<(Vec<FrameTrack>, f64), String> {
-    let (settings, pick_frame, picks) = job.stabilise;
     let klt = Klt::new(KltSettings::default());
     let mut stab: Option<Stabiliser<Klt>> = None;
     // Gray frames and the tracker's working copies in reused memory (fresh pages for each 4K
@@ -222,41 +224,48 @@ fn stabilise_frames(
     let (mut grays, mut working) = (MatPool::default(), MatPool::default());
     let mut tracks = Vec::new();
     let mut spent = 0.0;
+    let want_gray = job.stabilise.is_some() || job.tracker_work.is_some();
     for (k, bgr) in frames.iter().enumerate() {
         let f = job.first + k;
         let t = Instant::now();
-        let (gray, ()) = grays
-            .fill(|g| opencv::imgproc::cvt_color_def(&*bgr, g, opencv::imgproc::COLOR_BGR2GRAY))
-            .map_err(|e| e.to_string())?;
-        if stab.is_none() {
-            stab = Some(stabiliser(
-                job.video,
-                job.size,
-                (&settings, pick_frame, &picks),
-                (f, &gray),
-            )?);
-        }
-        let s = stab.as_mut().expect("made above");
-        if f == job.own_start && f > job.first {
-            // The frames the chunk owns start with a key frame.
-            s.key_next();
-        }
-        let for_tracker = match job.tracker_work {
-            Some(size) => {
+        let mut motion = Matrix3::identity();
+        let mut for_tracker = None;
+        if want_gray {
+            let (gray, ()) = grays
+                .fill(|g| opencv::imgproc::cvt_color_def(&*bgr, g, opencv::imgproc::COLOR_BGR2GRAY))
+                .map_err(|e| e.to_string())?;
+            if let Some(size) = job.tracker_work {
                 // From the full frame: a whole factor of it, reduced faster than the
                 // stabiliser's half-size copy by a factor of 1.5.
                 let (work, ()) = working
                     .fill(|m| area_reduce(&*gray, m, size))
                     .map_err(|e| e.to_string())?;
-                Some((gray.cols(), work))
+                for_tracker = Some((gray.cols(), work));
             }
-            None => None,
-        };
-        let frame = klt.frame_shared(f, gray).map_err(|e| e.to_string())?;
-        tracks.push(s.push(f, frame).map_err(|e| format!("frame {f}: {e}"))?);
+            if let Some((settings, pick_frame, picks)) = &job.stabilise {
+                if stab.is_none() {
+                    stab = Some(stabiliser(
+                        job.video,
+                        job.size,
+                        (settings, *pick_frame, picks),
+                        (f, &gray),
+                    )?);
+                }
+                let s = stab.as_mut().expect("made above");
+                if f == job.own_start && f > job.first {
+                    // The frames the chunk owns start with a key frame.
+                    s.key_next();
+                }
+                let frame = klt.frame_shared(f, gray).map_err(|e| e.to_string())?;
+                tracks.push(s.push(f, frame).map_err(|e| format!("frame {f}: {e}"))?);
+                motion = s.last_motion();
+            }
+        }
         spent += t.elapsed().as_secs_f64();
         // The tracker stopped on an error of its own: that error is reported.
-        if to_tracker.send((f, for_tracker, s.last_motion())).is_err() {
+        if let Some(to) = &to_tracker
+            && to.send((f, for_tracker, motion)).is_err()
+        {
             break;
         }
     }
@@ -459,13 +468,14 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
         tracker,
         ..
     } = job;
+    let want_detect = detector.is_some();
     let result = std::thread::scope(|scope| -> Result<ChunkData, ScanError> {
         let (to_tracker, for_tracker) = sync_channel::<Stabilised>(4);
         let tracker_work = match &tracker {
-            ChunkTracker::Klt(parts) => {
+            Some(ChunkTracker::Klt(parts)) => {
                 Some(parts.frames.working_size(width as i32, height as i32))
             }
-            ChunkTracker::Frames(_) => None,
+            _ => None,
         };
         let stab_job = StabiliseJob {
             video,
@@ -475,10 +485,12 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
             stabilise,
             tracker_work,
         };
+        let to_tracker = tracker.is_some().then_some(to_tracker);
         let stab_thread = scope.spawn(move || stabilise_frames(stab_job, for_track, to_tracker));
-        let track_thread = scope.spawn(move || track_frames(tracker, first, for_tracker, dets_in));
-        let detect_thread =
-            scope.spawn(move || detect_frames(detector, first, for_detector, dets_out));
+        let track_thread = tracker
+            .map(|tracker| scope.spawn(move || track_frames(tracker, first, for_tracker, dets_in)));
+        let detect_thread = detector
+            .map(|det| scope.spawn(move || detect_frames(det, first, for_detector, dets_out)));
         let mut decode_s = 0.0;
         let mut decoded = 0;
         let mut failure = None;
@@ -496,7 +508,8 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
                 }
             };
             // A worker that stopped (on an error) closes its channel: stop decoding.
-            if to_track.send(bgr.clone()).is_err() || to_detect.send(bgr).is_err() {
+            if to_track.send(bgr.clone()).is_err() || (want_detect && to_detect.send(bgr).is_err())
+            {
                 break;
             }
             if first + decoded >= own.start {
@@ -508,18 +521,23 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
         drop(to_detect);
         // The detector and the stabiliser first: the tracker waits for them.
         let detected = detect_thread
-            .join()
+            .map(|h| h.join())
+            .transpose()
             .map_err(|_| "the detector stopped unexpectedly".to_string())?;
         let stabilised = stab_thread
             .join()
             .map_err(|_| "the stabiliser stopped unexpectedly".to_string())?;
         let tracked = track_thread
-            .join()
+            .map(|h| h.join())
+            .transpose()
             .map_err(|_| "the tracker stopped unexpectedly".to_string())?;
         let (tracks, stabilise_s) = stabilised.map_err(named)?;
-        let (image_tracks, track_s) = tracked.map_err(named)?;
-        let (mut detections, detect_s, detector_summary) =
-            detected.map_err(|e| ScanError::Detector(named(e)))?;
+        let (image_tracks, track_s) = tracked
+            .unwrap_or_else(|| Ok((Vec::new(), 0.0)))
+            .map_err(named)?;
+        let (mut detections, detect_s, detector_summary) = detected
+            .unwrap_or_else(|| Ok((Vec::new(), 0.0, Vec::new())))
+            .map_err(|e| ScanError::Detector(named(e)))?;
         if let Some(f) = failure {
             return Err(f.into());
         }
@@ -527,7 +545,9 @@ pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, S
         if end == own.start && job.index == 0 {
             return Err(named("no frames could be decoded".into()).into());
         }
-        detections.resize(decoded, Vec::new());
+        if want_detect {
+            detections.resize(decoded, Vec::new());
+        }
         let skip = own.start - first;
         Ok(ChunkData {
             index: job.index,

@@ -82,9 +82,9 @@ fn compute_chunk(
             video: &ctx.video,
             grid: ctx.grid,
             index: c,
-            stabilise: (stabilise, pick_frame, picks),
-            detector,
-            tracker,
+            stabilise: Some((stabilise, pick_frame, picks)),
+            detector: Some(detector),
+            tracker: Some(tracker),
         },
         bar,
     )

@@ -24,6 +24,7 @@ pub mod sift;
 #[cfg(feature = "opencv")]
 pub mod topview;
 pub mod tracks;
+pub mod video_pose;
 
 /// Descriptor length (SIFT).
 pub const DESCRIPTOR_LEN: usize = 128;

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+use nalgebra::{Matrix3, Vector2, Vector3};
 
 use super::FeatureSettings;
 use super::Features;
@@ -15,11 +15,10 @@ use super::job::extract_features;
 use super::matching::{MatchSettings, match_features};
 use super::register::ModelError;
 use super::register::{Model, RegisterSettings, Registration, read_model, register_image};
+use super::video_pose::{ModelFloor, PlacedKey, SIGMA_PX, VideoPoseSettings, pose_from_carried};
 use crate::camera::Camera;
 use crate::geom::Rigid3;
 use crate::geom::similarity::Similarity;
-use crate::optim::{LmSettings, RobustLoss};
-use crate::pose::refine::{PointObs, RefinedPose, refine_pose};
 use crate::progress::Progress;
 
 /// A model and its images' features, ready to register images against.
@@ -159,6 +158,81 @@ impl Reference {
             .collect();
         register_image(&self.model, camera, name, &pixels, &matches, settings)
     }
+
+    /// Registers a video frame against the model photos nearest `near` (all when it fails
+    /// there); gives the photos it was last matched with too.
+    pub fn place_frame(
+        &self,
+        camera: &Camera,
+        name: &str,
+        features: &Features,
+        near: Option<&Vector3<f64>>,
+        s: &VideoPoseSettings,
+    ) -> (Registration, Vec<usize>) {
+        let settings = RegisterSettings {
+            min_inliers: s.min_inliers,
+            ..RegisterSettings::default()
+        };
+        let with = self.nearest_images(near, s.neighbours);
+        let all = self.model.images.len();
+        let r = self.register(
+            camera,
+            name,
+            features,
+            &with,
+            &MatchSettings::default(),
+            &settings,
+        );
+        if r.pose.is_some() || with.len() == all {
+            return (r, with);
+        }
+        let every: Vec<usize> = (0..all).collect();
+        let r = self.register(
+            camera,
+            name,
+            features,
+            &every,
+            &MatchSettings::default(),
+            &settings,
+        );
+        (r, every)
+    }
+
+    /// A key frame placed in the model ([`Reference::place_frame`]), its pose refined from the
+    /// inliers with the model points held ([`pose_from_carried`] with no motion) and its σ
+    /// floored by the model's; the registration (its reason set when the inliers do not refine)
+    /// and the photos matched with.
+    pub fn place_key_frame(
+        &self,
+        camera: &Camera,
+        name: &str,
+        features: &Features,
+        near: Option<&Vector3<f64>>,
+        (floor, s): (&ModelFloor, &VideoPoseSettings),
+    ) -> (Registration, Vec<usize>, Option<PlacedKey>) {
+        let (mut r, with) = self.place_frame(camera, name, features, near, s);
+        let mut key = None;
+        if let Some(start) = r.pose {
+            let refined = pose_from_carried(
+                camera,
+                &start,
+                &r.matched,
+                &Matrix3::identity(),
+                SIGMA_PX,
+                s.min_inliers,
+            );
+            match refined {
+                Some((p, rms, _)) => {
+                    key = Some(PlacedKey {
+                        placed: floor.placed(&p, rms),
+                        matched: r.matched.clone(),
+                    })
+                }
+                None => r.reason = Some("its inliers did not refine to a pose".into()),
+            }
+        }
+        (r, with, key)
+    }
 }
 
 /// One camera of a georeferenced model's `cameras.csv`.
@@ -276,69 +350,6 @@ pub fn mask_features(features: &mut Features, boxes: &[[f64; 4]]) -> usize {
     dropped
 }
 
-/// A frame's pose from a key frame's 2D–3D inliers carried into it by `frame_from_key` (the
-/// stabiliser's homography of tracked features), refined from `start` with a Cauchy loss at
-/// `sigma_px` so that a point the homography carries badly (off the ground plane) loses its
-/// pull. Gives the pose and the RMS reprojection error of the points within 3 σ, or `None`
-/// when too few points land in the image or the refinement fails.
-pub fn pose_from_carried(
-    camera: &Camera,
-    start: &Rigid3,
-    key_points: &[(Vector2<f64>, Vector3<f64>)],
-    frame_from_key: &Matrix3<f64>,
-    sigma_px: f64,
-    min_points: usize,
-) -> Option<(RefinedPose, f64, usize)> {
-    let size = camera.image_size;
-    let info = Matrix2::identity() / (sigma_px * sigma_px);
-    let obs: Vec<PointObs> = key_points
-        .iter()
-        .filter_map(|(uv, world)| {
-            let h = frame_from_key * uv.push(1.0);
-            if h.z.abs() < 1e-12 {
-                return None;
-            }
-            let uv = h.xy() / h.z;
-            if let Some(s) = size
-                && (uv.x < 0.0 || uv.y < 0.0 || uv.x > s.width as f64 || uv.y > s.height as f64)
-            {
-                return None;
-            }
-            Some(PointObs {
-                world: *world,
-                uv,
-                info,
-            })
-        })
-        .collect();
-    if obs.len() < min_points {
-        return None;
-    }
-    let refined = refine_pose(
-        camera,
-        start,
-        &obs,
-        RobustLoss::Cauchy(3.0),
-        &LmSettings::default(),
-    )
-    .ok()?;
-    let errs: Vec<f64> = obs
-        .iter()
-        .filter_map(|o| {
-            camera
-                .project(&refined.cam_from_world.apply(&o.world))
-                .ok()
-                .map(|p| (p - o.uv).norm())
-        })
-        .filter(|e| *e <= 3.0 * sigma_px)
-        .collect();
-    if errs.len() < min_points {
-        return None;
-    }
-    let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
-    Some((refined, rms, errs.len()))
-}
-
 #[derive(Debug, thiserror::Error)]
 pub enum RegisterError {
     #[error(transparent)]
@@ -383,32 +394,6 @@ impl RegisterError {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Rotation3;
-
-    #[test]
-    fn carried_points_give_the_moved_cameras_pose() {
-        // A nadir camera 30 m over flat ground, then 1 m further east: the ground's homography
-        // between the two images carries the key frame's points exactly.
-        let camera = Camera::pinhole(1400.0, 1400.0, 960.0, 540.0).with_image_size(1920, 1080);
-        let r = Rotation3::from_euler_angles(std::f64::consts::PI, 0.0, 0.0);
-        let at = |e: f64| Rigid3::new(r, -(r * Vector3::new(e, 0.0, 30.0)));
-        let (key, moved) = (at(0.0), at(1.0));
-        let mut pts = Vec::new();
-        for i in 0..10 {
-            for j in 0..6 {
-                let w = Vector3::new(-12.0 + 2.5 * i as f64, -7.0 + 2.5 * j as f64, 0.0);
-                pts.push((camera.project(&key.apply(&w)).unwrap(), w));
-            }
-        }
-        // 1 m east is 1400/30 px to the left in this camera (x right = east when looking down
-        // with this rotation: x stays east).
-        let dx = -1400.0 / 30.0;
-        let h = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
-        let (p, rms, n) = pose_from_carried(&camera, &key, &pts, &h, 0.5, 6).unwrap();
-        assert!(rms < 1e-6, "{rms}");
-        assert!(n > 40);
-        assert!((p.cam_from_world.centre() - moved.centre()).norm() < 1e-6);
-    }
 
     #[test]
     fn masked_features_inside_boxes_are_dropped_with_their_descriptors() {

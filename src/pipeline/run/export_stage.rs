@@ -1,8 +1,104 @@
 //! Stage 6, `export`.
 
-use super::*;
-use crate::export::ExportFormat;
-use crate::survey::crs::HeightKind;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use super::{Env, RunError, RunInputs, StageRecord, StageStatus};
+use crate::cache::{StageCache, cache_gone};
+use crate::export::gis::write_geopackage;
+use crate::export::{ExportFormat, Trajectory};
+use crate::survey::crs::{Crs, HeightKind, Transform, UsedOperations};
+use crate::track::ImageTrack;
+
+/// What writing one export format gave: files, warnings, and the WGS 84 transformations used.
+#[derive(Default)]
+struct Written {
+    outputs: Vec<String>,
+    warnings: Vec<String>,
+    transformations: Vec<String>,
+}
+
+/// Trajectories to WGS 84 for GeoJSON, one at a time, and what the report should say about them.
+struct Wgs84 {
+    crs: Crs,
+    to_wgs84: Transform,
+    used: UsedOperations,
+    heights_ellipsoidal: bool,
+    /// The survey's kind of height, for the report.
+    heights: String,
+}
+
+impl Wgs84 {
+    /// Converts output-CRS coordinates (`crs`, in the CRS `spec`) to WGS 84 with the
+    /// transformation PROJ picks for each point (datum change included; the one `cs2cs` uses).
+    /// Heights are kept, as WGS 84 ellipsoidal heights, only when the survey's are ellipsoidal:
+    /// RFC 7946 allows no other kind.
+    fn new(spec: &str, heights: &HeightKind) -> Result<Wgs84, RunError> {
+        let failed = RunError::Crs;
+        let crs = Crs::new(spec).map_err(failed)?;
+        let to_wgs84 =
+            Transform::new(&crs, &Crs::new("EPSG:4326").map_err(failed)?).map_err(failed)?;
+        Ok(Wgs84 {
+            crs,
+            to_wgs84,
+            used: UsedOperations::default(),
+            heights_ellipsoidal: *heights == HeightKind::Ellipsoidal,
+            heights: heights.to_string(),
+        })
+    }
+
+    /// The trajectory's points as (longitude, latitude, ellipsoidal height or NaN).
+    fn convert(&mut self, t: &Trajectory) -> Result<Vec<Vector3<f64>>, RunError> {
+        t.points
+            .iter()
+            .map(|q| {
+                let (lon, lat, h) = self
+                    .to_wgs84
+                    .apply_3d_noting(q.crs.x, q.crs.y, q.crs.z, &mut self.used)
+                    .map_err(RunError::Crs)?;
+                Ok(Vector3::new(
+                    lon,
+                    lat,
+                    if self.heights_ellipsoidal {
+                        h
+                    } else {
+                        f64::NAN
+                    },
+                ))
+            })
+            .collect()
+    }
+
+    /// PROJ's operations used, with their accuracy, and the notes for the report.
+    fn report(&self) -> (Vec<String>, Vec<String>) {
+        let operations = self
+            .used
+            .infos()
+            .iter()
+            .map(|op| {
+                let acc = op.accuracy_m.map_or("accuracy unknown".to_string(), |a| {
+                    format!("accuracy {a} m")
+                });
+                format!(
+                    "{} to WGS 84: PROJ's '{}' ({acc})",
+                    self.crs.label(),
+                    op.name
+                )
+            })
+            .collect();
+        let mut notes = Vec::new();
+        if !self.heights_ellipsoidal {
+            notes.push(format!(
+                "GeoJSON positions are 2D: RFC 7946 heights are ellipsoidal on WGS 84 and the survey's are {}; the heights are in trajectories.csv and the GeoPackage",
+                self.heights
+            ));
+        }
+        (operations, notes)
+    }
+}
 
 /// [`cache_gone`] as an I/O error, for the writers.
 fn gone(cache: &StageCache, stage: &str) -> std::io::Error {
@@ -171,55 +267,41 @@ fn write_geojson(x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
 /// Stage 6: the output files (always written: cheap, and the files must be there). Returns
 /// the files written and the WGS 84 transformations used.
 pub(super) fn export_stage(
-    ctx: &Ctx,
+    env: &Env,
+    inputs: &RunInputs,
     smooth_key: &str,
     track_key: &str,
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
     use rayon::prelude::*;
-    let framed = &ctx.framed;
+    let framed = &inputs.framed;
     let t0 = Instant::now();
     let mut outputs = Vec::new();
-    let crs = ctx.out_crs.as_ref().or(framed.frame.crs.as_ref());
+    let crs = inputs.out_crs.as_ref().or(framed.frame.crs.as_ref());
     let x = ExportInputs {
-        out: ctx.out,
-        fps: ctx.fps,
+        out: env.out,
+        fps: inputs.fps,
         origin_note: &framed.frame.origin_note,
         crs_wkt: crs.map(|c| c.wkt.clone()).unwrap_or_default(),
         out_crs_spec: crs.map(|c| c.spec.clone()),
         height_kind: &framed.frame.height,
-        cache: &ctx.cache,
+        cache: &env.cache,
         smooth_key,
         track_key,
-        chunks: (0..ctx.grid.chunks())
+        chunks: (0..inputs.grid.chunks())
             .map(|c| {
                 (
                     super::scan_stage::chunk_stage(c),
-                    super::scan_stage::chunk_key(ctx, c),
+                    super::scan_stage::chunk_key(&inputs.scan_key, c),
                 )
             })
             .collect(),
     };
-    let formats = ctx
-        .l
-        .project
-        .export
-        .formats
-        .iter()
-        .map(|f| {
-            ExportFormat::parse(f).ok_or_else(|| {
-                RunError::Input(
-                    ctx.l
-                        .error("export", "formats", format!("unknown format '{f}'")),
-                )
-            })
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let formats = &inputs.formats;
     let x = &x;
     let write = |f: &ExportFormat| write_format(*f, x);
     // The GeoPackage takes longest (SQLite and its spatial index): it starts at once on a
     // thread of its own; the results keep the formats' order.
-    let formats = &formats;
     let write = &write;
     let written: Vec<Result<Written, RunError>> = std::thread::scope(|scope| {
         let gpkg = formats

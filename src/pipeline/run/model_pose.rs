@@ -1,25 +1,40 @@
 //! The `model` pose (a moving camera): the reference model moved into the run's site frame, key
 //! frames registered in it, the frames between carried from their key frame's 2D–3D points.
 
-use super::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Vector2, Vector3};
+
+use super::{Env, FramePoseData, PoseData, RunError, RunInputs, ScanData, output_error};
+use crate::cache::stage_key;
+use crate::camera::Camera;
+use crate::detect::Detection;
+use crate::geom::Rigid3;
+use crate::io::write_atomic;
 use crate::pipeline::grounds::site_from_model;
 use crate::pipeline::pose_outputs::{POSE_COLUMNS, csv_num, pose_columns};
+use crate::pipeline::project::{Loaded, SurveySection};
 use crate::pipeline::settings::ModelSettings;
+use crate::pipeline::settings::{GroundSection, PoseSection};
+use crate::progress::Progress;
 use crate::sfm::FeatureSettings;
-use crate::sfm::matching::MatchSettings;
-use crate::sfm::reference::{Reference, mask_features, model_max_features, pose_from_carried};
-use crate::sfm::register::{RegisterSettings, Registration};
+use crate::sfm::reference::{Reference, mask_features, model_max_features};
+use crate::sfm::register::Registration;
 use crate::sfm::register_job::{camera_series, write_pose_series};
 use crate::sfm::sift::for_video_frames;
+use crate::sfm::video_pose::{
+    ModelFloor, PlacedKey, VideoPoseSettings, carry_to_frames, fill_unplaced,
+};
+use crate::survey::load::Framed;
+use crate::terrain::HeightSurface;
 
 /// A reference model in the run's site frame, and how well its georeferencing is known.
 pub(super) struct SiteModel {
     pub reference: Reference,
     pub features: FeatureSettings,
-    /// The model cameras' median σ: centre east/north/up (m), attitude (rad). The floor of
-    /// every frame's pose σ: a frame placed in the model is no better placed than the model.
-    pub sigma_centre_m: Vector3<f64>,
-    pub sigma_rotation_rad: f64,
+    /// The model cameras' median σ: the floor of every frame's pose σ.
+    pub floor: ModelFloor,
     /// RMS of the model's cameras from their CRS positions after the move, metres.
     pub fit_rms_m: f64,
 }
@@ -64,12 +79,14 @@ pub(super) fn open_model(
     Ok(SiteModel {
         reference,
         features,
-        sigma_centre_m: Vector3::new(
-            pick(&|c| c.sigma_enu_m.x),
-            pick(&|c| c.sigma_enu_m.y),
-            pick(&|c| c.sigma_enu_m.z),
-        ),
-        sigma_rotation_rad: pick(&|c| c.sigma_rotation_deg).to_radians(),
+        floor: ModelFloor {
+            sigma_centre_m: Vector3::new(
+                pick(&|c| c.sigma_enu_m.x),
+                pick(&|c| c.sigma_enu_m.y),
+                pick(&|c| c.sigma_enu_m.z),
+            ),
+            sigma_rotation_rad: pick(&|c| c.sigma_rotation_deg).to_radians(),
+        },
         fit_rms_m,
     })
 }
@@ -87,103 +104,46 @@ fn mask_people(f: &mut crate::sfm::Features, detections: &[Detection], mask_px: 
     mask_features(f, &boxes);
 }
 
-fn settings_of(m: &ModelSettings) -> RegisterSettings {
-    RegisterSettings {
+/// How the frames are placed, from the `[pose]` section.
+fn video_pose_settings(m: &ModelSettings) -> VideoPoseSettings {
+    VideoPoseSettings {
+        neighbours: m.neighbours,
         min_inliers: m.min_inliers,
-        ..RegisterSettings::default()
     }
-}
-
-/// Registers one frame against the model photos nearest `near` (all when it fails there); gives
-/// the photos it was last matched with too.
-fn register_frame(
-    model: &SiteModel,
-    camera: &Camera,
-    name: &str,
-    features: &crate::sfm::Features,
-    near: Option<&Vector3<f64>>,
-    m: &ModelSettings,
-) -> (Registration, Vec<usize>) {
-    let with = model.reference.nearest_images(near, m.neighbours);
-    let all = model.reference.model.images.len();
-    let r = model.reference.register(
-        camera,
-        name,
-        features,
-        &with,
-        &MatchSettings::default(),
-        &settings_of(m),
-    );
-    if r.pose.is_some() || with.len() == all {
-        return (r, with);
-    }
-    let every: Vec<usize> = (0..all).collect();
-    let r = model.reference.register(
-        camera,
-        name,
-        features,
-        &every,
-        &MatchSettings::default(),
-        &settings_of(m),
-    );
-    (r, every)
 }
 
 /// The pose of frame 0, registered against every model photo: the detector's scale, and a
 /// check that the video can be placed in the model before the long work.
 pub(super) fn first_frame_pose(
-    l: &Loaded,
-    m: &ModelSettings,
-    model: &SiteModel,
+    source: &Model,
     camera: &Camera,
     video: &Path,
 ) -> Result<Rigid3, RunError> {
+    let (m, model) = (source.settings, &source.model);
+    let video_error = |message: String| {
+        RunError::Input(crate::io::FileError {
+            message,
+            ..source.video_at.clone()
+        })
+    };
     let mut first = None;
     for_video_frames(video, &[0], &model.features, |_, f| {
         first = Some(f);
         Ok::<(), RunError>(())
     })
-    .map_err(|e| RunError::Input(l.error("video", "path", e.to_string())))?;
-    let f = first
-        .ok_or_else(|| RunError::Input(l.error("video", "path", "the video has no frames")))?;
-    let (r, _) = register_frame(model, camera, "frame 0", &f, None, m);
+    .map_err(|e| video_error(e.to_string()))?;
+    let f = first.ok_or_else(|| video_error("the video has no frames".into()))?;
+    let (r, _) = model
+        .reference
+        .place_frame(camera, "frame 0", &f, None, &video_pose_settings(m));
     r.pose.ok_or_else(|| {
         RunError::Unusable(format!(
             "{}: frame 0 could not be placed in the model {}: {} (is the model of this site, and the camera's calibration the video's?)",
             video.display(),
-            l.resolve(&m.model).display(),
+            source.model_path.display(),
             r.reason.unwrap_or_default()
         ))
     })
-}
-
-/// One frame's pose from the model.
-#[derive(Clone, Copy)]
-struct Placed {
-    pose: Rigid3,
-    covariance: Matrix6<f64>,
-    rms_px: f64,
-}
-
-/// The pose covariance (increment `(δθ, δt)`) with the model's georeferencing σ added: centre
-/// σ in the world, attitude σ about each world axis.
-fn with_floor(pose: &Rigid3, cov: &Matrix6<f64>, model: &SiteModel) -> Matrix6<f64> {
-    // δθ = −R δφ_world and δt = −R δC (the inverse of `pose::refine::world_covariance`).
-    let r = *pose.rotation.matrix();
-    let mut j = Matrix6::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-r));
-    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-r));
-    let mut world = Matrix6::zeros();
-    for k in 0..3 {
-        world[(k, k)] = model.sigma_rotation_rad.powi(2);
-        world[(3 + k, 3 + k)] = model.sigma_centre_m[k].powi(2);
-    }
-    cov + j * world * j.transpose()
-}
-
-/// A refined pose's covariance scaled by its residuals (σ taken as `sigma_px` in the fit).
-fn scaled(p: &crate::pose::refine::RefinedPose, rms_px: f64, sigma_px: f64) -> Matrix6<f64> {
-    p.covariance * (rms_px / sigma_px).max(1.0).powi(2)
 }
 
 /// What the `model` pose gives the pose stage.
@@ -196,13 +156,13 @@ pub(super) struct ModelPoses {
 
 /// Every frame's pose: key frames registered in the model, the frames between carried.
 pub(super) fn model_poses(
-    ctx: &Ctx,
-    m: &ModelSettings,
-    model: &SiteModel,
+    env: &Env,
+    x: &RunInputs,
+    (m, model): (&ModelSettings, &SiteModel),
     scan: &ScanData,
     progress: &dyn Progress,
 ) -> Result<ModelPoses, RunError> {
-    let camera = &ctx.camera;
+    let camera = &x.camera;
     let n = scan.frames;
     let keys: Vec<usize> = scan
         .tracks
@@ -212,28 +172,29 @@ pub(super) fn model_poses(
         .collect();
     progress.set_length((keys.len() + n) as u64);
     let mask_px = m.mask_m * scan.px_per_m;
-    let sigma_px = 1.0;
+    let settings = video_pose_settings(m);
 
     // 1. Key frames: features (people masked), registered in order near the last one placed.
-    let mut placed_keys: BTreeMap<usize, (Placed, Vec<(Vector2<f64>, Vector3<f64>)>)> =
-        BTreeMap::new();
+    let mut placed_keys: BTreeMap<usize, PlacedKey> = BTreeMap::new();
     let mut registrations = Vec::new();
-    let mut near = Some(ctx.first_pose.centre());
-    let video_name = ctx
+    let mut near = Some(x.first_pose.centre());
+    let video_name = x
         .video
         .file_name()
         .map_or("video".into(), |f| f.to_string_lossy().into_owned());
     // The key frames' detections, read back a chunk at a time (a long video's are not held).
     let mut chunk: Option<crate::pipeline::chunk_pass::ChunkData> = None;
-    for_video_frames(&ctx.video, &keys, &model.features, |index, mut f| {
-        let c = index / ctx.grid.chunk_frames;
+    for_video_frames(&x.video, &keys, &model.features, |index, mut f| {
+        let c = index / x.grid.chunk_frames;
         if chunk.as_ref().is_none_or(|d| d.index != c) {
-            chunk = Some(super::scan_stage::load_chunk(ctx, c).ok_or_else(|| {
-                RunError::Failed(format!(
-                    "{}: chunk {c}'s file is gone or damaged: run again",
-                    ctx.out.display()
-                ))
-            })?);
+            chunk = Some(
+                super::scan_stage::load_chunk(&env.cache, &x.scan_key, c).ok_or_else(|| {
+                    RunError::Failed(format!(
+                        "{}: chunk {c}'s file is gone or damaged: run again",
+                        env.out.display()
+                    ))
+                })?,
+            );
         }
         let dets = chunk
             .as_ref()
@@ -241,34 +202,16 @@ pub(super) fn model_poses(
             .map_or(&[][..], Vec::as_slice);
         mask_people(&mut f, dets, mask_px);
         let name = format!("{video_name}#{index}");
-        let (mut r, with) = register_frame(model, camera, &name, &f, near.as_ref(), m);
-        if let Some(start) = r.pose {
-            // The pose and its covariance from the inliers (model points held fixed).
-            let refined = pose_from_carried(
-                camera,
-                &start,
-                &r.matched,
-                &Matrix3::identity(),
-                sigma_px,
-                m.min_inliers,
-            );
-            if let Some((p, rms, _)) = refined {
-                near = Some(p.cam_from_world.centre());
-                let cov = with_floor(&p.cam_from_world, &scaled(&p, rms, sigma_px), model);
-                placed_keys.insert(
-                    index,
-                    (
-                        Placed {
-                            pose: p.cam_from_world,
-                            covariance: cov,
-                            rms_px: rms,
-                        },
-                        r.matched.clone(),
-                    ),
-                );
-            } else {
-                r.reason = Some("its inliers did not refine to a pose".into());
-            }
+        let (r, with, key) = model.reference.place_key_frame(
+            camera,
+            &name,
+            &f,
+            near.as_ref(),
+            (&model.floor, &settings),
+        );
+        if let Some(key) = key {
+            near = Some(key.placed.pose.centre());
+            placed_keys.insert(index, key);
         }
         registrations.push((index, r, with));
         progress.inc(1);
@@ -276,38 +219,22 @@ pub(super) fn model_poses(
     })?;
 
     // 2. Every frame: a key frame's own pose, or its key frame's points carried into it.
-    let mut placed: Vec<Option<Placed>> = Vec::with_capacity(n);
-    for t in scan.tracks.iter().take(n) {
-        let f = t.index;
-        let p = if let Some((k, _)) = placed_keys.get(&f).filter(|_| t.key.is_some()) {
-            Some(*k)
-        } else if let Some((k, pts)) = placed_keys.get(&t.reference) {
-            pose_from_carried(
-                camera,
-                &k.pose,
-                pts,
-                &t.frame_from_ref,
-                sigma_px,
-                m.min_inliers,
-            )
-            .map(|(p, rms, _)| Placed {
-                covariance: with_floor(&p.cam_from_world, &scaled(&p, rms, sigma_px), model),
-                pose: p.cam_from_world,
-                rms_px: rms,
-            })
-        } else {
-            None
-        };
-        placed.push(p);
-        progress.inc(1);
-    }
+    let tracks = &scan.tracks[..n.min(scan.tracks.len())];
+    let placed = carry_to_frames(
+        camera,
+        &placed_keys,
+        tracks,
+        &model.floor,
+        &settings,
+        progress,
+    );
 
     // 3. Frames not placed: interpolated between the nearest placed ones (held at the ends),
     // flagged, with the wider σ of their neighbours.
-    let Some(frames) = fill_unplaced(&placed) else {
+    let Some(filled) = fill_unplaced(&placed) else {
         return Err(RunError::Unusable(format!(
             "{}: no key frame could be placed in the model ({})",
-            ctx.video.display(),
+            x.video.display(),
             registrations
                 .iter()
                 .filter_map(|(_, r, _)| r.reason.clone())
@@ -315,6 +242,18 @@ pub(super) fn model_poses(
                 .unwrap_or_default()
         )));
     };
+    let frames = filled
+        .iter()
+        .enumerate()
+        .map(|(i, p)| FramePoseData {
+            frame: i,
+            rotation: *p.pose.rotation.matrix(),
+            translation: p.pose.translation,
+            covariance: Some(p.covariance),
+            interpolated: p.interpolated,
+            mean_reprojection_px: p.rms_px,
+        })
+        .collect();
     Ok(ModelPoses {
         frames,
         key_frames: keys.clone(),
@@ -325,58 +264,6 @@ pub(super) fn model_poses(
             .collect(),
         registrations,
     })
-}
-
-/// Every frame's pose: the placed ones as they are, the others interpolated between the
-/// nearest placed ones (held at the ends), flagged, their σ the wider neighbour's plus half the
-/// camera's travel across the gap. `None` when no frame is placed.
-fn fill_unplaced(placed: &[Option<Placed>]) -> Option<Vec<FramePoseData>> {
-    let known: Vec<usize> = (0..placed.len()).filter(|&i| placed[i].is_some()).collect();
-    if known.is_empty() {
-        return None;
-    }
-    let mut frames = Vec::with_capacity(placed.len());
-    for (i, p) in placed.iter().enumerate() {
-        let d = match p {
-            Some(p) => FramePoseData {
-                frame: i,
-                rotation: *p.pose.rotation.matrix(),
-                translation: p.pose.translation,
-                covariance: Some(p.covariance),
-                interpolated: false,
-                mean_reprojection_px: Some(p.rms_px),
-            },
-            None => {
-                let (a, b, t) = crate::pose::gap_neighbours(&known, i);
-                let (pa, pb) = (
-                    placed[a].as_ref().expect("known"),
-                    placed[b].as_ref().expect("known"),
-                );
-                let pose = pa.pose.interpolate(&pb.pose, t);
-                // The gap's own motion is unknown: at least the neighbours' σ, plus how far the
-                // camera moved across it.
-                let gap = (pb.pose.centre() - pa.pose.centre()).norm() * t.min(1.0 - t);
-                let mut cov = if pa.covariance.trace() >= pb.covariance.trace() {
-                    pa.covariance
-                } else {
-                    pb.covariance
-                };
-                for k in 3..6 {
-                    cov[(k, k)] += (0.5 * gap).powi(2);
-                }
-                FramePoseData {
-                    frame: i,
-                    rotation: *pose.rotation.matrix(),
-                    translation: pose.translation,
-                    covariance: Some(cov),
-                    interpolated: true,
-                    mean_reprojection_px: None,
-                }
-            }
-        };
-        frames.push(d);
-    }
-    Some(frames)
 }
 
 /// `pose/` of a `model` run: `poses.csv` (every frame), `key_frames.csv` (each key frame's
@@ -457,7 +344,12 @@ pub(super) fn write_model_pose_outputs(
 /// A moving camera: key frames registered in a reference model, the frames between carried
 /// from their key frame's 2D–3D points.
 pub(super) struct Model<'a> {
-    pub l: &'a Loaded,
+    /// The sections the pose stage's key covers.
+    pub key_sections: (&'a SurveySection, &'a PoseSection, &'a GroundSection),
+    /// The model's folder, for messages.
+    pub model_path: PathBuf,
+    /// The project's `video.path` key, for a video the model cannot place.
+    pub video_at: crate::io::FileError,
     pub settings: &'a ModelSettings,
     pub model: SiteModel,
 }
@@ -468,24 +360,29 @@ impl super::pose_source::PoseSource for Model<'_> {
     }
 
     fn first_pose(&self, camera: &Camera, video: &Path) -> Result<Rigid3, RunError> {
-        first_frame_pose(self.l, self.settings, &self.model, camera, video)
+        first_frame_pose(self, camera, video)
     }
 
     fn stage_key(&self, scan_key: &str) -> String {
-        let p = &self.l.project;
-        stage_key("pose", &[scan_key], &(&p.survey, &p.pose, &p.ground))
+        stage_key("pose", &[scan_key], &self.key_sections)
     }
 
-    fn poses(&self, ctx: &Ctx, scan: &ScanData, pose_dir: &Path) -> Result<PoseData, RunError> {
-        let bar = ctx.progress.stage("pose");
-        let poses = model_poses(ctx, self.settings, &self.model, scan, bar.as_ref())?;
-        ctx.guard.create_dir(pose_dir).map_err(output_error)?;
+    fn poses(
+        &self,
+        env: &Env,
+        x: &RunInputs,
+        scan: &ScanData,
+        pose_dir: &Path,
+    ) -> Result<PoseData, RunError> {
+        let bar = env.progress.stage("pose");
+        let poses = model_poses(env, x, (self.settings, &self.model), scan, bar.as_ref())?;
+        env.guard.create_dir(pose_dir).map_err(output_error)?;
         write_model_pose_outputs(
             pose_dir,
             &poses,
             scan,
-            &ctx.framed,
-            Some(ctx.surface.as_ref()),
+            &x.framed,
+            Some(x.surface.as_ref()),
             &self.model,
         )?;
         Ok(PoseData::new(
@@ -511,32 +408,5 @@ impl super::pose_source::PoseSource for Model<'_> {
             ),
             ("model_fit_rms_m".into(), self.model.fit_rms_m),
         ]
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn unplaced_frames_are_interpolated_flagged_and_less_certain() {
-        let r = nalgebra::Rotation3::from_euler_angles(std::f64::consts::PI, 0.0, 0.0);
-        let at = |n: f64| Placed {
-            pose: Rigid3::new(r, -(r * Vector3::new(0.0, n, 30.0))),
-            covariance: Matrix6::identity() * 1e-6,
-            rms_px: 0.2,
-        };
-        let placed = vec![None, Some(at(0.0)), None, None, Some(at(3.0)), None];
-        let f = fill_unplaced(&placed).unwrap();
-        let flags: Vec<bool> = f.iter().map(|p| p.interpolated).collect();
-        assert_eq!(flags, [true, false, true, true, false, true]);
-        // Frame 2 a third of the way from frame 1 to 4; the ends held.
-        assert!((f[2].pose().centre() - Vector3::new(0.0, 1.0, 30.0)).norm() < 1e-9);
-        assert!((f[0].pose().centre() - Vector3::new(0.0, 0.0, 30.0)).norm() < 1e-9);
-        assert!((f[5].pose().centre() - Vector3::new(0.0, 3.0, 30.0)).norm() < 1e-9);
-        // Less certain than the measured ones, and no reprojection error claimed.
-        let c = f[2].covariance.unwrap();
-        assert!(c[(4, 4)] > 1e-6 && f[2].mean_reprojection_px.is_none());
-        assert!(fill_unplaced(&[None, None]).is_none());
     }
 }

@@ -1,7 +1,21 @@
 //! Where every frame's pose comes from: the project's `[pose]` kind, chosen once in [`open`].
 
-use super::*;
+use std::path::Path;
+
+use nalgebra::Vector2;
+
+use super::inputs::picked;
+use super::{Env, FramePoseData, PoseData, RunError, RunInputs, ScanData, StageProgress};
+use super::{model_pose, output_error};
+use crate::cache::stage_key;
+use crate::camera::Camera;
+use crate::geom::Rigid3;
+use crate::pipeline::pose_outputs::{PoseRun, write_pose_outputs};
+use crate::pipeline::project::{Loaded, SurveySection};
 use crate::pipeline::settings::PoseSection;
+use crate::pose::hover::solve_with_checks;
+use crate::pose::{GcpObservation, PoseSettings, solve_pose};
+use crate::survey::load::Framed;
 
 /// A way of posing every frame of the video.
 ///
@@ -25,8 +39,14 @@ pub(super) trait PoseSource {
     fn stage_key(&self, scan_key: &str) -> String;
 
     /// Every frame's pose from the scan, the `pose/` files written into `pose_dir` (made by
-    /// the source, through `ctx.guard`).
-    fn poses(&self, ctx: &Ctx, scan: &ScanData, pose_dir: &Path) -> Result<PoseData, RunError>;
+    /// the source, through `env.guard`).
+    fn poses(
+        &self,
+        env: &Env,
+        x: &RunInputs,
+        scan: &ScanData,
+        pose_dir: &Path,
+    ) -> Result<PoseData, RunError>;
 
     /// What the warnings say after "key frames …: [list]" and "N frame(s) have interpolated
     /// poses…".
@@ -45,7 +65,8 @@ pub(super) struct PoseNotes {
     pub interpolated: &'static str,
 }
 
-/// The project's pose source, its inputs read and checked (the model opened, the picks found).
+/// The project's pose source, its inputs read and checked (the model opened, the picks found):
+/// the one place that reads the `[pose]` section's inputs.
 pub(super) fn open<'a>(
     l: &'a Loaded,
     framed: &Framed,
@@ -58,14 +79,16 @@ pub(super) fn open<'a>(
         PoseSection::Hover(_) => {
             let (pick_frame, control, check) = picked(l, framed, size, frames_total)?;
             Box::new(Hover {
-                l,
+                key_sections: (&l.project.survey, &l.project.pose),
                 pick_frame,
                 control,
                 check,
             })
         }
         PoseSection::Model(m) => Box::new(model_pose::Model {
-            l,
+            key_sections: (&l.project.survey, &l.project.pose, &l.project.ground),
+            model_path: l.resolve(&m.model),
+            video_at: l.error("video", "path", ""),
             settings: m,
             model: model_pose::open_model(
                 l,
@@ -81,7 +104,8 @@ pub(super) fn open<'a>(
 /// A hovering camera: the picks of one frame carried to every frame, key frames solved from
 /// them (P3P + MSAC, refinement, a joint adjustment of the key frames and the GCPs).
 pub(super) struct Hover<'a> {
-    l: &'a Loaded,
+    /// The sections the pose stage's key covers.
+    key_sections: (&'a SurveySection, &'a PoseSection),
     /// The picked frame, and its control and check points' picks.
     pick_frame: usize,
     control: Vec<GcpObservation>,
@@ -103,30 +127,35 @@ impl PoseSource for Hover<'_> {
     }
 
     fn stage_key(&self, scan_key: &str) -> String {
-        let p = &self.l.project;
-        stage_key("pose", &[scan_key], &(&p.survey, &p.pose))
+        stage_key("pose", &[scan_key], &self.key_sections)
     }
 
-    fn poses(&self, ctx: &Ctx, scan: &ScanData, pose_dir: &Path) -> Result<PoseData, RunError> {
+    fn poses(
+        &self,
+        env: &Env,
+        x: &RunInputs,
+        scan: &ScanData,
+        pose_dir: &Path,
+    ) -> Result<PoseData, RunError> {
         let (result, check_mean) = solve_with_checks(
-            &ctx.camera,
+            &x.camera,
             &self.control,
             &self.check,
             &scan.tracks,
             &PoseSettings::default(),
-            ctx.progress.stage("pose").as_ref(),
+            env.progress.stage("pose").as_ref(),
         )
-        .map_err(|e| RunError::Unusable(format!("{}: {e}", ctx.video.display())))?;
-        ctx.guard.create_dir(pose_dir).map_err(output_error)?;
+        .map_err(|e| RunError::Unusable(format!("{}: {e}", x.video.display())))?;
+        env.guard.create_dir(pose_dir).map_err(output_error)?;
         write_pose_outputs(
             pose_dir,
             &PoseRun {
-                camera: &ctx.camera,
+                camera: &x.camera,
                 result: &result,
                 tracks: &scan.tracks,
                 check_mean: &check_mean,
-                fps: ctx.fps,
-                framed: &ctx.framed,
+                fps: x.fps,
+                framed: &x.framed,
                 control: &self.control,
             },
         )?;

@@ -1,25 +1,30 @@
 //! Stage 2, `pose`.
 
-use super::*;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use super::pose_source::PoseSource;
+use super::{Env, PoseData, RunError, RunInputs, ScanData, StageRecord, cached};
 
 /// Stage 2: a pose for every frame from the project's pose source, and the `pose/` files.
 pub(super) fn pose_stage(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    source: &dyn PoseSource,
     scan_key: &str,
     scan_data: &ScanData,
     warnings: &mut Vec<String>,
 ) -> Result<(PoseData, String, StageRecord), RunError> {
-    let source = ctx.pose.as_ref();
     let pose_key = source.stage_key(scan_key);
     let t0 = Instant::now();
-    let pose_dir = ctx.out.join("pose");
+    let pose_dir = env.out.join("pose");
     let (pose_data, status) = cached(
-        &ctx.cache,
-        ctx.progress,
+        &env.cache,
+        env.progress,
         "pose",
         &pose_key,
         pose_dir.join("poses.csv").is_file(),
-        || source.poses(ctx, scan_data, &pose_dir),
+        || source.poses(env, x, scan_data, &pose_dir),
     )?;
     let notes = source.notes();
     if !pose_data.key_frames_failed.is_empty() {

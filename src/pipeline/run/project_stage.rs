@@ -1,6 +1,18 @@
 //! Stage 4, `project`.
 
-use super::*;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Env, PoseData, RunError, RunInputs, StageRecord, WorldTrack, cached_seq};
+use crate::cache::stage_key;
+use crate::geom::Rigid3;
+use crate::pipeline::project::ProjectionSection;
+use crate::pipeline::settings::GroundSection;
+use crate::projection::project;
+use crate::terrain::HeightSurface;
+use crate::track::ImageTrack;
 
 /// What the project stage's cache holds besides the projected tracks (`project.bin`, a track
 /// at a time in order of identity).
@@ -13,24 +25,26 @@ pub(super) struct ProjectSummary {
 
 /// Stage 4: image tracks to the head-height surface, read from the track stage's cache and
 /// written to this stage's a batch of tracks at a time.
+///
+/// Reads the `[projection]` section (the ground's in its key: the surface it projects to),
+/// the track and pose stages' keys and data.
 pub(super) fn project_stage(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    (projection, ground): (&ProjectionSection, &GroundSection),
     keys: [&str; 2],
-    tracks: &super::track_stage::TrackSummary,
-    pose_data: &PoseData,
-    poses: &[Rigid3],
+    (tracks, pose_data, poses): (&super::track_stage::TrackSummary, &PoseData, &[Rigid3]),
     warnings: &mut Vec<String>,
 ) -> Result<(ProjectSummary, String, StageRecord), RunError> {
-    let camera = &ctx.camera;
-    let surface = &ctx.surface;
-    let heights = &ctx.heights;
-    let p = &ctx.l.project;
+    let camera = &x.camera;
+    let surface = &x.surface;
+    let heights = &x.heights;
     let project_key = stage_key(
         "project",
         &[keys[0], keys[1]],
         &(
-            &p.projection,
-            &p.ground,
+            projection,
+            ground,
             &heights
                 .iter()
                 .map(|(k, v)| (*k, v.0, v.1))
@@ -38,13 +52,13 @@ pub(super) fn project_stage(
         ),
     );
     let t0 = Instant::now();
-    let (summary, status) = cached_seq(&ctx.cache, ctx.progress, "project", &project_key, || {
+    let (summary, status) = cached_seq(&env.cache, env.progress, "project", &project_key, || {
         let one = |t: &ImageTrack, surface: &dyn HeightSurface| -> (WorldTrack, usize) {
             let (h, sd, source) = match heights.get(&t.id) {
                 Some((h, sd)) => (*h, *sd, "given"),
                 None => (
-                    p.projection.head_height_m,
-                    p.projection.head_height_sd_m,
+                    projection.head_height_m,
+                    projection.head_height_sd_m,
                     "default",
                 ),
             };
@@ -81,9 +95,9 @@ pub(super) fn project_stage(
             heights_given: 0,
         };
         let mut dropped = 0;
-        ctx.cache
+        env.cache
             .store_seq::<_, RunError>("project", &project_key, tracks.tracks, |push| {
-                ctx.cache.read_batches::<_, RunError>(
+                env.cache.read_batches::<_, RunError>(
                     "track",
                     keys[0],
                     |t: &ImageTrack| t.points.len(),

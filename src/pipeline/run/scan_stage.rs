@@ -1,86 +1,90 @@
 //! Stage 1, `scan`: the video's chunks, each in one decoding pass (stabilisation, detection
 //! and image tracking), each cached in its own file.
 
-use super::*;
-use crate::pipeline::chunk_pass::{ChunkData, ChunkJob, ChunkTracker, scan_chunk};
-use crate::pipeline::registry::{TrackScale, TrackerChoice};
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use super::{ChunkMode, Detectors, Env, RunError, RunInputs, ScanData, StageRecord, StageStatus};
+use crate::cache::{StageCache, stage_key};
+use crate::detect::Detector;
+use crate::pipeline::chunk_pass::{
+    ChunkData, ChunkJob, ChunkTracker, ScanError, ScanTimes, scan_chunk,
+};
+use crate::pipeline::klt_pass::klt_tracker;
+use crate::pipeline::project::Project;
+use crate::pipeline::registry::{self, TrackScale, TrackerChoice};
+use crate::pipeline::settings::{DetectSection, PoseSection, TrackSection};
+use crate::pose::stabilise::StabiliseSettings;
+
+/// The sections the scan reads: the stabiliser's key frames (`[pose]`), the detector's and the
+/// tracker's.
+pub(super) struct ScanSettings<'a> {
+    pub pose: &'a PoseSection,
+    pub detect: &'a DetectSection,
+    pub track: &'a TrackSection,
+}
+
+impl<'a> ScanSettings<'a> {
+    pub fn of(p: &'a Project) -> ScanSettings<'a> {
+        ScanSettings {
+            pose: &p.pose,
+            detect: &p.detect,
+            track: &p.track,
+        }
+    }
+}
 
 /// A chunk's file in the cache (under `.stages/`).
 pub(super) fn chunk_stage(c: usize) -> String {
     format!("chunks/{c:05}")
 }
 
-/// Chunk `c` as cached; None when it is not there whole under its key.
-pub(super) fn load_chunk(ctx: &Ctx, c: usize) -> Option<ChunkData> {
-    ctx.cache.load(&chunk_stage(c), &chunk_key(ctx, c))
+/// Chunk `c` of the scan `scan_key` as cached; None when it is not there whole under its key.
+pub(super) fn load_chunk(cache: &StageCache, scan_key: &str, c: usize) -> Option<ChunkData> {
+    cache.load(&chunk_stage(c), &chunk_key(scan_key, c))
 }
 
-/// The key of chunk `c`.
-pub(super) fn chunk_key(ctx: &Ctx, c: usize) -> String {
-    stage_key("chunk", &[&ctx.scan_key], &c)
+/// The key of chunk `c` of the scan `scan_key`.
+pub(super) fn chunk_key(scan_key: &str, c: usize) -> String {
+    stage_key("chunk", &[scan_key], &c)
 }
 
 /// Whether chunk `c` is in the cache under its key.
-pub(super) fn chunk_done(ctx: &Ctx, c: usize) -> bool {
-    ctx.cache.has(&chunk_stage(c), &chunk_key(ctx, c))
-}
-
-/// The detector for one chunk.
-fn chunk_detector(ctx: &Ctx) -> Result<Box<dyn crate::detect::Detector>, RunError> {
-    let p = &ctx.l.project;
-    match (&p.detect, &ctx.palette) {
-        (crate::pipeline::settings::DetectSection::Colour(c), Some(pal)) => Ok(
-            crate::pipeline::detectors::colour_with(c, ctx.px_per_m, pal),
-        ),
-        _ => crate::pipeline::registry::detector(
-            &p.detect,
-            &crate::pipeline::detectors::DetectorInputs {
-                l: ctx.l,
-                video: &ctx.video,
-                camera: &ctx.camera,
-                first_pose: &ctx.first_pose,
-                px_per_m: ctx.px_per_m,
-                frames: Some(ctx.frames_total),
-            },
-        ),
-    }
+pub(super) fn chunk_done(cache: &StageCache, scan_key: &str, c: usize) -> bool {
+    cache.has(&chunk_stage(c), &chunk_key(scan_key, c))
 }
 
 /// Computes chunk `c`.
 fn compute_chunk(
-    ctx: &Ctx,
+    x: &RunInputs,
+    s: &ScanSettings,
     c: usize,
-    detector: Box<dyn crate::detect::Detector>,
+    detector: Box<dyn Detector>,
     bar: &dyn crate::progress::Progress,
-) -> Result<ChunkData, RunError> {
-    let l = ctx.l;
-    let p = &l.project;
-    let fps = ctx.fps;
-    let (min_features, key_fraction, key_every_s) = p.pose.key_frames();
+) -> Result<ChunkData, ScanError> {
+    let fps = x.fps;
+    let (min_features, key_fraction, key_every_s) = s.pose.key_frames();
     let stabilise = StabiliseSettings::key_frames(min_features, key_fraction, key_every_s, fps);
-    let (pick_frame, picks) = ctx.pose.carried_picks();
+    let (pick_frame, picks) = x.carried_picks.clone();
     let scale = TrackScale {
-        px_per_m: ctx.px_per_m,
+        px_per_m: x.px_per_m,
         fps,
-        duplicate_px: p.detect.duplicate_m() * ctx.px_per_m,
+        duplicate_px: s.detect.duplicate_m() * x.px_per_m,
     };
-    let tracker = match crate::pipeline::registry::tracker(&p.track, &scale) {
+    let tracker = match registry::tracker(s.track, &scale) {
         TrackerChoice::Frames(t) => ChunkTracker::Frames(t),
-        TrackerChoice::Klt(k) => {
-            let size = ctx.size;
-            ChunkTracker::Klt(Box::new(crate::pipeline::klt_pass::klt_tracker(
-                k,
-                size,
-                fps,
-                p.detect.person_m(),
-                ctx.px_per_m,
-            )))
-        }
+        TrackerChoice::Klt(k) => ChunkTracker::Klt(Box::new(klt_tracker(
+            k,
+            x.size,
+            fps,
+            s.detect.person_m(),
+            x.px_per_m,
+        ))),
     };
     scan_chunk(
         ChunkJob {
-            video: &ctx.video,
-            grid: ctx.grid,
+            video: &x.video,
+            grid: x.grid,
             index: c,
             stabilise: Some((stabilise, pick_frame, picks)),
             detector: Some(detector),
@@ -88,31 +92,32 @@ fn compute_chunk(
         },
         bar,
     )
-    .map_err(|e| match e {
-        ScanError::Detector(e) => RunError::Input(l.error("detect", p.detect.failure_key(), e)),
-        ScanError::Other(e) => RunError::Failed(e),
-    })
 }
 
 /// The chunks `mode` asks for, computed or reused, given to `each` in order a chunk at a time
 /// (a long video's are never all in memory); and how many were computed and reused. Under
 /// [`ChunkMode::Only`] the chunks are only stored, not given.
 pub(super) fn chunks_of(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    s: &ScanSettings,
     mode: &ChunkMode,
-    mut detector: Option<Box<dyn crate::detect::Detector>>,
+    detectors: &mut Detectors,
     each: &mut dyn FnMut(ChunkData) -> Result<(), RunError>,
 ) -> Result<(usize, usize), RunError> {
-    let n = ctx.grid.chunks();
+    let n = x.grid.chunks();
     let range = match mode {
         ChunkMode::Only(r) => r.clone(),
         _ => 0..n,
     };
-    let bar = ctx.progress.stage("scan");
+    let bar = env.progress.stage("scan");
     let (mut computed, mut reused) = (0, 0);
     // A segment only needs to know which of its chunks are done; the others read them.
     let keep = !matches!(mode, ChunkMode::Only(_));
-    let done: Vec<bool> = range.clone().map(|c| chunk_done(ctx, c)).collect();
+    let done: Vec<bool> = range
+        .clone()
+        .map(|c| chunk_done(&env.cache, &x.scan_key, c))
+        .collect();
     let missing: Vec<usize> = range
         .clone()
         .zip(&done)
@@ -122,7 +127,7 @@ pub(super) fn chunks_of(
     if !missing.is_empty() && *mode == ChunkMode::None {
         return Err(RunError::MissingChunks(missing));
     }
-    let todo: u64 = missing.iter().map(|&c| ctx.grid.own(c).len() as u64).sum();
+    let todo: u64 = missing.iter().map(|&c| x.grid.own(c).len() as u64).sum();
     bar.set_length(todo);
     for (c, done) in range.zip(done) {
         if done && !keep {
@@ -130,7 +135,10 @@ pub(super) fn chunks_of(
             continue;
         }
         // Read when it is reached; one damaged since it was checked is made again.
-        if let Some(d) = done.then(|| load_chunk(ctx, c)).flatten() {
+        if let Some(d) = done
+            .then(|| load_chunk(&env.cache, &x.scan_key, c))
+            .flatten()
+        {
             reused += 1;
             each(d)?;
             continue;
@@ -138,13 +146,13 @@ pub(super) fn chunks_of(
         if *mode == ChunkMode::None {
             return Err(RunError::MissingChunks(vec![c]));
         }
-        let det = match detector.take() {
-            Some(d) => d,
-            None => chunk_detector(ctx)?,
-        };
-        let d = compute_chunk(ctx, c, det, bar.as_ref())?;
-        ctx.cache.store(&chunk_stage(c), &chunk_key(ctx, c), &d)?;
-        ctx.progress.stored(&chunk_stage(c));
+        let d = compute_chunk(x, s, c, detectors.next()?, bar.as_ref()).map_err(|e| match e {
+            ScanError::Detector(e) => detectors.failed(e),
+            ScanError::Other(e) => RunError::Failed(e),
+        })?;
+        env.cache
+            .store(&chunk_stage(c), &chunk_key(&x.scan_key, c), &d)?;
+        env.progress.stored(&chunk_stage(c));
         computed += 1;
         // A segment keeps nothing: its memory is one chunk's, however long it is.
         if keep {
@@ -156,18 +164,20 @@ pub(super) fn chunks_of(
 
 /// Stage 1: every chunk, put together.
 pub(super) fn scan_stage(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    s: &ScanSettings,
     mode: &ChunkMode,
-    detector: Option<Box<dyn crate::detect::Detector>>,
+    detectors: &mut Detectors,
 ) -> Result<(ScanData, String, StageRecord), RunError> {
     let t0 = Instant::now();
-    let (width, height) = ctx.size;
+    let (width, height) = x.size;
     let mut data = ScanData {
-        fps: ctx.fps,
+        fps: x.fps,
         width,
         height,
         frames: 0,
-        px_per_m: ctx.px_per_m,
+        px_per_m: x.px_per_m,
         detector_summary: Vec::new(),
         tracks: Vec::new(),
         detections: 0,
@@ -177,11 +187,11 @@ pub(super) fn scan_stage(
     let mut seeks = 0;
     // What the later stages need of each chunk is its frames' stabilisation; the track stage
     // and the export read the chunks' tracks and detections back from their files.
-    let (computed, reused) = chunks_of(ctx, mode, detector, &mut |c| {
+    let (computed, reused) = chunks_of(env, x, s, mode, detectors, &mut |c| {
         if c.end > c.start && data.frames != c.start {
             return Err(RunError::Failed(format!(
                 "{}: chunk {} starts at frame {} but the chunks before end at {} (the video ended early?)",
-                ctx.video.display(),
+                x.video.display(),
                 c.index,
                 c.start,
                 data.frames
@@ -205,12 +215,12 @@ pub(super) fn scan_stage(
         Ok(())
     })?;
     if computed > 0 {
-        ctx.progress.stored("scan");
+        env.progress.stored("scan");
     }
     if data.frames == 0 {
         return Err(RunError::Failed(format!(
             "{}: no frames could be decoded",
-            ctx.video.display()
+            x.video.display()
         )));
     }
     // A number every chunk's detector gives alike is the video's (boxes read from the file,
@@ -237,8 +247,8 @@ pub(super) fn scan_stage(
             ("width_px".into(), data.width as f64),
             ("height_px".into(), data.height as f64),
             ("detections".into(), n_det as f64),
-            ("chunks".into(), ctx.grid.chunks() as f64),
-            ("px_per_m".into(), ctx.px_per_m),
+            ("chunks".into(), x.grid.chunks() as f64),
+            ("px_per_m".into(), x.px_per_m),
             ("chunks_computed".into(), computed as f64),
             ("chunks_seeked".into(), seeks as f64),
             (
@@ -254,5 +264,5 @@ pub(super) fn scan_stage(
         .chain(data.detector_summary.iter().cloned())
         .collect(),
     };
-    Ok((data, ctx.scan_key.clone(), record))
+    Ok((data, x.scan_key.clone(), record))
 }

@@ -1,7 +1,21 @@
 //! Stage 5, `smooth`.
 
-use super::*;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use nalgebra::{Matrix2, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::{Env, RunError, RunInputs, StageRecord, WorldTrack, cached_seq};
+use crate::cache::{StageCache, in_batches, stage_key};
+use crate::export::{PointCov, Trajectory, TrajectoryPoint};
 use crate::pipeline::settings::SmoothSection;
+use crate::projection::WorldPoint;
+use crate::smooth::Observation;
+use crate::terrain::HeightSurface;
+
+/// A point's site-frame coordinates to the output CRS.
+type ToOut<'a> = dyn Fn(&Vector3<f64>) -> Result<Vector3<f64>, RunError> + 'a;
 
 /// What the smooth stage's cache holds besides the trajectories (`smooth.bin`, a trajectory at
 /// a time in order of identity).
@@ -148,17 +162,18 @@ impl crate::smooth::ObservationSource for ObservationFile {
 /// projected tracks, each a batch at a time: EM's (the model), one for the persistent share,
 /// and the last that writes the trajectories.
 pub(super) fn smooth_stage(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    settings: &SmoothSection,
     project_key: &str,
     projected: &super::project_stage::ProjectSummary,
     warnings: &mut Vec<String>,
 ) -> Result<(SmoothSummary, String, StageRecord), RunError> {
-    let fps = ctx.fps;
-    let framed = &ctx.framed;
-    let transform = &ctx.transform;
-    let p = &ctx.l.project;
-    let cache = &ctx.cache;
-    let smooth_key = stage_key("smooth", &[project_key], &p.smooth);
+    let fps = x.fps;
+    let framed = &x.framed;
+    let transform = &x.transform;
+    let cache = &env.cache;
+    let smooth_key = stage_key("smooth", &[project_key], settings);
     let t0 = Instant::now();
     let to_out = |local: &Vector3<f64>| -> Result<Vector3<f64>, RunError> {
         let src = framed
@@ -176,8 +191,8 @@ pub(super) fn smooth_stage(
         }
     };
     let points_of = |t: &WorldTrack| t.points.len();
-    let (summary, status) = cached_seq(cache, ctx.progress, "smooth", &smooth_key, || {
-        let smoother = crate::pipeline::registry::smoother(&p.smooth, 1.0 / fps);
+    let (summary, status) = cached_seq(cache, env.progress, "smooth", &smooth_key, || {
+        let smoother = crate::pipeline::registry::smoother(settings, 1.0 / fps);
         let observed = ObservationFile::write(
             cache,
             project_key,
@@ -188,7 +203,7 @@ pub(super) fn smooth_stage(
             source: e,
         };
         let fit = smoother.fit(&observed).map_err(read_err)?;
-        let none = matches!(p.smooth, SmoothSection::None(_));
+        let none = matches!(settings, SmoothSection::None(_));
         // What smoothing cannot average away: detection errors that persist over frames.
         let persistent = if none {
             0.0
@@ -207,7 +222,7 @@ pub(super) fn smooth_stage(
         cache.store_seq::<_, RunError>("smooth", &smooth_key, projected.tracks, |push| {
             cache.read_batches::<_, RunError>("project", project_key, points_of, |batch| {
                 let states = smoother.smooth_batch(&fit, &observations(&batch));
-                for t in trajectory_points(ctx, batch, states, persistent, &to_out)? {
+                for t in trajectory_points(x, batch, states, persistent, &to_out)? {
                     points += t.points.len();
                     push(&t)?;
                 }
@@ -272,13 +287,13 @@ pub(super) fn smooth_stage(
 /// the detections' persistent share added back; the height's and the pose's from the nearest
 /// observation) and its coordinates in the output CRS.
 fn trajectory_points(
-    ctx: &Ctx,
+    x: &RunInputs,
     world: Vec<WorldTrack>,
     states: Vec<Vec<crate::smooth::State>>,
     persistent: f64,
     to_out: &ToOut,
 ) -> Result<Vec<Trajectory>, RunError> {
-    let (fps, surface) = (ctx.fps, &ctx.surface);
+    let (fps, surface) = (x.fps, &x.surface);
     let mut trajectories = Vec::with_capacity(world.len());
     for (t, states) in world.into_iter().zip(states) {
         let by_frame: BTreeMap<usize, &WorldPoint> =

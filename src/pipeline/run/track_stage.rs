@@ -1,8 +1,15 @@
 //! Stage 3, `track`: the chunks' image tracks joined into one set.
 
-use super::*;
-use crate::track::TrackPoint;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Env, RunError, RunInputs, StageRecord, StageStatus, cached_seq};
+use crate::cache::{cache_gone, stage_key};
+use crate::pipeline::settings::TrackSection;
 use crate::track::link::{ChunkTracks, Closed, LinkSettings, Linker, canonical_order};
+use crate::track::{ImageTrack, TrackPoint};
 
 /// What the track stage's cache holds besides the tracks themselves (`track.bin`, in order of
 /// identity, read back a track at a time).
@@ -27,16 +34,17 @@ struct Spilled {
 /// their canonical order and cached in that order. Memory: the tracks under way and a small
 /// index per track, whatever the video's length.
 pub(super) fn track_stage(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    settings: &TrackSection,
     scan_key: &str,
     frames: usize,
 ) -> Result<(TrackSummary, String, StageRecord), RunError> {
-    let p = &ctx.l.project;
-    let track_key = stage_key("track", &[scan_key], &p.track);
+    let track_key = stage_key("track", &[scan_key], settings);
     let t0 = Instant::now();
     let mut joined = (0.0, 0.0);
-    let (summary, status) = cached_seq(&ctx.cache, ctx.progress, "track", &track_key, || {
-        let (summary, stats) = link_to_cache(ctx, &track_key, frames)?;
+    let (summary, status) = cached_seq(&env.cache, env.progress, "track", &track_key, || {
+        let (summary, stats) = link_to_cache(env, x, settings, &track_key, frames)?;
         joined = (stats.joined as f64, stats.unmatched as f64);
         Ok(summary)
     })?;
@@ -60,23 +68,24 @@ pub(super) fn track_stage(
 
 /// Links the chunks' tracks into the track stage's cache; its summary and what linking did.
 fn link_to_cache(
-    ctx: &Ctx,
+    env: &Env,
+    x: &RunInputs,
+    settings: &TrackSection,
     track_key: &str,
     frames: usize,
 ) -> Result<(TrackSummary, crate::track::link::LinkStats), RunError> {
     use std::io::{Seek, SeekFrom, Write};
-    let fps = ctx.fps;
-    let p = &ctx.l.project;
-    let overlap = ctx.grid.overlap_frames;
+    let fps = x.fps;
+    let overlap = x.grid.overlap_frames;
     let mut linker = Linker::new(LinkSettings {
         // The same detection in both chunks: within 5 cm at head height.
-        same_px: (0.05 * ctx.px_per_m).max(0.5),
+        same_px: (0.05 * x.px_per_m).max(0.5),
         min_shared: overlap.clamp(1, 3),
     });
     // Short tracks are mostly false alarms, unless the video's start or end cut them.
-    let min_frames = (p.track.min_length_s() * fps).round() as usize;
+    let min_frames = (settings.min_length_s() * fps).round() as usize;
     let last = frames.saturating_sub(1);
-    let spill_path = crate::io::temp_path(&ctx.cache.path("track"), ".spill");
+    let spill_path = crate::io::temp_path(&env.cache.path("track"), ".spill");
     let io_err = |source: std::io::Error| RunError::Io {
         path: spill_path.clone(),
         source,
@@ -116,9 +125,9 @@ fn link_to_cache(
             offset += bytes.len() as u64;
             Ok(())
         };
-        for c in 0..ctx.grid.chunks() {
-            let chunk = super::scan_stage::load_chunk(ctx, c)
-                .ok_or_else(|| cache_gone(&ctx.cache, &super::scan_stage::chunk_stage(c)))?;
+        for c in 0..x.grid.chunks() {
+            let chunk = super::scan_stage::load_chunk(&env.cache, &x.scan_key, c)
+                .ok_or_else(|| cache_gone(&env.cache, &super::scan_stage::chunk_stage(c)))?;
             linker.push(
                 ChunkTracks {
                     decode_from: chunk.decode_from,
@@ -140,7 +149,7 @@ fn link_to_cache(
             mean_length_s: index.iter().map(|t| t.len as f64 / fps).sum::<f64>()
                 / index.len().max(1) as f64,
         };
-        ctx.cache
+        env.cache
             .store_seq::<_, RunError>("track", track_key, index.len(), |push| {
                 for (k, t) in index.iter().enumerate() {
                     spill.seek(SeekFrom::Start(t.offset)).map_err(io_err)?;

@@ -1,7 +1,16 @@
 //! Stage 7, `views`: the report's plots, the rectified site image and the annotated video
 //! (`pipeline::views`). Not cached: made again by every run (and by `geostride render`).
 
-use super::*;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use nalgebra::{Vector2, Vector3};
+
+use super::{Env, PoseData, RunError, RunInputs, StageRecord, StageStatus};
+use crate::cache::StageCache;
+use crate::export::Trajectory;
+use crate::geom::Rigid3;
+use crate::pipeline::project::{AnalysisSection, OutputSection};
 use crate::pipeline::views::{
     GcpMark, Trajectories, TrajectoryReader, ViewError, Views, make_views,
 };
@@ -31,15 +40,16 @@ impl Trajectories for Cached<'_> {
 
 /// Makes the views the project asks for; their (title, file) and the stage's record (none when
 /// nothing is asked for).
+///
+/// Reads the `[output]` section (which views) and the `[analysis]` one (the density plots'
+/// areas), the pose stage's data and the smooth stage's trajectories.
 pub(super) fn views_stage(
-    ctx: &Ctx,
-    pose_data: &PoseData,
-    smooth_key: &str,
-    smoothed: &super::smooth_stage::SmoothSummary,
+    env: &Env,
+    x: &RunInputs,
+    (o, analysis): (&OutputSection, &AnalysisSection),
+    (pose_data, smooth_key, smoothed): (&PoseData, &str, &super::smooth_stage::SmoothSummary),
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<(String, String)>, Option<StageRecord>), RunError> {
-    let p = &ctx.l.project;
-    let o = &p.output;
     if !(o.plots || o.site_image || o.video) {
         return Ok((Vec::new(), None));
     }
@@ -47,17 +57,17 @@ pub(super) fn views_stage(
     // Every view reads the trajectories back from the smooth stage's cache, one at a time, as
     // often as it needs them.
     let trajectories = Cached {
-        cache: &ctx.cache,
+        cache: &env.cache,
         key: smooth_key,
         count: smoothed.trajectories,
     };
-    let mut poses: Vec<Option<Rigid3>> = vec![None; ctx.frames_total];
+    let mut poses: Vec<Option<Rigid3>> = vec![None; x.frames_total];
     for f in &pose_data.frames {
         if let Some(slot) = poses.get_mut(f.frame) {
             *slot = Some(f.pose());
         }
     }
-    let framed = &ctx.framed;
+    let framed = &x.framed;
     let gcps = framed
         .survey
         .points
@@ -70,7 +80,7 @@ pub(super) fn views_stage(
             control: g.role == crate::survey::Role::Control,
         })
         .collect();
-    let transform = &ctx.transform;
+    let transform = &x.transform;
     let to_crs = |en: &Vector2<f64>| -> Option<Vector2<f64>> {
         let src = framed
             .frame
@@ -81,33 +91,29 @@ pub(super) fn views_stage(
             None => Some(src.xy()),
         }
     };
-    let out_crs = ctx.out_crs.as_ref().or(framed.frame.crs.as_ref());
+    let out_crs = x.out_crs.as_ref().or(framed.frame.crs.as_ref());
     let views = Views {
-        out: ctx.out,
-        video: &ctx.video,
-        title: if p.name.is_empty() {
-            ctx.l.path.display().to_string()
-        } else {
-            p.name.clone()
-        },
-        fps: ctx.fps,
-        size: ctx.size,
-        frames: ctx.frames_total,
-        camera: &ctx.camera,
+        out: env.out,
+        video: &x.video,
+        title: x.title.clone(),
+        fps: x.fps,
+        size: x.size,
+        frames: x.frames_total,
+        camera: &x.camera,
         poses: &poses,
         key_frames: &pose_data.key_frames,
         trajs: &trajectories,
         gcps,
-        ground: ctx.surface.as_ref(),
+        ground: x.surface.as_ref(),
         to_crs: Some(&to_crs),
         crs_wkt: out_crs.map(|c| c.wkt.clone()).unwrap_or_default(),
         crs_label: out_crs.map_or("the survey's local frame".into(), |c| c.label()),
         settings: o,
-        analysis: &p.analysis,
+        analysis,
     };
-    let bar = ctx.progress.stage("views");
+    let bar = env.progress.stage("views");
     if o.video {
-        bar.set_length(ctx.frames_total as u64);
+        bar.set_length(x.frames_total as u64);
     }
     let made =
         make_views(&views, bar.as_ref()).map_err(|e| RunError::Failed(format!("views: {e}")))?;

@@ -46,7 +46,7 @@ impl Canvas {
     }
 
     /// A canvas from an OpenCV colour (BGR) image.
-    pub fn from_bgr(mat: Mat) -> Canvas {
+    pub(crate) fn from_bgr(mat: Mat) -> Canvas {
         Canvas { mat }
     }
 
@@ -71,7 +71,7 @@ impl Canvas {
     }
 
     /// A plain canvas.
-    pub fn blank(width: u32, height: u32, rgb: [u8; 3]) -> Result<Canvas, ImageError> {
+    pub(crate) fn blank(width: u32, height: u32, rgb: [u8; 3]) -> Result<Canvas, ImageError> {
         let mat =
             Mat::new_rows_cols_with_default(height as i32, width as i32, CV_8UC3, colour(rgb))
                 .map_err(err)?;
@@ -106,7 +106,7 @@ impl Canvas {
     }
 
     /// A dashed line, `dash` pixels on and off.
-    pub fn dashed_line(
+    pub(crate) fn dashed_line(
         &mut self,
         a: &Vector2<f64>,
         b: &Vector2<f64>,
@@ -257,7 +257,7 @@ impl Canvas {
     }
 
     /// Connected line segments through `points`.
-    pub fn polyline(
+    pub(crate) fn polyline(
         &mut self,
         points: &[Vector2<f64>],
         rgb: [u8; 3],
@@ -282,7 +282,7 @@ impl Canvas {
     }
 
     /// Copies `other` onto this canvas with its top-left pixel at (`x`, `y`) (it must fit).
-    pub fn paste(&mut self, other: &Canvas, x: i32, y: i32) -> Result<(), ImageError> {
+    pub(crate) fn paste(&mut self, other: &Canvas, x: i32, y: i32) -> Result<(), ImageError> {
         let rect = Rect::new(x, y, other.mat.cols(), other.mat.rows());
         let mut roi = Mat::roi_mut(&mut self.mat, rect).map_err(err)?;
         other.mat.copy_to(&mut roi).map_err(err)
@@ -294,7 +294,7 @@ impl Canvas {
     }
 
     /// A filled rectangle (integer pixels), clipped to the canvas.
-    pub fn fill_rect(
+    pub(crate) fn fill_rect(
         &mut self,
         x: i32,
         y: i32,
@@ -336,7 +336,7 @@ impl Canvas {
     }
 
     /// Text width in pixels at `scale`.
-    pub fn text_width(s: &str, scale: f64, thickness: i32) -> i32 {
+    pub(crate) fn text_width(s: &str, scale: f64, thickness: i32) -> i32 {
         let mut base = 0;
         imgproc::get_text_size(
             s,
@@ -350,7 +350,7 @@ impl Canvas {
 }
 
 /// The colour at `t` (0 to 1, clamped; NaN as 0) of a ramp through equally spaced `stops`.
-pub fn ramp_colour(stops: &[[f64; 3]], t: f64) -> [u8; 3] {
+pub(crate) fn ramp_colour(stops: &[[f64; 3]], t: f64) -> [u8; 3] {
     let t = if t.is_finite() {
         t.clamp(0.0, 1.0)
     } else {
@@ -477,7 +477,7 @@ impl ChartRanges {
 }
 
 /// Draws a chart on a white canvas of `width` × `height` pixels. The y axis starts at 0.
-pub fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, ImageError> {
+pub(crate) fn line_chart(chart: &Chart, width: u32, height: u32) -> Result<Canvas, ImageError> {
     let mut c = Canvas::blank(width, height, [255, 255, 255])?;
     let (left, right, top, bottom) = (70.0, 20.0, 50.0, 55.0);
     let (w, h) = (

@@ -54,7 +54,7 @@ pub enum GisFormat {
 
 impl GisFormat {
     /// Layer creation options.
-    pub fn layer_options(self) -> &'static [&'static str] {
+    pub(crate) fn layer_options(self) -> &'static [&'static str] {
         match self {
             // The spatial index is built once the features are in (`write_dataset`): inserting
             // into it feature by feature took 5.5 s of 6.2 s for 246 000 points, in bulk 1.7 s.
@@ -99,7 +99,7 @@ fn spatial_indexes(ds: &Dataset) -> Result<(), String> {
 /// Adds QGIS's `layer_styles` table to a GeoPackage being written: each `(layer, QML)` the
 /// style QGIS applies when the layer is opened. Registered as an attributes table; its time
 /// stamps fixed like the GeoPackage's.
-pub fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), GisError> {
+pub(crate) fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), GisError> {
     let q = |s: &str| s.replace('\'', "''");
     let mut sql = vec![
         "CREATE TABLE layer_styles (id INTEGER PRIMARY KEY AUTOINCREMENT, f_table_catalog TEXT(256), \
@@ -131,7 +131,7 @@ pub fn add_qgis_styles(ds: &Dataset, styles: &[(&str, String)]) -> Result<(), Gi
 
 /// The spatial reference for a layer: `crs_wkt` for a GeoPackage (none when empty), WGS 84 for
 /// GeoJSON; axes in GIS order (easting/longitude first).
-pub fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>, GisError> {
+pub(crate) fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>, GisError> {
     let srs = match format {
         GisFormat::GeoJson => Some(SpatialRef::from_epsg(4326)),
         GisFormat::GeoPackage if crs_wkt.is_empty() => None,
@@ -147,7 +147,7 @@ pub fn layer_srs(format: GisFormat, crs_wkt: &str) -> Result<Option<SpatialRef>,
 
 /// Creates the dataset at a temporary path, lets `fill` write its layers, closes it and moves it
 /// into place; on any failure nothing is left behind.
-pub fn write_dataset(
+pub(crate) fn write_dataset(
     path: &Path,
     format: GisFormat,
     fill: impl FnOnce(&mut Dataset) -> Result<(), GisError>,
@@ -225,7 +225,7 @@ pub fn write_dataset(
 /// Writes an 8-bit RGBA image as a GeoTIFF (deflate, tiled; the alpha band marks where there
 /// is no image): `geo_transform` GDAL's `[x0, dx, 0, y0, 0, -dy]` of the top-left corner,
 /// `crs_wkt` empty for a local frame. Written to a temporary file and moved into place.
-pub fn write_geotiff(
+pub(crate) fn write_geotiff(
     path: &Path,
     rgba: &[u8],
     (width, height): (usize, usize),
@@ -338,13 +338,13 @@ fn ends_with_json_close(path: &Path) -> bool {
 }
 
 /// Sets a string field by name.
-pub fn set_string(f: &mut Feature, name: &str, v: &str) -> Result<(), GisError> {
+pub(crate) fn set_string(f: &mut Feature, name: &str, v: &str) -> Result<(), GisError> {
     let i = f.field_index(name)?;
     Ok(f.set_field_string(i, v)?)
 }
 
 /// Sets a real field by name; `None` or a non-finite value is null.
-pub fn set_real(f: &mut Feature, name: &str, v: Option<f64>) -> Result<(), GisError> {
+pub(crate) fn set_real(f: &mut Feature, name: &str, v: Option<f64>) -> Result<(), GisError> {
     let i = f.field_index(name)?;
     match v.filter(|x| x.is_finite()) {
         Some(x) => f.set_field_double(i, x)?,
@@ -354,7 +354,7 @@ pub fn set_real(f: &mut Feature, name: &str, v: Option<f64>) -> Result<(), GisEr
 }
 
 /// Sets a real field by index (a NaN or infinite value as null).
-pub fn set_real_at(f: &mut Feature, i: usize, v: f64) -> Result<(), GisError> {
+pub(crate) fn set_real_at(f: &mut Feature, i: usize, v: f64) -> Result<(), GisError> {
     if v.is_finite() {
         f.set_field_double(i, v)?;
     } else {
@@ -364,7 +364,7 @@ pub fn set_real_at(f: &mut Feature, i: usize, v: f64) -> Result<(), GisError> {
 }
 
 /// Sets an integer field by name.
-pub fn set_integer(f: &mut Feature, name: &str, v: i32) -> Result<(), GisError> {
+pub(crate) fn set_integer(f: &mut Feature, name: &str, v: i32) -> Result<(), GisError> {
     let i = f.field_index(name)?;
     Ok(f.set_field_integer(i, v)?)
 }

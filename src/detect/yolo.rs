@@ -3,6 +3,9 @@
 //! Boxes are `[x, y, width, height]` in pixels of the image given, (0, 0) the top-left pixel's
 //! centre minus half a pixel (the models' own convention: the image's corner).
 
+// The decoding is reached only through the two model runners (ONNX Runtime, OpenCV's dnn).
+#![cfg_attr(not(any(feature = "onnx", feature = "opencv")), allow(dead_code))]
+
 use serde::{Deserialize, Serialize};
 
 use super::boxes::iou;

@@ -104,7 +104,7 @@ impl ChunkGrid {
     }
 
     /// The first frame chunk `c` decodes.
-    pub fn decode_from(&self, c: usize) -> usize {
+    pub(crate) fn decode_from(&self, c: usize) -> usize {
         self.own(c).start.saturating_sub(self.overlap_frames)
     }
 }
@@ -428,7 +428,7 @@ pub(super) fn detect_frames(
 }
 
 /// Runs one chunk. Errors name the video.
-pub fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, ScanError> {
+pub(crate) fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<ChunkData, ScanError> {
     let video = job.video;
     let named = |e: String| format!("{}: {e}", video.display());
     let own = job.grid.own(job.index);

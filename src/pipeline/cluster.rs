@@ -220,7 +220,7 @@ impl SlurmOptions {
 
 /// A path Slurm can take in `#SBATCH --output=`: its file-name patterns (`%`) and escapes (`\`)
 /// written literally; `None` for a path with a control character (no line can hold it).
-pub fn slurm_path(path: &Path) -> Option<String> {
+pub(crate) fn slurm_path(path: &Path) -> Option<String> {
     let s = path.to_str()?;
     if s.chars().any(char::is_control) {
         return None;

@@ -65,7 +65,11 @@ pub fn colour(c: &ColourSection, px_per_m: f64, frames: Option<usize>) -> Box<dy
 }
 
 /// The colour detector with a palette learnt before.
-pub fn colour_with(c: &ColourSection, px_per_m: f64, palette: &Palette) -> Box<dyn Detector> {
+pub(crate) fn colour_with(
+    c: &ColourSection,
+    px_per_m: f64,
+    palette: &Palette,
+) -> Box<dyn Detector> {
     Box::new(ColourDetector::new(palette, colour_settings(c, px_per_m)))
 }
 

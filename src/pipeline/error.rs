@@ -74,7 +74,7 @@ impl RunError {
     }
 
     /// An input's error that names its own file.
-    pub fn from_input(e: impl std::fmt::Display) -> RunError {
+    pub(crate) fn from_input(e: impl std::fmt::Display) -> RunError {
         RunError::Unusable(e.to_string())
     }
 }

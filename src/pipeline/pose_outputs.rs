@@ -16,7 +16,7 @@ use crate::pose::{Attitude, GcpObservation};
 use crate::survey::load::Framed;
 
 /// A number for a CSV field; empty when unknown.
-pub fn csv_num(v: Option<f64>, decimals: usize) -> String {
+pub(crate) fn csv_num(v: Option<f64>, decimals: usize) -> String {
     v.filter(|v| v.is_finite())
         .map_or(String::new(), |v| format!("{v:.decimals$}"))
 }
@@ -26,7 +26,7 @@ pub const POSE_COLUMNS: &str = "centre_e_m,centre_n_m,centre_u_m,sigma_e_m,sigma
 
 /// A camera's [`POSE_COLUMNS`]: its centre (site frame) and σ, the centre in the GCP file's CRS,
 /// its attitude, and `cam_from_world` as OpenCV's rvec/tvec.
-pub fn pose_columns(
+pub(crate) fn pose_columns(
     pose: &Rigid3,
     centre_sigma_m: Option<nalgebra::Vector3<f64>>,
     framed: &Framed,

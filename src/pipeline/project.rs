@@ -222,7 +222,7 @@ pub struct AnalysisSection {
 impl AnalysisSection {
     /// The measurement and walkable areas as polygons (either may be absent); the key and what
     /// is wrong otherwise.
-    pub fn polygons(
+    pub(crate) fn polygons(
         &self,
     ) -> Result<
         (
@@ -263,7 +263,7 @@ impl AnalysisSection {
 }
 
 /// The line of `section.key` (or of `[section]` when `key` is empty) in a TOML text.
-pub fn key_line(text: &str, section: &str, key: &str) -> Option<usize> {
+pub(crate) fn key_line(text: &str, section: &str, key: &str) -> Option<usize> {
     let mut current = String::new();
     for (i, line) in text.lines().enumerate() {
         let l = line.trim();
@@ -353,7 +353,7 @@ impl Loaded {
     /// Every file the project reads, with its key (`section.key`), resolved: the calibration
     /// (unless a preset), the GCPs, the picks, the video, the heights, the detector's boxes and
     /// the DEM.
-    pub fn input_files(&self) -> Vec<(&'static str, PathBuf)> {
+    pub(crate) fn input_files(&self) -> Vec<(&'static str, PathBuf)> {
         let p = &self.project;
         let mut files = Vec::new();
         if crate::camera::presets::preset(&p.camera.calibration).is_none() {

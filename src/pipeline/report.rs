@@ -96,7 +96,7 @@ pub struct RunReport {
 }
 
 /// The report as Markdown.
-pub fn report_markdown(r: &RunReport) -> String {
+pub(crate) fn report_markdown(r: &RunReport) -> String {
     use std::fmt::Write as _;
     let mut s = String::new();
     let _ = writeln!(s, "# geostride run: {}\n", r.project);

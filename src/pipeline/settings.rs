@@ -13,7 +13,7 @@ pub trait DefaultKind {
 }
 
 /// Reads a `kind`-tagged section, taking [`DefaultKind::DEFAULT_KIND`] when `kind` is absent.
-pub fn with_default_kind<'de, D, T>(d: D) -> Result<T, D::Error>
+pub(crate) fn with_default_kind<'de, D, T>(d: D) -> Result<T, D::Error>
 where
     D: Deserializer<'de>,
     T: DeserializeOwned + DefaultKind,
@@ -167,7 +167,7 @@ pub const DEFAULT_HAT_DIAMETER_M: f64 = 0.24;
 
 impl DetectSection {
     /// The key a detector's failure is reported against.
-    pub fn failure_key(&self) -> &'static str {
+    pub(crate) fn failure_key(&self) -> &'static str {
         match self {
             DetectSection::Colour(_) => "colour",
             DetectSection::Boxes(_) => "boxes",
@@ -177,7 +177,7 @@ impl DetectSection {
     }
 
     /// Detections closer than this are one person, metres at head height.
-    pub fn duplicate_m(&self) -> f64 {
+    pub(crate) fn duplicate_m(&self) -> f64 {
         match self {
             DetectSection::Colour(c) => c.hat_diameter_m,
             _ => DEFAULT_HAT_DIAMETER_M,
@@ -185,7 +185,7 @@ impl DetectSection {
     }
 
     /// One person's length along a box, metres, where the detector gives bodies and says.
-    pub fn person_m(&self) -> Option<f64> {
+    pub(crate) fn person_m(&self) -> Option<f64> {
         match self {
             DetectSection::Colour(_) => None,
             DetectSection::Boxes(b) => b.person_m,
@@ -195,7 +195,7 @@ impl DetectSection {
     }
 
     /// The box file, for `boxes`.
-    pub fn boxes_file(&self) -> Option<&str> {
+    pub(crate) fn boxes_file(&self) -> Option<&str> {
         match self {
             DetectSection::Boxes(b) => Some(&b.boxes),
             _ => None,
@@ -250,7 +250,7 @@ pub const DEFAULT_BODY_RADIUS_M: f64 = 0.55;
 
 impl BodySettings {
     /// The detection error model these settings give (checked when the project is read).
-    pub fn error_model(&self) -> crate::detect::ErrorModel {
+    pub(crate) fn error_model(&self) -> crate::detect::ErrorModel {
         use crate::detect::ErrorModel;
         match (&self.error_profile_px2, self.error_px2) {
             (Some(rows), _) => ErrorModel::from_rows(rows).unwrap_or_default(),

@@ -297,7 +297,7 @@ pub(crate) fn file_name(p: &Path) -> String {
 }
 
 /// What in an image's file name no model file can hold: `None` for a name written as it is.
-pub fn name_problem(name: &str) -> Option<String> {
+pub(crate) fn name_problem(name: &str) -> Option<String> {
     if let Some(c) = name
         .chars()
         .find(|c| c.is_whitespace() || c.is_control() || *c == ',' || *c == '"')
@@ -319,7 +319,7 @@ pub fn name_problem(name: &str) -> Option<String> {
 /// The images' names checked (usable in every output, none twice: the name and the name without
 /// its extension, case aside, are how picks and centres name an image) and their sizes from
 /// their headers, before any is decoded (`None` where the header is not one geostride reads).
-pub fn check_images(images: &[PathBuf]) -> Result<Vec<Option<(u32, u32)>>, SfmJobError> {
+pub(crate) fn check_images(images: &[PathBuf]) -> Result<Vec<Option<(u32, u32)>>, SfmJobError> {
     let mut seen: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
     let mut sizes = Vec::with_capacity(images.len());
     for (k, path) in images.iter().enumerate() {
@@ -848,7 +848,7 @@ fn index_georef(
 
 /// Each image's features (from `cache` where it holds them, else found and stored), their
 /// cache keys, and how many came from the cache. Every image must have the first one's size.
-pub fn extract_features(
+pub(crate) fn extract_features(
     images: &[PathBuf],
     settings: &FeatureSettings,
     cache: &SfmCache,
@@ -933,14 +933,14 @@ pub(crate) fn enu_of(gps: &[GpsFix]) -> Option<(Vec<Vector3<f64>>, LocalTangentF
 }
 
 /// Each image with the next `window` in order: the pairs `(i, j)`, `i < j ≤ i + window`.
-pub fn sequential_pairs(n: usize, window: usize) -> Vec<(usize, usize)> {
+pub(crate) fn sequential_pairs(n: usize, window: usize) -> Vec<(usize, usize)> {
     (0..n)
         .flat_map(|i| (i + 1..n.min(i + window + 1)).map(move |j| (i, j)))
         .collect()
 }
 
 /// Each image with its `k` nearest by GPS (horizontal distance): the pairs, `i < j`, sorted.
-pub fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize)> {
+pub(crate) fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize)> {
     let Some((enu, _)) = enu_of(gps) else {
         return Vec::new();
     };
@@ -970,7 +970,7 @@ pub struct ConsistentGps {
 }
 
 /// The photos' fixes checked against each other ([`ConsistentGps`]).
-pub fn consistent_gps(metas: &[PhotoMeta], names: &[String]) -> ConsistentGps {
+pub(crate) fn consistent_gps(metas: &[PhotoMeta], names: &[String]) -> ConsistentGps {
     let mut fixes: Vec<Option<GpsFix>> = metas.iter().map(|m| m.gps).collect();
     let mut left_out = Vec::new();
     let median = |mut v: Vec<f64>| {
@@ -1085,7 +1085,7 @@ fn gps_placement(
 }
 
 /// `report.md`: the summary and a line per image.
-pub fn report_md(r: &SfmReport) -> String {
+pub(crate) fn report_md(r: &SfmReport) -> String {
     let mut s = format!(
         "# Structure from motion\n\n\
          - images registered: {} of {}\n\
@@ -1230,7 +1230,7 @@ fn georef_md(g: &GeorefReport, frame: &str) -> String {
 /// `cameras.csv`: each image, whether registered, its camera centre and its `cam_from_world`
 /// rotation as a unit quaternion, in the model's frame: east-north-up metres at the GPS centroid
 /// when placed on the GPS (`frame` says which), else the arbitrary frame of the reconstruction.
-pub fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
+pub(crate) fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
     let frame = &run.report.frame;
     let sigmas = run.report.georef.as_ref().map(|g| &g.camera_sigma);
     let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz");

@@ -98,7 +98,7 @@ pub fn pose_series(
 
 /// The camera over time from `(frame, cam_from_world, interpolated)`, the altitude above
 /// `ground` (a site frame's, z up) where given.
-pub fn camera_series(
+pub(crate) fn camera_series(
     ground: Option<&dyn HeightSurface>,
     poses: &[(usize, crate::geom::Rigid3, bool)],
     fps: f64,
@@ -128,7 +128,7 @@ pub fn camera_series(
 }
 
 /// `pose_series.csv`.
-pub fn pose_series_csv(series: &[PoseSample]) -> String {
+pub(crate) fn pose_series_csv(series: &[PoseSample]) -> String {
     let mut s = String::from(
         "frame,time_s,e_m,n_m,u_m,translation_m,altitude_m,off_nadir_deg,interpolated\n",
     );
@@ -346,7 +346,7 @@ fn video_features(
 
 /// `cameras.csv` of the new images, as `geostride sfm` writes it: each image, whether
 /// registered, the frame, its centre and `cam_from_world` quaternion, its inliers.
-pub fn registered_csv(report: &RegisterReport) -> String {
+pub(crate) fn registered_csv(report: &RegisterReport) -> String {
     let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz,inliers,rms_px\n");
     for r in &report.per_image {
         match r.pose {
@@ -383,7 +383,7 @@ pub fn registered_csv(report: &RegisterReport) -> String {
 }
 
 /// `report.md` of a registration.
-pub fn register_md(r: &RegisterReport) -> String {
+pub(crate) fn register_md(r: &RegisterReport) -> String {
     let mut s = format!(
         "# Images registered in a model\n\n\
          - {} of {} images registered in a model of {} images (frame: {})\n\
@@ -433,7 +433,7 @@ pub fn write_register_outputs(out: &Path, run: &RegisterRun) -> std::io::Result<
 
 /// `pose_series.csv` and the paper's Fig. 10 as three charts (`pose_translation.png`,
 /// `pose_altitude.png`, `pose_off_nadir.png`) in `out`; gives the names written.
-pub fn write_pose_series(out: &Path, series: &[PoseSample]) -> std::io::Result<Vec<String>> {
+pub(crate) fn write_pose_series(out: &Path, series: &[PoseSample]) -> std::io::Result<Vec<String>> {
     let mut written = Vec::new();
     crate::io::write_atomic(
         &out.join("pose_series.csv"),

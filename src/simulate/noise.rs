@@ -2,7 +2,7 @@
 //! same inputs give the same numbers on every machine and in any thread order.
 
 /// A 64-bit mix (SplitMix64's finaliser).
-pub fn hash64(mut x: u64) -> u64 {
+pub(crate) fn hash64(mut x: u64) -> u64 {
     x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
@@ -10,7 +10,7 @@ pub fn hash64(mut x: u64) -> u64 {
 }
 
 /// Hash of several integers.
-pub fn hash(parts: &[u64]) -> u64 {
+pub(crate) fn hash(parts: &[u64]) -> u64 {
     parts
         .iter()
         .fold(0x1234_5678_9ABC_DEF0, |h, &p| hash64(h ^ p))
@@ -22,7 +22,7 @@ pub fn unit(h: u64) -> f64 {
 }
 
 /// Value noise in [0, 1] at (x, y) (lattice units), smoothly interpolated.
-pub fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
+pub(crate) fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
     let (ix, iy) = (x0 as i64 as u64, y0 as i64 as u64);
@@ -36,7 +36,7 @@ pub fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
 
 /// Fractal value noise: `octaves` octaves from `scale_m` metres down, each half the size and
 /// half the amplitude; in [0, 1].
-pub fn fbm(seed: u64, x_m: f64, y_m: f64, scale_m: f64, octaves: u32) -> f64 {
+pub(crate) fn fbm(seed: u64, x_m: f64, y_m: f64, scale_m: f64, octaves: u32) -> f64 {
     let (mut sum, mut amp, mut norm, mut f) = (0.0, 1.0, 0.0, 1.0 / scale_m);
     for o in 0..octaves {
         sum += amp * value_noise(seed.wrapping_add(u64::from(o) * 7919), x_m * f, y_m * f);
@@ -49,7 +49,7 @@ pub fn fbm(seed: u64, x_m: f64, y_m: f64, scale_m: f64, octaves: u32) -> f64 {
 
 /// An approximately normal deviate (Irwin–Hall: the sum of four uniforms, variance-corrected),
 /// from one hash: its four 16-bit quarters are the uniforms.
-pub fn gaussian(h: u64) -> f64 {
+pub(crate) fn gaussian(h: u64) -> f64 {
     let h = hash64(h);
     let u: f64 = (0..4)
         .map(|k| (((h >> (16 * k)) & 0xFFFF) as f64 + 0.5) / 65536.0)

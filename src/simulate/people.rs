@@ -348,7 +348,7 @@ impl Body {
     }
 
     /// Whether a ray passes within `margin_m` of the bounding box (slab test).
-    pub fn may_hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, margin_m: f64) -> bool {
+    pub(crate) fn may_hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, margin_m: f64) -> bool {
         let (lo, hi) = (
             self.bounds.0.add_scalar(-margin_m),
             self.bounds.1.add_scalar(margin_m),
@@ -372,7 +372,7 @@ impl Body {
     }
 
     /// The shaded colour of the nearest hit of a ray with the body, if any.
-    pub fn hit(
+    pub(crate) fn hit(
         &self,
         origin: &Vector3<f64>,
         dir: &Vector3<f64>,

@@ -60,7 +60,7 @@ pub fn hats_project(
 /// The scene's measurement and walkable areas (site frame): on a deck, its middle 8 m and the
 /// whole deck; on a track, 10 m of the right-hand straight (15 to 25 m before its middle,
 /// where the group demo's runners pass) and that straight's lanes.
-pub fn analysis_areas(scene: &Scene) -> AnalysisSection {
+pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
     let rect = |centre: [f64; 2], heading_deg: f64, along: [f64; 2], lateral: [f64; 2]| {
         let h = heading_deg.to_radians();
         let (a, l) = ([h.sin(), h.cos()], [-h.cos(), h.sin()]);

@@ -37,7 +37,7 @@ pub struct Texture {
 
 impl Texture {
     /// Bakes a surface's albedo over a box.
-    pub fn bake(
+    pub(crate) fn bake(
         world: &World,
         layer: Layer,
         min: Vector2<f64>,

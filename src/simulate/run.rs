@@ -90,7 +90,7 @@ fn site_frame(site: &Site) -> Result<(Crs, LocalTangentFrame), SimError> {
 }
 
 /// The sun's direction (towards the sun) from azimuth and elevation in degrees.
-pub fn sun_vector(azimuth_deg: f64, elevation_deg: f64) -> Vector3<f64> {
+pub(crate) fn sun_vector(azimuth_deg: f64, elevation_deg: f64) -> Vector3<f64> {
     let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
     Vector3::new(a.sin() * e.cos(), a.cos() * e.cos(), e.sin())
 }

@@ -462,7 +462,8 @@ impl Scene {
     }
 
     /// Number of frames.
-    pub fn frame_count(&self) -> usize {
+    #[cfg(test)]
+    pub(crate) fn frame_count(&self) -> usize {
         (self.duration_s * self.fps).round() as usize
     }
 

@@ -108,7 +108,10 @@ pub fn read_people_heights(path: &Path) -> Result<HashMap<usize, f64>, FileError
 }
 
 /// [`read_people_heights`] on text; `path` names the file in messages.
-pub fn parse_people_heights(path: &Path, text: &str) -> Result<HashMap<usize, f64>, FileError> {
+pub(crate) fn parse_people_heights(
+    path: &Path,
+    text: &str,
+) -> Result<HashMap<usize, f64>, FileError> {
     let ctx = FileCtx { path };
     rows(path, text, &["person", "height_m"])?
         .into_iter()

@@ -83,11 +83,11 @@ impl World {
         (d.dot(&self.along), d.dot(&self.left))
     }
 
-    pub fn from_local(&self, along: f64, lateral: f64) -> Vector2<f64> {
+    pub(crate) fn from_local(&self, along: f64, lateral: f64) -> Vector2<f64> {
         self.centre + self.along * along + self.left * lateral
     }
 
-    pub fn along_dir(&self) -> Vector2<f64> {
+    pub(crate) fn along_dir(&self) -> Vector2<f64> {
         self.along
     }
 
@@ -118,7 +118,7 @@ impl World {
 
     /// The surface height under a position and which surface it is (the deck wins over the
     /// surroundings below it).
-    pub fn surface_height(&self, en: &Vector2<f64>) -> (f64, Layer) {
+    pub(crate) fn surface_height(&self, en: &Vector2<f64>) -> (f64, Layer) {
         let (u, v) = self.local(en);
         if self.on_deck(u, v) {
             (self.deck_z(u), Layer::Deck)
@@ -127,18 +127,8 @@ impl World {
         }
     }
 
-    /// The deck's slope along its axis at `u` (dz/du), for people's heading on it.
-    pub fn deck_slope(&self, u: f64) -> f64 {
-        match self.ground {
-            Ground::Deck {
-                length_m, camber_m, ..
-            } if u.abs() < length_m / 2.0 => -8.0 * camber_m * u / (length_m * length_m),
-            _ => 0.0,
-        }
-    }
-
     /// Where a ray from `origin` along `dir` (pointing down) first meets the site's surfaces.
-    pub fn intersect(
+    pub(crate) fn intersect(
         &self,
         origin: &Vector3<f64>,
         dir: &Vector3<f64>,
@@ -220,7 +210,7 @@ impl World {
     /// A position on a track lane line: `s` metres along from the start of the right-hand
     /// straight, `d` metres outward from the inner edge; runs anticlockwise. Returns the position
     /// and the unit direction of running.
-    pub fn track_point(&self, s: f64, d: f64) -> (Vector2<f64>, Vector2<f64>) {
+    pub(crate) fn track_point(&self, s: f64, d: f64) -> (Vector2<f64>, Vector2<f64>) {
         let Ground::Track {
             straight_m: l,
             radius_m,
@@ -281,7 +271,7 @@ impl World {
     }
 
     /// Albedo of a surface point.
-    pub fn albedo(&self, p: &Vector3<f64>, layer: Layer) -> Rgb {
+    pub(crate) fn albedo(&self, p: &Vector3<f64>, layer: Layer) -> Rgb {
         let en = p.xy();
         if let Some(c) = self.gcp_colour(&en) {
             return c;
@@ -352,7 +342,7 @@ impl World {
 
     /// Whether a ground point (the surroundings) lies in the deck's shadow, with the sun at
     /// azimuth/elevation (radians).
-    pub fn in_deck_shadow(&self, p: &Vector3<f64>, sun: &Vector3<f64>) -> bool {
+    pub(crate) fn in_deck_shadow(&self, p: &Vector3<f64>, sun: &Vector3<f64>) -> bool {
         match self.ground {
             Ground::Deck { height_m, .. } if p.z < height_m * 0.5 && sun.z > 0.0 => {
                 // Walk towards the sun to the deck's height.

@@ -189,7 +189,7 @@ impl Klt {
 
     /// [`frame`](Self::frame) of a gray image shared with others (the stabiliser and the
     /// people tracker take the same frame): no copy of it is made.
-    pub fn frame_shared(
+    pub(crate) fn frame_shared(
         &self,
         index: usize,
         gray: std::sync::Arc<Mat>,
@@ -205,7 +205,7 @@ impl Klt {
 
     /// The size of the working copy of a `w` × `h` frame: reduced by a whole factor to at most
     /// `max_width`.
-    pub fn working_size(&self, w: i32, h: i32) -> Size {
+    pub(crate) fn working_size(&self, w: i32, h: i32) -> Size {
         let factor =
             ((f64::from(w) / f64::from(self.settings.max_width.max(64))).ceil()).max(1.0) as i32;
         Size::new(w / factor, h / factor)
@@ -213,7 +213,7 @@ impl Klt {
 
     /// The frame of `gray` with `work`, its working copy made elsewhere (of
     /// [`working_size`](Self::working_size), from another tracker's working copy, say).
-    pub fn frame_with_working(
+    pub(crate) fn frame_with_working(
         &self,
         index: usize,
         gray: std::sync::Arc<Mat>,
@@ -225,7 +225,7 @@ impl Klt {
 
     /// The frame of a working copy alone, of a frame `full_width` pixels wide: for a tracker
     /// that never refines at full resolution.
-    pub fn frame_of_working(
+    pub(crate) fn frame_of_working(
         &self,
         index: usize,
         full_width: i32,

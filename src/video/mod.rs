@@ -81,7 +81,7 @@ impl VideoSink {
     }
 
     /// Appends a frame of 8-bit BGR of the sink's size.
-    pub fn write_bgr(&mut self, bgr: &Mat) -> Result<(), VideoError> {
+    pub(crate) fn write_bgr(&mut self, bgr: &Mat) -> Result<(), VideoError> {
         debug_assert_eq!(bgr.typ(), CV_8UC3);
         self.writer.write(bgr)?;
         self.frames += 1;
@@ -187,7 +187,7 @@ impl FrameSink {
     }
 
     /// Appends a frame of 8-bit BGR of the sink's size.
-    pub fn write_bgr(&mut self, bgr: &Mat) -> Result<(), VideoError> {
+    pub(crate) fn write_bgr(&mut self, bgr: &Mat) -> Result<(), VideoError> {
         let f = match self {
             FrameSink::OpenCv(s) => return s.write_bgr(bgr),
             FrameSink::Ffmpeg(f) => f,

@@ -11,7 +11,7 @@ use opencv::prelude::*;
 
 /// `from` (8-bit, one channel) reduced to `size` by pixel area into `to` (or copied when the
 /// sizes agree): the pixels of OpenCV's `INTER_AREA`.
-pub fn area_reduce(
+pub(crate) fn area_reduce(
     from: &(impl MatTraitConst + ToInputArray),
     to: &mut Mat,
     size: Size,

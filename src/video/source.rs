@@ -102,8 +102,7 @@ pub struct FrameReader {
     pub width: u32,
     pub height: u32,
     next: usize,
-    /// The colour frame [`next_gray_reusing`](Self::next_gray_reusing) decodes into, kept so
-    /// that its memory is reused.
+    /// The colour frame a checked seek reads into, kept so that its memory is reused.
     bgr: Mat,
 }
 
@@ -175,25 +174,6 @@ impl FrameReader {
         Ok(Some((i, gray)))
     }
 
-    /// [`next_gray`](Self::next_gray), decoding into one colour frame kept between calls (no
-    /// fresh pages to fault in for every 4K frame); the greyscale image is new each time.
-    pub fn next_gray_reusing(&mut self) -> Result<Option<(usize, Mat)>, VideoError> {
-        let mut bgr = std::mem::take(&mut self.bgr);
-        let read = self.read_bgr_into(&mut bgr);
-        let gray = match read {
-            Ok(Some(i)) => {
-                let mut g = Mat::default();
-                imgproc::cvt_color_def(&bgr, &mut g, imgproc::COLOR_BGR2GRAY)
-                    .map_err(VideoError::from)
-                    .map(|()| Some((i, g)))
-            }
-            Ok(None) => Ok(None),
-            Err(e) => Err(e),
-        };
-        self.bgr = bgr;
-        gray
-    }
-
     /// Reads the next frame into `frame` (BGR, continuous), reusing its memory when it already
     /// has the frame's size (no fresh pages to fault in for every 4K frame); its index, or
     /// `None` at the end.
@@ -214,7 +194,7 @@ impl FrameReader {
     }
 
     /// The next frame's index and its colour (BGR, continuous) image; `None` at the end.
-    pub fn next_bgr(&mut self) -> Result<Option<(usize, Mat)>, VideoError> {
+    pub(crate) fn next_bgr(&mut self) -> Result<Option<(usize, Mat)>, VideoError> {
         let mut frame = Mat::default();
         if !self.cap.read(&mut frame)? || frame.empty() {
             return Ok(None);
@@ -252,7 +232,7 @@ impl FrameReader {
     }
 
     /// Moves to frame `index` (the next frame read is that one); `false` when the backend cannot.
-    pub fn seek(&mut self, index: usize) -> bool {
+    pub(crate) fn seek(&mut self, index: usize) -> bool {
         let ok = self
             .cap
             .set(videoio::CAP_PROP_POS_FRAMES, index as f64)
@@ -263,16 +243,11 @@ impl FrameReader {
         ok
     }
 
-    /// The index of the next frame read.
-    pub fn next_index(&self) -> usize {
-        self.next
-    }
-
     /// Moves so that the next frame read is `index`, and checks that it did: OpenCV's seeking
     /// is inexact for some codecs, so the frame before `index` is read after the seek and its
     /// timestamp must be that frame's. When the check fails (or the backend cannot seek) the
     /// video is read from the start instead. Returns whether the seek was used.
-    pub fn seek_checked(&mut self, path: &Path, index: usize) -> Result<bool, VideoError> {
+    pub(crate) fn seek_checked(&mut self, path: &Path, index: usize) -> Result<bool, VideoError> {
         if index == self.next {
             return Ok(false);
         }
@@ -308,7 +283,7 @@ impl FrameReader {
     /// Calls `visit(index, bgr, width, height)` with each of the frames `indices` (ascending),
     /// as tightly packed BGR bytes: frames close together are read on, far ones reached by a
     /// checked seek ([`seek_checked`](Self::seek_checked)).
-    pub fn visit_frames(
+    pub(crate) fn visit_frames(
         path: &Path,
         indices: &[usize],
         mut visit: impl FnMut(usize, &[u8], usize, usize),
@@ -339,7 +314,7 @@ impl FrameReader {
     }
 
     /// The colour (BGR) frame at `index`, read from the start.
-    pub fn frame_bgr(path: &Path, index: usize) -> Result<Mat, VideoError> {
+    pub(crate) fn frame_bgr(path: &Path, index: usize) -> Result<Mat, VideoError> {
         let mut r = FrameReader::open(path)?;
         let mut frame = Mat::default();
         for i in 0..=index {

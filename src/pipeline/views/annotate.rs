@@ -14,7 +14,10 @@ use crate::progress::Progress;
 const CHI2_95: f64 = 5.991;
 
 /// Writes `annotated.mp4` (or `.avi` where OpenCV cannot encode H.264).
-pub fn annotated_video(v: &Views, progress: &dyn Progress) -> Result<(String, String), ViewError> {
+pub(crate) fn annotated_video(
+    v: &Views,
+    progress: &dyn Progress,
+) -> Result<(String, String), ViewError> {
     let (w, h) = v.size;
     let scale = (f64::from(v.settings.video_width) / f64::from(w)).min(1.0);
     let (ow, oh) = (

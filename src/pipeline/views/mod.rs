@@ -125,7 +125,7 @@ impl<'a> FrameSweep<'a> {
 
     /// The next frame with someone in it, and who: `(index into live, index of the point)`,
     /// in identity order (valid until the next call).
-    pub fn next_frame(&mut self) -> Result<Option<(usize, Vec<(usize, usize)>)>, ViewError> {
+    pub(crate) fn next_frame(&mut self) -> Result<Option<(usize, Vec<(usize, usize)>)>, ViewError> {
         self.live.retain(|(t, next)| *next < t.points.len());
         loop {
             let frame = self.live.iter().map(|(t, k)| t.points[*k].frame).min();
@@ -162,7 +162,10 @@ impl<'a> FrameSweep<'a> {
 
 /// The `qs` quantiles of the points' finite speeds (as `analysis::quantile` gives them), in a
 /// few passes.
-pub fn speed_quantiles(trajs: &dyn Trajectories, qs: &[f64]) -> Result<(Vec<f64>, u64), ViewError> {
+pub(crate) fn speed_quantiles(
+    trajs: &dyn Trajectories,
+    qs: &[f64],
+) -> Result<(Vec<f64>, u64), ViewError> {
     let queries: Vec<(usize, f64)> = qs.iter().map(|&q| (0, q)).collect();
     let speed = |p: &TrajectoryPoint| Some(p.velocity.norm()).filter(|s| s.is_finite());
     let (v, counts) =
@@ -197,7 +200,7 @@ pub struct Views<'a> {
 
 impl Views<'_> {
     /// Where a site-frame point is in frame `frame`'s image (in front of the camera).
-    pub fn image_point(&self, frame: usize, local: &Vector3<f64>) -> Option<Vector2<f64>> {
+    pub(crate) fn image_point(&self, frame: usize, local: &Vector3<f64>) -> Option<Vector2<f64>> {
         let pose = self.poses.get(frame)?.as_ref()?;
         let p = pose.apply(local);
         if p.z <= 0.0 {
@@ -215,7 +218,7 @@ pub struct Made {
 }
 
 /// Makes the views the settings ask for.
-pub fn make_views(v: &Views, progress: &dyn Progress) -> Result<Made, ViewError> {
+pub(crate) fn make_views(v: &Views, progress: &dyn Progress) -> Result<Made, ViewError> {
     let mut made = Made::default();
     let s = v.settings;
     if s.plots {
@@ -304,7 +307,7 @@ fn fundamental(v: &Views) -> Result<Option<Vec<(String, String)>>, ViewError> {
 }
 
 /// The trajectories' bounding box with the measurement area, 1 m wider on every side.
-pub fn default_walkable(
+pub(crate) fn default_walkable(
     trajs: &dyn Trajectories,
     measurement: &crate::analysis::ConvexPolygon,
 ) -> Result<crate::analysis::ConvexPolygon, ViewError> {
@@ -334,7 +337,7 @@ pub fn default_walkable(
 }
 
 /// A colour for `t` from 0 (dark blue) through green to 1 (yellow-red): perceptually ordered.
-pub fn colour_scale(t: f64) -> [u8; 3] {
+pub(crate) fn colour_scale(t: f64) -> [u8; 3] {
     // Stops of a viridis-like ramp, then to red for the top.
     crate::draw::ramp_colour(
         &[
@@ -351,7 +354,7 @@ pub fn colour_scale(t: f64) -> [u8; 3] {
 
 /// The speeds the site image's colours span: the 1st to the 99th percentile of the trajectory
 /// points' speeds (at least 0.5 m/s apart), so that a stream's differences show.
-pub fn speed_range(trajs: &dyn Trajectories) -> Result<(f64, f64), ViewError> {
+pub(crate) fn speed_range(trajs: &dyn Trajectories) -> Result<(f64, f64), ViewError> {
     let (q, _) = speed_quantiles(trajs, &[0.01, 0.99])?;
     let (lo, hi) = (q[0], q[1]);
     let lo = if lo.is_finite() { lo } else { 0.0 };
@@ -359,7 +362,7 @@ pub fn speed_range(trajs: &dyn Trajectories) -> Result<(f64, f64), ViewError> {
 }
 
 /// A distinct, bright colour for an identity (golden-ratio hues).
-pub fn id_colour(id: usize) -> [u8; 3] {
+pub(crate) fn id_colour(id: usize) -> [u8; 3] {
     let h = (id as f64 * 0.618_033_988_75).fract() * 6.0;
     let (s, v) = (0.85, 1.0);
     let c = v * s;

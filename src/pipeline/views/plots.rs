@@ -21,7 +21,7 @@ fn save(c: &Canvas, out: &Path, name: &str) -> Result<String, ViewError> {
 }
 
 /// Histogram of the speed of every trajectory point (the smoother's), 0.1 m/s bins.
-pub fn speed_plot(v: &Views) -> Result<(String, String), ViewError> {
+pub(crate) fn speed_plot(v: &Views) -> Result<(String, String), ViewError> {
     // The quantiles in a few passes, then the counts in one: the speeds are not all held.
     let (q, n) = super::speed_quantiles(v.trajs, &[0.5, 0.995])?;
     // No person runs 50 m/s: the scale ends there whatever a wild point says.
@@ -57,7 +57,7 @@ pub fn speed_plot(v: &Views) -> Result<(String, String), ViewError> {
 }
 
 /// People in view frame by frame: with a trajectory point, and with a detection.
-pub fn people_plot(v: &Views) -> Result<(String, String), ViewError> {
+pub(crate) fn people_plot(v: &Views) -> Result<(String, String), ViewError> {
     let frames = v.frames.max(1);
     let (mut all, mut seen) = (vec![0usize; frames], vec![0usize; frames]);
     v.trajs.each(&mut |t| {
@@ -101,7 +101,7 @@ pub fn people_plot(v: &Views) -> Result<(String, String), ViewError> {
 
 /// Median σ (total, per axis) of the points in each cell of a grid over the image: where in
 /// the frame the positions are least sure.
-pub fn sigma_plot(v: &Views) -> Result<(String, String), ViewError> {
+pub(crate) fn sigma_plot(v: &Views) -> Result<(String, String), ViewError> {
     let (w, h) = (f64::from(v.size.0), f64::from(v.size.1));
     let cols = 16usize;
     let rows = ((cols as f64 * h / w).round() as usize).max(1);
@@ -224,7 +224,7 @@ pub fn sigma_plot(v: &Views) -> Result<(String, String), ViewError> {
 
 /// The fundamental diagram: Voronoi density against Voronoi speed in the measurement area,
 /// one dot a frame (the classic density beside it in grey).
-pub fn fundamental_plot(
+pub(crate) fn fundamental_plot(
     v: &Views,
     measures: &[FrameMeasures],
     area_m2: f64,
@@ -264,7 +264,7 @@ pub fn fundamental_plot(
 }
 
 /// The measures frame by frame as CSV.
-pub fn measures_csv(measures: &[FrameMeasures]) -> String {
+pub(crate) fn measures_csv(measures: &[FrameMeasures]) -> String {
     use std::fmt::Write as _;
     let mut s = String::from(
         "frame,time_s,people,inside,classic_density_1_m2,voronoi_density_1_m2,mean_speed_m_s,voronoi_speed_m_s\n",

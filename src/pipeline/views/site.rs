@@ -102,13 +102,14 @@ impl SiteAffine {
         (self.a * en.push(1.0)).xy()
     }
 
-    pub fn to_site(&self, xy: &Vector2<f64>) -> Vector2<f64> {
+    pub(crate) fn to_site(&self, xy: &Vector2<f64>) -> Vector2<f64> {
         (self.inv * xy.push(1.0)).xy()
     }
 
     /// The rotation from site north to grid north, degrees (positive: grid north is clockwise
     /// of the site frame's north).
-    pub fn grid_rotation_deg(&self) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn grid_rotation_deg(&self) -> f64 {
         let n = self.a.fixed_view::<2, 2>(0, 0) * Vector2::new(0.0, 1.0);
         n.x.atan2(n.y).to_degrees()
     }

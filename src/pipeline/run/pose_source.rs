@@ -194,3 +194,63 @@ impl PoseSource for Hover<'_> {
             .collect()
     }
 }
+
+/// The moving camera (`model_pose`): the model opened by [`open`], the algorithm in
+/// `sfm::video_pose`.
+impl PoseSource for model_pose::Model<'_> {
+    fn carried_picks(&self) -> (usize, Vec<Vector2<f64>>) {
+        (0, Vec::new())
+    }
+
+    fn first_pose(&self, camera: &Camera, video: &Path) -> Result<Rigid3, RunError> {
+        model_pose::first_frame_pose(self, camera, video)
+    }
+
+    fn stage_key(&self, scan_key: &str) -> String {
+        stage_key("pose", &[scan_key], &self.key_sections)
+    }
+
+    fn poses(
+        &self,
+        env: &Env,
+        x: &RunInputs,
+        scan: &ScanData,
+        pose_dir: &Path,
+    ) -> Result<PoseData, RunError> {
+        let bar = env.progress.stage("pose");
+        let poses =
+            model_pose::model_poses(env, x, (self.settings, &self.model), scan, bar.as_ref())?;
+        env.guard.create_dir(pose_dir).map_err(output_error)?;
+        model_pose::write_model_pose_outputs(
+            pose_dir,
+            &poses,
+            scan,
+            &x.framed,
+            Some(x.surface.as_ref()),
+            &self.model,
+        )?;
+        Ok(PoseData::new(
+            poses.frames,
+            poses.key_frames,
+            poses.key_frames_failed,
+            None,
+        ))
+    }
+
+    fn notes(&self) -> PoseNotes {
+        PoseNotes {
+            failed: "key frames not placed in the model (see pose/key_frames.csv)",
+            interpolated: ", flagged in pose/poses.csv (their features did not place them in the model)",
+        }
+    }
+
+    fn own_counts(&self, data: &PoseData) -> Vec<(String, f64)> {
+        vec![
+            (
+                "key_frames_failed".into(),
+                data.key_frames_failed.len() as f64,
+            ),
+            ("model_fit_rms_m".into(), self.model.fit_rms_m),
+        ]
+    }
+}

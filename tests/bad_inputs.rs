@@ -148,6 +148,14 @@ fn replace(file: &str, from: &str, to: &str) -> String {
     text.replacen(from, to, 1)
 }
 
+/// A Tsai calibration like PETS 2009's View_001, with its scale factor `sx` and distortion
+/// `kappa1`.
+fn tsai_xml(sx: &str, kappa1: &str) -> String {
+    format!(
+        "<?xml version=\"1.0\"?>\n<Camera name=\"View_001\">\n<Geometry width=\"768\" height=\"576\" ncx=\"795\" nfx=\"752\" dx=\"4.85e-03\" dy=\"4.65e-03\" dpx=\"5.1273e-03\" dpy=\"4.65e-03\"/>\n<Intrinsic focal=\"5.5549\" kappa1=\"{kappa1}\" cx=\"324.22\" cy=\"282.57\" sx=\"{sx}\"/>\n<Extrinsic tx=\"828.7\" ty=\"-3175.5\" tz=\"35469.3\" rx=\"2.0405\" ry=\"-0.8934\" rz=\"-0.4306\"/>\n</Camera>\n"
+    )
+}
+
 fn project_with(extra: &str) -> String {
     format!("{PROJECT}{extra}")
 }
@@ -833,6 +841,24 @@ fn cases() -> Vec<Case> {
             args: args(&["camera", "show", "cam.xml"]),
             expect: "focal length",
             place: "field 'f'",
+            ..Default::default()
+        },
+        Case {
+            id: "tsai-calibration-impossible-scale",
+            category: "nonsense accepted",
+            files: vec![("View_001.xml", tsai_xml("7.0", "5.1113e-03"))],
+            args: args(&["camera", "show", "View_001.xml"]),
+            expect: "horizontal scale factor",
+            place: "field 'sx'",
+            ..Default::default()
+        },
+        Case {
+            id: "tsai-calibration-folding-distortion",
+            category: "nonsense accepted",
+            files: vec![("View_001.xml", tsai_xml("1.09379", "-0.5"))],
+            args: args(&["camera", "show", "View_001.xml"]),
+            expect: "folds the image back",
+            place: "field 'kappa1'",
             ..Default::default()
         },
         Case {

@@ -167,6 +167,7 @@ impl CalibrationResult {
                 created_utc: Some(crate::io::utc_now_iso8601()),
             }),
             notes: Vec::new(),
+            extrinsics: None,
         }
     }
 }

@@ -37,6 +37,16 @@ pub struct Calibration {
     pub summary: Option<CalibrationSummary>,
     /// Remarks made while reading or converting (e.g. an approximated coefficient).
     pub notes: Vec<String>,
+    /// A fixed camera's pose, when the file gives one (a Tsai calibration, geostride JSON).
+    pub extrinsics: Option<Extrinsics>,
+}
+
+/// Where a fixed camera stands: `cam_from_world` with the world in metres, and which world.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Extrinsics {
+    pub cam_from_world: crate::geom::Rigid3,
+    /// The world frame, in words (the file's own frame, a site frame, ...).
+    pub world: String,
 }
 
 /// What a checkerboard calibration reports and calibration files carry.
@@ -134,6 +144,7 @@ impl Calibration {
             covariance: None,
             summary: None,
             notes: Vec::new(),
+            extrinsics: None,
         }
     }
 

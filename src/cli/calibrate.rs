@@ -30,6 +30,8 @@ pub enum FormatArg {
     MetashapeXml,
     /// geostride JSON with the full parameter covariance
     Json,
+    /// Tsai calibration, XML or 19 numbers (read only; PETS 2009, ETH)
+    Tsai,
 }
 
 impl From<FormatArg> for Format {
@@ -38,6 +40,7 @@ impl From<FormatArg> for Format {
             FormatArg::OpencvYaml => Format::OpenCvYaml,
             FormatArg::MetashapeXml => Format::Metashape,
             FormatArg::Json => Format::Json,
+            FormatArg::Tsai => Format::Tsai,
         }
     }
 }

@@ -14,7 +14,7 @@ use geostride::camera::{Calibration, ImageSize, PARAM_NAMES};
 pub enum Command {
     /// Print a calibration file's camera, uncertainty and views
     Show {
-        /// Calibration file (OpenCV YAML, Metashape XML or geostride JSON)
+        /// Calibration file (OpenCV YAML, Metashape XML, geostride JSON or Tsai)
         file: PathBuf,
         /// Input format, when detection from the content is not wanted
         #[arg(long, value_enum)]
@@ -23,7 +23,7 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Convert a calibration between OpenCV YAML, Metashape XML and geostride JSON
+    /// Convert a calibration between OpenCV YAML, Metashape XML and geostride JSON (Tsai read)
     #[command(
         after_help = "The output format follows the extension (.yaml, .xml, .json) unless --to is given.\n\
 Conversions and the conventions they rest on are in docs/formats.md."
@@ -92,6 +92,12 @@ pub fn run(cmd: Command) -> anyhow::Result<()> {
             }
             let f =
                 formats::write(&cal, &output, to.map(Format::from)).map_err(super::write_error)?;
+            if cal.extrinsics.is_some() && f != Format::Json {
+                eprintln!(
+                    "note: the camera's pose is not written to {} (geostride JSON keeps it)",
+                    f.name()
+                );
+            }
             println!("Written: {} ({})", output.display(), f.name());
             Ok(())
         }
@@ -121,6 +127,15 @@ fn describe(cal: &Calibration) -> String {
         let hfov = 2.0 * (f64::from(sz.width) / (2.0 * c.fx)).atan().to_degrees();
         let vfov = 2.0 * (f64::from(sz.height) / (2.0 * c.fy)).atan().to_degrees();
         let _ = writeln!(s, "field of view (pinhole) {hfov:.2}° x {vfov:.2}°");
+    }
+    if let Some(e) = &cal.extrinsics {
+        let r = e.cam_from_world.rvec();
+        let t = e.cam_from_world.translation;
+        let c = e.cam_from_world.centre();
+        let _ = writeln!(s, "pose (cam_from_world, {})", e.world);
+        let _ = writeln!(s, "  rvec   {:.6} {:.6} {:.6} rad", r.x, r.y, r.z);
+        let _ = writeln!(s, "  tvec   {:.4} {:.4} {:.4} m", t.x, t.y, t.z);
+        let _ = writeln!(s, "  centre {:.4} {:.4} {:.4} m", c.x, c.y, c.z);
     }
     if let Some(sum) = &cal.summary {
         let _ = writeln!(

@@ -5,8 +5,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{Ctx, FormatError};
 use crate::camera::{
-    BoardSpec, Calibration, CalibrationSummary, Camera, ImageSize, N_PARAMS, PARAM_NAMES,
-    ParamCovariance, ViewSummary, std_devs,
+    BoardSpec, Calibration, CalibrationSummary, Camera, Extrinsics, ImageSize, N_PARAMS,
+    PARAM_NAMES, ParamCovariance, ViewSummary, std_devs,
 };
 
 pub const FORMAT_TAG: &str = "geostride.camera";
@@ -28,6 +28,18 @@ struct FileJson {
     calibration: Option<SummaryJson>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     notes: Vec<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    extrinsics: Option<ExtrinsicsJson>,
+}
+
+/// A fixed camera's pose: `cam_from_world` as a Rodrigues vector (radians) and a translation
+/// (metres), and which world.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ExtrinsicsJson {
+    rvec: [f64; 3],
+    tvec_m: [f64; 3],
+    world: String,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -159,6 +171,11 @@ pub(super) fn render(cal: &Calibration) -> Result<String, serde_json::Error> {
             created_utc: s.created_utc.clone(),
         }),
         notes: cal.notes.clone(),
+        extrinsics: cal.extrinsics.as_ref().map(|e| ExtrinsicsJson {
+            rvec: e.cam_from_world.rvec().into(),
+            tvec_m: e.cam_from_world.translation.into(),
+            world: e.world.clone(),
+        }),
     };
     let mut s = serde_json::to_string_pretty(&file)?;
     s.push('\n');
@@ -258,10 +275,31 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
             .collect(),
         created_utc: s.created_utc,
     });
+    let extrinsics = match file.extrinsics {
+        None => None,
+        Some(e) => {
+            let finite = e.rvec.iter().chain(&e.tvec_m).all(|v| v.is_finite());
+            if !finite || nalgebra::Vector3::from(e.rvec).norm() > 4.0 * std::f64::consts::PI {
+                return Err(ctx.err(
+                    None,
+                    Some("extrinsics"),
+                    "rvec (radians, a rotation of at most 4π) and tvec_m (metres) must be finite",
+                ));
+            }
+            Some(Extrinsics {
+                cam_from_world: crate::geom::Rigid3::from_rvec_tvec(
+                    &e.rvec.into(),
+                    &e.tvec_m.into(),
+                ),
+                world: e.world,
+            })
+        }
+    };
     Ok(Calibration {
         camera,
         covariance,
         summary,
         notes: file.notes,
+        extrinsics,
     })
 }

@@ -239,6 +239,7 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
         covariance,
         summary: None,
         notes,
+        extrinsics: None,
     })
 }
 

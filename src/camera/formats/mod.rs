@@ -1,4 +1,5 @@
-//! Calibration files: OpenCV YAML, Agisoft Metashape XML and geostride JSON.
+//! Calibration files: OpenCV YAML, Agisoft Metashape XML, geostride JSON, and the Tsai
+//! calibration (read only) that PETS 2009 and ETH publish their fixed cameras in.
 //!
 //! Conversions and the conventions they rest on are documented in `docs/formats.md`.
 
@@ -6,6 +7,7 @@ pub mod cvyaml;
 mod json;
 mod metashape;
 mod opencv;
+pub mod tsai;
 
 use std::path::Path;
 
@@ -18,8 +20,10 @@ pub enum Format {
     OpenCvYaml,
     /// Agisoft Metashape calibration XML (Metashape 1.5 and later).
     Metashape,
-    /// geostride's own JSON, which carries the covariance.
+    /// geostride's own JSON, which carries the covariance (and a fixed camera's pose).
     Json,
+    /// The Tsai calibration (XML or 19 numbers; read only): intrinsics and the camera's pose.
+    Tsai,
 }
 
 impl Format {
@@ -28,6 +32,7 @@ impl Format {
             Format::OpenCvYaml => "opencv-yaml",
             Format::Metashape => "metashape-xml",
             Format::Json => "json",
+            Format::Tsai => "tsai",
         }
     }
 
@@ -47,6 +52,8 @@ impl Format {
         let t = content.trim_start_matches('\u{feff}').trim_start();
         if t.starts_with('{') {
             Some(Format::Json)
+        } else if tsai::looks_like(t) {
+            Some(Format::Tsai)
         } else if t.starts_with("<?xml") || t.starts_with('<') {
             Some(Format::Metashape)
         } else if t.starts_with("%YAML") || t.contains("!!opencv-matrix") {
@@ -67,7 +74,10 @@ pub const MAX_CALIBRATION_BYTES: u64 = 16 << 20;
 /// Reads a calibration file, detecting its format from the content unless `format` is given.
 pub fn read(path: &Path, format: Option<Format>) -> Result<Calibration, FormatError> {
     let ctx = Ctx { path };
-    let text = ctx.read_small_text("a YAML, XML or JSON calibration", MAX_CALIBRATION_BYTES)?;
+    let text = ctx.read_small_text(
+        "a YAML, XML, JSON or Tsai calibration",
+        MAX_CALIBRATION_BYTES,
+    )?;
     parse(path, &text, format)
 }
 
@@ -81,7 +91,8 @@ pub fn parse(path: &Path, text: &str, format: Option<Format>) -> Result<Calibrat
                 Some(1),
                 None,
                 "unknown calibration format: expected OpenCV YAML ('%YAML:1.0' and \
-                 '!!opencv-matrix'), Metashape XML or geostride JSON; pass --format to choose",
+                 '!!opencv-matrix'), Metashape XML, geostride JSON or a Tsai calibration; pass \
+                 --format to choose",
             ));
         }
     };
@@ -89,6 +100,7 @@ pub fn parse(path: &Path, text: &str, format: Option<Format>) -> Result<Calibrat
         Format::OpenCvYaml => opencv::parse(&ctx, text),
         Format::Metashape => metashape::parse(&ctx, text),
         Format::Json => json::parse(&ctx, text),
+        Format::Tsai => tsai::parse(&ctx, text),
     }?;
     cal.validate()
         .map_err(|(field, message)| ctx.err(None, Some(field), message))?;
@@ -108,6 +120,12 @@ pub fn render(
         Format::OpenCvYaml => Ok(opencv::render(cal)),
         Format::Metashape => metashape::render(&ctx, cal),
         Format::Json => json::render(cal).map_err(|e| ctx.err(None, None, e.to_string())),
+        Format::Tsai => Err(ctx.err(
+            None,
+            None,
+            "geostride reads Tsai calibrations but does not write them: write .json (which keeps \
+             the camera's pose), .yaml or .xml",
+        )),
     }
 }
 

@@ -225,6 +225,7 @@ pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
         covariance,
         summary,
         notes: Vec::new(),
+        extrinsics: None,
     })
 }
 

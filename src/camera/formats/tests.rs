@@ -82,6 +82,7 @@ fn full_calibration(rational: bool) -> Calibration {
             created_utc: Some("2026-11-21T10:00:00Z".into()),
         }),
         notes: vec![],
+        extrinsics: None,
     }
 }
 

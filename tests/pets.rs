@@ -1,0 +1,57 @@
+//! PETS 2009 S2L1 View_001 (`$GEOSTRIDE_DATA/pets2009-s2l1`): its Tsai calibration read as a
+//! camera with its pose, checked against the ground truth's own projection (the truth's world
+//! positions are the Tsai projection of a point 1.5 px above and left of each box's bottom
+//! centre, 768×576 pixels).
+
+#![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
+
+mod common;
+
+use geostride::camera::formats::{Format, read};
+use nalgebra::Vector3;
+
+#[test]
+fn the_tsai_calibration_reproduces_the_ground_truths_projection() {
+    let Some(dir) = common::data_dir("pets2009-s2l1") else {
+        return;
+    };
+    let xml = read(&dir.join("View_001.xml"), None).unwrap();
+    let txt = read(&dir.join("View_001.txt"), Some(Format::Tsai)).unwrap();
+    assert_eq!(xml.camera, txt.camera);
+    let pose = xml.extrinsics.as_ref().unwrap().cam_from_world;
+    // The README's pose in OpenCV terms and the camera centre 7.07 m up.
+    let rvec = pose.rvec();
+    assert!(
+        (rvec - Vector3::new(1.6705, -0.9153, 0.6155)).norm() < 1e-3,
+        "{rvec}"
+    );
+    let centre = pose.centre();
+    assert!(
+        (centre - Vector3::new(-28.94, -19.53, 7.07)).norm() < 0.01,
+        "{centre}"
+    );
+    // At 480×360 (the video), the README's OpenCV intrinsics.
+    let small = xml.camera.scaled_to(480, 360).unwrap();
+    assert!((small.fx - 740.63).abs() < 0.01 && (small.fy - 746.63).abs() < 0.01);
+    assert!(
+        (small.dist[0] + 0.157683).abs() < 0.002,
+        "k1 {}",
+        small.dist[0]
+    );
+
+    let gt = std::fs::read_to_string(dir.join("gt_frames_0000-0399.txt")).unwrap();
+    let (mut n, mut worst) = (0, 0.0f64);
+    for line in gt.lines() {
+        let f: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+        let (left, top, w, h) = (f[2], f[3], f[4], f[5]);
+        let world = Vector3::new(f[7], f[8], 0.0);
+        let uv = xml.camera.project(&pose.apply(&world)).unwrap();
+        let marked = nalgebra::Vector2::new(left + w / 2.0 - 1.5, top + h - 1.5);
+        worst = worst.max((uv - marked).norm());
+        n += 1;
+    }
+    eprintln!("{n} truth rows, worst {worst:.3} px from the marked point");
+    assert!(n > 2000);
+    // The truth's coordinates are given to 0.1 mm and its boxes to 0.001 px: within a pixel.
+    assert!(worst < 1.0, "{worst} px");
+}

@@ -479,6 +479,30 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-fixed-pose-without-extrinsics",
+            category: "nonsense accepted",
+            files: vec![("project.toml", project_with("[pose]\nkind = \"fixed\"\n"))],
+            args: run(),
+            expect: "has no camera pose",
+            place: "field 'pose'",
+            ..Default::default()
+        },
+        Case {
+            id: "project-fixed-pose-and-a-survey-in-a-crs",
+            category: "nonsense accepted",
+            files: vec![
+                ("View_001.xml", tsai_xml("1.09379", "5.1113e-03")),
+                (
+                    "project.toml",
+                    project_with("[pose]\nkind = \"fixed\"\nextrinsics = \"View_001.xml\"\n"),
+                ),
+            ],
+            args: run(),
+            expect: "site frame is another",
+            place: "field 'survey.gcps'",
+            ..Default::default()
+        },
+        Case {
             id: "project-picks-image-not-a-frame",
             category: "nonsense accepted",
             files: vec![("picks.csv", picks_on_frame(fixture()).replace("video.mp4#0", "video.mp4#0a"))],

@@ -55,3 +55,65 @@ fn the_tsai_calibration_reproduces_the_ground_truths_projection() {
     // The truth's coordinates are given to 0.1 mm and its boxes to 0.001 px: within a pixel.
     assert!(worst < 1.0, "{worst} px");
 }
+
+/// `[pose] kind = "fixed"` from the Tsai file, no GCPs: every frame gets the calibration's pose
+/// and the trajectories land on the PETS plaza (the truth's x from −13 to 7.4 m, y from −15 to
+/// 7.7 m). How well they match the truth is issue 37's benchmark, not this test's.
+#[test]
+fn a_fixed_camera_runs_from_its_tsai_calibration_without_gcps() {
+    let (Some(dir), Some(video)) = (common::data_dir("pets2009-s2l1"), common::data_dir("video"))
+    else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let project = tmp.path().join("project.toml");
+    std::fs::write(
+        &project,
+        format!(
+            "name = \"PETS 2009 S2L1\"\n[camera]\ncalibration = \"{}\"\n[video]\npath = \"{}\"\n\
+             duration_s = 10\n[pose]\nkind = \"fixed\"\n[ground]\nkind = \"plane\"\nheight_m = 0.0\n\
+             [detect]\nkind = \"onnx\"\n[track]\nkind = \"klt\"\n[export]\nformats = [\"csv\"]\n",
+            dir.join("View_001.xml").display(),
+            video.join("vtest_480x360_h264.avi").display()
+        ),
+    )
+    .unwrap();
+    let out = tmp.path().join("out");
+    let o = common::geostride()
+        .args([
+            "run",
+            project.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "-q",
+        ])
+        .output()
+        .unwrap();
+    common::assert_success(&o);
+    let poses = common::read_csv(&out.join("pose/poses.csv"));
+    assert_eq!(poses.len(), 1, "one pose for the fixed camera");
+    assert_eq!(poses[0]["frames"], "0-99");
+    let centre = Vector3::new(
+        common::num(&poses[0], "centre_e_m"),
+        common::num(&poses[0], "centre_n_m"),
+        common::num(&poses[0], "centre_u_m"),
+    );
+    assert!(
+        (centre - Vector3::new(-28.94, -19.53, 7.07)).norm() < 0.01,
+        "{centre}"
+    );
+    let rows = common::read_csv(&out.join("trajectories.csv"));
+    assert!(rows.len() > 200, "{} trajectory points", rows.len());
+    let on_plaza = rows
+        .iter()
+        .filter(|r| {
+            let (e, n) = (common::num(r, "e_m"), common::num(r, "n_m"));
+            (-20.0..15.0).contains(&e) && (-20.0..12.0).contains(&n)
+        })
+        .count();
+    assert!(
+        on_plaza as f64 > 0.9 * rows.len() as f64,
+        "{on_plaza} of {} points on the plaza",
+        rows.len()
+    );
+}

@@ -23,6 +23,8 @@ pub struct Project {
     #[serde(default)]
     pub name: String,
     pub camera: CameraSection,
+    /// Required but for a fixed camera (`[pose] kind = "fixed"`).
+    #[serde(default)]
     pub survey: SurveySection,
     pub video: VideoSection,
     #[serde(default, deserialize_with = "with_default_kind")]
@@ -359,7 +361,14 @@ impl Loaded {
         if crate::camera::presets::preset(&p.camera.calibration).is_none() {
             files.push(("camera.calibration", self.resolve(&p.camera.calibration)));
         }
-        files.push(("survey.gcps", self.resolve(&p.survey.gcps)));
+        if !p.survey.gcps.is_empty() {
+            files.push(("survey.gcps", self.resolve(&p.survey.gcps)));
+        }
+        if let PoseSection::Fixed(f) = &p.pose
+            && let Some(file) = &f.extrinsics
+        {
+            files.push(("pose.extrinsics", self.resolve(file)));
+        }
         for pk in &p.survey.picks {
             files.push(("survey.picks", self.resolve(pk)));
         }
@@ -452,14 +461,23 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if crate::camera::presets::preset(&p.camera.calibration).is_none() {
         exists(l, "camera", "calibration", &p.camera.calibration)?;
     }
-    if p.survey.gcps.is_empty() {
+    let fixed = matches!(p.pose, PoseSection::Fixed(_));
+    if p.survey.gcps.is_empty() && !fixed {
         return Err(l.error(
             "survey",
             "gcps",
-            "the GCP file is required: gcps = \"gcps.csv\"",
+            "the GCP file is required: gcps = \"gcps.csv\" (a fixed camera, [pose] kind = \
+             \"fixed\", may do without)",
         ));
     }
-    exists(l, "survey", "gcps", &p.survey.gcps)?;
+    if !p.survey.gcps.is_empty() {
+        exists(l, "survey", "gcps", &p.survey.gcps)?;
+    }
+    if let PoseSection::Fixed(f) = &p.pose
+        && let Some(file) = &f.extrinsics
+    {
+        exists(l, "pose", "extrinsics", file)?;
+    }
     for pk in &p.survey.picks {
         exists(l, "survey", "picks", pk)?;
     }

@@ -36,6 +36,9 @@ pub enum PoseSection {
     /// A moving camera: key frames registered in a reference model (`geostride sfm`'s output),
     /// the frames between them from the key frame's 2D–3D points carried by the stabiliser.
     Model(ModelSettings),
+    /// A camera that does not move, its pose from a calibration file (a Tsai calibration, or
+    /// geostride JSON with `extrinsics`): no picks, no stabiliser.
+    Fixed(FixedSettings),
 }
 
 impl DefaultKind for PoseSection {
@@ -53,15 +56,40 @@ impl PoseSection {
     pub fn picks_frame(&self) -> Option<usize> {
         match self {
             PoseSection::Hover(h) => h.picks_frame,
-            PoseSection::Model(_) => None,
+            PoseSection::Model(_) | PoseSection::Fixed(_) => None,
         }
     }
 
-    /// The stabiliser's key-frame settings: (fewest features, fraction, seconds).
-    pub fn key_frames(&self) -> (usize, f64, Option<f64>) {
+    /// The stabiliser's key-frame settings: (fewest features, fraction, seconds); `None` for a
+    /// fixed camera, which is not stabilised.
+    pub fn key_frames(&self) -> Option<(usize, f64, Option<f64>)> {
         match self {
-            PoseSection::Hover(h) => (h.min_features, h.key_fraction, h.key_every_s),
-            PoseSection::Model(m) => (m.min_features, m.key_fraction, m.key_every_s),
+            PoseSection::Hover(h) => Some((h.min_features, h.key_fraction, h.key_every_s)),
+            PoseSection::Model(m) => Some((m.min_features, m.key_fraction, m.key_every_s)),
+            PoseSection::Fixed(_) => None,
+        }
+    }
+}
+
+/// `[pose] kind = "fixed"`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct FixedSettings {
+    /// The file with the camera's pose [default: `[camera] calibration`].
+    pub extrinsics: Option<String>,
+    /// The pose's σ: attitude about each axis, degrees.
+    pub sigma_deg: f64,
+    /// ... and the camera centre along each axis, metres.
+    pub sigma_m: f64,
+}
+
+impl Default for FixedSettings {
+    fn default() -> Self {
+        // A camera calibrated on surveyed ground points: a few centimetres, a tenth of a degree.
+        FixedSettings {
+            extrinsics: None,
+            sigma_deg: 0.1,
+            sigma_m: 0.05,
         }
     }
 }
@@ -725,6 +753,21 @@ impl PoseSection {
                 }
                 if h.min_features < 4 {
                     return bad("min_features", "must be at least 4");
+                }
+                Ok(())
+            }
+            PoseSection::Fixed(f) => {
+                if !(f.sigma_deg >= 0.0 && f.sigma_deg <= 90.0) {
+                    return bad("sigma_deg", "expected 0 to 90 degrees");
+                }
+                if !(f.sigma_m >= 0.0 && f.sigma_m.is_finite()) {
+                    return bad("sigma_m", "expected 0 or more metres");
+                }
+                if f.extrinsics.as_deref() == Some("") {
+                    return bad(
+                        "extrinsics",
+                        "name the file with the camera's pose, or leave the key out to use [camera] calibration",
+                    );
                 }
                 Ok(())
             }

@@ -31,6 +31,31 @@ pub struct Framed {
     pub local: Vec<Vector3<f64>>,
 }
 
+impl Framed {
+    /// No survey: the site frame is a local metric frame given otherwise (`origin_note` says
+    /// which), with no points and heights of no stated kind.
+    pub fn without_points(origin_note: &str) -> Framed {
+        Framed {
+            survey: Survey {
+                source: std::path::PathBuf::new(),
+                format: crate::survey::SurveyFormat::Csv,
+                crs: None,
+                height: crate::survey::crs::HeightKind::Unknown,
+                points: Vec::new(),
+                dropped: Vec::new(),
+                warnings: Vec::new(),
+            },
+            frame: SiteFrame {
+                crs: None,
+                tangent: None,
+                height: crate::survey::crs::HeightKind::Unknown,
+                origin_note: origin_note.into(),
+            },
+            local: Vec::new(),
+        }
+    }
+}
+
 /// Reads a survey file and its picks, assigns roles and sets up the site frame.
 pub fn load_framed(file: &Path, o: &LoadOptions) -> Result<Framed, SurveyError> {
     let mut survey = read(file, &o.read)?;

@@ -233,6 +233,11 @@ pub(super) fn project_camera(l: &Loaded, width: u32, height: u32) -> Result<Came
 
 pub(super) fn load_survey(l: &Loaded) -> Result<Framed, RunError> {
     let s = &l.project.survey;
+    if s.gcps.is_empty() {
+        // A fixed camera without GCPs (the project's check allows no other): its pose's world
+        // frame is the site frame.
+        return Ok(Framed::without_points("the fixed camera's world frame"));
+    }
     let origin = match &s.origin {
         Some(o) => Some(
             o.parse::<Origin>()

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use nalgebra::Vector2;
+use nalgebra::{Matrix6, Vector2, Vector3};
 
 use super::inputs::picked;
 use super::{Env, FramePoseData, PoseData, RunError, RunInputs, ScanData, StageProgress};
@@ -12,7 +12,7 @@ use crate::camera::Camera;
 use crate::geom::Rigid3;
 use crate::pipeline::pose_outputs::{PoseRun, write_pose_outputs};
 use crate::pipeline::project::{Loaded, SurveySection};
-use crate::pipeline::settings::PoseSection;
+use crate::pipeline::settings::{FixedSettings, PoseSection};
 use crate::pose::hover::solve_with_checks;
 use crate::pose::{GcpObservation, PoseSettings, solve_pose};
 use crate::survey::load::Framed;
@@ -85,6 +85,7 @@ pub(super) fn open<'a>(
                 check,
             })
         }
+        PoseSection::Fixed(f) => Box::new(fixed_pose(l, f, framed)?),
         PoseSection::Model(m) => Box::new(model_pose::Model {
             key_sections: (&l.project.survey, &l.project.pose, &l.project.ground),
             model_path: l.resolve(&m.model),
@@ -252,5 +253,130 @@ impl PoseSource for model_pose::Model<'_> {
             ),
             ("model_fit_rms_m".into(), self.model.fit_rms_m),
         ]
+    }
+}
+
+/// The fixed camera's pose from its file, in the site frame: the file's world must be the run's
+/// (a survey in a CRS has a site frame of its own).
+fn fixed_pose<'a>(
+    l: &'a Loaded,
+    f: &FixedSettings,
+    framed: &Framed,
+) -> Result<Fixed<'a>, RunError> {
+    let (key, name) = match &f.extrinsics {
+        Some(file) => ("extrinsics", file.as_str()),
+        None => ("", l.project.camera.calibration.as_str()),
+    };
+    let at = |message: String| RunError::Input(l.error("pose", key, message));
+    if crate::camera::presets::preset(name).is_some() {
+        return Err(at(format!(
+            "'{name}' is a camera preset, which has no pose: set extrinsics = \"FILE\" (a Tsai \
+             calibration, or geostride JSON with 'extrinsics')"
+        )));
+    }
+    let path = l.resolve(name);
+    let cal = crate::camera::formats::read(&path, None).map_err(|e| at(e.to_string()))?;
+    let Some(extrinsics) = cal.extrinsics else {
+        return Err(at(format!(
+            "{} has no camera pose: a fixed camera needs a Tsai calibration or geostride JSON \
+             with 'extrinsics' (geostride camera convert writes one)",
+            path.display()
+        )));
+    };
+    if let Some(crs) = &framed.frame.crs {
+        return Err(RunError::Input(l.error(
+            "survey",
+            "gcps",
+            format!(
+                "the fixed camera's pose is in {} ({}), and this survey is in {}, whose site \
+                 frame is another: give the GCPs in the pose's world frame without a CRS, or \
+                 leave gcps out",
+                extrinsics.world,
+                path.display(),
+                crs.label()
+            ),
+        )));
+    }
+    let floor = crate::sfm::video_pose::ModelFloor {
+        sigma_centre_m: Vector3::repeat(f.sigma_m),
+        sigma_rotation_rad: f.sigma_deg.to_radians(),
+    };
+    let pose = extrinsics.cam_from_world;
+    Ok(Fixed {
+        key_sections: (&l.project.survey, &l.project.pose),
+        pose,
+        covariance: floor.add_to(&pose, &Matrix6::zeros()),
+    })
+}
+
+/// A camera that does not move: one pose, from its calibration file, for every frame.
+pub(super) struct Fixed<'a> {
+    key_sections: (&'a SurveySection, &'a PoseSection),
+    pose: Rigid3,
+    /// The pose's covariance (increment `(δθ, δt)`), from the stated σ.
+    covariance: Matrix6<f64>,
+}
+
+impl PoseSource for Fixed<'_> {
+    fn carried_picks(&self) -> (usize, Vec<Vector2<f64>>) {
+        (0, Vec::new())
+    }
+
+    fn first_pose(&self, _camera: &Camera, _video: &Path) -> Result<Rigid3, RunError> {
+        Ok(self.pose)
+    }
+
+    fn stage_key(&self, scan_key: &str) -> String {
+        stage_key("pose", &[scan_key], &self.key_sections)
+    }
+
+    fn poses(
+        &self,
+        env: &Env,
+        x: &RunInputs,
+        scan: &ScanData,
+        pose_dir: &Path,
+    ) -> Result<PoseData, RunError> {
+        let frames: Vec<FramePoseData> = (0..scan.frames)
+            .map(|frame| FramePoseData {
+                frame,
+                rotation: *self.pose.rotation.matrix(),
+                translation: self.pose.translation,
+                covariance: Some(self.covariance),
+                interpolated: false,
+                mean_reprojection_px: None,
+            })
+            .collect();
+        env.guard.create_dir(pose_dir).map_err(output_error)?;
+        let sigma = crate::pose::refine::world_covariance(&self.pose, &self.covariance);
+        let columns = crate::pipeline::pose_outputs::pose_columns(
+            &self.pose,
+            Some(Vector3::new(
+                sigma[(3, 3)].sqrt(),
+                sigma[(4, 4)].sqrt(),
+                sigma[(5, 5)].sqrt(),
+            )),
+            &x.framed,
+        )?;
+        let csv = format!(
+            "frames,{}\n0-{},{columns}\n",
+            crate::pipeline::pose_outputs::POSE_COLUMNS,
+            scan.frames.saturating_sub(1)
+        );
+        let path = pose_dir.join("poses.csv");
+        crate::io::write_atomic(&path, csv.as_bytes())
+            .map_err(|source| RunError::Io { path, source })?;
+        Ok(PoseData::new(frames, Vec::new(), Vec::new(), None))
+    }
+
+    fn notes(&self) -> PoseNotes {
+        PoseNotes {
+            failed: "",
+            interpolated: "",
+        }
+    }
+
+    fn own_counts(&self, _data: &PoseData) -> Vec<(String, f64)> {
+        Vec::new()
     }
 }

@@ -63,9 +63,16 @@ fn compute_chunk(
     bar: &dyn crate::progress::Progress,
 ) -> Result<ChunkData, ScanError> {
     let fps = x.fps;
-    let (min_features, key_fraction, key_every_s) = s.pose.key_frames();
-    let stabilise = StabiliseSettings::key_frames(min_features, key_fraction, key_every_s, fps);
-    let (pick_frame, picks) = x.carried_picks.clone();
+    // A fixed camera is not stabilised: its frames need no motion and no key frames.
+    let stabilise = s
+        .pose
+        .key_frames()
+        .map(|(min_features, key_fraction, key_every_s)| {
+            let (pick_frame, picks) = x.carried_picks.clone();
+            let settings =
+                StabiliseSettings::key_frames(min_features, key_fraction, key_every_s, fps);
+            (settings, pick_frame, picks)
+        });
     let scale = TrackScale {
         px_per_m: x.px_per_m,
         fps,
@@ -86,7 +93,7 @@ fn compute_chunk(
             video: &x.video,
             grid: x.grid,
             index: c,
-            stabilise: Some((stabilise, pick_frame, picks)),
+            stabilise,
             detector: Some(detector),
             tracker: Some(tracker),
         },

@@ -73,17 +73,21 @@ fn src_files() -> (PathBuf, Vec<PathBuf>) {
     (src, files)
 }
 
+/// `f`'s path under `src`, with forward slashes.
+fn relative(src: &Path, f: &Path) -> String {
+    f.strip_prefix(src)
+        .unwrap()
+        .to_string_lossy()
+        .replace('\\', "/")
+}
+
 #[test]
 fn only_adapters_name_opencv_gdal_or_proj() {
     let (src, files) = src_files();
     let mut offenders = Vec::new();
     let mut still_needed = vec![false; NOT_YET_MOVED.len()];
     for f in &files {
-        let rel = f
-            .strip_prefix(&src)
-            .unwrap()
-            .to_string_lossy()
-            .replace('\\', "/");
+        let rel = relative(&src, f);
         let text = std::fs::read_to_string(f).unwrap();
         let named: Vec<&str> = NAMES.iter().copied().filter(|n| names(&text, n)).collect();
         if named.is_empty() || ADAPTERS.iter().any(|a| rel.starts_with(a)) {
@@ -116,11 +120,7 @@ fn the_library_names_neither_clap_nor_anyhow() {
     let offenders: Vec<String> = files
         .iter()
         .filter_map(|f| {
-            let rel = f
-                .strip_prefix(&src)
-                .ok()?
-                .to_string_lossy()
-                .replace('\\', "/");
+            let rel = relative(&src, f);
             if rel == "main.rs" || rel.starts_with("cli/") {
                 return None;
             }
@@ -289,11 +289,7 @@ fn no_public_function_returns_a_string_error() {
     let (src, files) = src_files();
     let mut offenders = Vec::new();
     for f in &files {
-        let rel = f
-            .strip_prefix(&src)
-            .unwrap()
-            .to_string_lossy()
-            .replace('\\', "/");
+        let rel = relative(&src, f);
         if rel == "main.rs" || rel.starts_with("cli/") {
             continue;
         }

@@ -124,13 +124,7 @@ fn check_root(ctx: &Ctx, doc: &roxmltree::Document) -> Result<(), FormatError> {
 }
 
 pub(super) fn parse(ctx: &Ctx, text: &str) -> Result<Calibration, FormatError> {
-    let doc = roxmltree::Document::parse(text).map_err(|e| {
-        ctx.err(
-            Some(e.pos().row as usize),
-            None,
-            format!("not valid XML: {e}"),
-        )
-    })?;
+    let doc = super::parse_xml(ctx, text)?;
     check_root(ctx, &doc)?;
     let root = doc.root_element();
     let child = |name: &str| root.children().find(|n| n.has_tag_name(name));

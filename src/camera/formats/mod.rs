@@ -68,6 +68,17 @@ impl Format {
 pub type FormatError = crate::io::FileError;
 pub(crate) use crate::io::FileCtx as Ctx;
 
+/// An XML calibration's document; text that is not XML is an error at its line.
+fn parse_xml<'t>(ctx: &Ctx, text: &'t str) -> Result<roxmltree::Document<'t>, FormatError> {
+    roxmltree::Document::parse(text).map_err(|e| {
+        ctx.err(
+            Some(e.pos().row as usize),
+            None,
+            format!("not valid XML: {e}"),
+        )
+    })
+}
+
 /// The largest calibration file read: parameters and the views of a calibration fit in kilobytes.
 pub const MAX_CALIBRATION_BYTES: u64 = 16 << 20;
 

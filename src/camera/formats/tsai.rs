@@ -292,13 +292,7 @@ impl Tsai {
 /// The XML form: the numbers of `<Geometry>`, `<Intrinsic>` and `<Extrinsic>`, each with its
 /// line; and whether `<Extrinsic>` is there (its numbers zero when not).
 fn xml_numbers(ctx: &Ctx, text: &str) -> Result<([f64; 19], bool), FormatError> {
-    let doc = roxmltree::Document::parse(text).map_err(|e| {
-        ctx.err(
-            Some(e.pos().row as usize),
-            None,
-            format!("not valid XML: {e}"),
-        )
-    })?;
+    let doc = super::parse_xml(ctx, text)?;
     let root = doc.root_element();
     let line = |n: roxmltree::Node| doc.text_pos_at(n.range().start).row as usize;
     let mut v = [0.0; 19];

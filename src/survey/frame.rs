@@ -91,7 +91,7 @@ impl SiteFrame {
                 crs: None,
                 tangent: None,
                 height: survey.height.clone(),
-                origin_note: "the file's own local frame".into(),
+                origin_note: "the GCP file's own local frame".into(),
             });
         };
         let crs = Crs::new(spec).map_err(|e| err(e.to_string()))?;

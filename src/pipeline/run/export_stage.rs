@@ -217,8 +217,10 @@ fn write_detections(o: &mut dyn std::io::Write, x: &ExportInputs) -> std::io::Re
 /// are written together, a trajectory at a time, each converted once.
 fn write_geojson(x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
     let Some(spec) = &x.out_crs_spec else {
-        w.warnings
-            .push("GeoJSON needs WGS 84: the GCP file has no CRS, so it is not written".into());
+        w.warnings.push(format!(
+            "GeoJSON needs WGS 84: the site frame ({}) has no CRS, so it is not written",
+            x.origin_note
+        ));
         return Ok(());
     };
     let mut wgs = Wgs84::new(spec, x.height_kind)?;

@@ -243,7 +243,7 @@ pub fn run_with(
         .out_crs
         .as_ref()
         .or(framed.frame.crs.as_ref())
-        .map_or("the GCP file's local frame".to_string(), |c| c.label());
+        .map_or(framed.frame.origin_note.clone(), |c| c.label());
     let report = RunReport {
         project: x.title.clone(),
         geostride_version: build_id().into(),

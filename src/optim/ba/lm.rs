@@ -1,4 +1,4 @@
-//! The Levenberg–Marquardt trust-region loop (Ceres' strategy) and its checks.
+//! The Levenberg–Marquardt trust-region loop (the strategy of Ceres) and its checks.
 
 use super::covariance::{Freedom, Linearisation, from_normal};
 use super::*;
@@ -13,7 +13,7 @@ pub(super) fn projection_error<const M: usize>(p: &Problem<M>, k: usize) -> BaEr
     }
 }
 
-/// The decrease of the linearised cost along a step `δ` (the problem's own variables):
+/// The decrease of the linearised cost along a step `δ` (in the own variables of the problem):
 /// `−(Jδ)ᵀ(r + Jδ/2)` over the observations and the priors.
 pub(super) fn model_decrease<const M: usize>(
     p: &Problem<M>,
@@ -129,7 +129,7 @@ pub(super) fn check_priors<const M: usize>(p: &Problem<M>, priors: &Priors) -> R
     Ok(())
 }
 
-/// Adjusts the problem's poses, intrinsics and points in place, with priors on some points
+/// Adjusts the poses, intrinsics and points of the problem in place, with priors on some points
 /// and camera centres (which also fix the gauge: without them the solution is defined up to a
 /// similarity).
 pub fn adjust<const M: usize>(
@@ -138,17 +138,17 @@ pub fn adjust<const M: usize>(
     priors: &Priors,
     settings: &BaSettings,
 ) -> Result<BaSummary, BaError> {
-    // A small problem's loops are not split and run on this thread; a larger one's run on a
-    // worker of the pool, whose loops hand work to the other workers directly instead of each
+    // The loops of a small problem are not split and run on this thread; those of a larger one
+    // run on a worker of the pool, whose loops hand work to the other workers directly instead of each
     // loop crossing from this thread into the pool and back.
     on_pool(p.observations.len(), || {
         adjust_on_pool(p, model, priors, settings, None).map(|r| r.0)
     })
 }
 
-/// [`adjust`], then [`covariance`] at the optimum (`sigma_px` as there), from the solver's last
-/// normal equations where they are the covariance's (no priors, or the observations' σ given as
-/// 1), rather than linearising again.
+/// [`adjust`], then [`covariance`] at the optimum (`sigma_px` as there), from the last normal
+/// equations of the solver where they are those of the covariance (no priors, or the σ of the
+/// observations given as 1), rather than linearising again.
 pub fn adjust_with_covariance<const M: usize>(
     p: &mut Problem<M>,
     model: &impl Projection<M>,
@@ -316,7 +316,7 @@ fn adjust_on_pool<const M: usize>(
     let st = Structure::new(p);
     let lay = Layout::new(p);
     let mut e = evaluate(p, model, priors, s.loss).map_err(|k| projection_error(p, k))?;
-    // The trial evaluation's buffers, swapped with `e` when a step is accepted.
+    // The buffers of the trial evaluation, swapped with `e` when a step is accepted.
     let mut spare = e.clone();
     let initial_cost = e.cost;
     let (s_cam, s_point) = scales(p, priors, &st, &lay, &e);
@@ -334,7 +334,7 @@ fn adjust_on_pool<const M: usize>(
     }
     while termination == BaTermination::MaxIterations && iterations.len() < s.max_iterations {
         let t0 = Instant::now();
-        // The step in the problem's own variables, and the model's decrease −(Jδ)ᵀ(r + Jδ/2).
+        // The step in the own variables of the problem, and the decrease of the model −(Jδ)ᵀ(r + Jδ/2).
         let at = Linearisation::new((&st, &lay), &n, (&s_cam, &s_point));
         let step = unscaled_step(p, priors, &at, &e, (&d_cam, &d_point), region.radius(), s);
         let step_norm = step.as_ref().map_or(0.0, |(dc, dp, _)| {
@@ -382,7 +382,7 @@ fn adjust_on_pool<const M: usize>(
                 region.radius(),
             )
         };
-        // Where the candidate's Jacobians cannot be evaluated, the step is rejected.
+        // Where the Jacobians of the candidate cannot be evaluated, the step is rejected.
         let accepted = if step_norm <= s.parameter_tolerance * (xn + s.parameter_tolerance) {
             termination = BaTermination::ParameterTolerance;
             None

@@ -496,10 +496,13 @@ impl<F: FeatureTracker> KltTracker<F> {
             } else {
                 t.since_detection += 1;
             }
-            // The box follows the track.
-            let shift = est - t.position();
-            t.bbox[0] += shift.x;
-            t.bbox[1] += shift.y;
+            // Without a detection, the box follows the track (a detection's box is where the
+            // person is already).
+            if !detected {
+                let shift = est - t.position();
+                t.bbox[0] += shift.x;
+                t.bbox[1] += shift.y;
+            }
             t.steps.push(Step {
                 frame: index,
                 pred,
@@ -835,6 +838,17 @@ mod tests {
             for q in &t.points {
                 let err = (q.uv - truth[q.frame][k]).norm();
                 assert!(err < 1.5, "track {} frame {}: {err}", t.id, q.frame);
+                // The box is where the person is too (the detections' boxes are centred on the
+                // truth, their points off by up to 2 px): a detected frame's box was once moved
+                // on by the track's step, 4 px ahead.
+                let centre = Vector2::new(q.bbox[0] + q.bbox[2] / 2.0, q.bbox[1] + q.bbox[3] / 2.0);
+                let off = (centre - truth[q.frame][k]).norm();
+                assert!(
+                    off < 2.5,
+                    "track {} frame {}: box {off} px off",
+                    t.id,
+                    q.frame
+                );
             }
         }
         // The person missed until frame 20 is followed back by the backward pass, as far as

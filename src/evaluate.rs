@@ -33,6 +33,71 @@ pub struct SampleTable {
     pub ignored: Vec<Sample>,
 }
 
+/// Reads MOTChallenge 3D ground truth (`frame, id, left, top, width, height, flag, x, y, z`,
+/// no header, frames from 1; 2D MOT 2015's `gt.txt` with world coordinates, as PETS 2009 S2L1
+/// has): the world x, y by frame from 0 and id; a row whose flag is 0 counts neither way.
+pub fn parse_mot_truth(path: &Path, text: &str) -> Result<SampleTable, FileError> {
+    let ctx = FileCtx { path };
+    let mut table = SampleTable::default();
+    let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
+    let names = [
+        "frame", "id", "left", "top", "width", "height", "flag", "x", "y",
+    ];
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let raw = raw.trim();
+        if raw.is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = raw
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|x| !x.is_empty())
+            .collect();
+        if f.len() < 9 {
+            return Err(ctx.at(
+                line,
+                format!(
+                    "expected MOTChallenge 3D ground truth: frame, id, left, top, width, height, \
+                     flag, x, y, z ({} fields found)",
+                    f.len()
+                ),
+            ));
+        }
+        let frame = ctx.whole(f[0], line, names[0])? as usize;
+        if frame == 0 {
+            return Err(ctx.at(
+                line,
+                "field 'frame': MOTChallenge frames count from 1, found 0",
+            ));
+        }
+        let id = ctx.whole(f[1], line, names[1])? as usize;
+        let flag = ctx.number(f[6], line, names[6])?;
+        let sample = Sample {
+            frame: frame - 1,
+            id,
+            position: Vector2::new(
+                ctx.number(f[7], line, names[7])?,
+                ctx.number(f[8], line, names[8])?,
+            ),
+        };
+        if let Some(first) = seen.insert((frame, id), line) {
+            return Err(ctx.at(
+                line,
+                format!("id {id} is in frame {frame} twice (lines {first} and {line})"),
+            ));
+        }
+        if flag == 0.0 {
+            table.ignored.push(sample);
+        } else {
+            table.samples.push(sample);
+        }
+    }
+    if seen.is_empty() {
+        return Err(ctx.err(None, None, "no rows"));
+    }
+    Ok(table)
+}
+
 /// Reads `frame, id, x, y` samples from a CSV with a header, the four columns named by
 /// `columns`. Frames and ids are whole numbers, positions finite, each (frame, id) once; a row
 /// whose `in_view` column is 0 is put apart. A table without rows is an error.

@@ -6,8 +6,8 @@ use anyhow::anyhow;
 
 use super::bad_input;
 use geostride::evaluate::{
-    SampleTable, consistency, evaluate, evaluate_matches, ignore_brief, read_covariances,
-    read_samples,
+    SampleTable, consistency, evaluate, evaluate_matches, ignore_brief, parse_mot_truth,
+    read_covariances, read_samples,
 };
 
 #[derive(clap::Args)]
@@ -33,6 +33,18 @@ pub struct Args {
     /// the pipeline keeps)
     #[arg(long, default_value = "1", value_name = "N")]
     min_frames: usize,
+    /// `csv` (a CSV with a header, --truth-columns) or `mot`: MOTChallenge 3D ground truth
+    /// (frame from 1, id, box, flag, world x, y, z; flag 0 counts neither way), as PETS 2009 has
+    #[arg(long, default_value = "csv", value_name = "FORMAT")]
+    truth_format: String,
+    /// Every estimated row on its own, identities ignored: how well positions are placed frame
+    /// by frame (as a detector is scored), not how well people are followed
+    #[arg(long)]
+    ignore_ids: bool,
+    /// The truth's own σ per axis, metres (hand-marked truth is not exact): added to each stated
+    /// covariance before the stated σ are checked against the errors
+    #[arg(long, default_value = "0", value_name = "M")]
+    truth_sd: f64,
     /// Print JSON instead of the table
     #[arg(long)]
     json: bool,
@@ -59,10 +71,29 @@ fn read(path: &Path, cols: &[String; 4]) -> anyhow::Result<SampleTable> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let truth_cols = columns(&args.truth_columns, "--truth-columns")?;
     let tracks_cols = columns(&args.tracks_columns, "--tracks-columns")?;
+    if !(args.truth_sd >= 0.0 && args.truth_sd.is_finite()) {
+        return Err(bad_input(anyhow!(
+            "--truth-sd {}: expected metres, 0 or more",
+            args.truth_sd
+        )));
+    }
     let SampleTable {
         samples: mut truth,
         mut ignored,
-    } = read(&args.truth, &truth_cols)?;
+    } = match args.truth_format.as_str() {
+        "csv" => read(&args.truth, &truth_cols)?,
+        "mot" => {
+            let text = geostride::io::FileCtx { path: &args.truth }
+                .read_text("MOTChallenge 3D ground truth")
+                .map_err(bad_input)?;
+            parse_mot_truth(&args.truth, &text).map_err(bad_input)?
+        }
+        other => {
+            return Err(bad_input(anyhow!(
+                "--truth-format '{other}': expected 'csv' or 'mot'"
+            )));
+        }
+    };
     if truth.is_empty() {
         return Err(bad_input(anyhow!(
             "{}: no position counts (every row is out of view)",
@@ -70,7 +101,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )));
     }
     let brief = ignore_brief(&mut truth, &mut ignored, args.min_frames);
-    let est = read(&args.tracks, &tracks_cols)?.samples;
+    let mut est = read(&args.tracks, &tracks_cols)?.samples;
+    // Each row its own track: the matching is then frame by frame, by distance alone.
+    let own_ids: Vec<usize> = est.iter().map(|s| s.id).collect();
+    if args.ignore_ids {
+        for (k, s) in est.iter_mut().enumerate() {
+            s.id = k + 1;
+        }
+    }
     // The stated uncertainties against the errors, when the tracks carry them (geostride's
     // trajectories.csv, read by its own frame and id columns); the matches are kept only then.
     let covariances = if tracks_cols[..2] == ["frame", "id"] {
@@ -84,8 +122,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (e, uncertainty) = match &covariances {
         Some(c) => {
-            let (e, matches) = evaluate_matches(&truth, &est, &ignored, args.threshold);
-            (e, Some(consistency(&matches, c).0).filter(|c| c.points > 0))
+            let (e, mut matches) = evaluate_matches(&truth, &est, &ignored, args.threshold);
+            if args.ignore_ids {
+                for (_, m) in &mut matches {
+                    m.id = own_ids[m.id - 1];
+                }
+            }
+            let mut c = c.clone();
+            let truth_var = args.truth_sd * args.truth_sd;
+            for p in c.values_mut() {
+                p.random += nalgebra::Matrix2::identity() * truth_var;
+            }
+            (
+                e,
+                Some(consistency(&matches, &c).0).filter(|c| c.points > 0),
+            )
         }
         None => (evaluate(&truth, &est, &ignored, args.threshold), None),
     };

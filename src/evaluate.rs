@@ -555,6 +555,38 @@ fn evaluate_inner(
 mod tests {
     use super::*;
 
+    #[test]
+    fn motchallenge_truth_is_read_from_frame_one_with_its_flag() {
+        let path = Path::new("gt.txt");
+        let t = parse_mot_truth(
+            path,
+            "1,9,10,20,30,60,1,-3.5,2.25,0\n1,11,5,5,5,5,0,1.0,2.0,0\n2 9 10 20 30 60 1 -3.4 2.3 0\n",
+        )
+        .unwrap();
+        assert_eq!(t.samples.len(), 2);
+        assert_eq!((t.samples[0].frame, t.samples[0].id), (0, 9));
+        assert_eq!(t.samples[0].position, Vector2::new(-3.5, 2.25));
+        assert_eq!(t.samples[1].frame, 1);
+        assert_eq!((t.ignored.len(), t.ignored[0].id), (1, 11));
+        for (text, says) in [
+            (
+                "0,9,1,1,1,1,1,0,0,0\n",
+                "gt.txt:1: field 'frame': MOTChallenge frames count from 1",
+            ),
+            (
+                "1,9,1,1,1,1,1,0\n",
+                "gt.txt:1: expected MOTChallenge 3D ground truth",
+            ),
+            (
+                "1,9,1,1,1,1,1,0,0,0\n1,9,1,1,1,1,1,0,0,0\n",
+                "gt.txt:2: id 9 is in frame 1 twice",
+            ),
+        ] {
+            let e = parse_mot_truth(path, text).unwrap_err().to_string();
+            assert!(e.starts_with(says), "{e}");
+        }
+    }
+
     /// Errors drawn from the stated covariance fill its 95 % ellipse 95 % of the time; errors
     /// twice as large do not, and a shift shows as a mean error over σ.
     #[test]

@@ -604,6 +604,18 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-boxes-outside-the-image",
+            category: "nonsense accepted",
+            files: vec![
+                ("boxes.txt", "1,-1,100,100,40,80,0.9\n1,-1,5000,3000,40,80,0.9\n".into()),
+                ("project.toml", replace("project.toml", "[projection]", "[detect]\nkind = \"boxes\"\nboxes = \"boxes.txt\"\n\n[projection]")),
+            ],
+            args: run(),
+            expect: "has its centre outside the",
+            place: "field 'detect.boxes'",
+            ..Default::default()
+        },
+        Case {
             id: "project-shadow-sample-not-whole",
             category: "nonsense accepted",
             files: vec![("project.toml", replace(

@@ -122,6 +122,32 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
             ),
         ));
     }
+    if let Some(size) = x.camera.image_size
+        && let Some(out) = boxes.iter().find(|r| {
+            let c = (r.bbox[0] + r.bbox[2] / 2.0, r.bbox[1] + r.bbox[3] / 2.0);
+            !(c.0 >= -0.5
+                && c.1 >= -0.5
+                && c.0 <= f64::from(size.width) - 0.5
+                && c.1 <= f64::from(size.height) - 0.5)
+        })
+    {
+        return Err(x.input(
+            "boxes",
+            format!(
+                "{}:{}: the box [{}, {}, {}, {}] (x, y, width, height) has its centre outside the \
+                 {}x{} frames: are these boxes for another size of the video? Scale them to its \
+                 frames",
+                path.display(),
+                out.line,
+                out.bbox[0],
+                out.bbox[1],
+                out.bbox[2],
+                out.bbox[3],
+                size.width,
+                size.height
+            ),
+        ));
+    }
     let shadow = if b.shadow_samples.is_empty() {
         None
     } else {

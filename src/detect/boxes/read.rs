@@ -38,7 +38,11 @@ impl At<'_> {
         } else {
             Err(self.err(
                 field,
-                format!("expected a score in [0, 1]{alternative}, found {v}"),
+                format!(
+                    "expected a score in [0, 1]{alternative}, found {v} (a detector whose scores \
+                     are not probabilities, such as MOTChallenge's ACF or DPM files, needs them \
+                     scaled to [0, 1] first)"
+                ),
             ))
         }
     }

@@ -39,6 +39,7 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench cluster_scaling
 	$(CARGO) bench --locked --bench ba_vs_ceres
 	$(CARGO) bench --locked --bench sfm_vs_colmap
+	./scripts/pets-benchmark.sh out/pets-benchmark
 	$(CARGO) bench --locked --bench detect_vs_opencv
 
 # The long fuzzing run: 10^6 inputs per parser (about 45 minutes on 2 cores, most of it crs through

@@ -117,3 +117,73 @@ fn a_fixed_camera_runs_from_its_tsai_calibration_without_gcps() {
         rows.len()
     );
 }
+
+/// Issue 37's benchmark (`scripts/pets-benchmark.sh`, also run by `make bench`): frames 0–399
+/// against the world truth at the standard 1 m, with the bundled detector and with the ACF
+/// boxes. The thresholds hold what was measured (docs/accuracy.md), a little below it; the
+/// issue's targets for the bundled detector (mean error ≤ 0.25 m, IDF1 ≥ 0.75) are not yet met.
+#[test]
+fn the_pets_benchmark_holds_its_measured_accuracy() {
+    let (Some(_), Some(_)) = (common::data_dir("pets2009-s2l1"), common::data_dir("video")) else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("pets");
+    let o = std::process::Command::new("sh")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scripts/pets-benchmark.sh"
+        ))
+        .arg(&out)
+        .env("GEOSTRIDE", env!("CARGO_BIN_EXE_geostride"))
+        .output()
+        .unwrap();
+    common::assert_success(&o);
+    let json = |name: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join(format!("{name}.json"))).unwrap())
+            .unwrap()
+    };
+    let num = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap();
+    let table = std::fs::read_to_string(out.join("table.md")).unwrap();
+    eprintln!("{table}");
+
+    let (t, p) = (json("bundled-tracking"), json("bundled-positions"));
+    assert_eq!(num(&t, "truth_tracks"), 10.0, "people in frames 0-399");
+    assert!(num(&t, "mota") >= 0.85, "MOTA {}", t["mota"]);
+    assert!(num(&t, "idf1") >= 0.68, "IDF1 {}", t["idf1"]);
+    assert!(num(&t, "motp_m") <= 0.30, "MOTP {}", t["motp_m"]);
+    assert!(
+        num(&t, "estimated_tracks") <= 15.0,
+        "tracks {} for 10 people",
+        t["estimated_tracks"]
+    );
+    assert!(
+        num(&p, "mean_error_m") <= 0.29,
+        "per frame {}",
+        p["mean_error_m"]
+    );
+    let inside = num(&t["uncertainty"], "inside_95");
+    assert!(
+        (0.90..=0.995).contains(&inside),
+        "95 % ellipses hold {inside}"
+    );
+
+    // The ACF boxes through geostride: no worse than their own projection.
+    let (t, p, own) = (
+        json("acf-tracking"),
+        json("acf-positions"),
+        json("acf-own-positions"),
+    );
+    assert!(
+        num(&p, "mean_error_m") <= num(&own, "mean_error_m"),
+        "ACF through geostride {} m, their own projection {} m",
+        p["mean_error_m"],
+        own["mean_error_m"]
+    );
+    assert!(
+        num(&t, "motp_m") <= num(&own, "mean_error_m"),
+        "MOTP {}",
+        t["motp_m"]
+    );
+    assert!(num(&t, "mota") >= 0.82 && num(&t, "idf1") >= 0.75, "{t}");
+}

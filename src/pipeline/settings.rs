@@ -222,6 +222,16 @@ impl DetectSection {
         }
     }
 
+    /// The body keys, where the detector gives whole bodies' boxes.
+    pub(crate) fn body(&self) -> Option<BodySettings> {
+        match self {
+            DetectSection::Colour(_) => None,
+            DetectSection::Boxes(b) => Some(b.body()),
+            DetectSection::Background(b) => Some(b.body()),
+            DetectSection::Onnx(b) => Some(b.body()),
+        }
+    }
+
     /// The box file, for `boxes`.
     pub(crate) fn boxes_file(&self) -> Option<&str> {
         match self {
@@ -267,6 +277,8 @@ impl Default for ColourSection {
 #[derive(Clone, Debug, PartialEq)]
 pub struct BodySettings {
     pub body_radius_m: f64,
+    pub feet_radius_m: f64,
+    pub feet_sd_m: f64,
     pub person_m: Option<f64>,
     pub error_px2: Option<[f64; 3]>,
     pub error_profile_px2: Option<Vec<[f64; 3]>>,
@@ -286,7 +298,25 @@ impl BodySettings {
             (None, None) => ErrorModel::default(),
         }
     }
+
+    /// How far a box reaches beyond the body (`projection::body`).
+    pub(crate) fn shape(&self) -> crate::projection::body::BodyShape {
+        crate::projection::body::BodyShape {
+            reach_m: self.body_radius_m,
+            head_radius_m: HEAD_RADIUS_M,
+            feet_radius_m: self.feet_radius_m,
+            feet_sd_m: self.feet_sd_m,
+        }
+    }
 }
+
+/// Seen from the side, a box's top is the top of the head, a head's radius out.
+pub const HEAD_RADIUS_M: f64 = 0.1;
+/// Seen from the side, how far a box's bottom lies before the person's ground point: the nearer
+/// foot's toes.
+pub const DEFAULT_FEET_RADIUS_M: f64 = 0.1;
+/// σ of where the box's bottom lies under a walking body (the stride).
+pub const DEFAULT_FEET_SD_M: f64 = 0.15;
 
 /// `[detect] kind = "boxes"`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -310,6 +340,11 @@ pub struct BoxesSection {
     pub max_shadow_fraction: f64,
     /// A body's radius seen from above, metres: the head is this far in from the box's end.
     pub body_radius_m: f64,
+    /// Seen from the side: the box's bottom lies this far before the person's ground point (the
+    /// nearer foot), metres.
+    pub feet_radius_m: f64,
+    /// σ of `feet_radius_m` (the stride), metres.
+    pub feet_sd_m: f64,
     /// One person's length along a box, metres: boxes of two or more such lengths are split
     /// (off unless given: seen obliquely, one person's box is long too).
     pub person_m: Option<f64>,
@@ -337,6 +372,8 @@ impl Default for BoxesSection {
             shadow_samples: Vec::new(),
             max_shadow_fraction: 0.6,
             body_radius_m: DEFAULT_BODY_RADIUS_M,
+            feet_radius_m: DEFAULT_FEET_RADIUS_M,
+            feet_sd_m: DEFAULT_FEET_SD_M,
             person_m: None,
             error_px2: None,
             error_profile_px2: None,
@@ -382,6 +419,11 @@ pub struct OnnxSection {
     pub aspect: [f64; 2],
     pub size_m: [f64; 2],
     pub body_radius_m: f64,
+    /// Seen from the side: the box's bottom lies this far before the person's ground point (the
+    /// nearer foot), metres.
+    pub feet_radius_m: f64,
+    /// σ of `feet_radius_m` (the stride), metres.
+    pub feet_sd_m: f64,
     pub person_m: Option<f64>,
     pub error_px2: Option<[f64; 3]>,
     pub error_profile_px2: Option<Vec<[f64; 3]>>,
@@ -412,6 +454,8 @@ impl Default for OnnxSection {
             aspect: b.aspect,
             size_m: b.size_m,
             body_radius_m: b.body_radius_m,
+            feet_radius_m: b.feet_radius_m,
+            feet_sd_m: b.feet_sd_m,
             person_m: None,
             error_px2: None,
             error_profile_px2: None,
@@ -432,6 +476,11 @@ pub struct BackgroundSection {
     pub min_area_m2: f64,
     pub max_area_m2: f64,
     pub body_radius_m: f64,
+    /// Seen from the side: the box's bottom lies this far before the person's ground point (the
+    /// nearer foot), metres.
+    pub feet_radius_m: f64,
+    /// σ of `feet_radius_m` (the stride), metres.
+    pub feet_sd_m: f64,
     pub person_m: Option<f64>,
     pub error_px2: Option<[f64; 3]>,
     pub error_profile_px2: Option<Vec<[f64; 3]>>,
@@ -446,6 +495,8 @@ impl Default for BackgroundSection {
             min_area_m2: 0.08,
             max_area_m2: 4.0,
             body_radius_m: DEFAULT_BODY_RADIUS_M,
+            feet_radius_m: DEFAULT_FEET_RADIUS_M,
+            feet_sd_m: DEFAULT_FEET_SD_M,
             person_m: None,
             error_px2: None,
             error_profile_px2: None,
@@ -461,6 +512,8 @@ macro_rules! body_settings {
             pub fn body(&self) -> BodySettings {
                 BodySettings {
                     body_radius_m: self.body_radius_m,
+                    feet_radius_m: self.feet_radius_m,
+                    feet_sd_m: self.feet_sd_m,
                     person_m: self.person_m,
                     error_px2: self.error_px2,
                     error_profile_px2: self.error_profile_px2.clone(),
@@ -964,6 +1017,12 @@ impl BodySettings {
         }
         if !(self.body_radius_m >= 0.0) {
             return bad("body_radius_m", "must not be negative");
+        }
+        if !(self.feet_radius_m >= 0.0 && self.feet_radius_m < 2.0) {
+            return bad("feet_radius_m", "expected metres from 0 to 2 (default 0.1)");
+        }
+        if !(self.feet_sd_m >= 0.0 && self.feet_sd_m < 2.0) {
+            return bad("feet_sd_m", "expected metres from 0 to 2 (default 0.15)");
         }
         if self.person_m.is_some_and(|m| !(m > 0.0)) {
             return bad("person_m", "must be positive");

@@ -8,6 +8,8 @@
 //! frame), the height's σ (the same for a person in every frame: systematic) and the pose's
 //! covariance (shared by everyone in a frame).
 
+pub mod body;
+
 use nalgebra::{Matrix2, Matrix6, Vector2, Vector3, Vector6};
 
 use crate::camera::Camera;

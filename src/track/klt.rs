@@ -56,6 +56,10 @@ pub struct KltTrackSettings {
     pub motion_var_px2: f64,
     /// A frame's motion with no feature left: the prediction, with this variance, px².
     pub lost_var_px2: f64,
+    /// A detection whose box's longer side is more than this factor larger or smaller than
+    /// the track's last is not its: seen obliquely, two people who meet in the image are at
+    /// different distances, so of different sizes.
+    pub max_size_ratio: f64,
 }
 
 impl Default for KltTrackSettings {
@@ -73,6 +77,7 @@ impl Default for KltTrackSettings {
             backward_frames: 25,
             motion_var_px2: 0.5,
             lost_var_px2: 25.0,
+            max_size_ratio: 1.6,
         }
     }
 }
@@ -402,13 +407,24 @@ impl<F: FeatureTracker> KltTracker<F> {
         // Detections to tracks: first the confirmed ones, then the tentative ones take what is
         // left (a false alarm's young track must not take a person's detection from its track).
         let s = &self.settings;
-        let gated = |(p, cov, _, _): &Prediction, d: &Detection| {
+        let size = |b: &[f64; 4]| b[2].max(b[3]);
+        let gated = |(p, cov, _, _): &Prediction, track_box: &[f64; 4], d: &Detection| {
             // A track that lost its features is less sure where it is: a wider gate, up to
             // twice the base.
             let spread = largest_eigenvalue(&(cov + d.cov)).sqrt();
             let gate = s.gate_px + (3.0 * spread).min(s.gate_px);
             let r = (d.uv - p).norm();
-            if r <= gate { r } else { f64::INFINITY }
+            // And a size unlike the track's costs as much as half a gate at the limit.
+            let scale = (size(&d.bbox) / size(track_box)).ln().abs();
+            let limit = s.max_size_ratio.ln();
+            if r > gate || (scale.is_finite() && scale > limit) {
+                return f64::INFINITY;
+            }
+            r + if scale.is_finite() {
+                0.5 * s.gate_px * scale / limit
+            } else {
+                0.0
+            }
         };
         let confirmed: Vec<bool> = self.live.iter().map(|t| t.hits >= CONFIRM_HITS).collect();
         let mut matched: Vec<Option<usize>> = vec![None; self.live.len()];
@@ -427,13 +443,13 @@ impl<F: FeatureTracker> KltTracker<F> {
                             if u {
                                 f64::INFINITY
                             } else {
-                                gated(&predicted[i], d)
+                                gated(&predicted[i], &self.live[i].bbox, d)
                             }
                         })
                         .collect()
                 })
                 .collect();
-            for (&i, m) in rows.iter().zip(assign(&cost, 2.0 * s.gate_px)) {
+            for (&i, m) in rows.iter().zip(assign(&cost, 2.5 * s.gate_px)) {
                 if let Some(j) = m {
                     used[j] = true;
                     matched[i] = Some(j);
@@ -691,11 +707,19 @@ impl<F: FeatureTracker> KltTracker<F> {
                     .iter()
                     .zip(&smooth[a..=e])
                     .zip(&det_cov[a..=e])
-                    .map(|((x, (uv, cov)), extra)| TrackPoint {
-                        frame: x.frame,
-                        uv: *uv,
-                        cov: cov + extra,
-                        bbox: x.bbox,
+                    .map(|((x, (uv, cov)), extra)| {
+                        // The box moved with the smoothing, so that what is read from it (its
+                        // ends, seen obliquely) gains from the features' motion too.
+                        let moved = uv - x.det.map_or(x.est, |d| d.0);
+                        let mut bbox = x.bbox;
+                        bbox[0] += moved.x;
+                        bbox[1] += moved.y;
+                        TrackPoint {
+                            frame: x.frame,
+                            uv: *uv,
+                            cov: cov + extra,
+                            bbox,
+                        }
                     }),
             );
             tracks.push(points);

@@ -59,11 +59,15 @@ pub(super) fn prepare<'a>(
 
     // The scale of a head in the image, from a pose of the first frame (the picked one).
     let first_pose = pose.first_pose(&camera, &video)?;
-    let centre = first_pose.centre();
-    let head_z = surface.height(&centre.xy()).ok_or_else(|| {
+    let px_per_m = head_scale(
+        &camera,
+        &first_pose,
+        surface.as_ref(),
+        p.projection.head_height_m,
+    )
+    .ok_or_else(|| {
         RunError::Input(l.error("ground", "", "the ground is not defined below the camera"))
-    })? + p.projection.head_height_m;
-    let px_per_m = 0.5 * (camera.fx + camera.fy) / (centre.z - head_z).max(1.0);
+    })?;
 
     // What the later stages read, checked now rather than after hours of scanning.
     let heights = match &p.projection.heights {
@@ -140,6 +144,10 @@ pub(super) fn prepare<'a>(
         surface,
         px_per_m,
         heights,
+        bodies: p.detect.body().map(|b| Bodies {
+            shape: b.shape(),
+            error: b.error_model(),
+        }),
         out_crs,
         transform,
         first_pose,
@@ -360,6 +368,8 @@ pub(super) struct RunInputs {
     pub(super) px_per_m: f64,
     /// Heights given per track: (height, σ), metres.
     pub(super) heights: BTreeMap<usize, (f64, f64)>,
+    /// Where the detector boxes whole bodies: how their boxes are read.
+    pub(super) bodies: Option<Bodies>,
     pub(super) out_crs: Option<Crs>,
     pub(super) transform: Option<Transform>,
     /// The first frame's pose (the picked frame's for a hovering camera).
@@ -374,6 +384,37 @@ pub(super) struct RunInputs {
     pub(super) palette: Option<crate::detect::colour::Palette>,
     /// The export formats, in the project's order.
     pub(super) formats: Vec<crate::export::ExportFormat>,
+}
+
+/// The image scale of a head, pixels per metre, where the camera looks: at the head-height point
+/// seen at the image's centre (below the camera when it looks straight down, out on the ground
+/// when it looks obliquely), else below the camera. None where the ground is not defined there.
+pub(crate) fn head_scale(
+    camera: &Camera,
+    cam_from_world: &crate::geom::Rigid3,
+    surface: &dyn HeightSurface,
+    head_height_m: f64,
+) -> Option<f64> {
+    let f = 0.5 * (camera.fx + camera.fy);
+    let centre_px = nalgebra::Vector2::new(camera.cx, camera.cy);
+    let seen =
+        crate::projection::intersect(camera, cam_from_world, surface, head_height_m, &centre_px)
+            .map(|p| cam_from_world.apply(&p).z);
+    let depth = match seen {
+        Some(d) => d,
+        None => {
+            let c = cam_from_world.centre();
+            c.z - (surface.height(&c.xy())? + head_height_m)
+        }
+    };
+    Some(f / depth.max(1.0))
+}
+
+/// How a body detector's boxes become ground positions (`projection::body`).
+pub(super) struct Bodies {
+    pub(super) shape: crate::projection::body::BodyShape,
+    /// The detection error of a box's edges.
+    pub(super) error: crate::detect::ErrorModel,
 }
 
 /// The detector of each chunk computed: the one made while checking the inputs for the first,

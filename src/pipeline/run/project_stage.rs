@@ -5,11 +5,14 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use super::prepare::Bodies;
 use super::{Env, PoseData, RunError, RunInputs, StageRecord, WorldTrack, cached_seq};
 use crate::cache::stage_key;
+use crate::camera::Camera;
 use crate::geom::Rigid3;
 use crate::pipeline::project::ProjectionSection;
 use crate::pipeline::settings::GroundSection;
+use crate::projection::body::{BoxError, View, combine_heights, ground_from_box};
 use crate::projection::project;
 use crate::terrain::HeightSurface;
 use crate::track::ImageTrack;
@@ -53,41 +56,21 @@ pub(super) fn project_stage(
     );
     let t0 = Instant::now();
     let (summary, status) = cached_seq(&env.cache, env.progress, "project", &project_key, || {
+        let image_wh = (f64::from(x.size.0), f64::from(x.size.1));
+        let bodies = x.bodies.as_ref();
         let one = |t: &ImageTrack, surface: &dyn HeightSurface| -> (WorldTrack, usize) {
-            let (h, sd, source) = match heights.get(&t.id) {
-                Some((h, sd)) => (*h, *sd, "given"),
-                None => (
-                    projection.head_height_m,
-                    projection.head_height_sd_m,
-                    "default",
-                ),
+            let given = heights.get(&t.id).copied();
+            let seen = Seen {
+                camera,
+                poses,
+                pose_data,
+                surface,
+                image_wh,
             };
-            let mut points = Vec::new();
-            let mut dropped = 0;
-            for q in &t.points {
-                let fp = &pose_data.frames[q.frame];
-                match project(
-                    camera,
-                    &poses[q.frame],
-                    fp.covariance.as_ref(),
-                    surface,
-                    &q.uv,
-                    &q.cov,
-                    h,
-                    sd,
-                ) {
-                    Some(w) => points.push((q.frame, w)),
-                    None => dropped += 1,
-                }
+            match bodies {
+                Some(b) => seen.bodies(t, b, given, projection),
+                None => seen.heads(t, given, projection),
             }
-            let track = WorldTrack {
-                id: t.id,
-                height_m: h,
-                height_sd_m: sd,
-                height_source: source.into(),
-                points,
-            };
-            (track, dropped)
         };
         let mut summary = ProjectSummary {
             tracks: tracks.tracks,
@@ -139,4 +122,143 @@ pub(super) fn project_stage(
     };
 
     Ok((summary, project_key, record))
+}
+
+/// What a track's points are projected through.
+struct Seen<'a> {
+    camera: &'a Camera,
+    poses: &'a [Rigid3],
+    pose_data: &'a PoseData,
+    surface: &'a dyn HeightSurface,
+    image_wh: (f64, f64),
+}
+
+/// A person's height: given, else the default, with its σ and where it came from.
+fn height_of(
+    given: Option<(f64, f64)>,
+    projection: &ProjectionSection,
+) -> (f64, f64, &'static str) {
+    match given {
+        Some((h, sd)) => (h, sd, "given"),
+        None => (
+            projection.head_height_m,
+            projection.head_height_sd_m,
+            "default",
+        ),
+    }
+}
+
+impl Seen<'_> {
+    fn view(&self, frame: usize) -> View<'_> {
+        View {
+            camera: self.camera,
+            cam_from_world: &self.poses[frame],
+            pose_cov: self.pose_data.frames[frame].covariance.as_ref(),
+            surface: self.surface,
+            image_wh: self.image_wh,
+        }
+    }
+
+    /// Heads (hats) projected through the head-height surface.
+    fn heads(
+        &self,
+        t: &ImageTrack,
+        given: Option<(f64, f64)>,
+        projection: &ProjectionSection,
+    ) -> (WorldTrack, usize) {
+        let (h, sd, source) = height_of(given, projection);
+        let mut points = Vec::new();
+        let mut dropped = 0;
+        for q in &t.points {
+            let fp = &self.pose_data.frames[q.frame];
+            match project(
+                self.camera,
+                &self.poses[q.frame],
+                fp.covariance.as_ref(),
+                self.surface,
+                &q.uv,
+                &q.cov,
+                h,
+                sd,
+            ) {
+                Some(w) => points.push((q.frame, w)),
+                None => dropped += 1,
+            }
+        }
+        let track = WorldTrack {
+            id: t.id,
+            height_m: h,
+            height_sd_m: sd,
+            height_source: source.into(),
+            points,
+        };
+        (track, dropped)
+    }
+
+    /// Whole bodies' boxes read for both ends (`projection::body`): the person's height from
+    /// every box that shows both, unless given, then each box's ground position at it.
+    fn bodies(
+        &self,
+        t: &ImageTrack,
+        b: &Bodies,
+        given: Option<(f64, f64)>,
+        projection: &ProjectionSection,
+    ) -> (WorldTrack, usize) {
+        let (mut h, mut sd, mut source) = height_of(given, projection);
+        let width = self.image_wh.0;
+        // The box's position error is the tracker's; its length's is the detector's at its
+        // feet end (the tracker follows the head end).
+        let error = |q: &crate::track::TrackPoint| {
+            let feet = nalgebra::Vector2::new(q.bbox[0] + q.bbox[2] / 2.0, q.bbox[1] + q.bbox[3]);
+            let e = b.error.cov(&feet, width);
+            BoxError {
+                position_px2: q.cov,
+                length_px2: 0.5 * (e[(0, 0)] + e[(1, 1)]),
+            }
+        };
+        if given.is_none() {
+            let said: Vec<_> = t
+                .points
+                .iter()
+                .filter_map(|q| {
+                    ground_from_box(
+                        &self.view(q.frame),
+                        &b.shape,
+                        &q.bbox,
+                        &error(q),
+                        (h, sd),
+                        true,
+                    )
+                })
+                .filter_map(|f| f.height)
+                .collect();
+            if !said.is_empty() {
+                (h, sd) = combine_heights((h, sd), &said);
+                source = "boxes";
+            }
+        }
+        let mut points = Vec::new();
+        let mut dropped = 0;
+        for q in &t.points {
+            match ground_from_box(
+                &self.view(q.frame),
+                &b.shape,
+                &q.bbox,
+                &error(q),
+                (h, sd),
+                false,
+            ) {
+                Some(f) => points.push((q.frame, f.point)),
+                None => dropped += 1,
+            }
+        }
+        let track = WorldTrack {
+            id: t.id,
+            height_m: h,
+            height_sd_m: sd,
+            height_source: source.into(),
+            points,
+        };
+        (track, dropped)
+    }
 }

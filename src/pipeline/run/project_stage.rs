@@ -167,11 +167,9 @@ impl Seen<'_> {
         projection: &ProjectionSection,
     ) -> (WorldTrack, usize) {
         let (h, sd, source) = height_of(given, projection);
-        let mut points = Vec::new();
-        let mut dropped = 0;
-        for q in &t.points {
+        world_track(t, (h, sd, source), |q| {
             let fp = &self.pose_data.frames[q.frame];
-            match project(
+            project(
                 self.camera,
                 &self.poses[q.frame],
                 fp.covariance.as_ref(),
@@ -180,19 +178,8 @@ impl Seen<'_> {
                 &q.cov,
                 h,
                 sd,
-            ) {
-                Some(w) => points.push((q.frame, w)),
-                None => dropped += 1,
-            }
-        }
-        let track = WorldTrack {
-            id: t.id,
-            height_m: h,
-            height_sd_m: sd,
-            height_source: source.into(),
-            points,
-        };
-        (track, dropped)
+            )
+        })
     }
 
     /// Whole bodies' boxes read for both ends (`projection::body`): the person's height from
@@ -237,28 +224,41 @@ impl Seen<'_> {
                 source = "boxes";
             }
         }
-        let mut points = Vec::new();
-        let mut dropped = 0;
-        for q in &t.points {
-            match ground_from_box(
+        world_track(t, (h, sd, source), |q| {
+            ground_from_box(
                 &self.view(q.frame),
                 &b.shape,
                 &q.bbox,
                 &error(q),
                 (h, sd),
                 false,
-            ) {
-                Some(f) => points.push((q.frame, f.point)),
-                None => dropped += 1,
-            }
-        }
-        let track = WorldTrack {
-            id: t.id,
-            height_m: h,
-            height_sd_m: sd,
-            height_source: source.into(),
-            points,
-        };
-        (track, dropped)
+            )
+            .map(|f| f.point)
+        })
     }
+}
+
+/// A track's points projected by `each` (None: off the ground surface, dropped) at the height
+/// `(height, σ, source)`; and how many were dropped.
+fn world_track(
+    t: &ImageTrack,
+    (h, sd, source): (f64, f64, &str),
+    each: impl Fn(&crate::track::TrackPoint) -> Option<crate::projection::WorldPoint>,
+) -> (WorldTrack, usize) {
+    let mut points = Vec::new();
+    let mut dropped = 0;
+    for q in &t.points {
+        match each(q) {
+            Some(w) => points.push((q.frame, w)),
+            None => dropped += 1,
+        }
+    }
+    let track = WorldTrack {
+        id: t.id,
+        height_m: h,
+        height_sd_m: sd,
+        height_source: source.into(),
+        points,
+    };
+    (track, dropped)
 }

@@ -16,6 +16,18 @@ pub fn nadir(heading_deg: f64) -> Matrix3<f64> {
     Matrix3::from_columns(&[right, -up, Vector3::new(0.0, 0.0, -1.0)])
 }
 
+/// Camera from a nadir camera turned about its x axis so that its optical axis points
+/// `below_horizon_deg` below the horizon, towards the nadir image's top.
+fn looking_down(below_horizon_deg: f64) -> Matrix3<f64> {
+    let t = (90.0 - below_horizon_deg).to_radians();
+    // Columns: the new axes in the nadir camera's frame (x kept, z towards the image top).
+    Matrix3::from_columns(&[
+        Vector3::x(),
+        Vector3::new(0.0, t.cos(), t.sin()),
+        Vector3::new(0.0, -t.sin(), t.cos()),
+    ])
+}
+
 /// Small rotation jitter for frame `index`: independent per frame, σ `deg` about each axis.
 fn jitter(seed: u64, index: usize, deg: f64) -> Matrix3<f64> {
     if deg <= 0.0 {
@@ -46,6 +58,7 @@ pub fn camera_pose(
             drift_m,
             drift_period_s,
             jitter_deg,
+            below_horizon_deg,
         } => {
             let w = std::f64::consts::TAU * t / drift_period_s.max(1e-3);
             let drift = Vector3::new(
@@ -53,16 +66,23 @@ pub fn camera_pose(
                 (0.7 * w + 1.0).sin(),
                 0.3 * (1.3 * w + 2.0).sin(),
             ) * *drift_m;
-            // A slow tilt of a tenth of a degree, as a gimbal settles.
+            // A slow tilt of a tenth of a degree, as a gimbal settles (a camera that does not
+            // drift, on a pole, does not tilt either).
+            let settle = if *drift_m > 0.0 {
+                0.1f64.to_radians()
+            } else {
+                0.0
+            };
             let tilt = Rotation3::from_scaled_axis(Vector3::new(
-                0.1f64.to_radians() * (0.5 * w).sin(),
-                0.1f64.to_radians() * (0.4 * w).cos(),
+                settle * (0.5 * w).sin(),
+                settle * (0.4 * w).cos(),
                 0.0,
             ));
             CameraPose {
                 centre: Vector3::new(position[0], position[1], position[2]) + drift,
                 world_from_cam: tilt.matrix()
                     * nadir(*heading_deg)
+                    * looking_down(*below_horizon_deg)
                     * jitter(seed, index, *jitter_deg),
             }
         }
@@ -192,10 +212,31 @@ mod tests {
             drift_m: 0.3,
             drift_period_s: 40.0,
             jitter_deg: 0.02,
+            below_horizon_deg: 90.0,
         };
         let a = camera_pose(&h, 1, 0, 0.0, None);
         let b = camera_pose(&h, 1, 1, 0.04, None);
         assert!((a.centre - b.centre).norm() < 0.01);
         assert_eq!(camera_pose(&h, 1, 1, 0.04, None), b, "deterministic");
+    }
+
+    #[test]
+    fn a_pole_camera_looks_below_the_horizon_towards_its_heading() {
+        let pole = Motion::Hover {
+            position: [0.0, -20.0, 12.0],
+            heading_deg: 90.0,
+            drift_m: 0.0,
+            drift_period_s: 40.0,
+            jitter_deg: 0.0,
+            below_horizon_deg: 30.0,
+        };
+        let r = camera_pose(&pole, 1, 0, 0.0, None).world_from_cam;
+        let (s, c) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
+        // The optical axis east and 30° down, the image's x to the south (right of east), its y
+        // down and away.
+        assert!((r * Vector3::z() - Vector3::new(c, 0.0, -s)).norm() < 1e-9);
+        assert!((r * Vector3::x() - Vector3::new(0.0, -1.0, 0.0)).norm() < 1e-9);
+        assert!((r * Vector3::y() - Vector3::new(-s, 0.0, -c)).norm() < 1e-9);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
     }
 }

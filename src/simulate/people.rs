@@ -347,6 +347,58 @@ impl Body {
         }
     }
 
+    /// Points on the body's outline as seen from `eye` (world, metres): each part's contour
+    /// generator (the ellipsoid's points whose tangent plane holds the eye) and the hat's rim,
+    /// `per_part` points each. Their image box is the box a perfect detector draws around the
+    /// person's silhouette, in any view.
+    pub fn outline(&self, eye: &Vector3<f64>, per_part: usize) -> Vec<Vector3<f64>> {
+        let fwd = Vector3::new(self.heading.x, self.heading.y, 0.0);
+        let left = Vector3::new(-self.heading.y, self.heading.x, 0.0);
+        let up = Vector3::z();
+        let mut points = Vec::with_capacity(per_part * (self.parts.len() + 1));
+        for e in &self.parts {
+            // In the frame where the part is the unit sphere, the eye at `o` sees the circle of
+            // points u with u·o = 1.
+            let d = eye - e.centre;
+            let o = Vector3::new(
+                d.dot(&fwd) / e.semi.x,
+                d.dot(&left) / e.semi.y,
+                d.dot(&up) / e.semi.z,
+            );
+            let r2 = o.norm_squared();
+            if r2 <= 1.0 {
+                continue;
+            }
+            let centre = o / r2;
+            let radius = (1.0 - 1.0 / r2).sqrt();
+            let n = o / r2.sqrt();
+            let a = if n.x.abs() < 0.9 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            };
+            let a = (a - n * n.dot(&a)).normalize();
+            let b = n.cross(&a);
+            for k in 0..per_part {
+                let phi = std::f64::consts::TAU * k as f64 / per_part as f64;
+                let u = centre + (a * phi.cos() + b * phi.sin()) * radius;
+                points.push(
+                    e.centre
+                        + fwd * (u.x * e.semi.x)
+                        + left * (u.y * e.semi.y)
+                        + up * (u.z * e.semi.z),
+                );
+            }
+        }
+        if let Some((centre, _)) = &self.hat {
+            for k in 0..per_part {
+                let phi = std::f64::consts::TAU * k as f64 / per_part as f64;
+                points.push(centre + Vector3::new(phi.cos(), phi.sin(), 0.0) * HAT_RADIUS_M);
+            }
+        }
+        points
+    }
+
     /// Whether a ray passes within `margin_m` of the bounding box (slab test).
     pub(crate) fn may_hit(&self, origin: &Vector3<f64>, dir: &Vector3<f64>, margin_m: f64) -> bool {
         let (lo, hi) = (
@@ -451,6 +503,67 @@ mod tests {
             &[],
             3,
         )
+    }
+
+    /// The outline's image box is the box of the whole body's surface, seen from the side and
+    /// from above: nothing of the body sticks out of it and it is no larger.
+    #[test]
+    fn the_outline_bounds_the_body_as_a_camera_sees_it() {
+        let world = deck_world();
+        let people = spawn(&PeopleSpec::default(), &world, 30.0, 11);
+        let p = &people[0];
+        let pose = p.pose(&world, p.start_s + 1.3).unwrap();
+        let body = Body::new(p, &pose, None);
+        let fwd = Vector3::new(body.heading.x, body.heading.y, 0.0);
+        let left = Vector3::new(-body.heading.y, body.heading.x, 0.0);
+        for eye_offset in [Vector3::new(12.0, -5.0, 3.0), Vector3::new(3.0, 2.0, 25.0)] {
+            let eye = pose.foot + eye_offset;
+            // A pinhole looking at the body's middle: image box in the camera's tangent plane.
+            let z = (pose.foot + Vector3::new(0.0, 0.0, 0.9) - eye).normalize();
+            let x = z.cross(&Vector3::z()).normalize();
+            let y = z.cross(&x);
+            let image = |q: &Vector3<f64>| {
+                let d = q - eye;
+                [d.dot(&x) / d.dot(&z), d.dot(&y) / d.dot(&z)]
+            };
+            let bbox = |pts: &mut dyn Iterator<Item = [f64; 2]>| {
+                pts.fold([f64::MAX, f64::MAX, f64::MIN, f64::MIN], |b, q| {
+                    [
+                        b[0].min(q[0]),
+                        b[1].min(q[1]),
+                        b[2].max(q[0]),
+                        b[3].max(q[1]),
+                    ]
+                })
+            };
+            let outline = bbox(&mut body.outline(&eye, 96).iter().map(image));
+            let mut surface = Vec::new();
+            for e in &body.parts {
+                for i in 0..60 {
+                    for j in 0..120 {
+                        let (th, ph) = (
+                            std::f64::consts::PI * (i as f64 + 0.5) / 60.0,
+                            std::f64::consts::TAU * j as f64 / 120.0,
+                        );
+                        let u = [th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()];
+                        surface.push(image(
+                            &(e.centre
+                                + fwd * (u[0] * e.semi.x)
+                                + left * (u[1] * e.semi.y)
+                                + Vector3::z() * (u[2] * e.semi.z)),
+                        ));
+                    }
+                }
+            }
+            let dense = bbox(&mut surface.into_iter());
+            let scale = (dense[2] - dense[0]).max(dense[3] - dense[1]);
+            for k in 0..4 {
+                assert!(
+                    (outline[k] - dense[k]).abs() < 0.01 * scale,
+                    "side {k}: outline {outline:?} surface {dense:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -133,15 +133,22 @@ fn view_box(camera: &Camera, world: &World, poses: &[CameraPose]) -> (Vector2<f6
                 continue;
             };
             let dir = pose.world_from_cam * ray.into_inner();
+            // An oblique view reaches to the horizon: beyond ten heights from the camera a
+            // pixel covers metres of ground, and the albedo is computed there, not baked.
+            let reach = 10.0 * pose.centre.z.max(1.0);
+            let near = |p: Vector2<f64>| {
+                let d = p - pose.centre.xy();
+                pose.centre.xy() + d * (reach / d.norm().max(reach))
+            };
             if let Some((p, _)) = world.intersect(&pose.centre, &dir) {
-                lo = lo.inf(&p.xy());
-                hi = hi.sup(&p.xy());
+                lo = lo.inf(&near(p.xy()));
+                hi = hi.sup(&near(p.xy()));
             }
             // The ground under a deck too.
             if dir.z < 0.0 {
-                let p = pose.centre + dir * (-pose.centre.z / dir.z);
-                lo = lo.inf(&p.xy());
-                hi = hi.sup(&p.xy());
+                let p = near((pose.centre + dir * (-pose.centre.z / dir.z)).xy());
+                lo = lo.inf(&p);
+                hi = hi.sup(&p);
             }
         }
     }
@@ -301,6 +308,7 @@ pub fn simulate(
     files.push(write_scene_meta(
         scene, camera, out, seed, frames, duration,
     )?);
+    files.extend(write_fixed_camera(scene, camera, &poses[0], out)?);
     if let Some(v) = &video {
         files.push(v.clone());
     }
@@ -358,7 +366,9 @@ fn scene_renderer<'w>(
         .fold(f64::INFINITY, f64::min)
         .max(1.0)
         / camera.fx.max(camera.fy);
-    let texel = (0.7 * gsd).clamp(0.004, 0.05);
+    // At most about 40 million texels a layer (120 MB): coarser over a wide oblique view.
+    let area = (hi.x - lo.x).max(0.0) * (hi.y - lo.y).max(0.0);
+    let texel = (0.7 * gsd).clamp(0.004, 0.05).max((area / 4e7).sqrt());
     let settings = RenderSettings {
         texel_m: texel,
         sun,
@@ -455,14 +465,7 @@ impl TruthTables {
         shadows: &[Shadow],
     ) {
         for (k, ((p, _), body)) in present.iter().zip(bodies).enumerate() {
-            let (lo, hi) = body.bounds;
-            let body_box = f.image_box(&mut (0..8).map(|k| {
-                Vector3::new(
-                    if k & 1 == 0 { lo.x } else { hi.x },
-                    if k & 2 == 0 { lo.y } else { hi.y },
-                    if k & 4 == 0 { lo.z } else { hi.z },
-                )
-            }));
+            let body_box = f.image_box(&mut body.outline(&f.pose.centre, 48).into_iter());
             let shadow_box = shadows.get(k).and_then(|sh| {
                 let z = present[k].1.foot.z;
                 let (a, b) = (
@@ -553,6 +556,45 @@ impl TruthTables {
             truth.join("people.csv"),
         ])
     }
+}
+
+/// `camera.json` for a camera that does not move (a hover with no drift and no jitter: a pole
+/// or mast camera): the scene's camera with its pose in the site frame, for `[pose] kind =
+/// "fixed"`.
+fn write_fixed_camera(
+    scene: &Scene,
+    camera: &Camera,
+    pose: &CameraPose,
+    out: &Path,
+) -> Result<Option<PathBuf>, SimError> {
+    if !matches!(scene.camera.motion, Motion::Hover { drift_m, jitter_deg, .. }
+        if drift_m == 0.0 && jitter_deg == 0.0)
+    {
+        return Ok(None);
+    }
+    let r_cw = pose.world_from_cam.transpose();
+    let cam_from_world = crate::geom::Rigid3::new(
+        nalgebra::Rotation3::from_matrix_unchecked(r_cw),
+        -(r_cw * pose.centre),
+    );
+    let cal = crate::camera::Calibration {
+        camera: camera.clone(),
+        covariance: None,
+        summary: None,
+        notes: vec![String::from(
+            "written by geostride simulate: the scene's camera and its exact pose",
+        )],
+        extrinsics: Some(crate::camera::Extrinsics {
+            cam_from_world,
+            world: String::from(
+                "the scene's site frame: east, north, up in metres from its origin",
+            ),
+        }),
+    };
+    let path = out.join("camera.json");
+    crate::camera::formats::write(&cal, &path, Some(crate::camera::formats::Format::Json))
+        .map_err(|e| SimError::Output(e.to_string()))?;
+    Ok(Some(path))
 }
 
 /// `truth/scene.json`: what the scene was run with.

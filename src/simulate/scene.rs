@@ -135,11 +135,16 @@ impl Default for Site {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, rename_all = "snake_case", tag = "kind")]
 pub enum Motion {
-    /// Hovering: slow sinusoidal drift and per-frame rotation jitter.
+    /// Hovering (or on a pole, with no drift or jitter): slow sinusoidal drift and per-frame
+    /// rotation jitter.
     Hover {
         position: [f64; 3],
         #[serde(default)]
         heading_deg: f64,
+        /// How far the optical axis points below the horizon, towards `heading_deg`: 90 is
+        /// straight down (nadir), 15 a pole camera looking across a plaza.
+        #[serde(default = "Motion::default_below_horizon")]
+        below_horizon_deg: f64,
         #[serde(default = "Motion::default_drift")]
         drift_m: f64,
         #[serde(default = "Motion::default_drift_period")]
@@ -167,6 +172,9 @@ pub enum Motion {
 }
 
 impl Motion {
+    fn default_below_horizon() -> f64 {
+        90.0
+    }
     fn default_drift() -> f64 {
         0.3
     }
@@ -608,12 +616,19 @@ fn check_motion(motion: &Motion) -> Result<(), Bad> {
             drift_m,
             drift_period_s,
             jitter_deg,
+            below_horizon_deg,
             ..
         } => {
             if !(*drift_m >= 0.0 && *drift_period_s > 0.0 && jitter_ok(*jitter_deg)) {
                 return bad(
                     "camera.motion",
                     "drift_m must not be negative, drift_period_s positive, jitter_deg from 0 to 10",
+                );
+            }
+            if !(5.0..=90.0).contains(below_horizon_deg) {
+                return bad(
+                    "camera.motion.below_horizon_deg",
+                    "must be from 5 (looking across the site) to 90 (straight down) degrees",
                 );
             }
         }

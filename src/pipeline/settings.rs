@@ -284,9 +284,11 @@ pub struct BodySettings {
     pub error_profile_px2: Option<Vec<[f64; 3]>>,
 }
 
-/// Half a runner's length along the box (swinging arms and legs), from the simulator's bodies:
-/// 0.3 m left the head 0.25 m too far out at the image's sides.
-pub const DEFAULT_BODY_RADIUS_M: f64 = 0.55;
+/// Seen from above, how far a box's ends reach beyond the body's axis (shoulders, arms, the
+/// swinging legs), from the simulator's silhouette boxes of walkers and runners 30 m below:
+/// 0.1 and 0.2 m bias the crowd demo's positions by a third of their σ inwards and outwards.
+/// (0.55 m fitted the boxes of the bodies' loose 3D bounds the simulator drew before.)
+pub const DEFAULT_BODY_RADIUS_M: f64 = 0.15;
 
 impl BodySettings {
     /// The detection error model these settings give (checked when the project is read).

@@ -1112,6 +1112,7 @@ fn fit_detector_error(
         width: None,
         gate: 25.0,
         profile: false,
+        feet: false,
         json: false,
     };
     say!(
@@ -1124,7 +1125,7 @@ fn fit_detector_error(
         annotations.display()
     );
     let (pairing, error_fit, _) = super::fit_error::fit(&fit_args)?;
-    for line in super::fit_error::report_lines(&pairing, &error_fit) {
+    for line in super::fit_error::report_lines(&pairing, &error_fit, "heads") {
         say!(json, "   {line}");
     }
     Ok(error_fit)

@@ -7,7 +7,8 @@ use anyhow::anyhow;
 
 use super::bad_input;
 use geostride::detect::error_fit::{
-    ErrorFit, Form, MAX_ANNOTATIONS, Pairing, fit_error_model, pair_annotations, read_frame_points,
+    ErrorFit, Form, MAX_ANNOTATIONS, Pairing, fit_error_model, pair_annotations, read_box_feet,
+    read_frame_points,
 };
 
 #[derive(clap::Args)]
@@ -34,6 +35,11 @@ pub struct Args {
     /// the centre to the edges)
     #[arg(long)]
     pub profile: bool,
+    /// The annotations mark the feet (the ground point between them), and each is paired with a
+    /// detection box's bottom centre instead of its head point: the error of the boxes' feet
+    /// end, which the `boxes`, `onnx` and `background` detectors read in oblique views
+    #[arg(long)]
+    pub feet: bool,
     /// Print JSON instead of the text
     #[arg(long)]
     pub json: bool,
@@ -80,20 +86,28 @@ pub fn fit(args: &Args) -> anyhow::Result<(Pairing, ErrorFit, f64)> {
     let annotations = read_frame_points(
         &args.annotations,
         cols,
-        "a CSV of annotated heads",
+        if args.feet {
+            "a CSV of annotated feet"
+        } else {
+            "a CSV of annotated heads"
+        },
         None,
         MAX_ANNOTATIONS,
     )
     .map_err(bad_input)?;
     // Only the annotated frames' detections: a run's file may hold hours of them.
     let frames: std::collections::BTreeSet<usize> = annotations.keys().copied().collect();
-    let detections = read_frame_points(
-        &args.detections,
-        ["frame", "u_px", "v_px"],
-        "a run's detections.csv",
-        Some(&frames),
-        usize::MAX,
-    )
+    let detections = if args.feet {
+        read_box_feet(&args.detections, Some(&frames))
+    } else {
+        read_frame_points(
+            &args.detections,
+            ["frame", "u_px", "v_px"],
+            "a run's detections.csv",
+            Some(&frames),
+            usize::MAX,
+        )
+    }
     .map_err(bad_input)?;
     let pairing = pair_annotations(&detections, &annotations, args.gate);
     let form = if args.profile {
@@ -113,6 +127,7 @@ pub fn fit(args: &Args) -> anyhow::Result<(Pairing, ErrorFit, f64)> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (pairing, f, width) = fit(&args)?;
+    let what = if args.feet { "feet" } else { "heads" };
     if args.json {
         let mut v = serde_json::to_value(&f)?;
         v["unpaired_annotations"] = pairing.unpaired_annotations.into();
@@ -122,7 +137,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    for line in report_lines(&pairing, &f) {
+    for line in report_lines(&pairing, &f, what) {
         println!("{line}");
     }
     println!(
@@ -133,9 +148,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// What the fit found, in words.
-pub fn report_lines(p: &Pairing, f: &ErrorFit) -> Vec<String> {
+pub fn report_lines(p: &Pairing, f: &ErrorFit, what: &str) -> Vec<String> {
     let mut out = vec![format!(
-        "{} annotated heads paired with a detection ({} beyond the model's 99.9 % region left \
+        "{} annotated {what} paired with a detection ({} beyond the model's 99.9 % region left \
          out); {} annotations without a detection, {} detections without an annotation in the \
          annotated frames",
         f.pairs_used + f.pairs_dropped,

@@ -421,6 +421,32 @@ pub fn read_frame_points(
     parse_frame_points(path, &text, columns, keep, max_rows)
 }
 
+/// The feet ends of a run's detections (its `detections.csv`): each box's bottom centre, by
+/// frame, in the frames of `keep`.
+pub fn read_box_feet(
+    path: &Path,
+    keep: Option<&std::collections::BTreeSet<usize>>,
+) -> Result<BTreeMap<usize, Vec<Vector2<f64>>>, FileError> {
+    let text = FileCtx { path }.read_text("a run's detections.csv")?;
+    parse_box_feet(path, &text, keep)
+}
+
+/// [`read_box_feet`] on text.
+pub fn parse_box_feet(
+    path: &Path,
+    text: &str,
+    keep: Option<&std::collections::BTreeSet<usize>>,
+) -> Result<BTreeMap<usize, Vec<Vector2<f64>>>, FileError> {
+    parse_points(
+        path,
+        text,
+        &["frame", "box_x_px", "box_y_px", "box_w_px", "box_h_px"],
+        keep,
+        usize::MAX,
+        |v| Vector2::new(v[0] + v[2] / 2.0, v[1] + v[3]),
+    )
+}
+
 /// [`read_frame_points`] on text; `path` names the file in messages.
 pub fn parse_frame_points(
     path: &Path,
@@ -429,10 +455,24 @@ pub fn parse_frame_points(
     keep: Option<&std::collections::BTreeSet<usize>>,
     max_rows: usize,
 ) -> Result<BTreeMap<usize, Vec<Vector2<f64>>>, FileError> {
+    parse_points(path, text, &columns, keep, max_rows, |v| {
+        Vector2::new(v[0], v[1])
+    })
+}
+
+/// Rows of `frame` and numbers, each row's point made from its numbers by `point`.
+fn parse_points(
+    path: &Path,
+    text: &str,
+    columns: &[&str],
+    keep: Option<&std::collections::BTreeSet<usize>>,
+    max_rows: usize,
+    point: impl Fn(&[f64]) -> Vector2<f64>,
+) -> Result<BTreeMap<usize, Vec<Vector2<f64>>>, FileError> {
     let ctx = FileCtx { path };
     let mut out: BTreeMap<usize, Vec<Vector2<f64>>> = BTreeMap::new();
     let mut count = 0usize;
-    let rows = crate::io::csv_rows(ctx, text, &columns, |line, f, idx, _| {
+    let rows = crate::io::csv_rows(ctx, text, columns, |line, f, idx, _| {
         count += 1;
         if count > max_rows {
             return Err(ctx.at(
@@ -441,10 +481,11 @@ pub fn parse_frame_points(
             ));
         }
         let frame = ctx.whole(f[idx[0]], line, columns[0])? as usize;
-        let uv = Vector2::new(
-            ctx.number(f[idx[1]], line, columns[1])?,
-            ctx.number(f[idx[2]], line, columns[2])?,
-        );
+        let mut values = Vec::with_capacity(columns.len() - 1);
+        for k in 1..columns.len() {
+            values.push(ctx.number(f[idx[k]], line, columns[k])?);
+        }
+        let uv = point(&values);
         if keep.is_some_and(|k| !k.contains(&frame)) {
             return Ok(());
         }
@@ -467,6 +508,22 @@ pub fn parse_frame_points(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn box_feet_are_the_bottom_centres_of_the_kept_frames() {
+        let text = "frame,u_px,v_px,var_u_px2,cov_uv_px2,var_v_px2,score,box_x_px,box_y_px,box_w_px,box_h_px\n\
+                    0,322.9,134.3,13.5,0.0,10.0,0.9,312.0,101.0,20.0,38.5\n\
+                    3,415.6,199.6,17.3,0.0,10.0,0.7,399.0,152.5,30.5,52.0\n";
+        let keep: std::collections::BTreeSet<usize> = [3].into_iter().collect();
+        let feet = parse_box_feet(Path::new("d.csv"), text, Some(&keep)).unwrap();
+        assert_eq!(feet.len(), 1);
+        assert_eq!(feet[&3], vec![Vector2::new(414.25, 204.5)]);
+        let all = parse_box_feet(Path::new("d.csv"), text, None).unwrap();
+        assert_eq!(all[&0], vec![Vector2::new(322.0, 139.5)]);
+        // A detections file without boxes (a hat detector's) says which column is missing.
+        let e = parse_box_feet(Path::new("d.csv"), "frame,u_px,v_px\n0,1,2\n", None).unwrap_err();
+        assert!(e.to_string().contains("box_x_px"), "{e}");
+    }
     use rand::{RngExt, SeedableRng};
     use rand_distr::{Distribution, Normal};
 

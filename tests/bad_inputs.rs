@@ -1028,6 +1028,18 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "fit-error-feet-without-boxes",
+            category: "nonsense accepted",
+            files: vec![
+                ("det.csv", "frame,u_px,v_px\n0,10,10\n".into()),
+                ("ann.csv", "frame,x_px,y_px\n0,11,10\n".into()),
+            ],
+            args: args(&["fit-error", "--feet", "--detections", "det.csv", "--annotations", "ann.csv", "--width", "1920"]),
+            expect: "no column 'box_x_px'",
+            place: "det.csv:1",
+            ..Default::default()
+        },
+        Case {
             id: "scene-huge-video",
             category: "runaway memory",
             files: vec![("scene.toml", replace("scene.toml", "video_mode = [1280, 720]", "video_mode = [160000, 90000]"))],

@@ -174,17 +174,11 @@ fn crossing(dir: &Path, lo: usize, hi: usize) -> (usize, f64) {
 }
 
 fn id_switches(dir: &Path, run: &Path) -> u64 {
-    let o = geostride()
-        .arg("evaluate")
-        .arg("--truth")
-        .arg(dir.join("truth/heads.csv"))
-        .arg("--tracks")
-        .arg(run.join("trajectories.csv"))
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert_success(&o);
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = common::evaluate_json(
+        &dir.join("truth/heads.csv"),
+        &run.join("trajectories.csv"),
+        &[],
+    );
     v["id_switches"]
         .as_u64()
         .unwrap_or_else(|| panic!("no id_switches in {v}"))

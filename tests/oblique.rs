@@ -95,19 +95,11 @@ fn run_view(top: &Path, v: &View) -> serde_json::Value {
     .unwrap();
     let run = common::run_project(&project, &dir.join("run"));
     common::assert_success(&run);
-    let eval = common::geostride()
-        .arg("evaluate")
-        .arg("--truth")
-        .arg(dir.join("truth/heads.csv"))
-        .arg("--tracks")
-        .arg(dir.join("run/trajectories.csv"))
-        .arg("--threshold")
-        .arg("1")
-        .arg("--json")
-        .output()
-        .unwrap();
-    common::assert_success(&eval);
-    serde_json::from_slice(&eval.stdout).unwrap()
+    common::evaluate_json(
+        &dir.join("truth/heads.csv"),
+        &dir.join("run/trajectories.csv"),
+        &["--threshold", "1"],
+    )
 }
 
 #[test]

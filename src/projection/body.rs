@@ -485,6 +485,17 @@ mod tests {
         }
     }
 
+    /// The view of a 480×360 camera with an exact pose over `plane`.
+    fn side_view<'a>(camera: &'a Camera, pose: &'a Rigid3, plane: &'a Plane) -> View<'a> {
+        View {
+            camera,
+            cam_from_world: pose,
+            pose_cov: None,
+            surface: plane,
+            image_wh: (480.0, 360.0),
+        }
+    }
+
     /// The box a body of `shape` makes standing at `g`, its top `h` m up: a cylinder of the
     /// reach at its two ends, the bounding box of its points' images.
     fn body_box(v: &View, g: Vector2<f64>, h: f64) -> [f64; 4] {
@@ -533,13 +544,7 @@ mod tests {
             (&above, Vector2::new(8.0, 0.0)),
             (&above, Vector2::new(0.0, -6.0)),
         ] {
-            let v = View {
-                camera: &camera,
-                cam_from_world: pose,
-                pose_cov: None,
-                surface: &plane,
-                image_wh: (480.0, 360.0),
-            };
+            let v = side_view(&camera, pose, &plane);
             let bbox = body_box(&v, g, 1.7);
             let fix = ground_from_box(&v, &SHAPE, &bbox, &UNIT, (1.7, 0.1), false).unwrap();
             let err = (fix.point.position.xy() - g).norm();
@@ -563,13 +568,7 @@ mod tests {
         let camera = Camera::pinhole(740.0, 746.0, 240.0, 180.0);
         let plane = Plane::from_gradient(0.0, 0.0, 0.0);
         let pose = looking_north(Vector3::new(0.0, 0.0, 7.0), 15.0);
-        let v = View {
-            camera: &camera,
-            cam_from_world: &pose,
-            pose_cov: None,
-            surface: &plane,
-            image_wh: (480.0, 360.0),
-        };
+        let v = side_view(&camera, &pose, &plane);
         let g = Vector2::new(1.0, 22.0);
         let bbox = body_box(&v, g, 1.85);
         // A loose prior: the box decides.
@@ -635,13 +634,7 @@ mod tests {
         let camera = Camera::pinhole(740.0, 746.0, 240.0, 180.0);
         let plane = Plane::from_gradient(0.0, 0.0, 0.0);
         let pose = looking_north(Vector3::new(0.0, 0.0, 7.0), 15.0);
-        let v = View {
-            camera: &camera,
-            cam_from_world: &pose,
-            pose_cov: None,
-            surface: &plane,
-            image_wh: (480.0, 360.0),
-        };
+        let v = side_view(&camera, &pose, &plane);
         let g = Vector2::new(2.0, 20.0);
         let bbox = body_box(&v, g, 1.7);
         let fix = ground_from_box(&v, &SHAPE, &bbox, &UNIT, (1.7, 0.0), false).unwrap();

@@ -133,6 +133,28 @@ pub fn simulate_scene(name: &str, dir: &std::path::Path) {
     assert_success(&out);
 }
 
+/// `geostride evaluate --truth TRUTH --tracks TRACKS --json` with `extra` arguments, its JSON;
+/// fails the test on an error.
+#[allow(dead_code)]
+pub fn evaluate_json(
+    truth: &std::path::Path,
+    tracks: &std::path::Path,
+    extra: &[&str],
+) -> serde_json::Value {
+    let out = geostride()
+        .arg("evaluate")
+        .arg("--truth")
+        .arg(truth)
+        .arg("--tracks")
+        .arg(tracks)
+        .args(extra)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_success(&out);
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 /// `geostride run PROJECT --out OUT -q`.
 #[allow(dead_code)]
 pub fn run_project(project: &std::path::Path, out: &std::path::Path) -> std::process::Output {

@@ -203,20 +203,22 @@ impl Seen<'_> {
                 length_px2: 0.5 * (e[(0, 0)] + e[(1, 1)]),
             }
         };
+        // One box read at the height (h, σ), with the height it says when asked.
+        let read = |q: &crate::track::TrackPoint, height: (f64, f64), want_height: bool| {
+            ground_from_box(
+                &self.view(q.frame),
+                &b.shape,
+                &q.bbox,
+                &error(q),
+                height,
+                want_height,
+            )
+        };
         if given.is_none() {
             let said: Vec<_> = t
                 .points
                 .iter()
-                .filter_map(|q| {
-                    ground_from_box(
-                        &self.view(q.frame),
-                        &b.shape,
-                        &q.bbox,
-                        &error(q),
-                        (h, sd),
-                        true,
-                    )
-                })
+                .filter_map(|q| read(q, (h, sd), true))
                 .filter_map(|f| f.height)
                 .collect();
             if !said.is_empty() {
@@ -225,15 +227,7 @@ impl Seen<'_> {
             }
         }
         world_track(t, (h, sd, source), |q| {
-            ground_from_box(
-                &self.view(q.frame),
-                &b.shape,
-                &q.bbox,
-                &error(q),
-                (h, sd),
-                false,
-            )
-            .map(|f| f.point)
+            read(q, (h, sd), false).map(|f| f.point)
         })
     }
 }

@@ -1,11 +1,12 @@
 //! Oblique views of walkers with exact truth: a camera on a pole or a drone 8-25 m up, looking
 //! 15°, 30° and 60° below the horizon across a plaza, posed by its calibration file
 //! (`[pose] kind = "fixed"`, the `camera.json` the simulator writes, exact: σ stated 0.01° and
-//! 0.01 m), people found by a simulated detector's silhouette boxes (edge σ 2 px, stated as
-//! `error_px2 = [4, 4, 4]`, 5 % misses, 10 % false alarms: simulated boxes, not a detector) and
-//! read by `projection::body` with the default body shape. Checked: the horizontal RMSE against
-//! what one box's feet end says at the view's centre (its 2 px edge and the stride's 0.15 m), and
-//! that the stated σ is never too small (the share of the truth inside the 95 % ellipses).
+//! 0.01 m), people found by a simulated detector's silhouette boxes (each edge σ 2 px, stated as
+//! `error_px2 = [4, 2, 2]`: the tracked head end's vertical is one edge, its horizontal the mean
+//! of two; 5 % misses, 10 % false alarms: simulated boxes, not a detector) and read by
+//! `projection::body` with the default body shape. Checked: the horizontal RMSE against what one
+//! box's feet end says at the view's centre (its 2 px edge and the stride's 0.15 m), and the
+//! stated σ (the share of the truth inside the 95 % ellipses: 95 ± 3 %, to 99 % at 60°).
 
 #![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 
@@ -57,7 +58,7 @@ fn scene(v: &View) -> String {
 const PROJECT: &str = "name = \"oblique\"\n[camera]\ncalibration = \"camera.json\"\n\
     [video]\npath = \"VIDEO\"\n[pose]\nkind = \"fixed\"\nsigma_deg = 0.01\nsigma_m = 0.01\n\
     [ground]\nkind = \"plane\"\nheight_m = 0.0\n\
-    [detect]\nkind = \"boxes\"\nboxes = \"boxes.txt\"\nerror_px2 = [4.0, 4.0, 4.0]\n\
+    [detect]\nkind = \"boxes\"\nboxes = \"boxes.txt\"\nerror_px2 = [4.0, 2.0, 2.0]\n\
     [track]\nkind = \"klt\"\n[export]\nformats = [\"csv\"]\n\
     [output]\nsite_image = false\nplots = false\n";
 
@@ -155,9 +156,14 @@ fn oblique_views_meet_their_geometric_accuracy_and_state_it() {
         if rmse > v.rmse_target_m() {
             failures.push(format!("{}°: RMSE {rmse:.3} m", v.below_horizon_deg));
         }
-        // Near nadir the stated σ is conservative (99.6-99.7 % at 30° and 60° when measured,
-        // docs/accuracy.md): it must never be too small.
-        if inside < 0.90 {
+        // 95 ± 3 %; at 60° the σ across the view is a fifth too large (98.6 % measured,
+        // docs/accuracy.md), so up to 99 % there.
+        let most = if v.below_horizon_deg > 45.0 {
+            0.99
+        } else {
+            0.98
+        };
+        if !(0.92..=most).contains(&inside) {
             failures.push(format!(
                 "{}°: {:.1} % inside the 95 % ellipses",
                 v.below_horizon_deg,

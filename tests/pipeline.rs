@@ -105,6 +105,26 @@ fn runs_reuses_resumes_and_writes_gis_files() {
         assert_eq!(s["status"], "reused", "{s}");
     }
 
+    // Another tracker setting, into a copy of that output: the scan (where the image tracker
+    // runs) is computed again, not its old tracks reused.
+    let a2 = tmp.path().join("a2");
+    std::fs::create_dir_all(a2.join(".stages/chunks")).unwrap();
+    for sub in [".stages", ".stages/chunks"] {
+        for e in std::fs::read_dir(a.join(sub)).unwrap().flatten() {
+            if e.path().is_file() {
+                std::fs::copy(e.path(), a2.join(sub).join(e.file_name())).unwrap();
+            }
+        }
+    }
+    let retracked = tmp.path().join("retracked.toml");
+    std::fs::write(
+        &retracked,
+        std::fs::read_to_string(&project).unwrap() + "[track]\nmax_gap_s = 0.3\n",
+    )
+    .unwrap();
+    common::assert_success(&run(&retracked, &a2));
+    assert_eq!(report(&a2)["stages"][0]["status"], "computed");
+
     // Killed right after the scan, then started again: the same outputs.
     let b = tmp.path().join("b");
     let killed = geostride()

@@ -86,6 +86,8 @@ pub(super) fn prepare<'a>(
             &p.video,
             &p.pose,
             &p.detect,
+            // The image tracker runs in the scan (per chunk).
+            &p.track,
             &p.projection.head_height_m,
             &p.ground,
             &grid,

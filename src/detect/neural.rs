@@ -522,10 +522,15 @@ impl NeuralDetector {
                 ),
             });
         }
-        let mut all = Vec::new();
+        let mut found = Vec::with_capacity(parts.len());
         for p in &parts {
-            all.extend(self.run_region(bgr, wh, *p)?);
+            found.push((*p, self.run_region(bgr, wh, *p)?));
         }
+        let all = if parts.len() > 1 {
+            drop_cut_by_tiles(found, region)
+        } else {
+            found.into_iter().flat_map(|(_, b)| b).collect()
+        };
         let mut kept = nms(all, self.settings.nms_iou, self.settings.max_boxes);
         if parts.len() > 1 {
             kept = merge_cut(kept);
@@ -546,6 +551,56 @@ fn not_numbers(outputs: &[(Vec<i64>, Vec<f32>)]) -> bool {
     outputs
         .iter()
         .any(|(_, d)| !d.is_empty() && d.iter().all(|v| !v.is_finite()))
+}
+
+/// How near a tile's inner edge a box ends and is cut by it, pixels.
+const TILE_CUT_PX: f64 = 2.0;
+
+/// Boxes cut by a tile's inner edge (one that is not the searched region's) where another tile
+/// holds the same person whole: dropped before the suppression, which would otherwise keep the
+/// cut box when it scores higher (its ends are not the person's: a box's bottom is where the
+/// person stands).
+fn drop_cut_by_tiles(found: Vec<([usize; 4], Vec<RawBox>)>, region: [usize; 4]) -> Vec<RawBox> {
+    let f = |v: usize| v as f64;
+    let (rx0, ry0) = (f(region[0]), f(region[1]));
+    let (rx1, ry1) = (rx0 + f(region[2]), ry0 + f(region[3]));
+    let cut = |t: &[usize; 4], b: &RawBox| {
+        let (tx0, ty0) = (f(t[0]), f(t[1]));
+        let (tx1, ty1) = (tx0 + f(t[2]), ty0 + f(t[3]));
+        let [x, y, w, h] = b.xywh;
+        (tx0 > rx0 && x <= tx0 + TILE_CUT_PX)
+            || (ty0 > ry0 && y <= ty0 + TILE_CUT_PX)
+            || (tx1 < rx1 && x + w >= tx1 - TILE_CUT_PX)
+            || (ty1 < ry1 && y + h >= ty1 - TILE_CUT_PX)
+    };
+    let tagged: Vec<(usize, bool, RawBox)> = found
+        .into_iter()
+        .enumerate()
+        .flat_map(|(i, (t, boxes))| {
+            boxes
+                .into_iter()
+                .map(move |b| (i, cut(&t, &b), b))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let overlap = |a: &RawBox, b: &RawBox| {
+        let ix = (a.xywh[0] + a.xywh[2]).min(b.xywh[0] + b.xywh[2]) - a.xywh[0].max(b.xywh[0]);
+        let iy = (a.xywh[1] + a.xywh[3]).min(b.xywh[1] + b.xywh[3]) - a.xywh[1].max(b.xywh[1]);
+        ix.max(0.0) * iy.max(0.0)
+    };
+    tagged
+        .iter()
+        .filter(|(i, is_cut, b)| {
+            !is_cut
+                || !tagged.iter().any(|(j, other_cut, o)| {
+                    j != i
+                        && !other_cut
+                        && o.class == b.class
+                        && overlap(o, b) > 0.5 * b.xywh[2] * b.xywh[3]
+                })
+        })
+        .map(|&(_, _, b)| b)
+        .collect()
 }
 
 /// Across tiles: a box mostly inside a better one of its class (a person cut by a tile's edge)
@@ -713,6 +768,35 @@ mod tests {
         for (key, s) in cases {
             assert_eq!(s.check().unwrap_err().0, key, "{s:?}");
         }
+    }
+
+    #[test]
+    fn a_box_cut_by_a_tiles_inner_edge_gives_way_to_the_whole_one() {
+        let b = |x: f64, w: f64, s: f64| RawBox {
+            xywh: [x, 10.0, w, 40.0],
+            score: s,
+            class: 0,
+        };
+        // Two tiles of a 480-wide region overlapping from 120 to 360.
+        let (left, right) = ([0, 0, 360, 360], [120, 0, 360, 360]);
+        let kept = drop_cut_by_tiles(
+            vec![
+                // The person at 340-370 is cut by the left tile's inner edge, whole in the
+                // right one (which scores lower).
+                (left, vec![b(340.0, 19.5, 0.9), b(10.0, 15.0, 0.8)]),
+                (right, vec![b(340.0, 30.0, 0.6), b(460.0, 20.0, 0.7)]),
+            ],
+            [0, 0, 480, 360],
+        );
+        let xs: Vec<(f64, f64)> = kept.iter().map(|k| (k.xywh[0], k.xywh[2])).collect();
+        // The cut box gone; the whole one, and those by the region's own border, kept.
+        assert_eq!(xs, [(10.0, 15.0), (340.0, 30.0), (460.0, 20.0)]);
+        // A cut box with no whole one elsewhere (a person wider than the overlap) stays.
+        let kept = drop_cut_by_tiles(
+            vec![(left, vec![b(340.0, 19.5, 0.9)]), (right, vec![])],
+            [0, 0, 480, 360],
+        );
+        assert_eq!(kept.len(), 1);
     }
 
     #[test]

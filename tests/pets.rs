@@ -147,35 +147,12 @@ fn the_pets_benchmark_holds_its_measured_accuracy() {
     let table = std::fs::read_to_string(out.join("table.md")).unwrap();
     eprintln!("{table}");
 
+    // The bundled detector as it comes (two tiles of 360 px, chosen from the model's 416 px
+    // input and the frames): issue 37's targets for the mean error (0.244 m per frame
+    // measured), MOTA (0.850) and IDF1 (0.771). Its one track more than the 15 allowed is a
+    // real person walking beyond the annotated plaza (docs/accuracy.md).
     let (t, p) = (json("bundled-tracking"), json("bundled-positions"));
     assert_eq!(num(&t, "truth_tracks"), 10.0, "people in frames 0-399");
-    assert!(num(&t, "mota") >= 0.85, "MOTA {}", t["mota"]);
-    assert!(num(&t, "idf1") >= 0.68, "IDF1 {}", t["idf1"]);
-    assert!(num(&t, "motp_m") <= 0.30, "MOTP {}", t["motp_m"]);
-    assert!(
-        num(&t, "estimated_tracks") <= 15.0,
-        "tracks {} for 10 people",
-        t["estimated_tracks"]
-    );
-    assert!(
-        num(&p, "mean_error_m") <= 0.29,
-        "per frame {}",
-        p["mean_error_m"]
-    );
-    let inside = num(&t["uncertainty"], "inside_95");
-    assert!(
-        (0.90..=0.995).contains(&inside),
-        "95 % ellipses hold {inside}"
-    );
-
-    // The bundled detector on tiles that enlarge the frame: issue 37's targets for the mean
-    // error (0.244 m per frame measured), IDF1 (0.771) and MOTA (0.850). Its one track more
-    // than the 15 allowed is a real person walking beyond the annotated plaza
-    // (docs/accuracy.md).
-    let (t, p) = (
-        json("bundled-tiles-tracking"),
-        json("bundled-tiles-positions"),
-    );
     assert!(
         num(&p, "mean_error_m") <= 0.25,
         "per frame {}",
@@ -188,6 +165,23 @@ fn the_pets_benchmark_holds_its_measured_accuracy() {
     assert!(
         (0.92..=0.98).contains(&inside),
         "95 % ellipses hold {inside}"
+    );
+    let tiles = std::fs::read_to_string(out.join("bundled/report.json")).unwrap();
+    assert!(tiles.contains("\"model_tile_px\": 360.0"), "{tiles}");
+
+    // On whole frames (shrunk for the model): as measured, 0.275 m, MOTA 0.905, IDF1 0.744.
+    let (t, p) = (
+        json("bundled-whole-tracking"),
+        json("bundled-whole-positions"),
+    );
+    assert!(num(&t, "mota") >= 0.85, "MOTA {}", t["mota"]);
+    assert!(num(&t, "idf1") >= 0.68, "IDF1 {}", t["idf1"]);
+    assert!(num(&t, "motp_m") <= 0.30, "MOTP {}", t["motp_m"]);
+    assert!(num(&t, "estimated_tracks") <= 15.0, "{t}");
+    assert!(
+        num(&p, "mean_error_m") <= 0.29,
+        "per frame {}",
+        p["mean_error_m"]
     );
 
     // The ACF boxes through geostride: no worse than their own projection.

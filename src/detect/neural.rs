@@ -54,6 +54,9 @@ pub const INPUT_SIDE: std::ops::RangeInclusive<usize> = 32..=4096;
 pub const MIN_TILE: usize = 32;
 /// The most tiles one frame is cut into.
 pub const MAX_TILES: usize = 4096;
+/// The most tiles a frame is cut into when the tiling is chosen ([`auto_tiles`]): each is a run
+/// of the model.
+pub const MAX_AUTO_TILES: usize = 24;
 /// The most boxes a frame keeps.
 pub const MAX_BOXES: usize = 10_000;
 
@@ -228,7 +231,45 @@ impl Backend {
     }
 }
 
+/// Tiles for a model whose input is `input_wh` on a region of `region_wh` pixels where a person
+/// is about `person_px` long: none when the region fits the input; otherwise tiles of the
+/// input's shorter side, or the region's shorter side when that is smaller, so that the model
+/// never sees the people shrunk, yet two and a half people long and overlapping by one, so that
+/// every person is whole in some tile; a quarter larger at a time while that makes more than
+/// [`MAX_AUTO_TILES`]. `(tile, overlap)`, pixels; `(0, 0)` for whole frames.
+pub fn auto_tiles(region_wh: [usize; 2], input_wh: [usize; 2], person_px: f64) -> (usize, usize) {
+    let [w, h] = region_wh;
+    if w <= input_wh[0] && h <= input_wh[1] {
+        return (0, 0);
+    }
+    let person = if person_px.is_finite() {
+        person_px.clamp(1.0, 1e6).ceil() as usize
+    } else {
+        1
+    };
+    let mut tile = input_wh[0]
+        .min(input_wh[1])
+        .min(w.min(h))
+        .max((5 * person).div_ceil(2))
+        .max(MIN_TILE);
+    while tile < w.max(h) {
+        let overlap = person.min(tile / 2);
+        if tiles([0, 0, w, h], tile, overlap).len() <= MAX_AUTO_TILES {
+            return (tile, overlap);
+        }
+        tile += tile.div_ceil(4);
+    }
+    (0, 0)
+}
+
 impl super::person::FrameBoxes for NeuralDetector {
+    fn summary(&self) -> Vec<(String, f64)> {
+        vec![
+            ("model_tile_px".into(), self.settings.tile as f64),
+            ("model_tile_overlap_px".into(), self.settings.overlap as f64),
+        ]
+    }
+
     fn boxes(
         &mut self,
         bgr: &[u8],
@@ -255,6 +296,11 @@ pub struct NeuralDetector {
 }
 
 impl NeuralDetector {
+    /// The model's input `[width, height]`, pixels.
+    pub fn input_wh(&self) -> [usize; 2] {
+        self.input_wh
+    }
+
     /// The same detector with OpenCV's dnn running the model (its settings, layout and classes
     /// as read through ONNX Runtime).
     pub fn on_opencv(&self) -> Result<NeuralDetector, NeuralError> {
@@ -768,6 +814,28 @@ mod tests {
         for (key, s) in cases {
             assert_eq!(s.check().unwrap_err().0, key, "{s:?}");
         }
+    }
+
+    #[test]
+    fn tiles_are_chosen_so_that_people_are_not_shrunk_and_are_whole_in_one() {
+        let input = [416, 416];
+        // PETS's 480x360 frames, people 66 px: two tiles of the frame's height, side by side.
+        let (tile, overlap) = auto_tiles([480, 360], input, 66.0);
+        assert_eq!((tile, overlap), (360, 66));
+        assert_eq!(tiles([0, 0, 480, 360], tile, overlap).len(), 2);
+        // A frame within the input: whole.
+        assert_eq!(auto_tiles([400, 300], input, 66.0), (0, 0));
+        // 1080p, people 100 px: tiles of the input's size.
+        let (tile, overlap) = auto_tiles([1920, 1080], input, 100.0);
+        assert_eq!((tile, overlap), (416, 100));
+        assert!(tiles([0, 0, 1920, 1080], tile, overlap).len() <= MAX_AUTO_TILES);
+        // People larger than the frame's tiles allow: whole frames.
+        assert_eq!(auto_tiles([480, 360], input, 300.0), (0, 0));
+        // 4K: larger tiles, so that there are at most MAX_AUTO_TILES.
+        let (tile, overlap) = auto_tiles([3840, 2160], input, 60.0);
+        assert!(tile > 416 && overlap == 60, "{tile} {overlap}");
+        assert!(tiles([0, 0, 3840, 2160], tile, overlap).len() <= MAX_AUTO_TILES);
+        assert_eq!(auto_tiles([480, 360], input, f64::NAN).1, 1);
     }
 
     #[test]

@@ -15,6 +15,11 @@ pub trait FrameBoxes: Send {
         bgr: &[u8],
         wh: [usize; 2],
     ) -> Result<Vec<([f64; 4], f64)>, crate::PluginError>;
+
+    /// Numbers for the run report (how it was run).
+    fn summary(&self) -> Vec<(String, f64)> {
+        Vec::new()
+    }
 }
 
 /// Boxes from a file or a neural detector, filtered frame by frame (the shadow test looks at the
@@ -121,6 +126,7 @@ impl Detector for BoxesDetector {
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v as f64))
+        .chain(self.model.iter().flat_map(|(m, _)| m.summary()))
         .collect()
     }
 }

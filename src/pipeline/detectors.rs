@@ -172,8 +172,23 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
         })?,
     };
     let settings = o.neural();
-    let net =
+    let mut net =
         NeuralDetector::load(&model, &settings).map_err(|e| x.input("model", e.to_string()))?;
+    if o.tile.is_none() {
+        // Tiles at the model's scale: a person about their height at the view's centre.
+        let region = match (settings.roi, x.camera.image_size) {
+            (Some([_, _, w, h]), _) => Some([w, h]),
+            (None, Some(s)) => Some([s.width as usize, s.height as usize]),
+            (None, None) => None,
+        };
+        if let Some(region) = region {
+            let person_px = x.l.project.projection.head_height_m * x.px_per_m;
+            let (tile, overlap) =
+                crate::detect::neural::auto_tiles(region, net.input_wh(), person_px);
+            net.settings.tile = tile;
+            net.settings.overlap = overlap;
+        }
+    }
     let filter = o.filter(x.px_per_m);
     let inner = BoxesDetector::from_model(Box::new(net), o.stride, filter)
         .map_err(|e| x.input(e.key, e.to_string()))?;

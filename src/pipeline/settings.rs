@@ -410,8 +410,10 @@ pub struct OnnxSection {
     pub max_boxes: usize,
     /// The model runs on every `stride`-th frame only (the trackers bridge the others).
     pub stride: usize,
-    /// Tiles of this many pixels (0: whole frames), overlapping by `overlap`.
-    pub tile: usize,
+    /// Tiles of this many pixels (0: whole frames), overlapping by `overlap` [default: chosen
+    /// from the model's input, the frames and a person's length in them: `detect::neural::
+    /// auto_tiles`].
+    pub tile: Option<usize>,
     pub overlap: usize,
     /// The model runs only inside `[x, y, width, height]`, pixels (the paper's strip).
     pub roi: Option<[usize; 4]>,
@@ -449,7 +451,7 @@ impl Default for OnnxSection {
             nms_iou: n.nms_iou,
             max_boxes: n.max_boxes,
             stride: 1,
-            tile: n.tile,
+            tile: None,
             overlap: n.overlap,
             roi: None,
             threads: n.threads,
@@ -922,7 +924,7 @@ impl OnnxSection {
             min_score: self.min_score,
             nms_iou: self.nms_iou,
             max_boxes: self.max_boxes,
-            tile: self.tile,
+            tile: self.tile.unwrap_or(0),
             overlap: self.overlap,
             roi: self.roi,
             threads: self.threads,

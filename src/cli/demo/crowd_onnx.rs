@@ -30,7 +30,7 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
     )?;
     // Tiles at the model's own scale: a runner seen from 30 m is some 25 px across.
     let detector = OnnxSection {
-        tile: 416,
+        tile: Some(416),
         overlap: 64,
         ..OnnxSection::default()
     };

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::boxes::intersection;
 use super::onnx::{OnnxError, OnnxModel, Output};
 use super::opencv_dnn::OpenCvNet;
 use super::yolo::{Fit, Keep, Layout, RawBox, decode, nms, tiles, to_input};
@@ -629,11 +630,6 @@ fn drop_cut_by_tiles(found: Vec<([usize; 4], Vec<RawBox>)>, region: [usize; 4]) 
                 .collect::<Vec<_>>()
         })
         .collect();
-    let overlap = |a: &RawBox, b: &RawBox| {
-        let ix = (a.xywh[0] + a.xywh[2]).min(b.xywh[0] + b.xywh[2]) - a.xywh[0].max(b.xywh[0]);
-        let iy = (a.xywh[1] + a.xywh[3]).min(b.xywh[1] + b.xywh[3]) - a.xywh[1].max(b.xywh[1]);
-        ix.max(0.0) * iy.max(0.0)
-    };
     tagged
         .iter()
         .filter(|(i, is_cut, b)| {
@@ -642,7 +638,7 @@ fn drop_cut_by_tiles(found: Vec<([usize; 4], Vec<RawBox>)>, region: [usize; 4]) 
                     j != i
                         && !other_cut
                         && o.class == b.class
-                        && overlap(o, b) > 0.5 * b.xywh[2] * b.xywh[3]
+                        && intersection(&o.xywh, &b.xywh) > 0.5 * b.xywh[2] * b.xywh[3]
                 })
         })
         .map(|&(_, _, b)| b)
@@ -655,12 +651,10 @@ fn merge_cut(boxes: Vec<RawBox>) -> Vec<RawBox> {
     let mut kept: Vec<RawBox> = Vec::new();
     for b in boxes {
         let inside = kept.iter().any(|k| {
-            let ix = (k.xywh[0] + k.xywh[2]).min(b.xywh[0] + b.xywh[2]) - k.xywh[0].max(b.xywh[0]);
-            let iy = (k.xywh[1] + k.xywh[3]).min(b.xywh[1] + b.xywh[3]) - k.xywh[1].max(b.xywh[1]);
+            let shared = intersection(&k.xywh, &b.xywh);
             k.class == b.class
-                && ix > 0.0
-                && iy > 0.0
-                && ix * iy > 0.7 * (b.xywh[2] * b.xywh[3]).min(k.xywh[2] * k.xywh[3])
+                && shared > 0.0
+                && shared > 0.7 * (b.xywh[2] * b.xywh[3]).min(k.xywh[2] * k.xywh[3])
         });
         if !inside {
             kept.push(b);

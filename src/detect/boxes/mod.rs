@@ -133,13 +133,21 @@ pub fn group_by_frame(boxes: Vec<RawBox>) -> Vec<(usize, Vec<RawBox>)> {
     map.into_iter().collect()
 }
 
-/// Intersection over union of two `[x, y, w, h]` boxes.
-pub fn iou(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+/// The area two `[x, y, w, h]` boxes share, px² (0 when apart).
+pub fn intersection(a: &[f64; 4], b: &[f64; 4]) -> f64 {
     let iw = (a[0] + a[2]).min(b[0] + b[2]) - a[0].max(b[0]);
     let ih = (a[1] + a[3]).min(b[1] + b[3]) - a[1].max(b[1]);
     if iw <= 0.0 || ih <= 0.0 {
         return 0.0;
     }
-    let inter = iw * ih;
+    iw * ih
+}
+
+/// Intersection over union of two `[x, y, w, h]` boxes.
+pub fn iou(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+    let inter = intersection(a, b);
+    if inter <= 0.0 {
+        return 0.0;
+    }
     inter / (a[2] * a[3] + b[2] * b[3] - inter)
 }

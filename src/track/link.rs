@@ -36,29 +36,43 @@ pub struct LinkStats {
     pub unmatched: usize,
 }
 
-/// Frames in which `a` and `b` are within `same_px` of each other, among `frames`.
+/// A squared Mahalanobis distance within which two tracks' points are one person's (the χ²
+/// of two degrees of freedom's 99 %).
+const SAME_CHI2: f64 = 9.21;
+
+/// Frames among `frames` in which `a` and `b` are one person's points, and their squared
+/// distances summed, px². The same detection gives the same point in both chunks only for a
+/// tracker that keeps its detections; a smoothing one (`klt`) ends a chunk's track and begins
+/// the next one's from different frames, so their points differ by up to their uncertainty:
+/// within `same_px`, or within the two points' covariances.
 fn shared(
     a: &[TrackPoint],
     b: &[TrackPoint],
     frames: std::ops::Range<usize>,
     same_px: f64,
-) -> usize {
-    let (mut i, mut j, mut n) = (0, 0, 0);
+) -> (usize, f64) {
+    let (mut i, mut j, mut n, mut sum_d2) = (0, 0, 0, 0.0);
     while i < a.len() && j < b.len() {
         let (fa, fb) = (a[i].frame, b[j].frame);
         match fa.cmp(&fb) {
             Ordering::Less => i += 1,
             Ordering::Greater => j += 1,
             Ordering::Equal => {
-                if frames.contains(&fa) && (a[i].uv - b[j].uv).norm() <= same_px {
+                let d = a[i].uv - b[j].uv;
+                let near = d.norm() <= same_px
+                    || (a[i].cov + b[j].cov)
+                        .try_inverse()
+                        .is_some_and(|inv| (d.transpose() * inv * d)[(0, 0)] <= SAME_CHI2);
+                if frames.contains(&fa) && near {
                     n += 1;
+                    sum_d2 += d.norm_squared();
                 }
                 i += 1;
                 j += 1;
             }
         }
     }
-    n
+    (n, sum_d2)
 }
 
 /// A joined track that can grow no more, with its number in the order tracks were begun (the
@@ -123,21 +137,26 @@ impl Linker {
         } else {
             (0..live.len()).collect()
         };
-        // Every pair that shares frames, most shared first (ties in a fixed order: the order
-        // the tracks were begun, then the chunk's).
-        let mut pairs: Vec<(usize, usize, usize)> = Vec::new();
+        // Every pair that shares frames, most shared first, then nearest (mean squared
+        // distance), then in a fixed order: the order the tracks were begun, then the chunk's.
+        let mut pairs: Vec<(usize, f64, usize, usize)> = Vec::new();
         for (b, t) in chunk.tracks.iter().enumerate() {
             for &a in &open {
-                let n = shared(&live[a].1, &t.points, overlap.clone(), s.same_px);
+                let (n, sum_d2) = shared(&live[a].1, &t.points, overlap.clone(), s.same_px);
                 if n >= s.min_shared {
-                    pairs.push((n, a, b));
+                    pairs.push((n, sum_d2 / n as f64, a, b));
                 }
             }
         }
-        pairs.sort_by(|x, y| y.0.cmp(&x.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2)));
+        pairs.sort_by(|x, y| {
+            y.0.cmp(&x.0)
+                .then(x.1.total_cmp(&y.1))
+                .then(x.2.cmp(&y.2))
+                .then(x.3.cmp(&y.3))
+        });
         let mut a_taken = vec![false; live.len()];
         let mut b_to: Vec<Option<usize>> = vec![None; chunk.tracks.len()];
-        for (_, a, b) in pairs {
+        for (_, _, a, b) in pairs {
             if !a_taken[a] && b_to[b].is_none() {
                 a_taken[a] = true;
                 b_to[b] = Some(a);
@@ -308,6 +327,66 @@ mod tests {
         assert_eq!(stats, LinkStats::default());
         assert_eq!(t.len(), 2);
         assert_eq!(t[1].points[0].frame, 12);
+    }
+
+    /// A track along x at height `y`, each point of covariance `var_px2`·I.
+    fn track_at(frames: std::ops::Range<usize>, x0: f64, y: f64, var_px2: f64) -> ImageTrack {
+        let mut t = track(0, frames, x0, 2.0);
+        for p in &mut t.points {
+            p.uv.y = y;
+            p.cov = Matrix2::identity() * var_px2;
+        }
+        t
+    }
+
+    #[test]
+    fn smoothed_tracks_that_differ_by_their_uncertainty_join_to_the_nearest() {
+        // A smoothing tracker ends chunk 0's track and begins chunk 1's a few pixels apart
+        // (σ 2 px each): one person, though farther apart than `same_px`.
+        let c0 = ChunkTracks {
+            decode_from: 0,
+            start: 0,
+            end: 10,
+            tracks: vec![track_at(0..10, 0.0, 100.0, 4.0)],
+        };
+        let c1 = ChunkTracks {
+            decode_from: 6,
+            start: 10,
+            end: 20,
+            tracks: vec![track_at(6..20, 0.0, 103.0, 4.0)],
+        };
+        let (t, stats) = link_chunks(vec![c0, c1], &S);
+        assert_eq!((stats.joined, stats.unmatched, t.len()), (1, 0, 1));
+        assert_eq!(t[0].points.len(), 20);
+        // Two people side by side, 6 px apart (σ 3 px): each of chunk 1's tracks is within
+        // both gates and shares all the overlap with both; each joins the nearer.
+        let c0 = ChunkTracks {
+            decode_from: 0,
+            start: 0,
+            end: 10,
+            tracks: vec![
+                track_at(0..10, 0.0, 100.0, 9.0),
+                track_at(0..10, 0.0, 106.0, 9.0),
+            ],
+        };
+        let c1 = ChunkTracks {
+            decode_from: 6,
+            start: 10,
+            end: 20,
+            tracks: vec![
+                track_at(6..20, 0.0, 104.0, 9.0),
+                track_at(6..20, 0.0, 101.0, 9.0),
+            ],
+        };
+        let (t, stats) = link_chunks(vec![c0, c1], &S);
+        assert_eq!((stats.joined, t.len()), (2, 2));
+        for t in &t {
+            let (first, last) = (t.points[0].uv.y, t.points[19].uv.y);
+            assert!(
+                (first, last) == (100.0, 101.0) || (first, last) == (106.0, 104.0),
+                "joined {first} to {last}"
+            );
+        }
     }
 
     #[test]

@@ -78,7 +78,8 @@ fn link_to_cache(
     let fps = x.fps;
     let overlap = x.grid.overlap_frames;
     let mut linker = Linker::new(LinkSettings {
-        // The same detection in both chunks: within 5 cm at head height.
+        // The same detection in both chunks: within 5 cm at head height, or within the points'
+        // covariances (a smoothing tracker's chunks end and begin apart).
         same_px: (0.05 * x.px_per_m).max(0.5),
         min_shared: overlap.clamp(1, 3),
     });

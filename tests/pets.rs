@@ -120,8 +120,8 @@ fn a_fixed_camera_runs_from_its_tsai_calibration_without_gcps() {
 
 /// Issue 37's benchmark (`scripts/pets-benchmark.sh`, also run by `make bench`): frames 0–399
 /// against the world truth at the standard 1 m, with the bundled detector and with the ACF
-/// boxes. The thresholds hold what was measured (docs/accuracy.md), a little below it; the
-/// issue's targets for the bundled detector (mean error ≤ 0.25 m, IDF1 ≥ 0.75) are not yet met.
+/// boxes. The bundled detector is held to issue 37's targets; the other runs to what was
+/// measured (docs/accuracy.md), a little below it.
 #[test]
 fn the_pets_benchmark_holds_its_measured_accuracy() {
     let (Some(_), Some(_)) = (common::data_dir("pets2009-s2l1"), common::data_dir("video")) else {
@@ -148,9 +148,9 @@ fn the_pets_benchmark_holds_its_measured_accuracy() {
     eprintln!("{table}");
 
     // The bundled detector as it comes (two tiles of 360 px, chosen from the model's 416 px
-    // input and the frames): issue 37's targets for the mean error (0.244 m per frame
-    // measured), MOTA (0.850) and IDF1 (0.771). Its one track more than the 15 allowed is a
-    // real person walking beyond the annotated plaza (docs/accuracy.md).
+    // input and the frames): issue 37's targets for the mean error (0.239 m per frame
+    // measured), MOTA (0.856), IDF1 (0.825) and tracks (15 for 10 people, one of them a real
+    // person walking beyond the annotated plaza, docs/accuracy.md).
     let (t, p) = (json("bundled-tracking"), json("bundled-positions"));
     assert_eq!(num(&t, "truth_tracks"), 10.0, "people in frames 0-399");
     assert!(
@@ -160,7 +160,7 @@ fn the_pets_benchmark_holds_its_measured_accuracy() {
     );
     assert!(num(&t, "mota") >= 0.80, "MOTA {}", t["mota"]);
     assert!(num(&t, "idf1") >= 0.75, "IDF1 {}", t["idf1"]);
-    assert!(num(&t, "estimated_tracks") <= 16.0, "{t}");
+    assert!(num(&t, "estimated_tracks") <= 15.0, "{t}");
     let inside = num(&t["uncertainty"], "inside_95");
     assert!(
         (0.92..=0.98).contains(&inside),
@@ -169,7 +169,7 @@ fn the_pets_benchmark_holds_its_measured_accuracy() {
     let tiles = std::fs::read_to_string(out.join("bundled/report.json")).unwrap();
     assert!(tiles.contains("\"model_tile_px\": 360.0"), "{tiles}");
 
-    // On whole frames (shrunk for the model): as measured, 0.275 m, MOTA 0.905, IDF1 0.744.
+    // On whole frames (shrunk for the model): as measured, 0.260 m, MOTA 0.908, IDF1 0.745.
     let (t, p) = (
         json("bundled-whole-tracking"),
         json("bundled-whole-positions"),
@@ -179,7 +179,7 @@ fn the_pets_benchmark_holds_its_measured_accuracy() {
     assert!(num(&t, "motp_m") <= 0.30, "MOTP {}", t["motp_m"]);
     assert!(num(&t, "estimated_tracks") <= 15.0, "{t}");
     assert!(
-        num(&p, "mean_error_m") <= 0.29,
+        num(&p, "mean_error_m") <= 0.28,
         "per frame {}",
         p["mean_error_m"]
     );

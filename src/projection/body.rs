@@ -228,11 +228,21 @@ pub fn ground_from_box(
         let g = moved_by(diff(&|d| residuals(pose, &x, d), 0.01)?);
         cov_height += g * g.transpose() * (ground_sd_m * ground_sd_m);
     }
-    if free_height {
-        // The height's share of the joint solution's spread is the height's.
-        cov_height += cov.fixed_view::<2, 2>(0, 0).into_owned() - cov_g.fixed_view::<2, 2>(0, 0);
-    }
-    let cov_pixel = cov_g.fixed_view::<2, 2>(0, 0).into_owned();
+    // The joint solution's spread split by where it comes from: `(JᵀJ)⁻¹ Jᵢᵀ Jᵢ (JᵀJ)⁻¹` for
+    // the box's pixel rows (random from frame to frame) and for the height prior's last row
+    // (the person's, the same in every frame).
+    let cov_pixel = if free_height {
+        let rows = j.nrows();
+        let part = |a: usize, n: usize| -> Matrix2<f64> {
+            let ji = j.rows(a, n);
+            let m = &cov * (ji.transpose() * ji) * &cov;
+            m.fixed_view::<2, 2>(0, 0).into_owned()
+        };
+        cov_height += part(rows - 1, 1);
+        part(0, rows - 1)
+    } else {
+        cov_g.fixed_view::<2, 2>(0, 0).into_owned()
+    };
     let cov_pose = match view.pose_cov {
         Some(pc) => {
             let mut jp = nalgebra::Matrix2x6::zeros();
@@ -460,6 +470,25 @@ pub fn combine_heights(prior: (f64, f64), boxes: &[BoxHeight]) -> (f64, f64) {
     )
 }
 
+/// How much more a person's boxes' heights scatter than their pixel error explains, m²: the
+/// heights' sample variance less their mean random variance, at least 0. On real footage a
+/// box's ends move with posture and with the detector's own fit from frame to frame, which no
+/// pixel error model states. `None` with fewer than 5 boxes.
+pub fn excess_height_var(boxes: &[BoxHeight]) -> Option<f64> {
+    if boxes.len() < 5 {
+        return None;
+    }
+    let n = boxes.len() as f64;
+    let mean = boxes.iter().map(|b| b.height_m).sum::<f64>() / n;
+    let var = boxes
+        .iter()
+        .map(|b| (b.height_m - mean).powi(2))
+        .sum::<f64>()
+        / (n - 1.0);
+    let random = boxes.iter().map(|b| b.var_random_m2).sum::<f64>() / n;
+    Some((var - random).max(0.0)).filter(|v| v.is_finite())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -665,5 +694,24 @@ mod tests {
             let (e, s) = (empirical[(k, k)], fix.point.cov_pixel[(k, k)]);
             assert!((e / s - 1.0).abs() < 0.15, "axis {k}: {e} vs {s}");
         }
+    }
+
+    #[test]
+    fn the_boxes_height_scatter_beyond_their_pixel_error() {
+        let boxes = |sd: f64, random_sd: f64| -> Vec<BoxHeight> {
+            (0..40)
+                .map(|k| BoxHeight {
+                    height_m: 1.7 + if k % 2 == 0 { sd } else { -sd },
+                    var_random_m2: random_sd * random_sd,
+                    var_shape_m2: 0.0,
+                })
+                .collect()
+        };
+        // Spread 0.1 m, of which the pixel error explains 0.05 m: 0.1² · 40/39 − 0.05².
+        let v = excess_height_var(&boxes(0.1, 0.05)).unwrap();
+        assert!((v - (0.01 * 40.0 / 39.0 - 0.0025)).abs() < 1e-12, "{v}");
+        // Less spread than the pixel error says: nothing beyond it.
+        assert_eq!(excess_height_var(&boxes(0.02, 0.05)), Some(0.0));
+        assert_eq!(excess_height_var(&boxes(0.1, 0.05)[..4]), None);
     }
 }

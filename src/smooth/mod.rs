@@ -534,10 +534,16 @@ impl Smoother for Unsmoothed {
 ///
 /// The white part shows in the change of the residual `r = y − x̂` from one frame to the next:
 /// the smoothed track, the motion it misses and any slow error hardly change in a frame, white
-/// noise of covariance `s·C` changes by `s·(Cₖ + Cₖ₊₁)`. So `s` is the mean of
-/// `Δrᵀ (Cₖ + Cₖ₊₁)⁻¹ Δr / 2` over consecutive observed frames, and the share is `1 − s`. (The
-/// residuals themselves would also count the motion a stiff smoother misses as white.)
-pub fn persistent_share(observations: &[Vec<Observation>], tracks: &[Vec<State>]) -> Option<f64> {
+/// noise of covariance `s·C` changes by `s·(Cₖ + Cₖ₊₁)`. So, with `u = (Cₖ + Cₖ₊₁)^-½ Δr`, `s`
+/// is the mean of `u uᵀ` over consecutive observed frames, and the share is `I − s`. (The
+/// residuals themselves would also count the motion a stiff smoother misses as white.) It is
+/// found per direction (a matrix in the stated covariance's whitened frame): the error along a
+/// walk (the gait) and along the view (a body's height) persist differently, and one number
+/// would let the whiter direction hide the other's persistence.
+pub fn persistent_share(
+    observations: &[Vec<Observation>],
+    tracks: &[Vec<State>],
+) -> Option<Persistent> {
     let mut w = WhiteShare::default();
     for (obs, states) in observations.iter().zip(tracks) {
         w.add_smoothed(obs, states);
@@ -545,11 +551,10 @@ pub fn persistent_share(observations: &[Vec<Observation>], tracks: &[Vec<State>]
     w.persistent()
 }
 
-/// The white share `s` of stated observation covariances, from residuals against a smoothed
-/// track, per track `(frame, residual, stated covariance)` in frame order: the mean of
-/// `Δrᵀ (Cₖ + Cₖ₊₁)⁻¹ Δr / 2` over consecutive frames, at most 1 (see [`persistent_share`]).
+/// The persistent share of stated covariances, from residuals against a smoothed track, per
+/// track `(frame, residual, stated covariance)` in frame order (see [`persistent_share`]).
 /// `None` with fewer than 20 pairs.
-pub fn white_share<I, T>(tracks: I) -> Option<f64>
+pub fn persistent_of<I, T>(tracks: I) -> Option<Persistent>
 where
     I: IntoIterator<Item = T>,
     T: AsRef<[(usize, Vector2<f64>, Matrix2<f64>)]>,
@@ -558,14 +563,51 @@ where
     for t in tracks {
         w.add(t.as_ref());
     }
-    w.share()
+    w.persistent()
 }
 
-/// [`white_share`] summed a track at a time (a long video's tracks are smoothed a batch at a
-/// time).
+/// `f` of a symmetric 2×2 matrix's eigenvalues, `None` where one is not finite.
+fn map_eigen(m: &Matrix2<f64>, f: impl Fn(f64) -> f64) -> Option<Matrix2<f64>> {
+    let e = nalgebra::SymmetricEigen::new(0.5 * (m + m.transpose()));
+    let d = e.eigenvalues.map(f);
+    d.iter()
+        .all(|v| v.is_finite())
+        .then(|| e.eigenvectors * Matrix2::from_diagonal(&d) * e.eigenvectors.transpose())
+}
+
+/// The persistent share `P` of stated covariances, in their whitened frame: the persistent
+/// part of a stated `C` is `C^½ P C^½`. Its eigenvalues are in [0, 1].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Persistent(pub Matrix2<f64>);
+
+impl Persistent {
+    /// Nothing persists.
+    pub fn none() -> Persistent {
+        Persistent(Matrix2::zeros())
+    }
+
+    /// The persistent part of a stated covariance.
+    pub fn of(&self, cov: &Matrix2<f64>) -> Matrix2<f64> {
+        match map_eigen(cov, |v| v.max(0.0).sqrt()) {
+            Some(half) => {
+                let m = half * self.0 * half;
+                0.5 * (m + m.transpose())
+            }
+            None => Matrix2::zeros(),
+        }
+    }
+
+    /// The share averaged over the two directions (the report's one number).
+    pub fn mean(&self) -> f64 {
+        0.5 * self.0.trace()
+    }
+}
+
+/// [`persistent_share`] summed a track at a time (a long video's tracks are smoothed a batch at
+/// a time).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct WhiteShare {
-    sum: f64,
+    sum: Matrix2<f64>,
     n: usize,
 }
 
@@ -577,11 +619,14 @@ impl WhiteShare {
             if f1 != f0 + 1 {
                 continue;
             }
-            let Some(inv) = (c0 + c1).try_inverse() else {
+            let inv_half = map_eigen(&(c0 + c1), |v| {
+                if v > 0.0 { v.sqrt().recip() } else { f64::NAN }
+            });
+            let Some(inv_half) = inv_half else {
                 continue;
             };
-            let d = r1 - r0;
-            self.sum += (d.transpose() * inv * d)[(0, 0)] / 2.0;
+            let u = inv_half * (r1 - r0);
+            self.sum += u * u.transpose();
             self.n += 1;
         }
     }
@@ -598,17 +643,18 @@ impl WhiteShare {
         self.add(&residuals);
     }
 
-    /// The white share; `None` with fewer than 20 pairs.
-    pub fn share(&self) -> Option<f64> {
-        if self.n < 20 || !self.sum.is_finite() {
+    /// The white share, a matrix in the whitened frame with eigenvalues at most 1; `None` with
+    /// fewer than 20 pairs.
+    pub fn share(&self) -> Option<Matrix2<f64>> {
+        if self.n < 20 {
             return None;
         }
-        Some((self.sum / self.n as f64).min(1.0))
+        map_eigen(&(self.sum / self.n as f64), |v| v.clamp(0.0, 1.0))
     }
 
-    /// `1 −` the white share: the persistent share ([`persistent_share`]).
-    pub fn persistent(&self) -> Option<f64> {
-        self.share().map(|w| 1.0 - w)
+    /// `I −` the white share: the persistent share ([`persistent_share`]).
+    pub fn persistent(&self) -> Option<Persistent> {
+        self.share().map(|w| Persistent(Matrix2::identity() - w))
     }
 }
 
@@ -748,7 +794,7 @@ mod tests {
         let (obs, truth) = simulate(&q, 0.03, 100, 300, 11);
         let out = smooth(&obs, &SmoothSettings::default());
         let white = persistent_share(&obs, &out.tracks).unwrap();
-        assert!(white < 0.1, "{white}");
+        assert!(white.mean() < 0.1, "{white:?}");
 
         // The same tracks, observed with white noise of 3 cm and a drift of 3 cm (stated as
         // one 4.24 cm σ, as a detector's error model would state its total).
@@ -781,14 +827,14 @@ mod tests {
             .collect();
         let out2 = smooth(&obs2, &SmoothSettings::default());
         let share = persistent_share(&obs2, &out2.tracks).unwrap();
-        assert!((0.35..0.75).contains(&share), "{share}");
+        assert!((0.35..0.75).contains(&share.mean()), "{share:?}");
         let (mut inside, mut plain, mut total) = (0, 0, 0);
         for ((states, tr), o) in out2.tracks.iter().zip(&truth).zip(&obs2) {
             for st in states.iter().filter(|s| s.observed) {
                 let d = st.position - tr[st.frame];
                 let c: Matrix2<f64> = st.cov.fixed_view::<2, 2>(0, 0).into();
                 let stated = o[0].cov;
-                let with = c + stated * share;
+                let with = c + share.of(&stated);
                 inside += usize::from(d.dot(&(with.try_inverse().unwrap() * d)) <= 5.991);
                 plain += usize::from(d.dot(&(c.try_inverse().unwrap() * d)) <= 5.991);
                 total += 1;
@@ -801,6 +847,48 @@ mod tests {
             "with the persistent part: {inside}"
         );
         assert!(plain < 0.6, "without it: {plain}");
+    }
+
+    /// A drift along one direction only (along a walk, say) is found there, and not across it,
+    /// where the error is white: one pooled number would give each half.
+    #[test]
+    fn persistent_share_is_found_per_direction() {
+        let q = white_acceleration_q(0.04, 0.25, 0.04);
+        let (obs, truth) = simulate(&q, 0.03, 100, 300, 21);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(22);
+        let std = Normal::new(0.0, 1.0).unwrap();
+        let (rho, sd): (f64, f64) = ((-0.04f64).exp(), 0.03);
+        // East: white 3 cm and a drift of 3 cm; north: white 3 cm. Stated as their totals.
+        let stated = Matrix2::new(2.0 * sd * sd, 0.0, 0.0, sd * sd);
+        let obs2: Vec<Vec<Observation>> = obs
+            .iter()
+            .zip(&truth)
+            .map(|(o, tr)| {
+                let mut drift = sd * std.sample(&mut rng);
+                let mut last = 0;
+                o.iter()
+                    .map(|ob| {
+                        for _ in last..ob.frame {
+                            drift =
+                                drift * rho + std.sample(&mut rng) * sd * (1.0 - rho * rho).sqrt();
+                        }
+                        last = ob.frame;
+                        let white = Vector2::new(std.sample(&mut rng), std.sample(&mut rng)) * sd;
+                        Observation {
+                            frame: ob.frame,
+                            position: tr[ob.frame] + white + Vector2::new(drift, 0.0),
+                            cov: stated,
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let out = smooth(&obs2, &SmoothSettings::default());
+        let p = persistent_share(&obs2, &out.tracks).unwrap();
+        assert!((0.35..0.75).contains(&p.0[(0, 0)]), "{p:?}");
+        assert!(p.0[(1, 1)] < 0.1 && p.0[(0, 1)].abs() < 0.1, "{p:?}");
+        let added = p.of(&stated);
+        assert!(added[(1, 1)] < 0.1 * sd * sd, "{added}");
     }
 
     /// Tracks given a few at a time, as a long video's are read back from disk.

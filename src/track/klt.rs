@@ -621,7 +621,7 @@ impl<F: FeatureTracker> KltTracker<F> {
         }
         // Smoothed first, then the share of the detections' error that persists over frames
         // (pooled over the tracks), which smoothing cannot average and which KLT carries along:
-        // added back to every point (`smooth::white_share`).
+        // added back to every point (`smooth::persistent_share`).
         let mut smoothed = Vec::new();
         for t in all {
             let first = t.steps.iter().position(|x| x.detected);
@@ -658,14 +658,14 @@ impl<F: FeatureTracker> KltTracker<F> {
             }
             smoothed.push((t, a, e, smooth));
         }
-        let white = crate::smooth::white_share(smoothed.iter().map(|(t, a, e, smooth)| {
+        let persistent = crate::smooth::persistent_of(smoothed.iter().map(|(t, a, e, smooth)| {
             t.steps[*a..=*e]
                 .iter()
                 .zip(&smooth[*a..=*e])
                 .filter_map(|(x, (uv, _))| x.det.map(|(d, c)| (x.frame, d - uv, c)))
                 .collect::<Vec<_>>()
         }));
-        let persistent = white.map_or(0.0, |w| 1.0 - w);
+        let persistent = persistent.unwrap_or(crate::smooth::Persistent::none());
         let mut tracks: Vec<Vec<TrackPoint>> = Vec::new();
         for (t, a, e, smooth) in smoothed {
             let steps = &t.steps[..=e];
@@ -676,7 +676,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                 if let Some((_, c)) = x.det {
                     last = c;
                 }
-                det_cov.push(last * persistent);
+                det_cov.push(persistent.of(&last));
             }
             // The backward pass's frames, tied to the smoothed first point; the variance grows
             // by a frame's feature motion per frame.

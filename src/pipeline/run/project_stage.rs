@@ -12,7 +12,9 @@ use crate::camera::Camera;
 use crate::geom::Rigid3;
 use crate::pipeline::project::ProjectionSection;
 use crate::pipeline::settings::GroundSection;
-use crate::projection::body::{BoxError, View, combine_heights, ground_from_box};
+use crate::projection::body::{
+    BoxError, View, combine_heights, excess_height_var, ground_from_box,
+};
 use crate::projection::project;
 use crate::terrain::HeightSurface;
 use crate::track::ImageTrack;
@@ -192,6 +194,7 @@ impl Seen<'_> {
         projection: &ProjectionSection,
     ) -> (WorldTrack, usize) {
         let (mut h, mut sd, mut source) = height_of(given, projection);
+        let mut excess = 0.0;
         let width = self.image_wh.0;
         // The box's position error is the tracker's; its length's is the detector's at its
         // feet end (the tracker follows the head end).
@@ -225,9 +228,14 @@ impl Seen<'_> {
                 (h, sd) = combine_heights((h, sd), &said);
                 source = "boxes";
             }
+            excess = excess_height_var(&said).unwrap_or(0.0);
         }
+        // Each box's position is solved with its head height free about the person's: the
+        // head end then weighs by how well this frame's head height is known (the person's σ
+        // and the boxes' scatter beyond their pixel error), not as if it were exact.
+        let frame_sd = (sd * sd + excess).sqrt();
         world_track(t, (h, sd, source), |q| {
-            read(q, (h, sd), false).map(|f| f.point)
+            read(q, (h, frame_sd), true).map(|f| f.point)
         })
     }
 }

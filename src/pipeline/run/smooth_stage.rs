@@ -26,9 +26,9 @@ pub(super) struct SmoothSummary {
     pub em_iterations: usize,
     pub em_converged: bool,
     pub q: Vec<f64>,
-    /// The share of the detections' variance that persists from frame to frame
+    /// The share of the detections' variance that persists from frame to frame, per direction
     /// (`smooth::persistent_share`): added back to every point's random part.
-    pub persistent_share: f64,
+    pub persistent_share: [f64; 4],
     pub median_sigma_m: Option<f64>,
 }
 
@@ -206,7 +206,7 @@ pub(super) fn smooth_stage(
         let none = matches!(settings, SmoothSection::None(_));
         // What smoothing cannot average away: detection errors that persist over frames.
         let persistent = if none {
-            0.0
+            crate::smooth::Persistent::none()
         } else {
             let mut white = crate::smooth::WhiteShare::default();
             crate::smooth::ObservationSource::each_batch(&observed, &mut |obs| {
@@ -216,7 +216,9 @@ pub(super) fn smooth_stage(
                 }
             })
             .map_err(read_err)?;
-            white.persistent().unwrap_or(0.0)
+            white
+                .persistent()
+                .unwrap_or(crate::smooth::Persistent::none())
         };
         let mut points = 0;
         cache.store_seq::<_, RunError>("smooth", &smooth_key, projected.tracks, |push| {
@@ -251,7 +253,7 @@ pub(super) fn smooth_stage(
             } else {
                 fit.q.iter().copied().collect()
             },
-            persistent_share: persistent,
+            persistent_share: persistent.0.as_slice().try_into().unwrap_or([0.0; 4]),
             median_sigma_m,
         })
     })?;
@@ -264,7 +266,10 @@ pub(super) fn smooth_stage(
     let mut counts = BTreeMap::from([
         ("trajectories".into(), summary.trajectories as f64),
         ("em_iterations".into(), summary.em_iterations as f64),
-        ("persistent_share".into(), summary.persistent_share),
+        (
+            "persistent_share".into(),
+            0.5 * (summary.persistent_share[0] + summary.persistent_share[3]),
+        ),
     ]);
     if summary.q.len() == 16 {
         counts.insert("q_velocity_e_m2_s2".into(), summary.q[10]);
@@ -290,7 +295,7 @@ fn trajectory_points(
     x: &RunInputs,
     world: Vec<WorldTrack>,
     states: Vec<Vec<crate::smooth::State>>,
-    persistent: f64,
+    persistent: crate::smooth::Persistent,
     to_out: &ToOut,
 ) -> Result<Vec<Trajectory>, RunError> {
     let (fps, surface) = (x.fps, &x.surface);
@@ -310,7 +315,7 @@ fn trajectory_points(
                 .or_else(|| by_frame.range(frame..).next())
                 .map(|(_, w)| *w);
             let cov = PointCov {
-                random: cov_random + near.map_or(Matrix2::zeros(), |w| w.cov_pixel * persistent),
+                random: cov_random + near.map_or(Matrix2::zeros(), |w| persistent.of(&w.cov_pixel)),
                 height: near.map_or(Matrix2::zeros(), |w| w.cov_height),
                 pose: near.map_or(Matrix2::zeros(), |w| w.cov_pose),
             };

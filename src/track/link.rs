@@ -249,6 +249,24 @@ mod tests {
         }
     }
 
+    /// Chunk 0 owns frames 0..10, chunk 1 frames 10..20 and is tracked from frame 6.
+    fn two_chunks(first: Vec<ImageTrack>, second: Vec<ImageTrack>) -> [ChunkTracks; 2] {
+        [
+            ChunkTracks {
+                decode_from: 0,
+                start: 0,
+                end: 10,
+                tracks: first,
+            },
+            ChunkTracks {
+                decode_from: 6,
+                start: 10,
+                end: 20,
+                tracks: second,
+            },
+        ]
+    }
+
     const S: LinkSettings = LinkSettings {
         same_px: 0.5,
         min_shared: 3,
@@ -257,18 +275,10 @@ mod tests {
     #[test]
     fn a_person_crossing_a_border_stays_one_track_and_crossers_are_not_swapped() {
         // Two people crossing at frame 10 (x = 50), the border at frame 10, overlap 6..10.
-        let c0 = ChunkTracks {
-            decode_from: 0,
-            start: 0,
-            end: 10,
-            tracks: vec![track(7, 0..10, 0.0, 5.0), track(3, 0..10, 100.0, -5.0)],
-        };
-        let c1 = ChunkTracks {
-            decode_from: 6,
-            start: 10,
-            end: 20,
-            tracks: vec![track(1, 6..20, 100.0, -5.0), track(2, 6..20, 0.0, 5.0)],
-        };
+        let [c0, c1] = two_chunks(
+            vec![track(7, 0..10, 0.0, 5.0), track(3, 0..10, 100.0, -5.0)],
+            vec![track(1, 6..20, 100.0, -5.0), track(2, 6..20, 0.0, 5.0)],
+        );
         let (t, stats) = link_chunks(vec![c0, c1], &S);
         assert_eq!(stats.joined, 2);
         assert_eq!(t.len(), 2);
@@ -289,18 +299,10 @@ mod tests {
 
     #[test]
     fn a_person_first_seen_after_the_border_is_a_new_track_and_one_that_left_ends() {
-        let c0 = ChunkTracks {
-            decode_from: 0,
-            start: 0,
-            end: 10,
-            tracks: vec![track(1, 0..5, 0.0, 1.0)],
-        };
-        let c1 = ChunkTracks {
-            decode_from: 6,
-            start: 10,
-            end: 20,
-            tracks: vec![track(1, 12..20, 300.0, 1.0)],
-        };
+        let [c0, c1] = two_chunks(
+            vec![track(1, 0..5, 0.0, 1.0)],
+            vec![track(1, 12..20, 300.0, 1.0)],
+        );
         // Streamed: the track that ended at frame 4 is given away when the next chunk comes
         // (its overlap starts later), the other at the end.
         let mut linker = Linker::new(S);
@@ -343,41 +345,25 @@ mod tests {
     fn smoothed_tracks_that_differ_by_their_uncertainty_join_to_the_nearest() {
         // A smoothing tracker ends chunk 0's track and begins chunk 1's a few pixels apart
         // (σ 2 px each): one person, though farther apart than `same_px`.
-        let c0 = ChunkTracks {
-            decode_from: 0,
-            start: 0,
-            end: 10,
-            tracks: vec![track_at(0..10, 0.0, 100.0, 4.0)],
-        };
-        let c1 = ChunkTracks {
-            decode_from: 6,
-            start: 10,
-            end: 20,
-            tracks: vec![track_at(6..20, 0.0, 103.0, 4.0)],
-        };
+        let [c0, c1] = two_chunks(
+            vec![track_at(0..10, 0.0, 100.0, 4.0)],
+            vec![track_at(6..20, 0.0, 103.0, 4.0)],
+        );
         let (t, stats) = link_chunks(vec![c0, c1], &S);
         assert_eq!((stats.joined, stats.unmatched, t.len()), (1, 0, 1));
         assert_eq!(t[0].points.len(), 20);
         // Two people side by side, 6 px apart (σ 3 px): each of chunk 1's tracks is within
         // both gates and shares all the overlap with both; each joins the nearer.
-        let c0 = ChunkTracks {
-            decode_from: 0,
-            start: 0,
-            end: 10,
-            tracks: vec![
+        let [c0, c1] = two_chunks(
+            vec![
                 track_at(0..10, 0.0, 100.0, 9.0),
                 track_at(0..10, 0.0, 106.0, 9.0),
             ],
-        };
-        let c1 = ChunkTracks {
-            decode_from: 6,
-            start: 10,
-            end: 20,
-            tracks: vec![
+            vec![
                 track_at(6..20, 0.0, 104.0, 9.0),
                 track_at(6..20, 0.0, 101.0, 9.0),
             ],
-        };
+        );
         let (t, stats) = link_chunks(vec![c0, c1], &S);
         assert_eq!((stats.joined, t.len()), (2, 2));
         for t in &t {
@@ -391,18 +377,10 @@ mod tests {
 
     #[test]
     fn too_few_shared_frames_do_not_join() {
-        let c0 = ChunkTracks {
-            decode_from: 0,
-            start: 0,
-            end: 10,
-            tracks: vec![track(1, 0..8, 0.0, 1.0)],
-        };
-        let c1 = ChunkTracks {
-            decode_from: 6,
-            start: 10,
-            end: 20,
-            tracks: vec![track(1, 6..20, 0.0, 1.0)],
-        };
+        let [c0, c1] = two_chunks(
+            vec![track(1, 0..8, 0.0, 1.0)],
+            vec![track(1, 6..20, 0.0, 1.0)],
+        );
         let (t, stats) = link_chunks(vec![c0, c1], &S);
         assert_eq!(stats.joined, 0);
         assert_eq!(stats.unmatched, 1);

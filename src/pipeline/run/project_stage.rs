@@ -206,22 +206,22 @@ impl Seen<'_> {
                 length_px2: 0.5 * (e[(0, 0)] + e[(1, 1)]),
             }
         };
-        // One box read at the height (h, σ), with the height it says when asked.
-        let read = |q: &crate::track::TrackPoint, height: (f64, f64), want_height: bool| {
+        // One box read with its head height free about (h, σ), and the height it says.
+        let read = |q: &crate::track::TrackPoint, height: (f64, f64)| {
             ground_from_box(
                 &self.view(q.frame),
                 &b.shape,
                 &q.bbox,
                 &error(q),
                 height,
-                want_height,
+                true,
             )
         };
         if given.is_none() {
             let said: Vec<_> = t
                 .points
                 .iter()
-                .filter_map(|q| read(q, (h, sd), true))
+                .filter_map(|q| read(q, (h, sd)))
                 .filter_map(|f| f.height)
                 .collect();
             if !said.is_empty() {
@@ -235,7 +235,7 @@ impl Seen<'_> {
         // and the boxes' scatter beyond their pixel error), not as if it were exact.
         let frame_sd = (sd * sd + excess).sqrt();
         world_track(t, (h, sd, source), |q| {
-            read(q, (h, frame_sd), true).map(|f| f.point)
+            read(q, (h, frame_sd)).map(|f| f.point)
         })
     }
 }

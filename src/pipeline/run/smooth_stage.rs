@@ -26,9 +26,9 @@ pub(super) struct SmoothSummary {
     pub em_iterations: usize,
     pub em_converged: bool,
     pub q: Vec<f64>,
-    /// The share of the detections' variance that persists from frame to frame, per direction
-    /// (`smooth::persistent_share`): added back to every point's random part.
-    pub persistent_share: [f64; 4],
+    /// The share of the detections' variance that persists from frame to frame, the mean of
+    /// its two directions (`smooth::persistent_share`, added back to every point's random part).
+    pub persistent_share: f64,
     pub median_sigma_m: Option<f64>,
 }
 
@@ -253,7 +253,7 @@ pub(super) fn smooth_stage(
             } else {
                 fit.q.iter().copied().collect()
             },
-            persistent_share: persistent.0.as_slice().try_into().unwrap_or([0.0; 4]),
+            persistent_share: persistent.mean(),
             median_sigma_m,
         })
     })?;
@@ -266,10 +266,7 @@ pub(super) fn smooth_stage(
     let mut counts = BTreeMap::from([
         ("trajectories".into(), summary.trajectories as f64),
         ("em_iterations".into(), summary.em_iterations as f64),
-        (
-            "persistent_share".into(),
-            0.5 * (summary.persistent_share[0] + summary.persistent_share[3]),
-        ),
+        ("persistent_share".into(), summary.persistent_share),
     ]);
     if summary.q.len() == 16 {
         counts.insert("q_velocity_e_m2_s2".into(), summary.q[10]);

@@ -93,6 +93,30 @@ pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(),
     encode_to(path, &bgr)
 }
 
+/// 8-bit RGB (row-major) encoded as JPEG at `quality` (1-100).
+pub fn encode_rgb_jpeg(
+    width: u32,
+    height: u32,
+    rgb: &[u8],
+    quality: u8,
+) -> Result<Vec<u8>, ImageError> {
+    let path = Path::new("(jpeg)");
+    let err = |e: opencv::Error| file_error(path, e);
+    let mat = Mat::new_rows_cols_with_data(height as i32, width as i32 * 3, rgb).map_err(err)?;
+    let mat = mat.reshape(3, height as i32).map_err(err)?;
+    let mut bgr = Mat::default();
+    opencv::imgproc::cvt_color_def(&mat, &mut bgr, opencv::imgproc::COLOR_RGB2BGR).map_err(err)?;
+    let mut buf = Vector::<u8>::new();
+    let params = Vector::from_slice(&[
+        imgcodecs::IMWRITE_JPEG_QUALITY,
+        i32::from(quality.clamp(1, 100)),
+    ]);
+    if !imgcodecs::imencode(".jpg", &bgr, &mut buf, &params).map_err(err)? {
+        return Err(file_error(path, "OpenCV cannot encode JPEG"));
+    }
+    Ok(buf.to_vec())
+}
+
 /// A scalar map for [`write_heatmap`]: row-major values, a title, and the unit of the labels
 /// (values are multiplied by `scale` for them, e.g. 100 for centimetres).
 pub struct HeatMap<'a> {

@@ -1040,6 +1040,23 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "dataset-too-big-for-its-limit",
+            category: "runaway memory",
+            args: args(&["dataset", "--out", "tiles", "--tiles", "1000000", "--max-disk-mb", "100"]),
+            expect: "more than --max-disk-mb 100",
+            place: "1000000 tiles",
+            ..Default::default()
+        },
+        Case {
+            id: "dataset-over-an-existing-folder",
+            category: "input overwritten",
+            files: vec![("tiles/keep.txt", "mine\n".into())],
+            args: args(&["dataset", "--out", "tiles", "--tiles", "2"]),
+            expect: "already exists",
+            place: "tiles",
+            ..Default::default()
+        },
+        Case {
             id: "scene-huge-video",
             category: "runaway memory",
             files: vec![("scene.toml", replace("scene.toml", "video_mode = [1280, 720]", "video_mode = [160000, 90000]"))],

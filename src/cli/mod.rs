@@ -4,6 +4,7 @@ mod ba;
 mod calibrate;
 mod camera;
 mod cluster;
+mod dataset;
 pub mod demo;
 mod detect;
 mod evaluate;
@@ -67,6 +68,9 @@ enum Command {
     /// Inspect and convert camera calibration files (OpenCV YAML, Metashape XML, geostride JSON)
     #[command(subcommand)]
     Camera(camera::Command),
+    /// Render training tiles for the overhead person detector from the simulator, with exact
+    /// boxes and head points
+    Dataset(dataset::Args),
     /// Run the bundled example end to end and check it against its ground truth
     Demo(demo::Args),
     /// Find people with a neural detector (a YOLO-family ONNX model; the bundled YOLOv3-tiny
@@ -112,6 +116,7 @@ impl Cli {
             Command::Ba(args) => ba::run(args),
             Command::Calibrate(args) => calibrate::run(args),
             Command::Camera(cmd) => camera::run(cmd),
+            Command::Dataset(args) => dataset::run(args),
             Command::Demo(args) => demo::run(args),
             Command::Detect(args) => detect::run(args),
             Command::Evaluate(args) => evaluate::run(args),

@@ -1,6 +1,7 @@
 //! Synthetic scenes with exact ground truth (pure), and survey planning.
 
 pub mod board;
+pub mod dataset;
 pub mod flight;
 pub mod gcp_view;
 pub mod noise;

@@ -303,22 +303,53 @@ pub struct Body {
     pub bounds: (Vector3<f64>, Vector3<f64>),
 }
 
+/// How a body looks: its colours, how far its limbs swing and how broad it is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyStyle {
+    pub shirt: Rgb,
+    pub hair: Rgb,
+    pub trousers: Rgb,
+    /// The limbs' swing against a walker's (0: standing still; a runner's is larger).
+    pub swing: f64,
+    /// Breadth against the average body's (torso, arms' spread, legs' spread).
+    pub girth: f64,
+}
+
+impl BodyStyle {
+    /// A scene's person: their shirt and hair, dark trousers, a walker's swing.
+    pub fn of(person: &Person) -> BodyStyle {
+        BodyStyle {
+            shirt: person.shirt,
+            hair: person.hair,
+            trousers: [0.12, 0.12, 0.15],
+            swing: 1.0,
+            girth: 1.0,
+        }
+    }
+}
+
 impl Body {
     pub fn new(person: &Person, pose: &Pose, hat: Option<Rgb>) -> Body {
+        Body::styled(pose, hat, &BodyStyle::of(person))
+    }
+
+    /// A body in `pose` dressed and moving as `style` says.
+    pub fn styled(pose: &Pose, hat: Option<Rgb>, style: &BodyStyle) -> Body {
         let h = pose.head_top.z - pose.foot.z;
         let f = pose.foot;
+        let g = style.girth;
         let fwd = Vector3::new(pose.heading.x, pose.heading.y, 0.0);
         let left = Vector3::new(-pose.heading.y, pose.heading.x, 0.0);
-        let swing = 0.22 * (h / 1.7) * pose.stride_phase.sin();
+        let swing = style.swing * 0.22 * (h / 1.7) * pose.stride_phase.sin();
         let leg = |side: f64, s: f64| Ellipsoid {
-            centre: f + left * (0.1 * side) + fwd * s + Vector3::new(0.0, 0.0, 0.24 * h),
-            semi: Vector3::new(0.08, 0.07, 0.25 * h),
-            colour: [0.12, 0.12, 0.15],
+            centre: f + left * (0.1 * g * side) + fwd * s + Vector3::new(0.0, 0.0, 0.24 * h),
+            semi: Vector3::new(0.08 * g, 0.07 * g, 0.25 * h),
+            colour: style.trousers,
         };
         let arm = |side: f64, s: f64| Ellipsoid {
-            centre: f + left * (0.23 * side) + fwd * s + Vector3::new(0.0, 0.0, 0.62 * h),
-            semi: Vector3::new(0.06, 0.05, 0.15 * h),
-            colour: person.shirt,
+            centre: f + left * (0.23 * g * side) + fwd * s + Vector3::new(0.0, 0.0, 0.62 * h),
+            semi: Vector3::new(0.06 * g, 0.05 * g, 0.15 * h),
+            colour: style.shirt,
         };
         let parts = vec![
             leg(1.0, swing),
@@ -327,13 +358,13 @@ impl Body {
             arm(-1.0, 0.6 * swing),
             Ellipsoid {
                 centre: f + Vector3::new(0.0, 0.0, 0.66 * h),
-                semi: Vector3::new(0.13, 0.21, 0.17 * h),
-                colour: person.shirt,
+                semi: Vector3::new(0.13 * g, 0.21 * g, 0.17 * h),
+                colour: style.shirt,
             },
             Ellipsoid {
                 centre: pose.head_top - Vector3::new(0.0, 0.0, HEAD_RADIUS_M + 0.006),
                 semi: Vector3::new(HEAD_RADIUS_M, HEAD_RADIUS_M * 0.9, HEAD_RADIUS_M),
-                colour: person.hair,
+                colour: style.hair,
             },
         ];
         Body {

@@ -31,9 +31,9 @@ pub struct Args {
     /// The frame (from 0) of the preview
     #[arg(long, default_value = "0", value_name = "N")]
     preview_frame: usize,
-    /// The output layout: darknet (anchors from the model's metadata), yolov5, yolov8 or
-    /// yolox [default: the model's metadata, else told from its outputs]
-    #[arg(long, value_parser = ["darknet", "yolov5", "yolov8", "yolox"])]
+    /// The output layout: darknet (anchors from the model's metadata), yolov5, yolov8,
+    /// yolox or centre_heatmap (geostride's own) [default: the model's metadata, else told from its outputs]
+    #[arg(long, value_parser = ["darknet", "yolov5", "yolov8", "yolox", "centre_heatmap"])]
     layout: Option<String>,
     /// Input size WIDTHxHEIGHT [default: the model's, else 640x640]
     #[arg(long, value_parser = super::parse_size, value_name = "WxH")]

@@ -331,6 +331,24 @@ impl NeuralDetector {
             .and_then(|t| parse_names(&t))
             .unwrap_or_default();
         let darknet = model.metadata("darknet_yolo");
+        // A model trained by geostride says its layout; one this build does not know is refused.
+        let own = match model.metadata("geostride.layout") {
+            Some(l) if l == super::yolo::CENTRE_HEATMAP_LAYOUT => Some(Layout::CentreHeatmap),
+            Some(l) => {
+                return Err(bad(format!(
+                    "its geostride.layout metadata is '{}': this geostride reads '{}' (a model \
+                     from another version of scripts/train_detector.py?)",
+                    crate::io::clip(&l, 60),
+                    super::yolo::CENTRE_HEATMAP_LAYOUT
+                )));
+            }
+            None => None,
+        };
+        let names = if own.is_some() && names.is_empty() {
+            vec!["person".to_string()]
+        } else {
+            names
+        };
         let input_wh = match (settings.input_size, &model.input_shape[..]) {
             (Some(s), _) => s,
             (None, [_, _, h, w]) if *h > 0 && *w > 0 => {
@@ -369,6 +387,7 @@ impl NeuralDetector {
         }
         let layout = match (&settings.layout, darknet) {
             (Some(l), _) => l.clone(),
+            (None, _) if own.is_some() => own.clone().expect("checked"),
             (None, Some(meta)) => darknet_layout(&meta).map_err(|e| bad(e.to_string()))?,
             (None, None) => {
                 // Told from one run's output shapes.

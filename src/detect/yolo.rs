@@ -29,7 +29,15 @@ pub enum Layout {
     Yolov8,
     /// YOLOX: `[1, N, 5+C]` raw grid offsets (strides 8, 16, 32), scores through a sigmoid.
     Yolox,
+    /// geostride's overhead detector (`scripts/train_detector.py`, metadata `geostride.layout =
+    /// geostride-centre-heatmap-1`): `[1, K, 7]` heatmap peaks decoded in the model, each
+    /// score, box centre x, y, width, height and the top of the head x, y in input pixels; one
+    /// class.
+    CentreHeatmap,
 }
+
+/// The `geostride.layout` metadata of a model trained by `scripts/train_detector.py`.
+pub const CENTRE_HEATMAP_LAYOUT: &str = "geostride-centre-heatmap-1";
 
 impl Layout {
     /// A layout without parameters by its settings name (`yolov5`, `yolov8`, `yolox`); darknet's
@@ -39,6 +47,7 @@ impl Layout {
             "yolov5" => Some(Layout::Yolov5),
             "yolov8" => Some(Layout::Yolov8),
             "yolox" => Some(Layout::Yolox),
+            "centre_heatmap" => Some(Layout::CentreHeatmap),
             _ => None,
         }
     }
@@ -50,6 +59,7 @@ impl Layout {
             Layout::Yolov5 => "yolov5",
             Layout::Yolov8 => "yolov8",
             Layout::Yolox => "yolox",
+            Layout::CentreHeatmap => "centre_heatmap",
         }
     }
 
@@ -116,6 +126,7 @@ pub(crate) fn decode(
         } => decode_darknet(anchors, masks, strides, outputs, keep, &mut out)?,
         Layout::Yolov5 | Layout::Yolox => decode_yolov5(layout, outputs, input_wh, keep, &mut out)?,
         Layout::Yolov8 => decode_yolov8(outputs, keep, &mut out)?,
+        Layout::CentreHeatmap => decode_centre(outputs, keep, &mut out)?,
     }
     // A value that is not a number (a broken export) makes no box: NaN passes every `<` test.
     out.retain(|b| {
@@ -193,6 +204,41 @@ fn decode_darknet(
                 }
             }
         }
+    }
+    Ok(())
+}
+
+/// [`decode`] of the centre heatmap's peaks `[1, K, 7]`.
+fn decode_centre(
+    outputs: &[(Vec<i64>, Vec<f32>)],
+    keep: &Keep,
+    out: &mut Vec<RawBox>,
+) -> Result<(), String> {
+    let (data, [n, per]) = single(outputs, "[1, K, 7]", 1)?;
+    if per != 7 {
+        return Err(format!(
+            "{per} values a candidate; the centre heatmap layout has 7 (score, x, y, w, h, head x, y)"
+        ));
+    }
+    if !keep.wants(0) {
+        return Ok(());
+    }
+    for v in data.chunks_exact(7).take(n) {
+        let score = f64::from(v[0]);
+        if score < keep.min_score {
+            continue;
+        }
+        let (cx, cy, w, h) = (
+            f64::from(v[1]),
+            f64::from(v[2]),
+            f64::from(v[3]),
+            f64::from(v[4]),
+        );
+        out.push(RawBox {
+            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
+            score,
+            class: 0,
+        });
     }
     Ok(())
 }
@@ -473,6 +519,38 @@ mod tests {
 
     fn logit(p: f64) -> f32 {
         (p / (1.0 - p)).ln() as f32
+    }
+
+    #[test]
+    fn centre_heatmap_rows_are_boxes_about_their_centres() {
+        let keep = Keep {
+            classes: &[],
+            min_score: 0.3,
+        };
+        // Two candidates: one kept, one under the score.
+        let rows = vec![
+            0.9, 100.0, 50.0, 20.0, 40.0, 100.0, 35.0, //
+            0.1, 10.0, 10.0, 5.0, 5.0, 10.0, 8.0,
+        ];
+        let b = decode(
+            &Layout::CentreHeatmap,
+            &[(vec![1, 2, 7], rows)],
+            [256, 256],
+            &keep,
+        )
+        .unwrap();
+        assert_eq!(b.len(), 1);
+        assert_eq!(b[0].xywh, [90.0, 30.0, 20.0, 40.0]);
+        assert!((b[0].score - 0.9).abs() < 1e-6);
+        let six = vec![0.0f32; 12];
+        let e = decode(
+            &Layout::CentreHeatmap,
+            &[(vec![1, 2, 6], six)],
+            [256, 256],
+            &keep,
+        )
+        .unwrap_err();
+        assert!(e.contains("has 7"), "{e}");
     }
 
     #[test]

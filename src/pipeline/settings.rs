@@ -391,7 +391,7 @@ impl Default for BoxesSection {
 pub struct OnnxSection {
     /// The ONNX model [default: the bundled YOLOv3-tiny, `third_party/models/yolov3-tiny.onnx`].
     pub model: Option<String>,
-    /// `darknet`, `yolov5`, `yolov8` or `yolox` [default: the model's metadata, else its outputs].
+    /// `darknet`, `yolov5`, `yolov8`, `yolox` or `centre_heatmap` [default: the model's metadata, else its outputs].
     pub layout: Option<String>,
     /// Input `[width, height]` [default: the model's].
     pub input_size: Option<[usize; 2]>,
@@ -955,11 +955,12 @@ impl DetectSection {
             DetectSection::Background(b) => b.body().check(),
             DetectSection::Onnx(o) => {
                 if let Some(l) = &o.layout
-                    && !["darknet", "yolov5", "yolov8", "yolox"].contains(&l.as_str())
+                    && !["darknet", "yolov5", "yolov8", "yolox", "centre_heatmap"]
+                        .contains(&l.as_str())
                 {
                     return bad(
                         "layout",
-                        "expected 'darknet', 'yolov5', 'yolov8' or 'yolox'",
+                        "expected 'darknet', 'yolov5', 'yolov8', 'yolox' or 'centre_heatmap'",
                     );
                 }
                 if o.stride == 0 {

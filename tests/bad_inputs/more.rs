@@ -71,6 +71,28 @@ pub(super) fn extend_fixture(dir: &Path) {
     )
     .unwrap();
     std::fs::write(
+        dir.join("future.onnx"),
+        constant_model(
+            64,
+            64,
+            &[1, 8, 7],
+            0.0,
+            &[("geostride.layout", "geostride-centre-heatmap-9")],
+        ),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("centre6.onnx"),
+        constant_model(
+            64,
+            64,
+            &[1, 8, 6],
+            0.0,
+            &[("geostride.layout", "geostride-centre-heatmap-1")],
+        ),
+    )
+    .unwrap();
+    std::fs::write(
         dir.join("rank2.onnx"),
         constant_model(64, 64, &[6, 10], 0.0, &names),
     )
@@ -491,6 +513,8 @@ pub(super) fn cases() -> Vec<Case> {
         detect_case("detect-unknown-class", "nonsense accepted", &["--classes", "unicorn"], "has no class 'unicorn'", "yolov3-tiny.onnx"),
         detect_case("detect-model-gives-nan", "nonsense accepted", &["--model", "nan.onnx"], "not numbers", "nan.onnx"),
         detect_case("detect-model-of-unknown-layout", "nonsense accepted", &["--model", "rank2.onnx"], "cannot tell the output layout", "rank2.onnx"),
+        detect_case("detect-model-of-a-future-geostride-layout", "nonsense accepted", &["--model", "future.onnx"], "this geostride reads 'geostride-centre-heatmap-1'", "future.onnx"),
+        detect_case("detect-centre-heatmap-of-6-values", "nonsense accepted", &["--model", "centre6.onnx"], "the centre heatmap layout has 7", "centre6.onnx"),
         detect_case("detect-darknet-without-anchors", "nonsense accepted", &["--model", "nan.onnx", "--layout", "darknet"], "darknet_yolo metadata", "nan.onnx"),
         detect_case("detect-model-not-onnx", "wrong code", &["--model", "gcps.csv"], "gcps.csv", "gcps.csv"),
         detect_case("detect-model-missing", "wrong code", &["--model", "nope.onnx"], "nope.onnx", "nope.onnx"),

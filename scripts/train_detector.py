@@ -1,0 +1,363 @@
+#!/usr/bin/env python3
+"""Trains geostride's overhead person detector on `geostride dataset` tiles (CPU, PyTorch) and
+exports it to ONNX with the metadata `geostride detect` reads.
+
+The model: a small fully convolutional network (four stride-2 stages, a top-down path back to
+a quarter of the input) with a centre heatmap head (CenterNet's objects as points): per output
+cell the score that a person's box centre lies there, the centre's sub-cell offset, the box's
+log size and the offset from the centre to the top of the head. The export decodes it inside the
+graph (3x3 max-pool peaks, top K), so the ONNX model's output is one row per candidate: score,
+box centre x, y, width, height, head x, y (input pixels). Input: any size (multiples of 32), RGB,
+0-1, NCHW.
+
+Deterministic for a seed on one thread count (torch's CPU kernels); `make model` runs the
+recipe the committed model came from. Python is only for training: geostride runs the model
+through ONNX Runtime.
+"""
+
+import argparse
+import csv
+import hashlib
+import json
+import math
+import os
+import random
+import sys
+import time
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from PIL import Image
+
+STRIDE = 4
+LAYOUT = "geostride-centre-heatmap-1"
+
+
+def read_dataset(folder):
+    """The tiles' image paths and their labels: per tile an array of (x, y, w, h, hx, hy, shoulder_px, inside)."""
+    meta = json.load(open(os.path.join(folder, "dataset.json")))
+    tiles = {}
+    with open(os.path.join(folder, "tiles.csv")) as f:
+        for r in csv.DictReader(f):
+            tiles[int(r["tile"])] = {"file": os.path.join(folder, r["file"]), "row": r, "labels": []}
+    with open(os.path.join(folder, "labels.csv")) as f:
+        for r in csv.DictReader(f):
+            tiles[int(r["tile"])]["labels"].append(
+                [float(r[k]) for k in ("x", "y", "w", "h", "head_x", "head_y", "shoulder_px", "inside")]
+            )
+    out = []
+    for k in sorted(tiles):
+        t = tiles[k]
+        t["labels"] = np.array(t["labels"], dtype=np.float32).reshape(-1, 8)
+        out.append(t)
+    return meta, out
+
+
+def load_image(path):
+    im = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
+    return im.transpose(2, 0, 1).copy()
+
+
+def augment(img, labels, rng):
+    """A random one of the eight flips and quarter turns (a view from above has no up)."""
+    size = img.shape[1]
+    lab = labels.copy()
+    k = rng.randrange(4)
+    flip = rng.random() < 0.5
+
+    def pts(x, y):
+        # Pixel centres at integers: the image spans -0.5 .. size-0.5.
+        for _ in range(k):  # rot90 counter-clockwise: (x, y) -> (y, size-1-x)
+            x, y = y, size - 1 - x
+        if flip:
+            x = size - 1 - x
+        return x, y
+
+    img = np.rot90(img, k, axes=(1, 2))
+    if flip:
+        img = img[:, :, ::-1]
+    if len(lab):
+        x0, y0 = pts(lab[:, 0], lab[:, 1])
+        x1, y1 = pts(lab[:, 0] + lab[:, 2], lab[:, 1] + lab[:, 3])
+        hx, hy = pts(lab[:, 4], lab[:, 5])
+        lab[:, 0], lab[:, 1] = np.minimum(x0, x1), np.minimum(y0, y1)
+        lab[:, 2], lab[:, 3] = np.abs(x1 - x0), np.abs(y1 - y0)
+        lab[:, 4], lab[:, 5] = hx, hy
+    return np.ascontiguousarray(img), lab
+
+
+def gaussian_radius(w, h):
+    """A heatmap radius (cells) growing with the box: about a third of its smaller side."""
+    return max(0.0, 0.33 * min(w, h) / STRIDE)
+
+
+def targets(labels, size):
+    """Heatmap, regression targets and their mask on the output grid."""
+    g = size // STRIDE
+    heat = np.zeros((g, g), np.float32)
+    reg = np.zeros((6, g, g), np.float32)
+    mask = np.zeros((g, g), np.float32)
+    ys, xs = np.mgrid[0:g, 0:g]
+    for x, y, w, h, hx, hy, _, inside in labels:
+        if w < 2 or h < 2:
+            continue
+        cx, cy = (x + w / 2) / STRIDE, (y + h / 2) / STRIDE
+        ix, iy = int(cx), int(cy)
+        if not (0 <= ix < g and 0 <= iy < g):
+            continue
+        sigma = max(0.5, gaussian_radius(w, h) / 2)
+        heat = np.maximum(heat, np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma * sigma)))
+        heat[iy, ix] = 1.0
+        reg[:, iy, ix] = [cx - ix, cy - iy, math.log(w), math.log(h), (hx - (x + w / 2)) / STRIDE, (hy - (y + h / 2)) / STRIDE]
+        mask[iy, ix] = 1.0
+    return heat, reg, mask
+
+
+class Block(nn.Module):
+    def __init__(self, cin, cout, stride):
+        super().__init__()
+        self.a = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
+        self.an = nn.BatchNorm2d(cout)
+        self.b = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
+        self.bn = nn.BatchNorm2d(cout)
+
+    def forward(self, x):
+        x = F.relu(self.an(self.a(x)))
+        return F.relu(self.bn(self.b(x)))
+
+
+class Net(nn.Module):
+    def __init__(self, width=1.0):
+        super().__init__()
+        c = [int(round(v * width)) for v in (16, 32, 64, 96)]
+        self.stem = nn.Sequential(nn.Conv2d(3, c[0], 3, 2, 1, bias=False), nn.BatchNorm2d(c[0]), nn.ReLU())
+        self.s1 = Block(c[0], c[1], 2)  # 1/4
+        self.s2 = Block(c[1], c[2], 2)  # 1/8
+        self.s3 = Block(c[2], c[3], 2)  # 1/16
+        self.l2 = nn.Conv2d(c[2], c[3], 1)
+        self.l1 = nn.Conv2d(c[1], c[3], 1)
+        self.mix = nn.Sequential(nn.Conv2d(c[3], 48, 3, 1, 1, bias=False), nn.BatchNorm2d(48), nn.ReLU())
+        self.heat = nn.Conv2d(48, 1, 1)
+        self.reg = nn.Conv2d(48, 6, 1)
+        nn.init.constant_(self.heat.bias, -4.0)
+
+    def forward(self, x):
+        f1 = self.s1(self.stem(x))
+        f2 = self.s2(f1)
+        f3 = self.s3(f2)
+        p2 = self.l2(f2) + F.interpolate(f3, scale_factor=2.0, mode="nearest")
+        p1 = self.l1(f1) + F.interpolate(p2, scale_factor=2.0, mode="nearest")
+        m = self.mix(p1)
+        return self.heat(m), self.reg(m)
+
+
+class Decoded(nn.Module):
+    """The net with its decoding: the top K peaks as (score, cx, cy, w, h, head x, head y) in input pixels."""
+
+    def __init__(self, net, k):
+        super().__init__()
+        self.net, self.k = net, k
+
+    def forward(self, x):
+        logit, reg = self.net(x)
+        heat = torch.sigmoid(logit)
+        peaks = heat * (F.max_pool2d(heat, 3, 1, 1) == heat).float()
+        n, _, gh, gw = heat.shape
+        score, idx = torch.topk(peaks.reshape(n, -1), self.k, dim=1)
+        gy = torch.div(idx, gw, rounding_mode="floor").float()
+        gx = (idx - torch.div(idx, gw, rounding_mode="floor") * gw).float()
+        r = torch.gather(reg.reshape(n, 6, -1), 2, idx.unsqueeze(1).expand(n, 6, self.k))
+        cx = (gx + r[:, 0]) * STRIDE
+        cy = (gy + r[:, 1]) * STRIDE
+        w, h = torch.exp(r[:, 2]), torch.exp(r[:, 3])
+        hx, hy = cx + r[:, 4] * STRIDE, cy + r[:, 5] * STRIDE
+        return torch.stack([score, cx, cy, w, h, hx, hy], dim=2)
+
+
+def focal_loss(logit, heat):
+    p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
+    pos = heat.eq(1).float()
+    neg = 1 - pos
+    pos_loss = torch.log(p) * (1 - p) ** 2 * pos
+    neg_loss = torch.log(1 - p) * p ** 2 * (1 - heat) ** 4 * neg
+    n = pos.sum().clamp(min=1)
+    return -(pos_loss.sum() + neg_loss.sum()) / n
+
+
+def batches(tiles, batch, rng, augment_it=True):
+    order = list(range(len(tiles)))
+    rng.shuffle(order)
+    for i in range(0, len(order) - batch + 1, batch):
+        imgs, heats, regs, masks = [], [], [], []
+        for j in order[i:i + batch]:
+            t = tiles[j]
+            img, lab = load_image(t["file"]), t["labels"]
+            if augment_it:
+                img, lab = augment(img, lab, rng)
+            h, r, m = targets(lab, img.shape[1])
+            imgs.append(img), heats.append(h), regs.append(r), masks.append(m)
+        yield (torch.from_numpy(np.stack(imgs)), torch.from_numpy(np.stack(heats))[:, None],
+               torch.from_numpy(np.stack(regs)), torch.from_numpy(np.stack(masks)))
+
+
+def detect(decoded, img, threshold):
+    with torch.no_grad():
+        rows = decoded(torch.from_numpy(img)[None])[0].numpy()
+    return rows[rows[:, 0] >= threshold]
+
+
+def iou(a, b):
+    ax0, ay0, ax1, ay1 = a[0] - a[2] / 2, a[1] - a[3] / 2, a[0] + a[2] / 2, a[1] + a[3] / 2
+    bx0, by0, bx1, by1 = b[0], b[1], b[0] + b[2], b[1] + b[3]
+    iw, ih = max(0, min(ax1, bx1) - max(ax0, bx0)), max(0, min(ay1, by1) - max(ay0, by0))
+    inter = iw * ih
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter + 1e-9)
+
+
+def evaluate(decoded, tiles, threshold, min_inside=0.5):
+    """Precision and recall: a detection matches a person when its box centre lies within half the
+    shoulder width of the person's box centre, or the boxes' IoU is at least 0.3 (greedy, by
+    score). People mostly outside the tile (inside < min_inside) neither count as missed nor
+    make a detection false."""
+    tp = fp = fn = 0
+    per = []
+    for t in tiles:
+        dets = detect(decoded, load_image(t["file"]), threshold)
+        lab = t["labels"]
+        used = set()
+        order = np.argsort(-dets[:, 0]) if len(dets) else []
+        matched_det = 0
+        false_det = 0
+        for d in order:
+            s, cx, cy, w, h = dets[d][:5]
+            best, best_j = None, None
+            for j, l in enumerate(lab):
+                if j in used:
+                    continue
+                lcx, lcy = l[0] + l[2] / 2, l[1] + l[3] / 2
+                dist = math.hypot(cx - lcx, cy - lcy)
+                ok = dist <= l[6] / 2 or iou((cx, cy, w, h), l) >= 0.3
+                if ok and (best is None or dist < best):
+                    best, best_j = dist, j
+            if best_j is not None:
+                used.add(best_j)
+                if lab[best_j][7] >= min_inside:
+                    matched_det += 1
+            else:
+                false_det += 1
+        missed = sum(1 for j, l in enumerate(lab) if j not in used and l[7] >= min_inside)
+        tp += matched_det
+        fp += false_det
+        fn += missed
+        per.append((t["row"], matched_det, false_det, missed))
+    precision = tp / max(1, tp + fp)
+    recall = tp / max(1, tp + fn)
+    return precision, recall, per
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--train", required=True, help="a `geostride dataset` folder")
+    ap.add_argument("--val", required=True, help="a `geostride dataset` folder of another seed")
+    ap.add_argument("--out", required=True, help="the ONNX model to write")
+    ap.add_argument("--epochs", type=float, default=3.0)
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--lr", type=float, default=2e-3)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--max-steps", type=int, default=0, help="stop after this many steps (a smoke test)")
+    ap.add_argument("--top-k", type=int, default=256)
+    ap.add_argument("--report", help="a JSON file for the validation metrics")
+    a = ap.parse_args()
+
+    torch.manual_seed(a.seed)
+    torch.set_num_threads(a.threads)
+    rng = random.Random(a.seed)
+    train_meta, train = read_dataset(a.train)
+    val_meta, val = read_dataset(a.val)
+    if train_meta["spec"]["seed"] == val_meta["spec"]["seed"]:
+        sys.exit("train_detector: the validation set must be another seed than the training set")
+    net = Net()
+    opt = torch.optim.AdamW(net.parameters(), lr=a.lr, weight_decay=1e-4)
+    steps_per_epoch = max(1, len(train) // a.batch)
+    total = int(a.epochs * steps_per_epoch)
+    if a.max_steps:
+        total = min(total, a.max_steps)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=a.lr, total_steps=max(total, 1), pct_start=0.1)
+    step, t0 = 0, time.time()
+    net.train()
+    while step < total:
+        for img, heat, reg, mask in batches(train, a.batch, rng):
+            logit, out = net(img)
+            lh = focal_loss(logit, heat)
+            m = mask[:, None]
+            n = m.sum().clamp(min=1)
+            lo = (F.l1_loss(out[:, 0:2], reg[:, 0:2], reduction="none") * m).sum() / n
+            ls = (F.l1_loss(out[:, 2:4], reg[:, 2:4], reduction="none") * m).sum() / n
+            lhd = (F.l1_loss(out[:, 4:6], reg[:, 4:6], reduction="none") * m).sum() / n
+            loss = lh + lo + 0.5 * ls + 0.5 * lhd
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            step += 1
+            if step % 20 == 0 or step == total:
+                el = time.time() - t0
+                print(f"step {step}/{total} loss {loss.item():.3f} (heat {lh.item():.3f} size {ls.item():.3f} head {lhd.item():.3f}) "
+                      f"{el:.0f} s, {step * a.batch / el:.1f} tiles/s", flush=True)
+            if step >= total:
+                break
+    net.eval()
+    decoded = Decoded(net, a.top_k)
+    # The score threshold: the best F1 on the validation set.
+    best = None
+    for th in (0.2, 0.3, 0.4, 0.5):
+        p, r, _ = evaluate(decoded, val, th)
+        f1 = 2 * p * r / max(1e-9, p + r)
+        print(f"validation at score {th}: precision {p:.3f} recall {r:.3f}", flush=True)
+        if best is None or f1 > best[0]:
+            best = (f1, th, p, r)
+    _, th, p, r = best
+    size = train_meta["spec"]["size_px"]
+    tmp = a.out + ".part"
+    torch.onnx.export(decoded, torch.zeros(1, 3, size, size), tmp, opset_version=13,
+                      input_names=["image"], output_names=["detections"],
+                      dynamic_axes={"image": {2: "height", 3: "width"}})
+    meta = {
+        "geostride.layout": LAYOUT,
+        "geostride.classes": "person",
+        "geostride.input": "RGB, 0-1, NCHW, any height and width that are multiples of 32",
+        "geostride.output": "detections [1, K, 7]: score, box centre x, y, width, height, head x, y (input pixels)",
+        "geostride.train_size_px": str(size),
+        "geostride.gsd_m": json.dumps(train_meta["spec"]["gsd_m"]),
+        "geostride.score_threshold": f"{th}",
+        "geostride.train_dataset_sha256": train_meta["sha256"],
+        "geostride.train_tiles": str(train_meta["tiles"]),
+        "geostride.val_dataset_sha256": val_meta["sha256"],
+        "geostride.val_precision": f"{p:.4f}",
+        "geostride.val_recall": f"{r:.4f}",
+        "geostride.recipe": json.dumps({k: v for k, v in vars(a).items() if k not in ("out", "report")}),
+        "geostride.torch": torch.__version__,
+    }
+    try:
+        import onnx
+        model = onnx.load(tmp)
+        for k, v in meta.items():
+            e = model.metadata_props.add()
+            e.key, e.value = k, v
+        onnx.save(model, tmp)
+    except ImportError:
+        sys.exit("train_detector: the onnx package is needed to write the model's metadata")
+    os.replace(tmp, a.out)
+    digest = hashlib.sha256(open(a.out, "rb").read()).hexdigest()
+    print(f"wrote {a.out} ({os.path.getsize(a.out) / 1e6:.2f} MB, sha256 {digest}): "
+          f"validation precision {p:.3f} recall {r:.3f} at score {th}")
+    if a.report:
+        with open(a.report, "w") as f:
+            json.dump({"precision": p, "recall": r, "score_threshold": th, "steps": step, "sha256": digest}, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()

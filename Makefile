@@ -11,7 +11,7 @@ ifeq ($(origin GEOSTRIDE_DATA), undefined)
   endif
 endif
 
-.PHONY: all bootstrap build demo test bench fuzz fmt clean
+.PHONY: all bootstrap build demo test bench model fuzz fmt clean
 
 all: build
 
@@ -41,6 +41,20 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench sfm_vs_colmap
 	./scripts/pets-benchmark.sh out/pets-benchmark
 	$(CARGO) bench --locked --bench detect_vs_opencv
+
+# The overhead person detector's recipe (docs/detector.md): tiles from the simulator (training
+# seed 1, validation seed 2), then scripts/train_detector.py on 2 CPU threads with Debian's
+# PyTorch. Writes out/model/overhead-person.onnx and its report.
+PYTHON ?= /usr/bin/python3
+MODEL_TILES ?= 8000
+MODEL_EPOCHS ?= 12
+model: build
+	rm -rf out/model && mkdir -p out/model
+	./target/release/geostride dataset --out out/model/train --tiles $(MODEL_TILES) --seed 1
+	./target/release/geostride dataset --out out/model/val --tiles 600 --seed 2
+	$(PYTHON) scripts/train_detector.py --train out/model/train --val out/model/val \
+	  --out out/model/overhead-person.onnx --epochs $(MODEL_EPOCHS) --batch 16 --threads 2 \
+	  --report out/model/report.json
 
 # The long fuzzing run: 10^6 inputs per parser (about 45 minutes on 2 cores, most of it crs through
 # PROJ), then every command on 200 MB inputs with its peak memory measured. `make test` runs a

@@ -9,6 +9,9 @@
 #   ffmpeg: the annotated video is piped into its x264 encoder (OpenCV's writer, the fallback,
 #   takes no encoder options and was 1.6 times slower for the annotated video). python3-venv: the PedPy test's
 #   throwaway environment.
+#   python3-torch, python3-pil, python3-onnx (Debian 12's PyTorch 1.13, CPU only, pinned by the
+#   release): scripts/train_detector.py trains the overhead person detector (`make model`, and a
+#   few steps of it in `make test`); geostride itself never runs Python.
 #   Slurm (slurmctld, slurmd, sbatch) and munge: the test suite starts a one-node cluster on
 #   localhost (tests/slurm.rs) and runs `geostride slurm --submit` on it.
 #
@@ -26,6 +29,7 @@ packages=(
   libopencv-dev ffmpeg
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
   python3 python3-venv python3-pip
+  python3-torch python3-pil python3-onnx
   slurmctld slurmd slurm-client munge
 )
 if [ "${1:-}" = "--bench" ]; then

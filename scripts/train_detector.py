@@ -5,8 +5,8 @@ exports it to ONNX with the metadata `geostride detect` reads.
 The model: a small fully convolutional network (four stride-2 stages, a top-down path back to
 a quarter of the input) with a centre heatmap head (CenterNet's objects as points): per output
 cell the score that a person's box centre lies there, the centre's sub-cell offset, the box's
-log size and the offset from the centre to the top of the head. The export decodes it inside the
-graph (3x3 max-pool peaks, top K), so the ONNX model's output is one row per candidate: score,
+log size and the offset from the centre to the top of the head (a share of the box's size). The
+export decodes it inside the graph (3x3 max-pool peaks, top K), so the ONNX model's output is one row per candidate: score,
 box centre x, y, width, height, head x, y (input pixels). Input: any size (multiples of 32), RGB,
 0-1, NCHW.
 
@@ -110,7 +110,7 @@ def targets(labels, size):
         sigma = max(0.5, gaussian_radius(w, h) / 2)
         heat = np.maximum(heat, np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma * sigma)))
         heat[iy, ix] = 1.0
-        reg[:, iy, ix] = [cx - ix, cy - iy, math.log(w), math.log(h), (hx - (x + w / 2)) / STRIDE, (hy - (y + h / 2)) / STRIDE]
+        reg[:, iy, ix] = [cx - ix, cy - iy, math.log(w), math.log(h), (hx - (x + w / 2)) / w, (hy - (y + h / 2)) / h]
         mask[iy, ix] = 1.0
     return heat, reg, mask
 
@@ -172,7 +172,7 @@ class Decoded(nn.Module):
         cx = (gx + r[:, 0]) * STRIDE
         cy = (gy + r[:, 1]) * STRIDE
         w, h = torch.exp(r[:, 2]), torch.exp(r[:, 3])
-        hx, hy = cx + r[:, 4] * STRIDE, cy + r[:, 5] * STRIDE
+        hx, hy = cx + r[:, 4] * w, cy + r[:, 5] * h
         return torch.stack([score, cx, cy, w, h, hx, hy], dim=2)
 
 
@@ -223,10 +223,12 @@ def evaluate(decoded, tiles, threshold, min_inside=0.5):
     make a detection false."""
     tp = fp = fn = 0
     per = []
+    head_err = []
     for t in tiles:
         dets = detect(decoded, load_image(t["file"]), threshold)
         lab = t["labels"]
         used = set()
+        pairs = []
         order = np.argsort(-dets[:, 0]) if len(dets) else []
         matched_det = 0
         false_det = 0
@@ -243,18 +245,36 @@ def evaluate(decoded, tiles, threshold, min_inside=0.5):
                     best, best_j = dist, j
             if best_j is not None:
                 used.add(best_j)
+                pairs.append((d, best_j))
                 if lab[best_j][7] >= min_inside:
                     matched_det += 1
             else:
                 false_det += 1
         missed = sum(1 for j, l in enumerate(lab) if j not in used and l[7] >= min_inside)
+        for d, j in pairs:
+            l = lab[j]
+            if l[7] >= min_inside:
+                head_err.append(math.hypot(dets[d][5] - l[4], dets[d][6] - l[5]) / l[6])
         tp += matched_det
         fp += false_det
         fn += missed
         per.append((t["row"], matched_det, false_det, missed))
     precision = tp / max(1, tp + fp)
     recall = tp / max(1, tp + fn)
-    return precision, recall, per
+    return precision, recall, per, head_err
+
+
+def by_bucket(per, key, edges):
+    """Precision and recall of the tiles whose `key` lies in each of the `edges` intervals."""
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        tp = fp = fn = 0
+        for row, m, f, n in per:
+            v = float(row[key])
+            if lo <= v < hi:
+                tp, fp, fn = tp + m, fp + f, fn + n
+        out.append({"from": lo, "to": hi, "people": tp + fn, "precision": tp / max(1, tp + fp), "recall": tp / max(1, tp + fn)})
+    return out
 
 
 def main():
@@ -297,7 +317,7 @@ def main():
             lo = (F.l1_loss(out[:, 0:2], reg[:, 0:2], reduction="none") * m).sum() / n
             ls = (F.l1_loss(out[:, 2:4], reg[:, 2:4], reduction="none") * m).sum() / n
             lhd = (F.l1_loss(out[:, 4:6], reg[:, 4:6], reduction="none") * m).sum() / n
-            loss = lh + lo + 0.5 * ls + 0.5 * lhd
+            loss = lh + lo + 0.5 * ls + 2.0 * lhd
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -314,12 +334,22 @@ def main():
     # The score threshold: the best F1 on the validation set.
     best = None
     for th in (0.2, 0.3, 0.4, 0.5):
-        p, r, _ = evaluate(decoded, val, th)
+        p, r, per, head_err = evaluate(decoded, val, th)
         f1 = 2 * p * r / max(1e-9, p + r)
         print(f"validation at score {th}: precision {p:.3f} recall {r:.3f}", flush=True)
         if best is None or f1 > best[0]:
-            best = (f1, th, p, r)
-    _, th, p, r = best
+            best = (f1, th, p, r, per, head_err)
+    _, th, p, r, per, head_err = best
+    buckets = {
+        "gsd_m": by_bucket(per, "gsd_m", [0.0, 0.008, 0.015, 1.0]),
+        "off_nadir_deg": by_bucket(per, "off_nadir_deg", [0.0, 10.0, 25.0, 90.0]),
+    }
+    head_median = float(np.median(head_err)) if head_err else None
+    for k, rows in buckets.items():
+        for b in rows:
+            print(f"  {k} {b['from']}-{b['to']}: {b['people']} people, precision {b['precision']:.3f} recall {b['recall']:.3f}")
+    if head_median is not None:
+        print(f"  head point: median error {head_median:.3f} shoulder widths")
     size = train_meta["spec"]["size_px"]
     tmp = a.out + ".part"
     torch.onnx.export(decoded, torch.zeros(1, 3, size, size), tmp, opset_version=13,
@@ -356,7 +386,8 @@ def main():
           f"validation precision {p:.3f} recall {r:.3f} at score {th}")
     if a.report:
         with open(a.report, "w") as f:
-            json.dump({"precision": p, "recall": r, "score_threshold": th, "steps": step, "sha256": digest}, f, indent=2)
+            json.dump({"precision": p, "recall": r, "score_threshold": th, "steps": step, "sha256": digest,
+                       "by": buckets, "head_median_shoulders": head_median}, f, indent=2)
 
 
 if __name__ == "__main__":

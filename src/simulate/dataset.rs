@@ -307,14 +307,10 @@ struct Placed {
     height_m: f64,
 }
 
-/// Renders tile `index` of the dataset `spec`.
-pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
-    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
-    rng.set_stream(index);
-    let size = spec.size_px;
-
-    // The site, and the ground point the tile looks at.
-    let heading_deg = uniform(&mut rng, 0.0, 360.0);
+/// The site, and the ground point the tile looks at: the ground, its name, the world's seed
+/// and the point.
+fn site(rng: &mut ChaCha8Rng) -> (Ground, &'static str, u64, Vector3<f64>) {
+    let heading_deg = uniform(rng, 0.0, 360.0);
     let (ground, ground_name) = if rng.random::<bool>() {
         (
             Ground::Track {
@@ -332,10 +328,10 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
             Ground::Deck {
                 centre: [0.0, 0.0],
                 heading_deg,
-                width_m: uniform(&mut rng, 3.0, 14.0),
+                width_m: uniform(rng, 3.0, 14.0),
                 length_m: 120.0,
-                height_m: uniform(&mut rng, 0.0, 8.0),
-                camber_m: uniform(&mut rng, 0.0, 1.0),
+                height_m: uniform(rng, 0.0, 8.0),
+                camber_m: uniform(rng, 0.0, 1.0),
             },
             "deck",
         )
@@ -344,13 +340,13 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
     let world0 = World::new(&ground, &[], world_seed);
     let target_en = match ground {
         Ground::Track { lanes, .. } => {
-            let s = uniform(&mut rng, 0.0, 400.0);
-            let d = uniform(&mut rng, -6.0, f64::from(lanes) * 1.22 + 6.0);
+            let s = uniform(rng, 0.0, 400.0);
+            let d = uniform(rng, -6.0, f64::from(lanes) * 1.22 + 6.0);
             world0.track_point(s, d).0
         }
         Ground::Deck { width_m, .. } => world0.from_local(
-            uniform(&mut rng, -50.0, 50.0),
-            uniform(&mut rng, -width_m / 2.0 - 4.0, width_m / 2.0 + 4.0),
+            uniform(rng, -50.0, 50.0),
+            uniform(rng, -width_m / 2.0 - 4.0, width_m / 2.0 + 4.0),
         ),
     };
     let target = Vector3::new(
@@ -358,6 +354,282 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
         target_en.y,
         world0.surface_height(&target_en).0,
     );
+    (ground, ground_name, world_seed, target)
+}
+
+/// Where people stand and which way they face, in the ground box `lo`–`hi`: none in some
+/// tiles, else alone, in groups that touch, or running in a line.
+fn place_feet(
+    rng: &mut ChaCha8Rng,
+    lo: &Vector2<f64>,
+    hi: &Vector2<f64>,
+) -> Vec<(Vector2<f64>, Vector2<f64>)> {
+    let area = (hi - lo).x * (hi - lo).y;
+    let mut feet: Vec<(Vector2<f64>, Vector2<f64>)> = Vec::new();
+    if rng.random::<f64>() >= 0.12 {
+        let wanted = rng
+            .random_range(1..=30usize)
+            .min((area / 0.8) as usize)
+            .max(1);
+        let mut tries = 0;
+        while feet.len() < wanted && tries < 400 {
+            tries += 1;
+            let c = Vector2::new(uniform(rng, lo.x, hi.x), uniform(rng, lo.y, hi.y));
+            let a = uniform(rng, 0.0, std::f64::consts::TAU);
+            let dir = Vector2::new(a.cos(), a.sin());
+            match rng.random_range(0..3) {
+                // Alone.
+                0 => {
+                    if free(&c, &feet, 0.6) {
+                        feet.push((c, dir));
+                    }
+                }
+                // A group, shoulder to shoulder or just apart, facing about the same way.
+                1 => {
+                    let n = rng.random_range(2..=6);
+                    for _ in 0..n {
+                        let p = c + Vector2::new(uniform(rng, -0.9, 0.9), uniform(rng, -0.9, 0.9));
+                        let turn = uniform(rng, -0.4, 0.4);
+                        let d = Vector2::new(
+                            dir.x * turn.cos() - dir.y * turn.sin(),
+                            dir.x * turn.sin() + dir.y * turn.cos(),
+                        );
+                        if free(&p, &feet, 0.45) {
+                            feet.push((p, d));
+                        }
+                    }
+                }
+                // A line of runners.
+                _ => {
+                    let n = rng.random_range(2..=5);
+                    for k in 0..n {
+                        let p = c + dir * (k as f64 * uniform(rng, 0.9, 2.0));
+                        if free(&p, &feet, 0.6) {
+                            feet.push((p, dir));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    feet
+}
+
+/// The people at `feet`: height, gait, clothes and caps.
+fn dress(
+    rng: &mut ChaCha8Rng,
+    feet: &[(Vector2<f64>, Vector2<f64>)],
+    world0: &World,
+) -> Vec<Placed> {
+    let mut placed = Vec::new();
+    for (en, dir) in feet {
+        let (z, _) = world0.surface_height(en);
+        let foot = Vector3::new(en.x, en.y, z);
+        let child = rng.random::<f64>() < 0.05;
+        let height_m = if child {
+            uniform(rng, 1.05, 1.45)
+        } else {
+            (1.71 + 0.09 * normal(rng)).clamp(1.45, 2.05)
+        };
+        let gait = rng.random_range(0..4);
+        let swing = match gait {
+            0 => 0.0,
+            1 | 2 => uniform(rng, 0.7, 1.2),
+            _ => uniform(rng, 1.3, 1.7),
+        };
+        let head_top = foot + Vector3::new(0.0, 0.0, height_m);
+        let style = BodyStyle {
+            shirt: clothing(rng),
+            hair: hair(rng),
+            trousers: if rng.random::<f64>() < 0.6 {
+                hsv(0.6, uniform(rng, 0.0, 0.5), uniform(rng, 0.05, 0.35))
+            } else {
+                clothing(rng)
+            },
+            swing,
+            girth: uniform(rng, 0.85, 1.25) * if child { 0.8 } else { 1.0 },
+        };
+        // Caps, never on most: the detector must not need them.
+        let cap = (rng.random::<f64>() < 0.12).then(|| clothing(rng));
+        let p = Pose {
+            foot,
+            heading: *dir,
+            head_top,
+            stride_phase: uniform(rng, 0.0, std::f64::consts::TAU),
+        };
+        placed.push(Placed {
+            body: Body::styled(&p, cap, &style),
+            foot,
+            head_top,
+            height_m,
+        });
+    }
+    placed
+}
+
+/// What else the tile holds: things that are not people (their bodies and count), the world
+/// with its GCP targets, and the shadows (the people's and those of people just outside).
+fn props(
+    rng: &mut ChaCha8Rng,
+    (ground, world_seed, world0): (&Ground, u64, &World),
+    feet: &[(Vector2<f64>, Vector2<f64>)],
+    (lo, hi): (Vector2<f64>, Vector2<f64>),
+    placed: &[Placed],
+    (overcast, sun): (bool, &Vector3<f64>),
+) -> (Vec<Body>, usize, World, Vec<Shadow>) {
+    let n_objects = rng.random_range(0..=8usize);
+    let mut bodies: Vec<Body> = Vec::new();
+    let mut objects = 0;
+    for _ in 0..n_objects {
+        let en = Vector2::new(uniform(rng, lo.x, hi.x), uniform(rng, lo.y, hi.y));
+        if !free(&en, feet, 0.7) {
+            continue;
+        }
+        let z = world0.surface_height(&en).0;
+        bodies.push(object(rng, &Vector3::new(en.x, en.y, z)));
+        objects += 1;
+    }
+    let gcps: Vec<GcpSpec> = (0..rng.random_range(0..=1u32))
+        .map(|k| GcpSpec {
+            name: format!("T{k}"),
+            position: [uniform(rng, lo.x, hi.x), uniform(rng, lo.y, hi.y)],
+        })
+        .collect();
+    let mut world = World::new(ground, &gcps, world_seed);
+    world.detail = uniform(rng, 0.6, 2.0);
+    let shadows: Vec<Shadow> = if overcast {
+        Vec::new()
+    } else {
+        let mut s: Vec<Shadow> = placed
+            .iter()
+            .map(|p| Shadow::of(&p.foot, p.height_m, sun))
+            .collect();
+        // The shadows of people just outside the tile.
+        for _ in 0..rng.random_range(0..3) {
+            let en = Vector2::new(
+                uniform(rng, lo.x - 3.0, hi.x + 3.0),
+                uniform(rng, lo.y - 3.0, hi.y + 3.0),
+            );
+            if en.x < lo.x || en.x > hi.x || en.y < lo.y || en.y > hi.y {
+                let z = world0.surface_height(&en).0;
+                s.push(Shadow::of(&Vector3::new(en.x, en.y, z), 1.7, sun));
+            }
+        }
+        s
+    };
+    (bodies, objects, world, shadows)
+}
+
+/// The camera's faults, the exposure and the JPEG quality.
+fn draw_faults(rng: &mut ChaCha8Rng, seed: u64) -> (Faults, f64, u8) {
+    let noise = uniform(rng, 0.0, 6.0);
+    let light = uniform(rng, 0.65, 1.35);
+    let balance: [f32; 3] = std::array::from_fn(|_| uniform(rng, 0.88, 1.12) as f32);
+    let motion_blur_px = if rng.random::<f64>() < 0.3 {
+        uniform(rng, 1.0, 4.0)
+    } else {
+        0.0
+    };
+    let blur_dir = uniform(rng, 0.0, std::f64::consts::PI);
+    let defocus_px = if rng.random::<f64>() < 0.25 {
+        uniform(rng, 0.4, 1.3)
+    } else {
+        0.0
+    };
+    let jpeg_quality = rng.random_range(45..=95u8);
+    (
+        Faults {
+            balance,
+            motion_blur_px,
+            blur_dir,
+            defocus_px,
+            noise,
+            seed,
+        },
+        light,
+        jpeg_quality,
+    )
+}
+
+/// Each placed person's label in the tile seen by `camera` from `pose`.
+fn label(
+    placed: &[Placed],
+    camera: &Camera,
+    pose: &CameraPose,
+    size: u32,
+    gsd_m: f64,
+) -> Vec<TileLabel> {
+    let s = f64::from(size);
+    let mut labels = Vec::new();
+    for p in placed {
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let mut ok = true;
+        for q in p.body.outline(&pose.centre, 24) {
+            match pose.project(camera, &q) {
+                Some(uv) => {
+                    b = [
+                        b[0].min(uv.x),
+                        b[1].min(uv.y),
+                        b[2].max(uv.x),
+                        b[3].max(uv.y),
+                    ];
+                }
+                None => ok = false,
+            }
+        }
+        let Some(head) = pose.project(camera, &p.head_top) else {
+            continue;
+        };
+        // A box with no extent (or NaN corners) labels nothing.
+        if !ok
+            || b[2].partial_cmp(&b[0]) != Some(std::cmp::Ordering::Greater)
+            || b[3].partial_cmp(&b[1]) != Some(std::cmp::Ordering::Greater)
+        {
+            continue;
+        }
+        let full = (b[2] - b[0]) * (b[3] - b[1]);
+        let c = [
+            b[0].max(-0.5),
+            b[1].max(-0.5),
+            b[2].min(s - 0.5),
+            b[3].min(s - 0.5),
+        ];
+        if c[2] - c[0] < 1.0 || c[3] - c[1] < 1.0 {
+            continue;
+        }
+        let inside = (c[2] - c[0]) * (c[3] - c[1]) / full;
+        // The shoulders, 0.5 m across at their height, seen from the camera.
+        let shoulders = p.foot + Vector3::new(0.0, 0.0, 0.82 * p.height_m);
+        let side = Vector3::new(-p.body.heading.y, p.body.heading.x, 0.0) * 0.25;
+        let shoulder_px = match (
+            pose.project(camera, &(shoulders + side)),
+            pose.project(camera, &(shoulders - side)),
+        ) {
+            (Some(a), Some(b)) => (a - b).norm().max(0.5 * HEAD_RADIUS_M / gsd_m),
+            _ => 0.5 / gsd_m,
+        };
+        labels.push(TileLabel {
+            bbox: [c[0], c[1], c[2] - c[0], c[3] - c[1]],
+            head: [head.x, head.y],
+            shoulder_px,
+            inside,
+        });
+    }
+    labels
+}
+
+/// Renders tile `index` of the dataset `spec`.
+pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+    rng.set_stream(index);
+    let size = spec.size_px;
+    let (ground, ground_name, world_seed, target) = site(&mut rng);
+    let world0 = World::new(&ground, &[], world_seed);
 
     // The camera.
     let gsd_m =
@@ -389,172 +661,25 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
         }
     };
 
-    // People: none in some tiles, else alone, in groups that touch, or running in a line.
     let (lo, hi) = footprint(&camera, &pose, size, target.z, 1.5);
-    let area = (hi - lo).x * (hi - lo).y;
-    let mut feet: Vec<(Vector2<f64>, Vector2<f64>)> = Vec::new();
-    if rng.random::<f64>() >= 0.12 {
-        let wanted = rng
-            .random_range(1..=30usize)
-            .min((area / 0.8) as usize)
-            .max(1);
-        let mut tries = 0;
-        while feet.len() < wanted && tries < 400 {
-            tries += 1;
-            let c = Vector2::new(uniform(&mut rng, lo.x, hi.x), uniform(&mut rng, lo.y, hi.y));
-            let a = uniform(&mut rng, 0.0, std::f64::consts::TAU);
-            let dir = Vector2::new(a.cos(), a.sin());
-            match rng.random_range(0..3) {
-                // Alone.
-                0 => {
-                    if free(&c, &feet, 0.6) {
-                        feet.push((c, dir));
-                    }
-                }
-                // A group, shoulder to shoulder or just apart, facing about the same way.
-                1 => {
-                    let n = rng.random_range(2..=6);
-                    for _ in 0..n {
-                        let p = c + Vector2::new(
-                            uniform(&mut rng, -0.9, 0.9),
-                            uniform(&mut rng, -0.9, 0.9),
-                        );
-                        let turn = uniform(&mut rng, -0.4, 0.4);
-                        let d = Vector2::new(
-                            dir.x * turn.cos() - dir.y * turn.sin(),
-                            dir.x * turn.sin() + dir.y * turn.cos(),
-                        );
-                        if free(&p, &feet, 0.45) {
-                            feet.push((p, d));
-                        }
-                    }
-                }
-                // A line of runners.
-                _ => {
-                    let n = rng.random_range(2..=5);
-                    for k in 0..n {
-                        let p = c + dir * (k as f64 * uniform(&mut rng, 0.9, 2.0));
-                        if free(&p, &feet, 0.6) {
-                            feet.push((p, dir));
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let mut placed = Vec::new();
-    for (en, dir) in &feet {
-        let (z, _) = world0.surface_height(en);
-        let foot = Vector3::new(en.x, en.y, z);
-        let child = rng.random::<f64>() < 0.05;
-        let height_m = if child {
-            uniform(&mut rng, 1.05, 1.45)
-        } else {
-            (1.71 + 0.09 * normal(&mut rng)).clamp(1.45, 2.05)
-        };
-        let gait = rng.random_range(0..4);
-        let swing = match gait {
-            0 => 0.0,
-            1 | 2 => uniform(&mut rng, 0.7, 1.2),
-            _ => uniform(&mut rng, 1.3, 1.7),
-        };
-        let head_top = foot + Vector3::new(0.0, 0.0, height_m);
-        let style = BodyStyle {
-            shirt: clothing(&mut rng),
-            hair: hair(&mut rng),
-            trousers: if rng.random::<f64>() < 0.6 {
-                hsv(
-                    0.6,
-                    uniform(&mut rng, 0.0, 0.5),
-                    uniform(&mut rng, 0.05, 0.35),
-                )
-            } else {
-                clothing(&mut rng)
-            },
-            swing,
-            girth: uniform(&mut rng, 0.85, 1.25) * if child { 0.8 } else { 1.0 },
-        };
-        // Caps, never on most: the detector must not need them.
-        let cap = (rng.random::<f64>() < 0.12).then(|| clothing(&mut rng));
-        let p = Pose {
-            foot,
-            heading: *dir,
-            head_top,
-            stride_phase: uniform(&mut rng, 0.0, std::f64::consts::TAU),
-        };
-        placed.push(Placed {
-            body: Body::styled(&p, cap, &style),
-            foot,
-            head_top,
-            height_m,
-        });
-    }
+    let feet = place_feet(&mut rng, &lo, &hi);
+    let placed = dress(&mut rng, &feet, &world0);
+    let (mut bodies, objects, world, shadows) = props(
+        &mut rng,
+        (&ground, world_seed, &world0),
+        &feet,
+        (lo, hi),
+        &placed,
+        (overcast, &sun),
+    );
+    let seed = spec.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    let (faults, light, jpeg_quality) = draw_faults(&mut rng, seed);
 
-    // Things that are not people, and GCP targets.
-    let n_objects = rng.random_range(0..=8usize);
-    let mut bodies: Vec<Body> = Vec::new();
-    let mut objects = 0;
-    for _ in 0..n_objects {
-        let en = Vector2::new(uniform(&mut rng, lo.x, hi.x), uniform(&mut rng, lo.y, hi.y));
-        if !free(&en, &feet, 0.7) {
-            continue;
-        }
-        let z = world0.surface_height(&en).0;
-        bodies.push(object(&mut rng, &Vector3::new(en.x, en.y, z)));
-        objects += 1;
-    }
-    let gcps: Vec<GcpSpec> = (0..rng.random_range(0..=1u32))
-        .map(|k| GcpSpec {
-            name: format!("T{k}"),
-            position: [uniform(&mut rng, lo.x, hi.x), uniform(&mut rng, lo.y, hi.y)],
-        })
-        .collect();
-    let mut world = World::new(&ground, &gcps, world_seed);
-    world.detail = uniform(&mut rng, 0.6, 2.0);
-    let shadows: Vec<Shadow> = if overcast {
-        Vec::new()
-    } else {
-        let mut s: Vec<Shadow> = placed
-            .iter()
-            .map(|p| Shadow::of(&p.foot, p.height_m, &sun))
-            .collect();
-        // The shadows of people just outside the tile.
-        for _ in 0..rng.random_range(0..3) {
-            let en = Vector2::new(
-                uniform(&mut rng, lo.x - 3.0, hi.x + 3.0),
-                uniform(&mut rng, lo.y - 3.0, hi.y + 3.0),
-            );
-            if en.x < lo.x || en.x > hi.x || en.y < lo.y || en.y > hi.y {
-                let z = world0.surface_height(&en).0;
-                s.push(Shadow::of(&Vector3::new(en.x, en.y, z), 1.7, &sun));
-            }
-        }
-        s
-    };
-
-    // The camera's faults.
-    let noise = uniform(&mut rng, 0.0, 6.0);
-    let light = uniform(&mut rng, 0.65, 1.35);
-    let balance: [f32; 3] = std::array::from_fn(|_| uniform(&mut rng, 0.88, 1.12) as f32);
-    let motion_blur_px = if rng.random::<f64>() < 0.3 {
-        uniform(&mut rng, 1.0, 4.0)
-    } else {
-        0.0
-    };
-    let blur_dir = uniform(&mut rng, 0.0, std::f64::consts::PI);
-    let defocus_px = if rng.random::<f64>() < 0.25 {
-        uniform(&mut rng, 0.4, 1.3)
-    } else {
-        0.0
-    };
-    let jpeg_quality = rng.random_range(45..=95u8);
-
-    let texel = (0.7 * gsd_m).clamp(0.003, 0.05);
     let settings = RenderSettings {
-        texel_m: texel,
+        texel_m: (0.7 * gsd_m).clamp(0.003, 0.05),
         sun,
         image_noise: 0.0,
-        seed: spec.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        seed,
     };
     // Textured only where the tile looks (the people's margin would cost texels, not pixels).
     let seen = footprint(&camera, &pose, size, target.z, 0.2);
@@ -572,77 +697,8 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
         shadows: &shadows,
         light,
     });
-    degrade(
-        &mut rgb,
-        size as usize,
-        &Faults {
-            balance,
-            motion_blur_px,
-            blur_dir,
-            defocus_px,
-            noise,
-            seed: settings.seed,
-        },
-    );
-
-    // Labels.
-    let s = f64::from(size);
-    let mut labels = Vec::new();
-    for p in &placed {
-        let mut b = [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ];
-        let mut ok = true;
-        for q in p.body.outline(&pose.centre, 24) {
-            match pose.project(&camera, &q) {
-                Some(uv) => {
-                    b = [
-                        b[0].min(uv.x),
-                        b[1].min(uv.y),
-                        b[2].max(uv.x),
-                        b[3].max(uv.y),
-                    ];
-                }
-                None => ok = false,
-            }
-        }
-        let Some(head) = pose.project(&camera, &p.head_top) else {
-            continue;
-        };
-        if !ok || !(b[2] > b[0] && b[3] > b[1]) {
-            continue;
-        }
-        let full = (b[2] - b[0]) * (b[3] - b[1]);
-        let c = [
-            b[0].max(-0.5),
-            b[1].max(-0.5),
-            b[2].min(s - 0.5),
-            b[3].min(s - 0.5),
-        ];
-        if c[2] - c[0] < 1.0 || c[3] - c[1] < 1.0 {
-            continue;
-        }
-        let inside = (c[2] - c[0]) * (c[3] - c[1]) / full;
-        // The shoulders, 0.5 m across at their height, seen from the camera.
-        let shoulders = p.foot + Vector3::new(0.0, 0.0, 0.82 * p.height_m);
-        let side = Vector3::new(-p.body.heading.y, p.body.heading.x, 0.0) * 0.25;
-        let shoulder_px = match (
-            pose.project(&camera, &(shoulders + side)),
-            pose.project(&camera, &(shoulders - side)),
-        ) {
-            (Some(a), Some(b)) => (a - b).norm().max(0.5 * HEAD_RADIUS_M / gsd_m),
-            _ => 0.5 / gsd_m,
-        };
-        labels.push(TileLabel {
-            bbox: [c[0], c[1], c[2] - c[0], c[3] - c[1]],
-            head: [head.x, head.y],
-            shoulder_px,
-            inside,
-        });
-    }
+    degrade(&mut rgb, size as usize, &faults);
+    let labels = label(&placed, &camera, &pose, size, gsd_m);
     Tile {
         rgb,
         labels,
@@ -653,9 +709,9 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
             ground: ground_name,
             people: placed.len(),
             objects,
-            noise,
-            motion_blur_px,
-            defocus_px,
+            noise: faults.noise,
+            motion_blur_px: faults.motion_blur_px,
+            defocus_px: faults.defocus_px,
             jpeg_quality,
         },
     }
@@ -676,8 +732,8 @@ struct Faults {
 fn degrade(rgb: &mut [u8], size: usize, f: &Faults) {
     let mut img: Vec<f32> = rgb.iter().map(|&v| f32::from(v)).collect();
     for px in img.chunks_mut(3) {
-        for k in 0..3 {
-            px[k] *= f.balance[k];
+        for (v, g) in px.iter_mut().zip(f.balance) {
+            *v *= g;
         }
     }
     let sample = |img: &[f32], x: f64, y: f64, k: usize| -> f32 {

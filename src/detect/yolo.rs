@@ -90,6 +90,17 @@ pub struct RawBox {
     pub class: usize,
 }
 
+impl RawBox {
+    /// A box given by its centre and size.
+    fn centred(cx: f64, cy: f64, w: f64, h: f64, score: f64, class: usize) -> RawBox {
+        RawBox {
+            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
+            score,
+            class,
+        }
+    }
+}
+
 fn sigmoid(x: f32) -> f64 {
     1.0 / (1.0 + (-f64::from(x)).exp())
 }
@@ -196,11 +207,7 @@ fn decode_darknet(
                     let cy = (y as f64 + sigmoid(at(a, 1, y, x))) * stride;
                     let w = f64::from(at(a, 2, y, x)).exp() * anchor[0];
                     let h = f64::from(at(a, 3, y, x)).exp() * anchor[1];
-                    out.push(RawBox {
-                        xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-                        score,
-                        class: best_c,
-                    });
+                    out.push(RawBox::centred(cx, cy, w, h, score, best_c));
                 }
             }
         }
@@ -234,11 +241,7 @@ fn decode_centre(
             f64::from(v[3]),
             f64::from(v[4]),
         );
-        out.push(RawBox {
-            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-            score,
-            class: 0,
-        });
+        out.push(RawBox::centred(cx, cy, w, h, score, 0));
     }
     Ok(())
 }
@@ -298,11 +301,7 @@ fn decode_yolov5(
                 f64::from(v[3]),
             ),
         };
-        out.push(RawBox {
-            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-            score,
-            class: best_c,
-        });
+        out.push(RawBox::centred(cx, cy, w, h, score, best_c));
     }
     Ok(())
 }
@@ -327,11 +326,7 @@ fn decode_yolov8(
             continue;
         }
         let (cx, cy, w, h) = (at(0, i), at(1, i), at(2, i), at(3, i));
-        out.push(RawBox {
-            xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
-            score,
-            class: best_c,
-        });
+        out.push(RawBox::centred(cx, cy, w, h, score, best_c));
     }
     Ok(())
 }

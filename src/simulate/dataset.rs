@@ -97,19 +97,7 @@ fn normal(rng: &mut ChaCha8Rng) -> f64 {
 
 /// A colour from hue, saturation and value, all in [0, 1].
 fn hsv(h: f64, s: f64, v: f64) -> Rgb {
-    let h6 = (h.rem_euclid(1.0)) * 6.0;
-    let c = v * s;
-    let x = c * (1.0 - (h6 % 2.0 - 1.0).abs());
-    let (r, g, b) = match h6 as u32 {
-        0 => (c, x, 0.0),
-        1 => (x, c, 0.0),
-        2 => (0.0, c, x),
-        3 => (0.0, x, c),
-        4 => (x, 0.0, c),
-        _ => (c, 0.0, x),
-    };
-    let m = v - c;
-    [(r + m) as f32, (g + m) as f32, (b + m) as f32]
+    crate::image::hsv_to_rgb(h, s, v).map(|c| c as f32)
 }
 
 /// Clothing: any hue, from washed out to vivid, from black to white.

@@ -363,21 +363,8 @@ pub(crate) fn speed_range(trajs: &dyn Trajectories) -> Result<(f64, f64), ViewEr
 
 /// A distinct, bright colour for an identity (golden-ratio hues).
 pub(crate) fn id_colour(id: usize) -> [u8; 3] {
-    let h = (id as f64 * 0.618_033_988_75).fract() * 6.0;
-    let (s, v) = (0.85, 1.0);
-    let c = v * s;
-    let x = c * (1.0 - ((h % 2.0) - 1.0).abs());
-    let (r, g, b) = match h as u32 {
-        0 => (c, x, 0.0),
-        1 => (x, c, 0.0),
-        2 => (0.0, c, x),
-        3 => (0.0, x, c),
-        4 => (x, 0.0, c),
-        _ => (c, 0.0, x),
-    };
-    let m = v - c;
-    let q = |u: f64| ((u + m) * 255.0).round() as u8;
-    [q(r), q(g), q(b)]
+    let hue = (id as f64 * 0.618_033_988_75).fract();
+    crate::image::hsv_to_rgb(hue, 0.85, 1.0).map(|u| (u * 255.0).round() as u8)
 }
 
 #[cfg(test)]

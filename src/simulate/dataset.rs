@@ -295,9 +295,9 @@ struct Placed {
     height_m: f64,
 }
 
-/// The site, and the ground point the tile looks at: the ground, its name, the world's seed
-/// and the point.
-fn site(rng: &mut ChaCha8Rng) -> (Ground, &'static str, u64, Vector3<f64>) {
+/// The site, and the ground point the tile looks at: the ground, its name, the world's seed,
+/// the world without GCP targets and the point.
+fn site(rng: &mut ChaCha8Rng) -> (Ground, &'static str, u64, World, Vector3<f64>) {
     let heading_deg = uniform(rng, 0.0, 360.0);
     let (ground, ground_name) = if rng.random::<bool>() {
         (
@@ -342,7 +342,7 @@ fn site(rng: &mut ChaCha8Rng) -> (Ground, &'static str, u64, Vector3<f64>) {
         target_en.y,
         world0.surface_height(&target_en).0,
     );
-    (ground, ground_name, world_seed, target)
+    (ground, ground_name, world_seed, world0, target)
 }
 
 /// Where people stand and which way they face, in the ground box `lo`–`hi`: none in some
@@ -616,8 +616,7 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     rng.set_stream(index);
     let size = spec.size_px;
-    let (ground, ground_name, world_seed, target) = site(&mut rng);
-    let world0 = World::new(&ground, &[], world_seed);
+    let (ground, ground_name, world_seed, world0, target) = site(&mut rng);
 
     // The camera.
     let gsd_m =

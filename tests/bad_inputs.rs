@@ -1048,6 +1048,14 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "dataset-scales-reversed",
+            category: "nonsense accepted",
+            args: args(&["dataset", "--out", "tiles", "--tiles", "2", "--gsd-cm", "3,1.2"]),
+            expect: "the smaller first",
+            place: "--gsd-cm",
+            ..Default::default()
+        },
+        Case {
             id: "dataset-over-an-existing-folder",
             category: "input overwritten",
             files: vec![("tiles/keep.txt", "mine\n".into())],

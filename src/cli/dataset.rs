@@ -31,6 +31,9 @@ pub struct Args {
     /// Tile side, pixels
     #[arg(long, value_name = "PX", default_value_t = 256)]
     size: u32,
+    /// Ground sample distance range, cm a pixel (drawn log-uniformly between the two)
+    #[arg(long, value_name = "MIN,MAX", value_delimiter = ',', default_values_t = [0.4, 3.0])]
+    gsd_cm: Vec<f64>,
     /// Refuse a request whose files would take more than this, MB (an estimate: JPEG tiles)
     #[arg(long, value_name = "MB", default_value_t = 4096)]
     max_disk_mb: u64,
@@ -76,9 +79,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.out.display()
         )));
     }
+    let [lo, hi] = match args.gsd_cm[..] {
+        [lo, hi] => [lo, hi],
+        _ => [f64::NAN; 2],
+    };
+    if !(lo.is_finite() && hi.is_finite() && 0.05 <= lo && lo <= hi && hi <= 20.0) {
+        return Err(bad_input(anyhow!(
+            "--gsd-cm {:?}: expected two numbers from 0.05 to 20 cm a pixel, the smaller first",
+            args.gsd_cm
+        )));
+    }
     let spec = DatasetSpec {
         size_px: args.size,
         seed: args.seed,
+        gsd_m: [lo / 100.0, hi / 100.0],
         ..DatasetSpec::default()
     };
     // Written beside the target, then renamed: never a half-written dataset.

@@ -43,17 +43,26 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench detect_vs_opencv
 
 # The overhead person detector's recipe (docs/detector.md): tiles from the simulator (training
-# seed 1, validation seed 2), then scripts/train_detector.py on 2 CPU threads with Debian's
-# PyTorch. Writes out/model/overhead-person.onnx and its report.
+# seed 1 at the model's scales, validation seed 2 at them and at all scales), then
+# scripts/train_detector.py on 2 CPU threads with Debian's PyTorch, in two phases (the second
+# from the first's weights at a lower learning rate). Writes out/model/overhead-person.onnx and
+# its report (about 75 minutes on 2 cores).
 PYTHON ?= /usr/bin/python3
-MODEL_TILES ?= 8000
-MODEL_EPOCHS ?= 12
+MODEL_TILES ?= 10000
+MODEL_EPOCHS ?= 14
+MODEL_EPOCHS_2 ?= 6
 model: build
 	rm -rf out/model && mkdir -p out/model
-	./target/release/geostride dataset --out out/model/train --tiles $(MODEL_TILES) --seed 1
-	./target/release/geostride dataset --out out/model/val --tiles 600 --seed 2
+	./target/release/geostride dataset --out out/model/train --tiles $(MODEL_TILES) --seed 1 --gsd-cm 1.2,3
+	./target/release/geostride dataset --out out/model/val --tiles 600 --seed 2 --gsd-cm 1.2,3
+	./target/release/geostride dataset --out out/model/val-all --tiles 600 --seed 2
 	$(PYTHON) scripts/train_detector.py --train out/model/train --val out/model/val \
-	  --out out/model/overhead-person.onnx --epochs $(MODEL_EPOCHS) --batch 16 --threads 2 \
+	  --val-all out/model/val-all \
+	  --out out/model/phase1.onnx --epochs $(MODEL_EPOCHS) --batch 16 --threads 2 \
+	  --report out/model/phase1.json
+	$(PYTHON) scripts/train_detector.py --train out/model/train --val out/model/val \
+	  --val-all out/model/val-all --weights out/model/phase1.onnx.pt --lr 5e-4 \
+	  --out out/model/overhead-person.onnx --epochs $(MODEL_EPOCHS_2) --batch 16 --threads 2 \
 	  --report out/model/report.json
 
 # The long fuzzing run: 10^6 inputs per parser (about 45 minutes on 2 cores, most of it crs through

@@ -2,7 +2,7 @@
 """Trains geostride's overhead person detector on `geostride dataset` tiles (CPU, PyTorch) and
 exports it to ONNX with the metadata `geostride detect` reads.
 
-The model: a small fully convolutional network (four stride-2 stages, a top-down path back to
+The model: a small fully convolutional network (five stride-2 stages, a top-down path back to
 a quarter of the input) with a centre heatmap head (CenterNet's objects as points): per output
 cell the score that a person's box centre lies there, the centre's sub-cell offset, the box's
 log size and the offset from the centre to the top of the head (a share of the box's size). The
@@ -33,6 +33,8 @@ from PIL import Image
 
 STRIDE = 4
 LAYOUT = "geostride-centre-heatmap-1"
+# geostride's default score threshold (`[detect] min_score`, `geostride detect --min-score`).
+DEFAULT_SCORE = 0.3
 
 
 def read_dataset(folder):
@@ -129,16 +131,23 @@ class Block(nn.Module):
 
 
 class Net(nn.Module):
+    """Five stride-2 stages (to 1/32: a person seen 40 degrees off nadir at the finest trained
+    scale is some 150 px long and needs the context), a top-down path back to 1/4."""
+
     def __init__(self, width=1.0):
         super().__init__()
-        c = [int(round(v * width)) for v in (16, 32, 64, 96)]
+        c = [int(round(v * width)) for v in (16, 32, 64, 96, 128)]
+        top = 64
         self.stem = nn.Sequential(nn.Conv2d(3, c[0], 3, 2, 1, bias=False), nn.BatchNorm2d(c[0]), nn.ReLU())
         self.s1 = Block(c[0], c[1], 2)  # 1/4
         self.s2 = Block(c[1], c[2], 2)  # 1/8
         self.s3 = Block(c[2], c[3], 2)  # 1/16
-        self.l2 = nn.Conv2d(c[2], c[3], 1)
-        self.l1 = nn.Conv2d(c[1], c[3], 1)
-        self.mix = nn.Sequential(nn.Conv2d(c[3], 48, 3, 1, 1, bias=False), nn.BatchNorm2d(48), nn.ReLU())
+        self.s4 = Block(c[3], c[4], 2)  # 1/32
+        self.l4 = nn.Conv2d(c[4], top, 1)
+        self.l3 = nn.Conv2d(c[3], top, 1)
+        self.l2 = nn.Conv2d(c[2], top, 1)
+        self.l1 = nn.Conv2d(c[1], top, 1)
+        self.mix = nn.Sequential(nn.Conv2d(top, 48, 3, 1, 1, bias=False), nn.BatchNorm2d(48), nn.ReLU())
         self.heat = nn.Conv2d(48, 1, 1)
         self.reg = nn.Conv2d(48, 6, 1)
         nn.init.constant_(self.heat.bias, -4.0)
@@ -147,8 +156,11 @@ class Net(nn.Module):
         f1 = self.s1(self.stem(x))
         f2 = self.s2(f1)
         f3 = self.s3(f2)
-        p2 = self.l2(f2) + F.interpolate(f3, scale_factor=2.0, mode="nearest")
-        p1 = self.l1(f1) + F.interpolate(p2, scale_factor=2.0, mode="nearest")
+        f4 = self.s4(f3)
+        up = lambda t: F.interpolate(t, scale_factor=2.0, mode="nearest")
+        p3 = self.l3(f3) + up(self.l4(f4))
+        p2 = self.l2(f2) + up(p3)
+        p1 = self.l1(f1) + up(p2)
         m = self.mix(p1)
         return self.heat(m), self.reg(m)
 
@@ -156,13 +168,15 @@ class Net(nn.Module):
 class Decoded(nn.Module):
     """The net with its decoding: the top K peaks as (score, cx, cy, w, h, head x, head y) in input pixels."""
 
-    def __init__(self, net, k):
+    def __init__(self, net, k, shift=0.0):
         super().__init__()
-        self.net, self.k = net, k
+        self.net, self.k, self.shift = net, k, shift
 
     def forward(self, x):
         logit, reg = self.net(x)
-        heat = torch.sigmoid(logit)
+        # A shift of the logits (monotone: the same peaks, in the same order) puts the best
+        # validation threshold at geostride's default score threshold.
+        heat = torch.sigmoid(logit + self.shift)
         peaks = heat * (F.max_pool2d(heat, 3, 1, 1) == heat).float()
         n, _, gh, gw = heat.shape
         score, idx = torch.topk(peaks.reshape(n, -1), self.k, dim=1)
@@ -202,11 +216,33 @@ def batches(tiles, batch, rng, augment_it=True):
                torch.from_numpy(np.stack(regs)), torch.from_numpy(np.stack(masks)))
 
 
-def detect(decoded, img, threshold, nms_iou=0.45):
+def model_scale(gsd_m, trained_gsd_m):
+    """How much geostride scales a frame of `gsd_m` metres a pixel before the model sees it: not
+    at all inside the trained range, else to the range's geometric middle
+    (`detect::neural::model_scale`)."""
+    lo, hi = trained_gsd_m
+    if lo <= gsd_m <= hi:
+        return 1.0
+    return gsd_m / math.sqrt(lo * hi)
+
+
+def detect(decoded, img, threshold, nms_iou=0.45, scale=1.0):
     """The peaks above `threshold`, then non-maximum suppression at `nms_iou` as geostride's
-    detector applies it (a large person can give two peaks)."""
+    detector applies it (a large person can give two peaks). The image is first scaled by
+    `scale` and padded to a multiple of 32 (as geostride does); boxes come back in its pixels."""
+    x = torch.from_numpy(img)[None]
+    if scale != 1.0:
+        h, w = x.shape[2:]
+        size = (max(1, round(h * scale)), max(1, round(w * scale)))
+        x = F.interpolate(x, size=size, mode="area" if scale < 1 else "bilinear", align_corners=None if scale < 1 else False)
+    h, w = x.shape[2:]
+    x = F.pad(x, (0, (-w) % 32, 0, (-h) % 32), value=0.5)
     with torch.no_grad():
-        rows = decoded(torch.from_numpy(img)[None])[0].numpy()
+        rows = decoded(x)[0].numpy()
+    if scale != 1.0:
+        sx, sy = img.shape[2] / w, img.shape[1] / h
+        rows[:, [1, 3, 5]] *= sx
+        rows[:, [2, 4, 6]] *= sy
     rows = rows[rows[:, 0] >= threshold]
     rows = rows[np.argsort(-rows[:, 0])]
     kept = []
@@ -225,7 +261,7 @@ def iou(a, b):
     return inter / (a[2] * a[3] + b[2] * b[3] - inter + 1e-9)
 
 
-def evaluate(decoded, tiles, threshold, min_inside=0.5):
+def evaluate(decoded, tiles, threshold, trained_gsd_m, min_inside=0.5):
     """Precision and recall: a detection matches a person when its box centre lies within half the
     shoulder width of the person's box centre, or the boxes' IoU is at least 0.3 (greedy, by
     score). People mostly outside the tile (inside < min_inside) neither count as missed nor
@@ -234,7 +270,8 @@ def evaluate(decoded, tiles, threshold, min_inside=0.5):
     per = []
     head_err = []
     for t in tiles:
-        dets = detect(decoded, load_image(t["file"]), threshold)
+        scale = model_scale(float(t["row"]["gsd_m"]), trained_gsd_m)
+        dets = detect(decoded, load_image(t["file"]), threshold, scale=scale)
         lab = t["labels"]
         used = set()
         pairs = []
@@ -298,6 +335,9 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-steps", type=int, default=0, help="stop after this many steps (a smoke test)")
     ap.add_argument("--top-k", type=int, default=256)
+    ap.add_argument("--val-all", help="a `geostride dataset` folder over a wider range of scales, scaled to the model's as "
+                    "geostride does: the metrics by scale and view come from it")
+    ap.add_argument("--weights", help="start from (or, with --max-steps 0 and --epochs 0, only evaluate) these weights")
     ap.add_argument("--report", help="a JSON file for the validation metrics")
     a = ap.parse_args()
 
@@ -308,7 +348,11 @@ def main():
     val_meta, val = read_dataset(a.val)
     if train_meta["spec"]["seed"] == val_meta["spec"]["seed"]:
         sys.exit("train_detector: the validation set must be another seed than the training set")
+    trained_gsd_m = train_meta["spec"]["gsd_m"]
+    val_all = read_dataset(a.val_all)[1] if a.val_all else None
     net = Net()
+    if a.weights:
+        net.load_state_dict(torch.load(a.weights))
     opt = torch.optim.AdamW(net.parameters(), lr=a.lr, weight_decay=1e-4)
     steps_per_epoch = max(1, len(train) // a.batch)
     total = int(a.epochs * steps_per_epoch)
@@ -326,7 +370,7 @@ def main():
             lo = (F.l1_loss(out[:, 0:2], reg[:, 0:2], reduction="none") * m).sum() / n
             ls = (F.l1_loss(out[:, 2:4], reg[:, 2:4], reduction="none") * m).sum() / n
             lhd = (F.l1_loss(out[:, 4:6], reg[:, 4:6], reduction="none") * m).sum() / n
-            loss = lh + lo + 0.5 * ls + 2.0 * lhd
+            loss = lh + lo + 0.5 * ls + lhd
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -338,19 +382,27 @@ def main():
                       f"{el:.0f} s, {step * a.batch / el:.1f} tiles/s", flush=True)
             if step >= total:
                 break
+    if total:
+        torch.save(net.state_dict(), a.out + ".pt")
     net.eval()
     decoded = Decoded(net, a.top_k)
     # The score threshold: the best F1 on the validation set.
     best = None
-    for th in (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5):
-        p, r, per, head_err = evaluate(decoded, val, th)
+    for th in (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.6):
+        p, r, per, head_err = evaluate(decoded, val, th, trained_gsd_m)
         f1 = 2 * p * r / max(1e-9, p + r)
         print(f"validation at score {th}: precision {p:.3f} recall {r:.3f}", flush=True)
         if best is None or f1 > best[0]:
             best = (f1, th, p, r, per, head_err)
     _, th, p, r, per, head_err = best
+    # Scores shifted so that the chosen threshold reads as geostride's default.
+    shift = math.log(DEFAULT_SCORE / (1 - DEFAULT_SCORE)) - math.log(th / (1 - th))
+    decoded = Decoded(net, a.top_k, shift)
+    if val_all:
+        pa, ra, per, head_err = evaluate(decoded, val_all, DEFAULT_SCORE, trained_gsd_m)
+        print(f"all scales: precision {pa:.3f} recall {ra:.3f}", flush=True)
     buckets = {
-        "gsd_m": by_bucket(per, "gsd_m", [0.0, 0.008, 0.015, 1.0]),
+        "gsd_m": by_bucket(per, "gsd_m", [0.0, 0.008, 0.012, 0.02, 1.0]),
         "off_nadir_deg": by_bucket(per, "off_nadir_deg", [0.0, 10.0, 25.0, 90.0]),
     }
     head_median = float(np.median(head_err)) if head_err else None
@@ -371,7 +423,8 @@ def main():
         "geostride.output": "detections [1, K, 7]: score, box centre x, y, width, height, head x, y (input pixels)",
         "geostride.train_size_px": str(size),
         "geostride.gsd_m": json.dumps(train_meta["spec"]["gsd_m"]),
-        "geostride.score_threshold": f"{th}",
+        "geostride.score_threshold": f"{DEFAULT_SCORE}",
+        "geostride.score_shift": f"{shift:.6f}",
         "geostride.train_dataset_sha256": train_meta["sha256"],
         "geostride.train_tiles": str(train_meta["tiles"]),
         "geostride.val_dataset_sha256": val_meta["sha256"],
@@ -395,7 +448,8 @@ def main():
           f"validation precision {p:.3f} recall {r:.3f} at score {th}")
     if a.report:
         with open(a.report, "w") as f:
-            json.dump({"precision": p, "recall": r, "score_threshold": th, "steps": step, "sha256": digest,
+            json.dump({"precision": p, "recall": r, "score_threshold": DEFAULT_SCORE, "chosen_raw_threshold": th,
+                       "all_scales": {"precision": pa, "recall": ra} if val_all else None, "steps": step, "sha256": digest,
                        "by": buckets, "head_median_shoulders": head_median}, f, indent=2)
 
 

@@ -48,6 +48,8 @@ fn the_bundled_model_finds_the_walkers_of_a_real_video_and_they_are_tracked() {
         let mut args = vec![
             "detect".to_string(),
             s(&video),
+            "--model".into(),
+            "yolov3-tiny".into(),
             "--out".into(),
             s(out),
             "--max-frames".into(),
@@ -162,7 +164,7 @@ fn a_model_that_cannot_be_used_is_an_input_error() {
         (&["--model", &s(&not_onnx)], None, "not an ONNX model"),
         (&["--classes", "pedestrian"], None, "no class 'pedestrian'"),
         (
-            &["--layout", "yolov8"],
+            &["--model", "yolov3-tiny", "--layout", "yolov8"],
             None,
             "do not fit the yolov8 layout",
         ),

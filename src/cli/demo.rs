@@ -60,7 +60,8 @@ pub struct Args {
     #[arg(long)]
     crowd: bool,
     /// With --crowd: `simulated` boxes from the truth (checked against the targets), or `onnx`,
-    /// the bundled neural detector on the rendered video (reported as it is, not checked)
+    /// the default neural detector (geostride's overhead model) on the rendered video (reported
+    /// as it is, not checked)
     #[arg(long, default_value = "simulated", value_parser = ["simulated", "onnx"], requires = "crowd")]
     detector: String,
     /// Put the site in this CRS (EPSG code, PROJ string or WKT) at the same place, e.g.

@@ -11,7 +11,7 @@ use nalgebra::Vector2;
 
 use super::bad_input;
 use geostride::detect::neural::{Detected, NeuralDetector, NeuralError, NeuralSettings};
-use geostride::detect::onnx::{OnnxError, bundled_model};
+use geostride::detect::onnx::{OVERHEAD_MODEL, OnnxError, named_model, overhead_model};
 use geostride::detect::yolo::Layout;
 
 #[derive(clap::Args)]
@@ -19,7 +19,8 @@ pub struct Args {
     /// A video, or images (one frame each, in the order given)
     #[arg(required = true, value_name = "VIDEO-OR-IMAGES")]
     inputs: Vec<PathBuf>,
-    /// The ONNX model [default: the bundled YOLOv3-tiny, COCO]
+    /// The ONNX model, or a bundled one by name: overhead (geostride's own, for views from
+    /// above) or yolov3-tiny (COCO, for views from the side) [default: overhead]
     #[arg(long, value_name = "M.onnx")]
     model: Option<PathBuf>,
     /// MOTChallenge boxes: frame (from 1), -1, left, top, width, height, score, -1, -1, -1
@@ -65,6 +66,10 @@ pub struct Args {
     /// Tiles of N pixels for small people (0: the whole frame at once)
     #[arg(long, default_value = "0", value_name = "N")]
     tile: usize,
+    /// The frames' ground sample distance, cm a pixel: a model that states the scales it was
+    /// trained at (geostride's own) sees the frames scaled to them
+    #[arg(long, value_name = "CM")]
+    gsd_cm: Option<f64>,
     /// Tiles' overlap, pixels
     #[arg(long, default_value = "64", value_name = "PX")]
     overlap: usize,
@@ -93,6 +98,9 @@ struct Summary {
     model: String,
     layout: String,
     input_size: [usize; 2],
+    /// How much the frames were scaled for a model that states the scales it was trained at
+    /// (it then sees them at that scale, not fitted to `input_size`).
+    frame_scale: Option<f64>,
     frames: usize,
     boxes: usize,
     mean_per_frame: f64,
@@ -140,6 +148,15 @@ fn settings_of(args: &Args) -> anyhow::Result<NeuralSettings> {
             "--mean and --std take three numbers each, comma-separated (0.485,0.456,0.406)"
         )));
     }
+    if args
+        .gsd_cm
+        .is_some_and(|g| !(g.is_finite() && (0.01..=100.0).contains(&g)))
+    {
+        return Err(bad_input(anyhow!(
+            "--gsd-cm {}: expected the ground sample distance from 0.01 to 100 cm a pixel",
+            args.gsd_cm.unwrap_or_default()
+        )));
+    }
     if args.roi.as_ref().is_some_and(|r| r.len() != 4) {
         return Err(bad_input(anyhow!(
             "--roi takes four whole numbers, comma-separated: X,Y,W,H pixels"
@@ -161,6 +178,7 @@ fn settings_of(args: &Args) -> anyhow::Result<NeuralSettings> {
         overlap: args.overlap,
         roi: args.roi.as_ref().map(|r| [r[0], r[1], r[2], r[3]]),
         threads: args.threads,
+        frame_gsd_m: args.gsd_cm.map(|g| g / 100.0),
     };
     // The project's check, named by the flags.
     settings.check().map_err(|(key, message)| {
@@ -182,10 +200,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(bad_input(anyhow!("--max-frames 0: give N ≥ 1")));
     }
     let model = match &args.model {
-        Some(m) => m.clone(),
-        None => bundled_model().ok_or_else(|| {
+        Some(m) => match named_model(&m.to_string_lossy()) {
+            Some(p) if !m.exists() => p,
+            _ => m.clone(),
+        },
+        None => overhead_model().ok_or_else(|| {
             bad_input(anyhow!(
-                "the bundled model (third_party/models/yolov3-tiny.onnx) is not here: run ./scripts/fetch-models.sh, or give --model M.onnx"
+                "the overhead model ({OVERHEAD_MODEL}) is not here: is this a whole checkout? Or give --model M.onnx"
             ))
         })?,
     };
@@ -283,6 +304,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model: model.display().to_string(),
         layout: det.layout().name().into(),
         input_size: det.input_size(),
+        frame_scale: det.frame_scale(),
         frames,
         boxes,
         mean_per_frame: boxes as f64 / frames as f64,
@@ -298,16 +320,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
     } else {
+        let input = match s.frame_scale {
+            Some(f) => format!("frames scaled {f:.3}× to the model's own scale"),
+            None => format!("input {}x{}", s.input_size[0], s.input_size[1]),
+        };
         println!(
-            "{} frames, {} boxes ({:.2} a frame, at most {}), {:.1} ms a frame ({} layout, input {}x{})",
-            s.frames,
-            s.boxes,
-            s.mean_per_frame,
-            s.max_per_frame,
-            s.ms_per_frame,
-            s.layout,
-            s.input_size[0],
-            s.input_size[1]
+            "{} frames, {} boxes ({:.2} a frame, at most {}), {:.1} ms a frame ({} layout, {input})",
+            s.frames, s.boxes, s.mean_per_frame, s.max_per_frame, s.ms_per_frame, s.layout,
         );
         println!("Written: {}", s.out);
         if let Some(p) = &s.preview {

@@ -45,6 +45,9 @@ pub struct NeuralSettings {
     /// The darknet layout was asked for: the model must carry its anchors (`layout` cannot
     /// name them).
     pub want_darknet: bool,
+    /// The frames' ground sample distance, metres a pixel: a model that states the scales it
+    /// was trained at (`geostride.gsd_m`) sees the frames scaled to them ([`model_scale`]).
+    pub frame_gsd_m: Option<f64>,
 }
 
 /// The most threads a model runs on: more than any machine geostride runs on has cores.
@@ -175,6 +178,7 @@ impl Default for NeuralSettings {
             roi: None,
             threads: 0,
             want_darknet: false,
+            frame_gsd_m: None,
         }
     }
 }
@@ -263,12 +267,68 @@ pub fn auto_tiles(region_wh: [usize; 2], input_wh: [usize; 2], person_px: f64) -
     (0, 0)
 }
 
+/// How much a frame of `frame_gsd_m` metres a pixel is scaled before a model trained at
+/// `trained_gsd_m` (`[finest, coarsest]`) sees it: not at all inside the trained range, else to
+/// the range's geometric middle (scripts/train_detector.py's `model_scale` is the same rule).
+pub fn model_scale(frame_gsd_m: f64, trained_gsd_m: [f64; 2]) -> f64 {
+    let [lo, hi] = trained_gsd_m;
+    if (lo..=hi).contains(&frame_gsd_m) {
+        1.0
+    } else {
+        frame_gsd_m / (lo * hi).sqrt()
+    }
+}
+
+/// The most pixels a side of what the model sees at once at its own scale: a larger region is
+/// cut into tiles.
+const MODEL_SCALE_SIDE: usize = 4096;
+
+/// A model's `geostride.gsd_m` metadata: `[finest, coarsest]` metres a pixel.
+fn parse_trained_gsd(text: &str) -> Option<[f64; 2]> {
+    let v: Vec<f64> = serde_json::from_str(text).ok()?;
+    match v[..] {
+        [lo, hi] if lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi && hi < 10.0 => {
+            Some([lo, hi])
+        }
+        _ => None,
+    }
+}
+
+/// `bgr` (`wh`) averaged over blocks of `k`×`k` pixels (a large reduction without aliasing).
+fn shrink_bgr(bgr: &[u8], wh: [usize; 2], k: usize) -> (Vec<u8>, [usize; 2]) {
+    let [w, h] = wh;
+    let (ow, oh) = (w.div_ceil(k), h.div_ceil(k));
+    let mut out = vec![0u8; ow * oh * 3];
+    for oy in 0..oh {
+        for ox in 0..ow {
+            let mut sum = [0u32; 3];
+            let mut n = 0u32;
+            for y in oy * k..((oy + 1) * k).min(h) {
+                for x in ox * k..((ox + 1) * k).min(w) {
+                    for c in 0..3 {
+                        sum[c] += u32::from(bgr[(y * w + x) * 3 + c]);
+                    }
+                    n += 1;
+                }
+            }
+            for c in 0..3 {
+                out[(oy * ow + ox) * 3 + c] = ((sum[c] + n / 2) / n) as u8;
+            }
+        }
+    }
+    (out, [ow, oh])
+}
+
 impl super::person::FrameBoxes for NeuralDetector {
     fn summary(&self) -> Vec<(String, f64)> {
-        vec![
+        let mut v = vec![
             ("model_tile_px".into(), self.settings.tile as f64),
             ("model_tile_overlap_px".into(), self.settings.overlap as f64),
-        ]
+        ];
+        if let Some(f) = self.frame_scale() {
+            v.push(("model_frame_scale".into(), f));
+        }
+        v
     }
 
     fn boxes(
@@ -294,6 +354,8 @@ pub struct NeuralDetector {
     class_ids: Vec<usize>,
     pub names: Vec<String>,
     pub settings: NeuralSettings,
+    /// The scales the model was trained at, metres a pixel (its `geostride.gsd_m`).
+    trained_gsd_m: Option<[f64; 2]>,
 }
 
 impl NeuralDetector {
@@ -313,6 +375,7 @@ impl NeuralDetector {
             class_ids: self.class_ids.clone(),
             names: self.names.clone(),
             settings: self.settings.clone(),
+            trained_gsd_m: self.trained_gsd_m,
         })
     }
 
@@ -344,6 +407,23 @@ impl NeuralDetector {
             }
             None => None,
         };
+        let trained_gsd_m = match model.metadata("geostride.gsd_m") {
+            Some(t) => Some(parse_trained_gsd(&t).ok_or_else(|| {
+                bad(format!(
+                    "its geostride.gsd_m metadata is '{}': expected [finest, coarsest] metres a pixel, as JSON",
+                    crate::io::clip(&t, 60)
+                ))
+            })?),
+            None => None,
+        };
+        if let Some(g) = settings.frame_gsd_m
+            && trained_gsd_m.is_none()
+        {
+            return Err(bad(format!(
+                "frames of {:.2} cm a pixel were to be scaled to the model's scale, but it does not state the scales it was trained at (geostride.gsd_m metadata): give tiles instead",
+                g * 100.0
+            )));
+        }
         let names = if own.is_some() && names.is_empty() {
             vec!["person".to_string()]
         } else {
@@ -410,14 +490,32 @@ impl NeuralDetector {
                 );
             }
         };
-        Self::finish(
+        let mut d = Self::finish(
             path,
             Backend::OnnxRuntime(model),
             layout,
             input_wh,
             names,
             settings,
-        )
+        )?;
+        d.trained_gsd_m = trained_gsd_m;
+        Ok(d)
+    }
+
+    /// The scales the model was trained at, metres a pixel (`[finest, coarsest]`), when it says.
+    pub fn trained_gsd_m(&self) -> Option<[f64; 2]> {
+        self.trained_gsd_m
+    }
+
+    /// How much the frames are scaled before the model sees them, for a model that states the
+    /// scales it was trained at ([`model_scale`]); `None` for one fitted to its input size.
+    pub fn frame_scale(&self) -> Option<f64> {
+        match (self.settings.frame_gsd_m, self.trained_gsd_m) {
+            (Some(g), Some(t)) => Some(model_scale(g, t)),
+            // Frames of no stated scale are taken to be at the model's own.
+            (None, Some(_)) => Some(1.0),
+            _ => None,
+        }
     }
 
     fn finish(
@@ -465,6 +563,7 @@ impl NeuralDetector {
             class_ids,
             names,
             settings: settings.clone(),
+            trained_gsd_m: None,
         };
         // The layout against the outputs, once, before any frame.
         let outs = d
@@ -517,9 +616,40 @@ impl NeuralDetector {
             }
             c
         };
-        let fit = Fit::new([rw, rh], self.input_wh, s.letterbox);
-        let input = to_input(&crop, [rw, rh], self.input_wh, &fit, s.mean, s.std, s.bgr);
-        let outs = self.model.run(input, self.input_wh)?;
+        let (crop, fit, input_wh) = match self.frame_scale() {
+            // At the model's own scale: one scale, padded right and below to whole strides.
+            Some(f) => {
+                let k = (1.0 / f).floor() as usize;
+                let (crop, [cw, ch], f) = if k >= 2 {
+                    let (c, cwh) = shrink_bgr(&crop, [rw, rh], k);
+                    (c, cwh, f * k as f64)
+                } else {
+                    (crop, [rw, rh], f)
+                };
+                let side = |v: usize| {
+                    ((v as f64 * f).round() as usize)
+                        .max(1)
+                        .next_multiple_of(32)
+                };
+                let fit = Fit {
+                    scale: [f, f],
+                    pad: [0.0, 0.0],
+                };
+                let input_wh = [side(cw), side(ch)];
+                let input = to_input(&crop, [cw, ch], input_wh, &fit, s.mean, s.std, s.bgr);
+                let fit = Fit {
+                    scale: [f * cw as f64 / rw as f64, f * ch as f64 / rh as f64],
+                    pad: [0.0, 0.0],
+                };
+                (input, fit, input_wh)
+            }
+            None => {
+                let fit = Fit::new([rw, rh], self.input_wh, s.letterbox);
+                let input = to_input(&crop, [rw, rh], self.input_wh, &fit, s.mean, s.std, s.bgr);
+                (input, fit, self.input_wh)
+            }
+        };
+        let outs = self.model.run(crop, input_wh)?;
         let outputs: Vec<(Vec<i64>, Vec<f32>)> =
             outs.into_iter().map(|o| (o.shape, o.data)).collect();
         if not_numbers(&outputs) {
@@ -532,7 +662,7 @@ impl NeuralDetector {
             classes: &self.class_ids,
             min_score: s.min_score,
         };
-        let boxes = decode(&self.layout, &outputs, self.input_wh, &keep).map_err(|message| {
+        let boxes = decode(&self.layout, &outputs, input_wh, &keep).map_err(|message| {
             NeuralError::Model {
                 path: self.path.clone(),
                 message,
@@ -571,7 +701,16 @@ impl NeuralDetector {
                 ),
             });
         }
-        let parts = if self.settings.tile == 0 {
+        // At the model's own scale, what it would see of the region at once is bounded.
+        let most = self
+            .frame_scale()
+            .map(|f| (MODEL_SCALE_SIDE as f64 / f).floor() as usize);
+        let parts = if let Some(side) = most
+            && self.settings.tile == 0
+            && region[2].max(region[3]) > side
+        {
+            tiles(region, side, self.settings.overlap.min(side / 2))
+        } else if self.settings.tile == 0 {
             vec![region]
         } else {
             tiles(region, self.settings.tile, self.settings.overlap)
@@ -827,6 +966,47 @@ mod tests {
         for (key, s) in cases {
             assert_eq!(s.check().unwrap_err().0, key, "{s:?}");
         }
+    }
+
+    #[test]
+    fn frames_are_scaled_to_the_models_trained_scales_only_outside_them() {
+        let trained = [0.012, 0.03];
+        assert_eq!(model_scale(0.012, trained), 1.0);
+        assert_eq!(model_scale(0.02, trained), 1.0);
+        assert_eq!(model_scale(0.03, trained), 1.0);
+        // Finer: shrunk to the middle (0.019 m a pixel); coarser: enlarged to it.
+        let mid = (0.012f64 * 0.03).sqrt();
+        assert!((model_scale(0.005, trained) - 0.005 / mid).abs() < 1e-12);
+        assert!(model_scale(0.005, trained) < 1.0);
+        assert!(model_scale(0.05, trained) > 1.0);
+        assert_eq!(parse_trained_gsd("[0.012, 0.03]"), Some(trained));
+        for bad in [
+            "[0.03, 0.012]",
+            "[0.012]",
+            "[0, 0.03]",
+            "0.02",
+            "[\"a\", 1]",
+            "[0.01, 50]",
+        ] {
+            assert_eq!(parse_trained_gsd(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_shrunk_frame_is_the_mean_of_each_block() {
+        // 3x2 pixels, shrunk by 2: a 2x1 image; the right block is one column wide.
+        let bgr: Vec<u8> = [
+            [0, 10, 20],
+            [2, 12, 22],
+            [100, 0, 0],
+            [4, 14, 24],
+            [6, 16, 26],
+            [50, 0, 0],
+        ]
+        .concat();
+        let (out, wh) = shrink_bgr(&bgr, [3, 2], 2);
+        assert_eq!(wh, [2, 1]);
+        assert_eq!(out, vec![3, 13, 23, 75, 0, 0]);
     }
 
     #[test]

@@ -61,11 +61,36 @@ fn roots() -> Vec<PathBuf> {
     r
 }
 
-/// The bundled person detector (`third_party/models/yolov3-tiny.onnx`), where it is.
+/// The bundled person detector for views from the side (`third_party/models/yolov3-tiny.onnx`,
+/// COCO), where it is.
 pub fn bundled_model() -> Option<PathBuf> {
+    bundled(YOLO_MODEL)
+}
+
+/// The bundled YOLOv3-tiny, from the checkout's root.
+pub const YOLO_MODEL: &str = "third_party/models/yolov3-tiny.onnx";
+/// geostride's own overhead person detector (scripts/train_detector.py), from the checkout's
+/// root; committed with its model card (`models/overhead-person.md`).
+pub const OVERHEAD_MODEL: &str = "models/overhead-person.onnx";
+
+/// The overhead person detector, where it is.
+pub fn overhead_model() -> Option<PathBuf> {
+    bundled(OVERHEAD_MODEL)
+}
+
+/// A bundled model by its short name (`overhead`, `yolov3-tiny`), where it is.
+pub fn named_model(name: &str) -> Option<PathBuf> {
+    match name {
+        "overhead" => overhead_model(),
+        "yolov3-tiny" => bundled_model(),
+        _ => None,
+    }
+}
+
+fn bundled(rel: &str) -> Option<PathBuf> {
     roots()
         .into_iter()
-        .map(|r| r.join("third_party/models/yolov3-tiny.onnx"))
+        .map(|r| r.join(rel))
         .find(|p| p.is_file())
 }
 

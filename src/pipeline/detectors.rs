@@ -158,18 +158,39 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
     Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
 }
 
+/// The most a camera's optical axis may lean from straight down for the overhead model to be
+/// the default (it was trained on views up to 40° off nadir at a tile's centre).
+pub const OVERHEAD_MAX_OFF_NADIR_DEG: f64 = 40.0;
+
+/// How far the camera's optical axis leans from straight down (the site's −z), degrees.
+pub fn off_nadir_deg(cam_from_world: &crate::geom::Rigid3) -> f64 {
+    let axis_world = cam_from_world.rotation.inverse() * nalgebra::Vector3::z();
+    (-axis_world.z).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
 /// A neural detector's boxes (a YOLO-family ONNX model on every frame), filtered, their heads
 /// found.
 pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
     use crate::detect::neural::NeuralDetector;
-    let model = match &o.model {
-        Some(m) => x.l.resolve(m),
-        None => crate::detect::onnx::bundled_model().ok_or_else(|| {
+    use crate::detect::onnx::{YOLO_MODEL, bundled_model, named_model, overhead_model};
+    let yolo = || {
+        bundled_model().ok_or_else(|| {
             x.input(
                 "model",
-                "the bundled model (third_party/models/yolov3-tiny.onnx) is not here: run ./scripts/fetch-models.sh, or name a model",
+                format!("the bundled model ({YOLO_MODEL}) is not here: run ./scripts/fetch-models.sh, or name a model"),
             )
-        })?,
+        })
+    };
+    let model = match &o.model {
+        Some(m) => match named_model(m) {
+            Some(p) if !x.l.resolve(m).exists() => p,
+            _ => x.l.resolve(m),
+        },
+        // From above, geostride's own model; from the side, YOLOv3-tiny (COCO).
+        None if off_nadir_deg(x.first_pose) <= OVERHEAD_MAX_OFF_NADIR_DEG => {
+            overhead_model().map_or_else(yolo, Ok)?
+        }
+        None => yolo()?,
     };
     let settings = o.neural();
     let mut net =
@@ -181,8 +202,14 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
             (None, Some(s)) => Some([s.width as usize, s.height as usize]),
             (None, None) => None,
         };
-        if let Some(region) = region {
-            let person_px = x.l.project.projection.head_height_m * x.px_per_m;
+        let person_px = x.l.project.projection.head_height_m * x.px_per_m;
+        if net.trained_gsd_m().is_some() {
+            // A model that states its scales sees the frames at them (the pose's scale at head
+            // height: within a few per cent of the ground's from 30 m), whole where they fit.
+            net.settings.frame_gsd_m = Some(1.0 / x.px_per_m);
+            net.settings.tile = 0;
+            net.settings.overlap = person_px.ceil() as usize;
+        } else if let Some(region) = region {
             let (tile, overlap) =
                 crate::detect::neural::auto_tiles(region, net.input_wh(), person_px);
             net.settings.tile = tile;

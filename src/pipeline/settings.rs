@@ -389,7 +389,10 @@ impl Default for BoxesSection {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct OnnxSection {
-    /// The ONNX model [default: the bundled YOLOv3-tiny, `third_party/models/yolov3-tiny.onnx`].
+    /// The ONNX model, or a bundled one by name: `overhead` (geostride's own,
+    /// `models/overhead-person.onnx`) or `yolov3-tiny` (COCO,
+    /// `third_party/models/yolov3-tiny.onnx`) [default: `overhead` where the camera looks within
+    /// 40° of straight down, else `yolov3-tiny`].
     pub model: Option<String>,
     /// `darknet`, `yolov5`, `yolov8`, `yolox` or `centre_heatmap` [default: the model's metadata, else its outputs].
     pub layout: Option<String>,
@@ -928,6 +931,8 @@ impl OnnxSection {
             overlap: self.overlap,
             roi: self.roi,
             threads: self.threads,
+            // The pose's scale, set where the detector is made.
+            frame_gsd_m: None,
         }
     }
 }

@@ -93,6 +93,20 @@ pub(super) fn extend_fixture(dir: &Path) {
     )
     .unwrap();
     std::fs::write(
+        dir.join("centre-bad-gsd.onnx"),
+        constant_model(
+            64,
+            64,
+            &[1, 8, 7],
+            0.0,
+            &[
+                ("geostride.layout", "geostride-centre-heatmap-1"),
+                ("geostride.gsd_m", "[0.03, 0.012]"),
+            ],
+        ),
+    )
+    .unwrap();
+    std::fs::write(
         dir.join("rank2.onnx"),
         constant_model(64, 64, &[6, 10], 0.0, &names),
     )
@@ -510,11 +524,14 @@ pub(super) fn cases() -> Vec<Case> {
         detect_case("detect-every-0", "nonsense accepted", &["--every", "0"], "--every 0", "--every"),
         detect_case("detect-max-frames-0", "nonsense accepted", &["--max-frames", "0"], "--max-frames 0", "--max-frames"),
         detect_case("detect-empty-class", "nonsense accepted", &["--classes", "person,"], "none empty", "--classes"),
-        detect_case("detect-unknown-class", "nonsense accepted", &["--classes", "unicorn"], "has no class 'unicorn'", "yolov3-tiny.onnx"),
+        detect_case("detect-unknown-class", "nonsense accepted", &["--classes", "unicorn"], "has no class 'unicorn'", "overhead-person.onnx"),
         detect_case("detect-model-gives-nan", "nonsense accepted", &["--model", "nan.onnx"], "not numbers", "nan.onnx"),
         detect_case("detect-model-of-unknown-layout", "nonsense accepted", &["--model", "rank2.onnx"], "cannot tell the output layout", "rank2.onnx"),
         detect_case("detect-model-of-a-future-geostride-layout", "nonsense accepted", &["--model", "future.onnx"], "this geostride reads 'geostride-centre-heatmap-1'", "future.onnx"),
         detect_case("detect-centre-heatmap-of-6-values", "nonsense accepted", &["--model", "centre6.onnx"], "the centre heatmap layout has 7", "centre6.onnx"),
+        detect_case("detect-model-of-reversed-scales", "nonsense accepted", &["--model", "centre-bad-gsd.onnx"], "expected [finest, coarsest] metres a pixel", "centre-bad-gsd.onnx"),
+        detect_case("detect-gsd-for-a-model-without-scales", "nonsense accepted", &["--gsd-cm", "1.5", "--model", "yolov3-tiny"], "does not state the scales it was trained at", "yolov3-tiny.onnx"),
+        detect_case("detect-gsd-0", "nonsense accepted", &["--gsd-cm", "0"], "from 0.01 to 100 cm a pixel", "--gsd-cm"),
         detect_case("detect-darknet-without-anchors", "nonsense accepted", &["--model", "nan.onnx", "--layout", "darknet"], "darknet_yolo metadata", "nan.onnx"),
         detect_case("detect-model-not-onnx", "wrong code", &["--model", "gcps.csv"], "gcps.csv", "gcps.csv"),
         detect_case("detect-model-missing", "wrong code", &["--model", "nope.onnx"], "nope.onnx", "nope.onnx"),

@@ -68,6 +68,8 @@ fn a_few_training_steps_give_a_model_geostride_reads() {
         .arg(&train)
         .arg("--val")
         .arg(&val)
+        .arg("--val-all")
+        .arg(&val)
         .arg("--out")
         .arg(&model)
         .arg("--report")
@@ -79,7 +81,8 @@ fn a_few_training_steps_give_a_model_geostride_reads() {
         serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     assert_eq!(r["steps"], 3);
     // The same validation split as a training run's, per ground sample distance and view.
-    assert_eq!(r["by"]["gsd_m"].as_array().unwrap().len(), 3);
+    assert_eq!(r["by"]["gsd_m"].as_array().unwrap().len(), 4);
+    assert!(r["all_scales"]["recall"].is_number());
     let boxes = tmp.path().join("boxes.txt");
     let o = common::geostride()
         .arg("detect")
@@ -97,6 +100,8 @@ fn a_few_training_steps_give_a_model_geostride_reads() {
         j["layout"], "centre_heatmap",
         "read from the model's metadata"
     );
+    // It states the scales it was trained at: the frame is seen at its own scale.
+    assert_eq!(j["frame_scale"], 1.0);
     // A training set and a validation set of one seed are refused.
     let o = Command::new(PYTHON)
         .arg(root.join("scripts/train_detector.py"))

@@ -466,6 +466,15 @@ impl NeuralDetector {
             ));
         }
         let layout = match (&settings.layout, darknet) {
+            // A model that says its own layout is not read as another (its rows would decode
+            // into boxes that mean nothing).
+            (Some(l), _) if own.as_ref().is_some_and(|o| o.name() != l.name()) => {
+                return Err(bad(format!(
+                    "its geostride.layout metadata says it is a {} model: the {} layout was asked for (leave the layout out)",
+                    own.as_ref().map_or("", Layout::name),
+                    l.name()
+                )));
+            }
             (Some(l), _) => l.clone(),
             (None, _) if own.is_some() => own.clone().expect("checked"),
             (None, Some(meta)) => darknet_layout(&meta).map_err(|e| bad(e.to_string()))?,

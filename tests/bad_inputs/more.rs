@@ -532,6 +532,7 @@ pub(super) fn cases() -> Vec<Case> {
         detect_case("detect-model-of-reversed-scales", "nonsense accepted", &["--model", "centre-bad-gsd.onnx"], "expected [finest, coarsest] metres a pixel", "centre-bad-gsd.onnx"),
         detect_case("detect-gsd-for-a-model-without-scales", "nonsense accepted", &["--gsd-cm", "1.5", "--model", "yolov3-tiny"], "does not state the scales it was trained at", "yolov3-tiny.onnx"),
         detect_case("detect-gsd-0", "nonsense accepted", &["--gsd-cm", "0"], "from 0.01 to 100 cm a pixel", "--gsd-cm"),
+        detect_case("detect-own-model-read-as-yolov8", "nonsense accepted", &["--layout", "yolov8"], "says it is a centre_heatmap model", "overhead-person.onnx"),
         detect_case("detect-darknet-without-anchors", "nonsense accepted", &["--model", "nan.onnx", "--layout", "darknet"], "darknet_yolo metadata", "nan.onnx"),
         detect_case("detect-model-not-onnx", "wrong code", &["--model", "gcps.csv"], "gcps.csv", "gcps.csv"),
         detect_case("detect-model-missing", "wrong code", &["--model", "nope.onnx"], "nope.onnx", "nope.onnx"),

@@ -1003,14 +1003,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         min_frames,
         brief
     );
-    let mut rows = crowd_rows(&pe, &e);
-    rows.extend(uncertainty_rows(&pcons, &cons));
-    print_table(
-        json,
-        (44, 10),
-        ["paper's model", "fitted model", "target"],
-        &rows,
-    );
+    print_crowd_table(json, (&pe, &pcons), (&e, &cons));
     coverage_scope_note(json, &args, &scene);
     // The targets hold for the fitted model, the way a user would run it; the paper's model
     // is shown for comparison (its σ are larger than this detector's errors).
@@ -1130,6 +1123,22 @@ fn fit_detector_error(
         say!(json, "   {line}");
     }
     Ok(error_fit)
+}
+
+/// The crowd demo's table: the paper's model's run and the fitted one's, against the targets.
+fn print_crowd_table(
+    json: bool,
+    (pe, pcons): (&Evaluation, &Consistency),
+    (e, cons): (&Evaluation, &Consistency),
+) {
+    let mut rows = crowd_rows(pe, e);
+    rows.extend(uncertainty_rows(pcons, cons));
+    print_table(
+        json,
+        (44, 10),
+        ["paper's model", "fitted model", "target"],
+        &rows,
+    );
 }
 
 /// The crowd demo's table rows, the paper's model's and the fitted one's, before the

@@ -11,7 +11,7 @@ use nalgebra::Vector2;
 
 use super::bad_input;
 use geostride::detect::neural::{Detected, NeuralDetector, NeuralError, NeuralSettings};
-use geostride::detect::onnx::{OVERHEAD_MODEL, OnnxError, named_model, overhead_model};
+use geostride::detect::onnx::{OVERHEAD_MODEL, OnnxError, given_model, overhead_model};
 use geostride::detect::yolo::Layout;
 
 #[derive(clap::Args)]
@@ -200,10 +200,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(bad_input(anyhow!("--max-frames 0: give N ≥ 1")));
     }
     let model = match &args.model {
-        Some(m) => match named_model(&m.to_string_lossy()) {
-            Some(p) if !m.exists() => p,
-            _ => m.clone(),
-        },
+        Some(m) => given_model(&m.to_string_lossy(), m.clone()),
         None => overhead_model().ok_or_else(|| {
             bad_input(anyhow!(
                 "the overhead model ({OVERHEAD_MODEL}) is not here: is this a whole checkout? Or give --model M.onnx"

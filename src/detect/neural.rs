@@ -625,7 +625,7 @@ impl NeuralDetector {
             }
             c
         };
-        let (crop, fit, input_wh) = match self.frame_scale() {
+        let (input, fit, input_wh) = match self.frame_scale() {
             // At the model's own scale: one scale, padded right and below to whole strides.
             Some(f) => {
                 let k = (1.0 / f).floor() as usize;
@@ -658,7 +658,7 @@ impl NeuralDetector {
                 (input, fit, self.input_wh)
             }
         };
-        let outs = self.model.run(crop, input_wh)?;
+        let outs = self.model.run(input, input_wh)?;
         let outputs: Vec<(Vec<i64>, Vec<f32>)> =
             outs.into_iter().map(|o| (o.shape, o.data)).collect();
         if not_numbers(&outputs) {

@@ -87,6 +87,15 @@ pub fn named_model(name: &str) -> Option<PathBuf> {
     }
 }
 
+/// The model a user named `name`: `file` (the name as a path) when it exists, else the bundled
+/// model of that name (`overhead`, `yolov3-tiny`), else `file` (its error says it is missing).
+pub fn given_model(name: &str, file: PathBuf) -> PathBuf {
+    match named_model(name) {
+        Some(p) if !file.exists() => p,
+        _ => file,
+    }
+}
+
 fn bundled(rel: &str) -> Option<PathBuf> {
     roots()
         .into_iter()

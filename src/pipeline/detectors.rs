@@ -172,7 +172,7 @@ pub fn off_nadir_deg(cam_from_world: &crate::geom::Rigid3) -> f64 {
 /// found.
 pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
     use crate::detect::neural::NeuralDetector;
-    use crate::detect::onnx::{YOLO_MODEL, bundled_model, named_model, overhead_model};
+    use crate::detect::onnx::{YOLO_MODEL, bundled_model, given_model, overhead_model};
     let yolo = || {
         bundled_model().ok_or_else(|| {
             x.input(
@@ -182,10 +182,7 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
         })
     };
     let model = match &o.model {
-        Some(m) => match named_model(m) {
-            Some(p) if !x.l.resolve(m).exists() => p,
-            _ => x.l.resolve(m),
-        },
+        Some(m) => given_model(m, x.l.resolve(m)),
         // From above, geostride's own model; from the side, YOLOv3-tiny (COCO).
         None if off_nadir_deg(x.first_pose) <= OVERHEAD_MAX_OFF_NADIR_DEG => {
             overhead_model().map_or_else(yolo, Ok)?

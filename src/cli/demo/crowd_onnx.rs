@@ -78,14 +78,7 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
         "\n5. Against the truth ({} people in view for ≥ {min_frames} frames, {brief} briefer not counted; {detections:.0} detections kept; matches within 0.5 m):",
         e.truth_tracks
     );
-    let mut rows = crowd_rows(&pe, &e);
-    rows.extend(uncertainty_rows(&pcons, &cons));
-    print_table(
-        json,
-        (44, 10),
-        ["paper's model", "fitted model", "target"],
-        &rows,
-    );
+    print_crowd_table(json, (&pe, &pcons), (&e, &cons));
     say!(
         json,
         "   Reported as it is, not checked: geostride's overhead model on the rendered video (trained on other simulated tiles); the targets are those the simulated boxes meet."

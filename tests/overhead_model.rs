@@ -133,8 +133,8 @@ fn the_overhead_model_finds_people_at_its_scales_and_on_finer_frames_scaled_to_t
     eprintln!("trained scales: precision {p:.3} recall {r:.3} ({n} people)");
     assert!(n > 500, "{n} people");
     assert!(
-        p >= FLOOR[0] && r >= FLOOR[1],
-        "precision {p:.3} recall {r:.3}"
+        p >= AT_SCALES[0] && r >= AT_SCALES[1],
+        "precision {p:.3} recall {r:.3}: under {AT_SCALES:?}"
     );
     // Four times finer (0.5-0.6 cm a pixel): shrunk to the model's scale by geostride.
     let fine = tmp.path().join("fine");
@@ -143,10 +143,12 @@ fn the_overhead_model_finds_people_at_its_scales_and_on_finer_frames_scaled_to_t
     eprintln!("0.5-0.6 cm, scaled: precision {p:.3} recall {r:.3} ({n} people)");
     assert!(n > 100, "{n} people");
     assert!(
-        p >= FLOOR[0] && r >= FLOOR[1],
-        "precision {p:.3} recall {r:.3}"
+        p >= FINER[0] && r >= FINER[1],
+        "precision {p:.3} recall {r:.3}: under {FINER:?}"
     );
 }
 
-/// Precision and recall the committed model must reach here.
-const FLOOR: [f64; 2] = [0.0, 0.0];
+/// Precision and recall the committed model must reach at its scales, and on the finer frames
+/// (a little under what it measured: 0.944 / 0.933 and 0.921 / 0.822).
+const AT_SCALES: [f64; 2] = [0.91, 0.90];
+const FINER: [f64; 2] = [0.88, 0.78];

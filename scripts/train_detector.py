@@ -35,6 +35,10 @@ STRIDE = 4
 LAYOUT = "geostride-centre-heatmap-1"
 # geostride's default score threshold (`[detect] min_score`, `geostride detect --min-score`).
 DEFAULT_SCORE = 0.3
+# Tried on the validation set: raw score thresholds, and the containment above which a box inside
+# a better one is suppressed (1: never).
+THRESHOLDS = (0.1, 0.15, 0.2, 0.225, 0.25, 0.275, 0.3, 0.325, 0.35, 0.4, 0.45, 0.5, 0.6)
+CONTAINED = (1.0, 0.8, 0.7, 0.6, 0.5)
 
 
 def read_dataset(folder):
@@ -226,10 +230,10 @@ def model_scale(gsd_m, trained_gsd_m):
     return gsd_m / math.sqrt(lo * hi)
 
 
-def detect(decoded, img, threshold, nms_iou=0.45, scale=1.0):
-    """The peaks above `threshold`, then non-maximum suppression at `nms_iou` as geostride's
-    detector applies it (a large person can give two peaks). The image is first scaled by
-    `scale` and padded to a multiple of 32 (as geostride does); boxes come back in its pixels."""
+def peaks(decoded, img, scale=1.0):
+    """The model's top peaks, as rows (score, cx, cy, w, h, head x, head y). The image is first
+    scaled by `scale` and padded to a multiple of 32 (as geostride does); boxes come back in its
+    pixels."""
     x = torch.from_numpy(img)[None]
     if scale != 1.0:
         h, w = x.shape[2:]
@@ -243,14 +247,32 @@ def detect(decoded, img, threshold, nms_iou=0.45, scale=1.0):
         sx, sy = img.shape[2] / w, img.shape[1] / h
         rows[:, [1, 3, 5]] *= sx
         rows[:, [2, 4, 6]] *= sy
+    return rows
+
+
+def suppress(rows, threshold, nms_iou=0.45, contained=1.0):
+    """The peaks above `threshold`, then non-maximum suppression as geostride's detector applies
+    it: a box overlapping a better one by more than `nms_iou`, or lying more than `contained` of
+    the smaller box's area inside it (a large person can give a second peak on a body part), is
+    dropped."""
     rows = rows[rows[:, 0] >= threshold]
     rows = rows[np.argsort(-rows[:, 0])]
     kept = []
     for r in rows:
         b = (r[1] - r[3] / 2, r[2] - r[4] / 2, r[3], r[4])
-        if all(iou((k[1], k[2], k[3], k[4]), b) <= nms_iou for k in kept):
+        if all(iou((k[1], k[2], k[3], k[4]), b) <= nms_iou
+               and (contained >= 1.0 or inside_share((k[1], k[2], k[3], k[4]), b) <= contained) for k in kept):
             kept.append(r)
     return np.array(kept, dtype=np.float32).reshape(-1, 7)
+
+
+def inside_share(a, b):
+    """The share of the smaller box's area inside the other (`a` centre-size, `b` corner-size)."""
+    ax0, ay0, ax1, ay1 = a[0] - a[2] / 2, a[1] - a[3] / 2, a[0] + a[2] / 2, a[1] + a[3] / 2
+    bx0, by0, bx1, by1 = b[0], b[1], b[0] + b[2], b[1] + b[3]
+    iw, ih = max(0, min(ax1, bx1) - max(ax0, bx0)), max(0, min(ay1, by1) - max(ay0, by0))
+    smaller = min(a[2] * a[3], b[2] * b[3])
+    return iw * ih / smaller if smaller > 0 else 0.0
 
 
 def iou(a, b):
@@ -261,17 +283,21 @@ def iou(a, b):
     return inter / (a[2] * a[3] + b[2] * b[3] - inter + 1e-9)
 
 
-def evaluate(decoded, tiles, threshold, trained_gsd_m, min_inside=0.5):
-    """Precision and recall: a detection matches a person when its box centre lies within half the
-    shoulder width of the person's box centre, or the boxes' IoU is at least 0.3 (greedy, by
-    score). People mostly outside the tile (inside < min_inside) neither count as missed nor
-    make a detection false."""
+def all_peaks(decoded, tiles, trained_gsd_m):
+    """Every tile's peaks (the model runs once; thresholds and suppression are tried on them)."""
+    return [peaks(decoded, load_image(t["file"]), model_scale(float(t["row"]["gsd_m"]), trained_gsd_m)) for t in tiles]
+
+
+def evaluate(rows, tiles, threshold, contained=1.0, min_inside=0.5):
+    """Precision and recall of the peaks `rows` (one array a tile) at `threshold`: a detection
+    matches a person when its box centre lies within half the shoulder width of the person's box
+    centre, or the boxes' IoU is at least 0.3 (greedy, by score). People mostly outside the tile
+    (inside < min_inside) neither count as missed nor make a detection false."""
     tp = fp = fn = 0
     per = []
     head_err = []
-    for t in tiles:
-        scale = model_scale(float(t["row"]["gsd_m"]), trained_gsd_m)
-        dets = detect(decoded, load_image(t["file"]), threshold, scale=scale)
+    for t, raw in zip(tiles, rows):
+        dets = suppress(raw, threshold, contained=contained)
         lab = t["labels"]
         used = set()
         pairs = []
@@ -386,20 +412,23 @@ def main():
         torch.save(net.state_dict(), a.out + ".pt")
     net.eval()
     decoded = Decoded(net, a.top_k)
-    # The score threshold: the best F1 on the validation set.
+    # The score threshold and the suppression's containment: the best F1 on the validation set.
+    rows = all_peaks(decoded, val, trained_gsd_m)
     best = None
-    for th in (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.6):
-        p, r, per, head_err = evaluate(decoded, val, th, trained_gsd_m)
-        f1 = 2 * p * r / max(1e-9, p + r)
-        print(f"validation at score {th}: precision {p:.3f} recall {r:.3f}", flush=True)
-        if best is None or f1 > best[0]:
-            best = (f1, th, p, r, per, head_err)
-    _, th, p, r, per, head_err = best
+    for contained in CONTAINED:
+        for th in THRESHOLDS:
+            p, r, per, head_err = evaluate(rows, val, th, contained)
+            f1 = 2 * p * r / max(1e-9, p + r)
+            print(f"validation at score {th}, containment {contained}: precision {p:.3f} recall {r:.3f}", flush=True)
+            if best is None or f1 > best[0]:
+                best = (f1, th, contained, p, r, per, head_err)
+    _, th, contained, p, r, per, head_err = best
     # Scores shifted so that the chosen threshold reads as geostride's default.
     shift = math.log(DEFAULT_SCORE / (1 - DEFAULT_SCORE)) - math.log(th / (1 - th))
     decoded = Decoded(net, a.top_k, shift)
     if val_all:
-        pa, ra, per, head_err = evaluate(decoded, val_all, DEFAULT_SCORE, trained_gsd_m)
+        rows = all_peaks(decoded, val_all, trained_gsd_m)
+        pa, ra, per, head_err = evaluate(rows, val_all, DEFAULT_SCORE, contained)
         print(f"all scales: precision {pa:.3f} recall {ra:.3f}", flush=True)
     buckets = {
         "gsd_m": by_bucket(per, "gsd_m", [0.0, 0.008, 0.012, 0.02, 1.0]),
@@ -425,6 +454,7 @@ def main():
         "geostride.gsd_m": json.dumps(train_meta["spec"]["gsd_m"]),
         "geostride.score_threshold": f"{DEFAULT_SCORE}",
         "geostride.score_shift": f"{shift:.6f}",
+        "geostride.nms_contained": f"{contained}",
         "geostride.train_dataset_sha256": train_meta["sha256"],
         "geostride.train_tiles": str(train_meta["tiles"]),
         "geostride.val_dataset_sha256": val_meta["sha256"],
@@ -445,10 +475,10 @@ def main():
     os.replace(tmp, a.out)
     digest = hashlib.sha256(open(a.out, "rb").read()).hexdigest()
     print(f"wrote {a.out} ({os.path.getsize(a.out) / 1e6:.2f} MB, sha256 {digest}): "
-          f"validation precision {p:.3f} recall {r:.3f} at score {th}")
+          f"validation precision {p:.3f} recall {r:.3f} at score {th}, containment {contained}")
     if a.report:
         with open(a.report, "w") as f:
-            json.dump({"precision": p, "recall": r, "score_threshold": DEFAULT_SCORE, "chosen_raw_threshold": th,
+            json.dump({"precision": p, "recall": r, "score_threshold": DEFAULT_SCORE, "chosen_raw_threshold": th, "nms_contained": contained,
                        "all_scales": {"precision": pa, "recall": ra} if val_all else None, "steps": step, "sha256": digest,
                        "by": buckets, "head_median_shoulders": head_median}, f, indent=2)
 

@@ -102,6 +102,10 @@ fn a_few_training_steps_give_a_model_geostride_reads() {
     );
     // It states the scales it was trained at: the frame is seen at its own scale.
     assert_eq!(j["frame_scale"], 1.0);
+    // The suppression chosen on the validation set is the model's, and geostride uses it.
+    let chosen = r["nms_contained"].as_f64().unwrap();
+    assert!(chosen > 0.0 && chosen <= 1.0, "{chosen}");
+    assert_eq!(j["nms_contained"].as_f64(), Some(chosen));
     // A training set and a validation set of one seed are refused.
     let o = Command::new(PYTHON)
         .arg(root.join("scripts/train_detector.py"))

@@ -1,9 +1,11 @@
 //! The committed overhead person detector (`models/overhead-person.onnx`) measured through
-//! `geostride detect` on simulated tiles of a seed it was neither trained nor validated on
-//! (training 1, validation 2, here 3): at the scales it was trained at, and on finer frames that
-//! geostride scales to them. Measured with the committed model (2026-11-28): precision 0.944,
-//! recall 0.933 at its scales; 0.921 and 0.822 on 0.5-0.6 cm frames. The floors are a little
-//! under, so that a worse model or a broken scaling fails.
+//! `geostride detect` on 256-px simulated tiles of a seed it was neither trained nor validated on
+//! (training 1 and 5, validation 2, here 3): at the scales it was trained at, on finer frames
+//! that geostride scales to them, and on feature-rich grounds (texture detail 3-5). Measured with
+//! the committed model (2026-11-28): precision 0.937 / recall 0.936 at its scales, 0.928 / 0.822
+//! on 0.5-0.6 cm frames, 0.930 / 0.927 on textured grounds (a quarter of a 256-px tile's people
+//! are cut by its border: on 1024-px tiles it does better, `models/overhead-person.md`). The
+//! floors are a little under, so that a worse model or a broken scaling fails.
 
 #![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 
@@ -19,10 +21,20 @@ struct Label {
     inside: f64,
 }
 
-fn dataset(out: &Path, gsd_cm: &str) -> Vec<(String, Vec<Label>)> {
+fn dataset(out: &Path, gsd_cm: &str, detail: &str) -> Vec<(String, Vec<Label>)> {
     let o = common::geostride()
         .args([
-            "dataset", "--tiles", "200", "--seed", "3", "--gsd-cm", gsd_cm, "-q", "--out",
+            "dataset",
+            "--tiles",
+            "200",
+            "--seed",
+            "3",
+            "--gsd-cm",
+            gsd_cm,
+            "--ground-detail",
+            detail,
+            "-q",
+            "--out",
         ])
         .arg(out)
         .output()
@@ -124,11 +136,11 @@ fn detect(dir: &Path, tiles: &[(String, Vec<Label>)], extra: &[&str]) -> String 
 }
 
 #[test]
-fn the_overhead_model_finds_people_at_its_scales_and_on_finer_frames_scaled_to_them() {
+fn the_overhead_model_finds_people_at_its_scales_on_finer_frames_and_on_textured_ground() {
     let tmp = tempfile::tempdir().unwrap();
     // At the trained scales: the frames as they are.
     let at = tmp.path().join("at");
-    let tiles = dataset(&at, "1.2,3");
+    let tiles = dataset(&at, "1.2,3", "0.6,2");
     let (p, r, n) = score(&tiles, &detect(&at, &tiles, &[]));
     eprintln!("trained scales: precision {p:.3} recall {r:.3} ({n} people)");
     assert!(n > 500, "{n} people");
@@ -138,7 +150,7 @@ fn the_overhead_model_finds_people_at_its_scales_and_on_finer_frames_scaled_to_t
     );
     // Four times finer (0.5-0.6 cm a pixel): shrunk to the model's scale by geostride.
     let fine = tmp.path().join("fine");
-    let tiles = dataset(&fine, "0.5,0.6");
+    let tiles = dataset(&fine, "0.5,0.6", "0.6,2");
     let (p, r, n) = score(&tiles, &detect(&fine, &tiles, &["--gsd-cm", "0.55"]));
     eprintln!("0.5-0.6 cm, scaled: precision {p:.3} recall {r:.3} ({n} people)");
     assert!(n > 100, "{n} people");
@@ -146,9 +158,22 @@ fn the_overhead_model_finds_people_at_its_scales_and_on_finer_frames_scaled_to_t
         p >= FINER[0] && r >= FINER[1],
         "precision {p:.3} recall {r:.3}: under {FINER:?}"
     );
+    // On the feature-rich grounds scenes give structure from motion (texture detail 3-5: an
+    // earlier model took their blotches for people, precision 0.03).
+    let textured = tmp.path().join("textured");
+    let tiles = dataset(&textured, "1.2,3", "3,5");
+    let (p, r, n) = score(&tiles, &detect(&textured, &tiles, &[]));
+    eprintln!("textured grounds: precision {p:.3} recall {r:.3} ({n} people)");
+    assert!(n > 500, "{n} people");
+    assert!(
+        p >= TEXTURED[0] && r >= TEXTURED[1],
+        "precision {p:.3} recall {r:.3}: under {TEXTURED:?}"
+    );
 }
 
 /// Precision and recall the committed model must reach at its scales, and on the finer frames
-/// (a little under what it measured: 0.944 / 0.933 and 0.921 / 0.822).
-const AT_SCALES: [f64; 2] = [0.91, 0.90];
-const FINER: [f64; 2] = [0.88, 0.78];
+/// and on textured grounds (a little under what it measured: 0.937 / 0.936, 0.928 / 0.822 and
+/// 0.930 / 0.927).
+const AT_SCALES: [f64; 2] = [0.90, 0.90];
+const FINER: [f64; 2] = [0.89, 0.78];
+const TEXTURED: [f64; 2] = [0.90, 0.89];

@@ -34,6 +34,10 @@ pub struct Args {
     /// Ground sample distance range, cm a pixel (drawn log-uniformly between the two)
     #[arg(long, value_name = "MIN,MAX", value_delimiter = ',', default_values_t = [0.4, 3.0])]
     gsd_cm: Vec<f64>,
+    /// The ground's texture range (drawn uniformly): 1 is the simulator's default ground, 4 the
+    /// feature-rich ground of a scene made for structure from motion
+    #[arg(long, value_name = "MIN,MAX", value_delimiter = ',', default_values_t = [0.6, 2.0])]
+    ground_detail: Vec<f64>,
     /// Refuse a request whose files would take more than this, MB (an estimate: JPEG tiles)
     #[arg(long, value_name = "MB", default_value_t = 4096)]
     max_disk_mb: u64,
@@ -89,10 +93,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.gsd_cm
         )));
     }
+    let detail = match args.ground_detail[..] {
+        [lo, hi] if lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi && hi <= 10.0 => {
+            [lo, hi]
+        }
+        _ => {
+            return Err(bad_input(anyhow!(
+                "--ground-detail {:?}: expected two numbers from 0 to 10, the smaller first",
+                args.ground_detail
+            )));
+        }
+    };
     let spec = DatasetSpec {
         size_px: args.size,
         seed: args.seed,
         gsd_m: [lo / 100.0, hi / 100.0],
+        ground_detail: detail,
         ..DatasetSpec::default()
     };
     // Written beside the target, then renamed: never a half-written dataset.
@@ -146,7 +162,7 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
     );
     let mut labels = String::from("tile,x,y,w,h,head_x,head_y,shoulder_px,inside\n");
     let mut tiles = String::from(
-        "tile,file,gsd_m,off_nadir_deg,sun_elevation_deg,ground,people,objects,noise,motion_blur_px,defocus_px,jpeg_quality\n",
+        "tile,file,gsd_m,off_nadir_deg,sun_elevation_deg,ground,people,objects,noise,motion_blur_px,defocus_px,jpeg_quality,ground_detail\n",
     );
     let mut images_hash = Sha256::new();
     let mut people = 0;
@@ -192,7 +208,7 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
             let f = &t.info;
             let _ = writeln!(
                 tiles,
-                "{i},{file},{:.5},{:.2},{},{},{},{},{:.2},{:.2},{:.2},{}",
+                "{i},{file},{:.5},{:.2},{},{},{},{},{:.2},{:.2},{:.2},{},{:.2}",
                 f.gsd_m,
                 f.off_nadir_deg,
                 f.sun_elevation_deg
@@ -203,7 +219,8 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
                 f.noise,
                 f.motion_blur_px,
                 f.defocus_px,
-                f.jpeg_quality
+                f.jpeg_quality,
+                f.ground_detail
             );
             bar.inc(1);
         }

@@ -63,6 +63,10 @@ pub struct Args {
     /// Non-maximum suppression's IoU
     #[arg(long, default_value = "0.45", value_name = "IOU")]
     nms: f64,
+    /// Also suppress a box lying more than this share of its area inside a better one (1:
+    /// never) [default: the model's geostride.nms_contained metadata, else 1]
+    #[arg(long, value_name = "F")]
+    nms_contained: Option<f64>,
     /// Tiles of N pixels for small people (0: the whole frame at once)
     #[arg(long, default_value = "0", value_name = "N")]
     tile: usize,
@@ -101,6 +105,8 @@ struct Summary {
     /// How much the frames were scaled for a model that states the scales it was trained at
     /// (it then sees them at that scale, not fitted to `input_size`).
     frame_scale: Option<f64>,
+    /// The suppression's containment in use (1: none).
+    nms_contained: f64,
     frames: usize,
     boxes: usize,
     mean_per_frame: f64,
@@ -174,6 +180,7 @@ fn settings_of(args: &Args) -> anyhow::Result<NeuralSettings> {
         classes: args.classes.clone(),
         min_score: args.min_score,
         nms_iou: args.nms,
+        nms_contained: args.nms_contained,
         tile: args.tile,
         overlap: args.overlap,
         roi: args.roi.as_ref().map(|r| [r[0], r[1], r[2], r[3]]),
@@ -302,6 +309,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         layout: det.layout().name().into(),
         input_size: det.input_size(),
         frame_scale: det.frame_scale(),
+        nms_contained: det.nms_contained(),
         frames,
         boxes,
         mean_per_frame: boxes as f64 / frames as f64,

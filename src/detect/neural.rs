@@ -33,6 +33,9 @@ pub struct NeuralSettings {
     pub min_score: f64,
     /// Non-maximum suppression's overlap.
     pub nms_iou: f64,
+    /// Also suppressed: a box lying more than this share of its area inside a better one
+    /// [default: the model's `geostride.nms_contained` metadata, else 1: never].
+    pub nms_contained: Option<f64>,
     pub max_boxes: usize,
     /// Tiles of this many pixels (0: the whole frame at once), overlapping by `overlap`; each
     /// tile is fitted to the input, so a tile smaller than the input is enlarged.
@@ -112,6 +115,14 @@ impl NeuralSettings {
                 return Err((key, format!("{v}: expected a fraction from 0 to 1")));
             }
         }
+        if let Some(v) = self.nms_contained
+            && !(v > 0.0 && v <= 1.0)
+        {
+            return Err((
+                "nms_contained",
+                format!("{v}: expected a fraction above 0, up to 1 (1: never)"),
+            ));
+        }
         if !(1..=MAX_BOXES).contains(&self.max_boxes) {
             return Err((
                 "max_boxes",
@@ -172,6 +183,7 @@ impl Default for NeuralSettings {
             classes: vec!["person".into()],
             min_score: 0.3,
             nms_iou: 0.45,
+            nms_contained: None,
             max_boxes: 300,
             tile: 0,
             overlap: 64,
@@ -356,6 +368,9 @@ pub struct NeuralDetector {
     pub settings: NeuralSettings,
     /// The scales the model was trained at, metres a pixel (its `geostride.gsd_m`).
     trained_gsd_m: Option<[f64; 2]>,
+    /// The suppression's containment in use ([`NeuralSettings::nms_contained`], else the
+    /// model's, else 1).
+    nms_contained: f64,
 }
 
 impl NeuralDetector {
@@ -376,6 +391,7 @@ impl NeuralDetector {
             names: self.names.clone(),
             settings: self.settings.clone(),
             trained_gsd_m: self.trained_gsd_m,
+            nms_contained: self.nms_contained,
         })
     }
 
@@ -414,6 +430,21 @@ impl NeuralDetector {
                     crate::io::clip(&t, 60)
                 ))
             })?),
+            None => None,
+        };
+        let own_contained = match model.metadata("geostride.nms_contained") {
+            Some(t) => Some(
+                t.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| *v > 0.0 && *v <= 1.0)
+                    .ok_or_else(|| {
+                        bad(format!(
+                            "its geostride.nms_contained metadata is '{}': expected a fraction above 0, up to 1",
+                            crate::io::clip(&t, 60)
+                        ))
+                    })?,
+            ),
             None => None,
         };
         if let Some(g) = settings.frame_gsd_m
@@ -508,12 +539,20 @@ impl NeuralDetector {
             settings,
         )?;
         d.trained_gsd_m = trained_gsd_m;
+        if settings.nms_contained.is_none() {
+            d.nms_contained = own_contained.unwrap_or(1.0);
+        }
         Ok(d)
     }
 
     /// The scales the model was trained at, metres a pixel (`[finest, coarsest]`), when it says.
     pub fn trained_gsd_m(&self) -> Option<[f64; 2]> {
         self.trained_gsd_m
+    }
+
+    /// The suppression's containment in use (1: none): [`NeuralSettings::nms_contained`].
+    pub fn nms_contained(&self) -> f64 {
+        self.nms_contained
     }
 
     /// How much the frames are scaled before the model sees them, for a model that states the
@@ -573,6 +612,7 @@ impl NeuralDetector {
             names,
             settings: settings.clone(),
             trained_gsd_m: None,
+            nms_contained: settings.nms_contained.unwrap_or(1.0),
         };
         // The layout against the outputs, once, before any frame.
         let outs = d
@@ -745,7 +785,12 @@ impl NeuralDetector {
         } else {
             found.into_iter().flat_map(|(_, b)| b).collect()
         };
-        let mut kept = nms(all, self.settings.nms_iou, self.settings.max_boxes);
+        let mut kept = nms(
+            all,
+            self.settings.nms_iou,
+            self.nms_contained,
+            self.settings.max_boxes,
+        );
         if parts.len() > 1 {
             kept = merge_cut(kept);
         }

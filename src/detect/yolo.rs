@@ -369,9 +369,15 @@ fn yolox_grid(input_wh: [usize; 2]) -> Vec<(f64, f64, f64)> {
 }
 
 /// Greedy non-maximum suppression per class: the best first, then each box overlapping a kept
-/// one of its class by more than `max_iou` is dropped; ties broken by position, so the result
-/// does not depend on the input's order. At most `max_boxes`.
-pub fn nms(mut boxes: Vec<RawBox>, max_iou: f64, max_boxes: usize) -> Vec<RawBox> {
+/// one of its class by more than `max_iou`, or lying more than `max_contained` of the smaller
+/// box's area inside it (1: never), is dropped; ties broken by position, so the result does not
+/// depend on the input's order. At most `max_boxes`.
+pub fn nms(
+    mut boxes: Vec<RawBox>,
+    max_iou: f64,
+    max_contained: f64,
+    max_boxes: usize,
+) -> Vec<RawBox> {
     boxes.sort_by(|a, b| {
         b.score
             .total_cmp(&a.score)
@@ -383,14 +389,25 @@ pub fn nms(mut boxes: Vec<RawBox>, max_iou: f64, max_boxes: usize) -> Vec<RawBox
         if kept.len() >= max_boxes {
             break;
         }
-        if kept
-            .iter()
-            .all(|k| k.class != b.class || iou(&k.xywh, &b.xywh) <= max_iou)
-        {
+        if kept.iter().all(|k| {
+            k.class != b.class
+                || (iou(&k.xywh, &b.xywh) <= max_iou
+                    && (max_contained >= 1.0 || contained(&k.xywh, &b.xywh) <= max_contained))
+        }) {
             kept.push(b);
         }
     }
     kept
+}
+
+/// The share of the smaller box's area that lies inside the other box: 1 for a box inside
+/// another, whatever their IoU (a centre-heatmap model can put a second peak on a large
+/// person's body part, whose box lies inside the whole person's).
+pub fn contained(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+    let iw = ((a[0] + a[2]).min(b[0] + b[2]) - a[0].max(b[0])).max(0.0);
+    let ih = ((a[1] + a[3]).min(b[1] + b[3]) - a[1].max(b[1])).max(0.0);
+    let smaller = (a[2] * a[3]).min(b[2] * b[3]);
+    if smaller > 0.0 { iw * ih / smaller } else { 0.0 }
 }
 
 /// How an image is fitted to the model's input: scale, then padding (left, top), input pixels.
@@ -713,10 +730,31 @@ mod tests {
         let boxes = vec![b(0.0, 0.5), b(1.0, 0.9), b(30.0, 0.4)];
         let mut rev = boxes.clone();
         rev.reverse();
-        let kept = nms(boxes, 0.45, 10);
-        assert_eq!(kept, nms(rev, 0.45, 10));
+        let kept = nms(boxes, 0.45, 1.0, 10);
+        assert_eq!(kept, nms(rev, 0.45, 1.0, 10));
         assert_eq!(kept.len(), 2);
         assert_eq!(kept[0].score, 0.9);
+    }
+
+    #[test]
+    fn a_box_inside_a_better_one_is_dropped_only_when_asked() {
+        let b = |xywh: [f64; 4], s: f64| RawBox {
+            xywh,
+            score: s,
+            class: 0,
+        };
+        // A person's whole box and a part of it (IoU 0.25), and a neighbour touching it.
+        let boxes = vec![
+            b([0.0, 0.0, 20.0, 40.0], 0.8),
+            b([2.0, 2.0, 10.0, 20.0], 0.5),
+            b([18.0, 0.0, 20.0, 40.0], 0.7),
+        ];
+        assert!((contained(&boxes[0].xywh, &boxes[1].xywh) - 1.0).abs() < 1e-12);
+        assert!((contained(&boxes[0].xywh, &boxes[2].xywh) - 0.1).abs() < 1e-12);
+        assert_eq!(nms(boxes.clone(), 0.45, 1.0, 10).len(), 3);
+        let kept = nms(boxes, 0.45, 0.6, 10);
+        assert_eq!(kept.len(), 2);
+        assert_eq!([kept[0].score, kept[1].score], [0.8, 0.7]);
     }
 
     #[test]

@@ -409,6 +409,9 @@ pub struct OnnxSection {
     /// The box threshold (the paper's 0.3).
     pub min_score: f64,
     pub nms_iou: f64,
+    /// Also suppressed: a box lying more than this share of its area inside a better one
+    /// [default: the model's metadata, else 1: never].
+    pub nms_contained: Option<f64>,
     /// At most this many boxes a frame.
     pub max_boxes: usize,
     /// The model runs on every `stride`-th frame only (the trackers bridge the others).
@@ -452,6 +455,7 @@ impl Default for OnnxSection {
             classes: n.classes,
             min_score: n.min_score,
             nms_iou: n.nms_iou,
+            nms_contained: None,
             max_boxes: n.max_boxes,
             stride: 1,
             tile: None,
@@ -926,6 +930,7 @@ impl OnnxSection {
             classes: self.classes.clone(),
             min_score: self.min_score,
             nms_iou: self.nms_iou,
+            nms_contained: self.nms_contained,
             max_boxes: self.max_boxes,
             tile: self.tile.unwrap_or(0),
             overlap: self.overlap,

@@ -31,6 +31,9 @@ pub struct DatasetSpec {
     pub gsd_m: [f64; 2],
     /// The tile centre's view, degrees from straight down (drawn from 0 to this).
     pub max_off_nadir_deg: f64,
+    /// The ground's texture (`World::detail`: 1 the simulator's default, 4 the feature-rich
+    /// ground a scene gives structure from motion), drawn uniformly.
+    pub ground_detail: [f64; 2],
 }
 
 impl Default for DatasetSpec {
@@ -40,6 +43,7 @@ impl Default for DatasetSpec {
             seed: 1,
             gsd_m: [0.004, 0.03],
             max_off_nadir_deg: 40.0,
+            ground_detail: [0.6, 2.0],
         }
     }
 }
@@ -74,6 +78,8 @@ pub struct TileInfo {
     pub defocus_px: f64,
     /// The JPEG quality the tile is to be stored at (its compression is part of the sample).
     pub jpeg_quality: u8,
+    /// The ground's texture ([`DatasetSpec::ground_detail`]).
+    pub ground_detail: f64,
 }
 
 /// A rendered tile: 8-bit RGB, row-major.
@@ -464,6 +470,7 @@ fn props(
     (lo, hi): (Vector2<f64>, Vector2<f64>),
     placed: &[Placed],
     (overcast, sun): (bool, &Vector3<f64>),
+    detail: [f64; 2],
 ) -> (Vec<Body>, usize, World, Vec<Shadow>) {
     let n_objects = rng.random_range(0..=8usize);
     let mut bodies: Vec<Body> = Vec::new();
@@ -484,7 +491,7 @@ fn props(
         })
         .collect();
     let mut world = World::new(ground, &gcps, world_seed);
-    world.detail = uniform(rng, 0.6, 2.0);
+    world.detail = uniform(rng, detail[0], detail[1]);
     let shadows: Vec<Shadow> = if overcast {
         Vec::new()
     } else {
@@ -658,6 +665,7 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
         (lo, hi),
         &placed,
         (overcast, &sun),
+        spec.ground_detail,
     );
     let seed = spec.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
     let (faults, light, jpeg_quality) = draw_faults(&mut rng, seed);
@@ -700,6 +708,7 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
             motion_blur_px: faults.motion_blur_px,
             defocus_px: faults.defocus_px,
             jpeg_quality,
+            ground_detail: world.detail,
         },
     }
 }

@@ -26,6 +26,7 @@ demo: build
 	./target/release/geostride demo --crowd --out out/demo
 	./target/release/geostride demo --crowd --detector onnx --out out/demo
 	./target/release/geostride demo --group --out out/demo
+	./target/release/geostride demo --group --detector onnx --out out/demo
 
 test: bootstrap
 	$(CARGO) test --release --locked
@@ -42,29 +43,37 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench sfm_vs_colmap
 	./scripts/pets-benchmark.sh out/pets-benchmark
 	$(CARGO) bench --locked --bench detect_vs_opencv
+	$(CARGO) bench --locked --bench overhead_detector
 
 # The overhead person detector's recipe (docs/detector.md): tiles from the simulator (training
-# seed 1 at the model's scales, validation seed 2 at them and at all scales), then
-# scripts/train_detector.py on 2 CPU threads with Debian's PyTorch, in two phases (the second
-# from the first's weights at a lower learning rate). Writes out/model/overhead-person.onnx and
-# its report (about 75 minutes on 2 cores).
+# seed 1 at the model's scales, then seed 5 with grounds up to the feature-rich texture scenes
+# give structure from motion; validation seed 2 in 1024-px tiles at the model's scales and at
+# all scales), then scripts/train_detector.py on 2 CPU threads with Debian's PyTorch, in three
+# phases (each from the last one's weights; the second and third at a lower learning rate).
+# Writes out/model/overhead-person.onnx and its report (about 110 minutes on 2 cores).
 PYTHON ?= /usr/bin/python3
 MODEL_TILES ?= 10000
 MODEL_EPOCHS ?= 14
 MODEL_EPOCHS_2 ?= 6
+MODEL_EPOCHS_3 ?= 8
+MODEL_VAL = --val out/model/val --val-all out/model/val-all --batch 16 --threads 2
 model: build
 	rm -rf out/model && mkdir -p out/model
 	./target/release/geostride dataset --out out/model/train --tiles $(MODEL_TILES) --seed 1 --gsd-cm 1.2,3
-	./target/release/geostride dataset --out out/model/val --tiles 600 --seed 2 --gsd-cm 1.2,3
-	./target/release/geostride dataset --out out/model/val-all --tiles 600 --seed 2
-	$(PYTHON) scripts/train_detector.py --train out/model/train --val out/model/val \
-	  --val-all out/model/val-all \
-	  --out out/model/phase1.onnx --epochs $(MODEL_EPOCHS) --batch 16 --threads 2 \
-	  --report out/model/phase1.json
-	$(PYTHON) scripts/train_detector.py --train out/model/train --val out/model/val \
-	  --val-all out/model/val-all --weights out/model/phase1.onnx.pt --lr 5e-4 \
-	  --out out/model/overhead-person.onnx --epochs $(MODEL_EPOCHS_2) --batch 16 --threads 2 \
-	  --report out/model/report.json
+	./target/release/geostride dataset --out out/model/train-textured --tiles $(MODEL_TILES) --seed 5 \
+	  --gsd-cm 1.2,3 --ground-detail 0.6,5
+	./target/release/geostride dataset --out out/model/val --tiles 150 --size 1024 --seed 2 --gsd-cm 1.2,3 \
+	  --ground-detail 0.6,5
+	./target/release/geostride dataset --out out/model/val-all --tiles 150 --size 1024 --seed 2 \
+	  --ground-detail 0.6,5
+	$(PYTHON) scripts/train_detector.py --train out/model/train $(MODEL_VAL) \
+	  --out out/model/phase1.onnx --epochs $(MODEL_EPOCHS) --report out/model/phase1.json
+	$(PYTHON) scripts/train_detector.py --train out/model/train $(MODEL_VAL) \
+	  --weights out/model/phase1.onnx.pt --lr 5e-4 \
+	  --out out/model/phase2.onnx --epochs $(MODEL_EPOCHS_2) --report out/model/phase2.json
+	$(PYTHON) scripts/train_detector.py --train out/model/train-textured $(MODEL_VAL) \
+	  --weights out/model/phase2.onnx.pt --lr 5e-4 \
+	  --out out/model/overhead-person.onnx --epochs $(MODEL_EPOCHS_3) --report out/model/report.json
 
 # The long fuzzing run: 10^6 inputs per parser (about 45 minutes on 2 cores, most of it crs through
 # PROJ), then every command on 200 MB inputs with its peak memory measured. `make test` runs a

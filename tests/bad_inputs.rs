@@ -1056,6 +1056,22 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "dataset-ground-detail-reversed",
+            category: "nonsense accepted",
+            args: args(&["dataset", "--out", "tiles", "--tiles", "2", "--ground-detail", "5,1"]),
+            expect: "the smaller first",
+            place: "--ground-detail",
+            ..Default::default()
+        },
+        Case {
+            id: "demo-onnx-for-the-bridge",
+            category: "nonsense accepted",
+            args: args(&["demo", "--detector", "onnx", "--out", "d"]),
+            expect: "add --crowd or --group",
+            place: "--detector onnx",
+            ..Default::default()
+        },
+        Case {
             id: "dataset-over-an-existing-folder",
             category: "input overwritten",
             files: vec![("tiles/keep.txt", "mine\n".into())],

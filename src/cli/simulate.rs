@@ -31,6 +31,9 @@ pub struct Args {
     /// Skip the video (truth and exports only)
     #[arg(long)]
     no_video: bool,
+    /// The people without hats, whatever the scene says (for a detector that needs none)
+    #[arg(long)]
+    no_hats: bool,
     /// Put the site in this CRS (EPSG code, PROJ string or WKT) at the same place: the scene's
     /// origin is converted with PROJ
     #[arg(long, value_name = "CRS")]
@@ -118,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         no_video: args.no_video,
         frames_every: args.frames_every,
         site_crs: args.crs,
+        no_hats: args.no_hats,
     };
     let s = run_scene(&args.scene, &args.out, &over, args.quiet)?;
     print_summary(&s);

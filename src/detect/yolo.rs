@@ -407,7 +407,11 @@ pub fn contained(a: &[f64; 4], b: &[f64; 4]) -> f64 {
     let iw = ((a[0] + a[2]).min(b[0] + b[2]) - a[0].max(b[0])).max(0.0);
     let ih = ((a[1] + a[3]).min(b[1] + b[3]) - a[1].max(b[1])).max(0.0);
     let smaller = (a[2] * a[3]).min(b[2] * b[3]);
-    if smaller > 0.0 { iw * ih / smaller } else { 0.0 }
+    if smaller > 0.0 {
+        iw * ih / smaller
+    } else {
+        0.0
+    }
 }
 
 /// How an image is fitted to the model's input: scale, then padding (left, top), input pixels.

@@ -30,6 +30,9 @@ pub struct Overrides {
     pub frames_every: Option<u32>,
     /// The site in this CRS instead of the scene's, at the same place (`--crs`).
     pub site_crs: Option<String>,
+    /// The people without hats whatever the scene says (`--no-hats`: for a detector that
+    /// needs none).
+    pub no_hats: bool,
 }
 
 /// The same site in another CRS: its origin converted with PROJ, the ellipsoidal height with it
@@ -187,6 +190,19 @@ pub fn simulate(
     over: &Overrides,
     progress: &dyn Progress,
 ) -> Result<Summary, SimError> {
+    let bare;
+    let scene = if over.no_hats && scene.people.hats {
+        bare = Scene {
+            people: crate::simulate::scene::PeopleSpec {
+                hats: false,
+                ..scene.people.clone()
+            },
+            ..scene.clone()
+        };
+        &bare
+    } else {
+        scene
+    };
     let seed = over.seed.unwrap_or(scene.seed);
     let frames_every = over.frames_every.unwrap_or(scene.output.frames_every);
     let duration = over.duration_s.unwrap_or(scene.duration_s);

@@ -704,23 +704,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The output folder before any work: not a file, not holding or inside the survey.
     let survey: Vec<&std::path::Path> = args.survey.iter().map(PathBuf::as_path).collect();
     super::check_output_dir(&args.out, survey)?;
-    if args.detector == "onnx" && !args.crowd && !args.group {
-        return Err(super::bad_input(anyhow!(
+    let onnx = args.detector == "onnx";
+    match (args.crowd, args.group, onnx) {
+        (false, false, true) => Err(super::bad_input(anyhow!(
             "--detector onnx: only the crowd and the group demos take it (add --crowd or --group)"
-        )));
+        ))),
+        (true, _, true) => crowd_onnx::run_crowd_onnx(args),
+        (true, _, false) => run_crowd(args),
+        (_, true, true) => group::run_group_onnx(args),
+        (_, true, false) => group::run_group(args),
+        (false, false, false) => run_bridge(args),
     }
-    if args.crowd && args.detector == "onnx" {
-        return crowd_onnx::run_crowd_onnx(args);
-    }
-    if args.crowd {
-        return run_crowd(args);
-    }
-    if args.group && args.detector == "onnx" {
-        return group::run_group_onnx(args);
-    }
-    if args.group {
-        return group::run_group(args);
-    }
+}
+
+/// The default demo: the footbridge with a hovering camera.
+fn run_bridge(args: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let json = args.json;
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/bridge-stream")?;

@@ -21,6 +21,17 @@ use crate::survey::crs::{Crs, HeightKind, Horizontal};
 use crate::survey::model::{Gcp, SolutionStatus};
 use crate::survey::write::{OutCrs, OutPoint, emlid};
 
+/// The scene with what the overrides change in it (the people without hats).
+fn as_asked<'a>(scene: &'a Scene, over: &Overrides) -> std::borrow::Cow<'a, Scene> {
+    if over.no_hats && scene.people.hats {
+        let mut bare = scene.clone();
+        bare.people.hats = false;
+        std::borrow::Cow::Owned(bare)
+    } else {
+        std::borrow::Cow::Borrowed(scene)
+    }
+}
+
 /// Overrides from the command line.
 #[derive(Clone, Debug, Default)]
 pub struct Overrides {
@@ -190,19 +201,7 @@ pub fn simulate(
     over: &Overrides,
     progress: &dyn Progress,
 ) -> Result<Summary, SimError> {
-    let bare;
-    let scene = if over.no_hats && scene.people.hats {
-        bare = Scene {
-            people: crate::simulate::scene::PeopleSpec {
-                hats: false,
-                ..scene.people.clone()
-            },
-            ..scene.clone()
-        };
-        &bare
-    } else {
-        scene
-    };
+    let scene = &as_asked(scene, over);
     let seed = over.seed.unwrap_or(scene.seed);
     let frames_every = over.frames_every.unwrap_or(scene.output.frames_every);
     let duration = over.duration_s.unwrap_or(scene.duration_s);

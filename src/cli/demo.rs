@@ -490,6 +490,17 @@ struct HeightRuns {
     ignored: Vec<Sample>,
 }
 
+/// The detections a run's scan stage kept (0 when it says none).
+fn scan_detections(report: &RunReport) -> f64 {
+    report
+        .stages
+        .iter()
+        .find(|s| s.name == "scan")
+        .and_then(|s| s.counts.get("detections"))
+        .copied()
+        .unwrap_or(0.0)
+}
+
 /// Writes a scene's project file, its header saying what it is.
 fn write_project(path: &Path, project: &Project, what: &str) -> anyhow::Result<()> {
     let comment = format!(

@@ -53,13 +53,7 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
         accuracy: "accuracy-onnx-paper-model.csv",
     }
     .run(&args, &project, &truth, &ignored)?;
-    let detections = report
-        .stages
-        .iter()
-        .find(|s| s.name == "scan")
-        .and_then(|s| s.counts.get("detections"))
-        .copied()
-        .unwrap_or(0.0);
+    let detections = scan_detections(&report);
     // This detector's own error model, from heads marked in a few frames, as for the boxes.
     let error_fit = fit_detector_error(json, &scene, &dir, &dir.join("run-onnx-paper-model"))?;
     let mut fitted = detector.clone();

@@ -79,6 +79,30 @@ fn runners_every_frame(truth: &[Sample], matches: &[(Sample, Sample)]) -> (usize
     (full, frames.len())
 }
 
+/// Runners of `truth` matched in every in-view frame by `DIR/run/trajectories.csv`, and how many
+/// runners were in view.
+fn runners_tracked_throughout(
+    dir: &Path,
+    truth: &[Sample],
+    ignored: &[Sample],
+) -> anyhow::Result<(usize, usize)> {
+    let tracks = track_samples(&dir.join("run/trajectories.csv"))?;
+    let (_, matches) = evaluate_matches(truth, &tracks, ignored, 0.5);
+    Ok(runners_every_frame(truth, &matches))
+}
+
+/// The group demo's scene: any camera, but a survey flight to build the reference model from.
+fn group_scene(args: &Args) -> anyhow::Result<(Scene, PathBuf, PathBuf)> {
+    let (scene, scene_path, dir) = any_scene(args, "surveys/track-group")?;
+    if scene.survey_flight.is_none() {
+        return Err(super::super::bad_input(anyhow!(
+            "{}: the group demo needs a [survey_flight] (the photos its reference model is built from)",
+            scene_path.display()
+        )));
+    }
+    Ok((scene, scene_path, dir))
+}
+
 /// The run's camera against the truth, frame by frame.
 fn frames_check(dir: &Path, report: &RunReport) -> anyhow::Result<FramesCheck> {
     let truth = read_poses(&dir.join("truth/camera.csv")).map_err(|e| anyhow!(e))?;
@@ -263,13 +287,7 @@ fn group_checks(
 pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let json = args.json;
-    let (scene, scene_path, dir) = any_scene(&args, "surveys/track-group")?;
-    if scene.survey_flight.is_none() {
-        return Err(super::super::bad_input(anyhow!(
-            "{}: the group demo needs a [survey_flight] (the photos its reference model is built from)",
-            scene_path.display()
-        )));
-    }
+    let (scene, scene_path, dir) = group_scene(&args)?;
 
     // 1. Simulate.
     let sim = simulate_step(&args, "geostride demo --group", &scene, &scene_path, &dir)?;
@@ -308,13 +326,7 @@ pub(super) fn run_group(args: Args) -> anyhow::Result<()> {
     let [known_cons, default_cons] = runs.cons;
     let (report, truth, ignored) = (runs.report, runs.truth, runs.ignored);
     let pose = frames_check(&dir, &report)?;
-    let (_, matches) = evaluate_matches(
-        &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
-        &ignored,
-        0.5,
-    );
-    let (full, runners) = runners_every_frame(&truth, &matches);
+    let (full, runners) = runners_tracked_throughout(&dir, &truth, &ignored)?;
 
     // 6. The accuracy table.
     let [known_check, default_check] =
@@ -397,18 +409,12 @@ pub(super) fn run_group_onnx(args: Args) -> anyhow::Result<()> {
     use geostride::pipeline::settings::{OnnxSection, TrackSection};
     let started = std::time::Instant::now();
     let json = args.json;
-    let (scene, scene_path, dir) = any_scene(&args, "surveys/track-group")?;
+    let (scene, scene_path, dir) = group_scene(&args)?;
     // Beside the hat demo's folder, not over it.
     let dir = dir.with_file_name(format!(
         "{}-onnx",
         dir.file_name().unwrap_or_default().to_string_lossy()
     ));
-    if scene.survey_flight.is_none() {
-        return Err(super::super::bad_input(anyhow!(
-            "{}: the group demo needs a [survey_flight] (the photos its reference model is built from)",
-            scene_path.display()
-        )));
-    }
     let sim = simulate_step(
         &args,
         "geostride demo --group --detector onnx (the runners without hats)",
@@ -433,21 +439,9 @@ pub(super) fn run_group_onnx(args: Args) -> anyhow::Result<()> {
         accuracy: "accuracy-default.csv",
     }
     .run(&args, &project, &truth, &ignored)?;
-    let detections = report
-        .stages
-        .iter()
-        .find(|s| s.name == "scan")
-        .and_then(|s| s.counts.get("detections"))
-        .copied()
-        .unwrap_or(0.0);
+    let detections = scan_detections(&report);
     let pose = frames_check(&dir, &report)?;
-    let (_, matches) = evaluate_matches(
-        &truth,
-        &track_samples(&dir.join("run/trajectories.csv"))?,
-        &ignored,
-        0.5,
-    );
-    let (full, runners) = runners_every_frame(&truth, &matches);
+    let (full, runners) = runners_tracked_throughout(&dir, &truth, &ignored)?;
     say!(
         json,
         "\n5. Against the truth ({} runners, {} frames; {detections:.0} detections kept; matches within 0.5 m):",

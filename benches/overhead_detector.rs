@@ -25,7 +25,7 @@ fn frame(width: usize, height: usize, gsd_m: f64) -> (Vec<u8>, usize) {
         gsd_m: [gsd_m, gsd_m],
         ..DatasetSpec::default()
     };
-    let tile = render_tile(&spec, 0);
+    let tile = render_tile(&spec, 0, &[]);
     let mut bgr = vec![0u8; width * height * 3];
     for (o, i) in bgr.chunks_exact_mut(3).zip(tile.rgb.chunks_exact(3)) {
         o.copy_from_slice(&[i[2], i[1], i[0]]);

@@ -67,3 +67,47 @@ fn a_dataset_is_its_seed_in_any_parts_with_labels_for_every_tile() {
     // No unfinished folder is left behind.
     assert!(!tmp.path().join("whole.partial").exists());
 }
+
+#[test]
+fn backdrop_photos_lie_under_the_share_of_tiles_asked_and_are_recorded() {
+    let tmp = tempfile::tempdir().unwrap();
+    let plain = tmp.path().join("plain");
+    dataset(&plain, &["--tiles", "1"]);
+    // A rendered tile stands in for a photo: any image OpenCV reads will do.
+    let photo = plain.join("images/0000000.jpg");
+    let photo_arg = photo.to_str().unwrap();
+    let on = tmp.path().join("on");
+    dataset(
+        &on,
+        &[
+            "--tiles",
+            "4",
+            "--backdrops",
+            photo_arg,
+            "--backdrop-gsd-cm",
+            "1.5",
+            "--backdrop-share",
+            "1",
+        ],
+    );
+    for t in common::read_csv(&on.join("tiles.csv")) {
+        assert_eq!(t["ground"], "backdrop");
+        assert_eq!(t["backdrop"], "0000000.jpg");
+    }
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(on.join("dataset.json")).unwrap()).unwrap();
+    let b = &meta["backdrops"][0];
+    assert_eq!(b["file"], "0000000.jpg");
+    assert!((b["gsd_m"].as_f64().unwrap() - 0.015).abs() < 1e-12);
+    assert_eq!(b["sha256"].as_str().unwrap().len(), 64);
+    // Photos without their scale are refused before anything is written.
+    let refused = tmp.path().join("refused");
+    let o = common::geostride()
+        .args(["dataset", "--tiles", "2", "--backdrops", photo_arg, "--out"])
+        .arg(&refused)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--backdrop-gsd-cm"));
+    assert!(!refused.exists());
+}

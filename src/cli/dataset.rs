@@ -9,6 +9,9 @@ use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
 use super::bad_input;
+use std::sync::Arc;
+
+use geostride::simulate::backdrop::Backdrop;
 use geostride::simulate::dataset::{DatasetSpec, Tile, render_tile};
 
 #[derive(clap::Args)]
@@ -38,6 +41,15 @@ pub struct Args {
     /// feature-rich ground of a scene made for structure from motion
     #[arg(long, value_name = "MIN,MAX", value_delimiter = ',', default_values_t = [0.6, 2.0])]
     ground_detail: Vec<f64>,
+    /// Real nadir photos of the ground (no people in them) to lay under some tiles, comma-separated
+    #[arg(long, value_name = "FILE,...", value_delimiter = ',')]
+    backdrops: Vec<PathBuf>,
+    /// The backdrops' ground sample distance, cm a pixel
+    #[arg(long, value_name = "CM")]
+    backdrop_gsd_cm: Option<f64>,
+    /// The share of tiles laid on a backdrop
+    #[arg(long, value_name = "F", default_value_t = 0.5)]
+    backdrop_share: f64,
     /// Refuse a request whose files would take more than this, MB (an estimate: JPEG tiles)
     #[arg(long, value_name = "MB", default_value_t = 4096)]
     max_disk_mb: u64,
@@ -104,11 +116,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             )));
         }
     };
+    let backdrops = read_backdrops(&args)?;
     let spec = DatasetSpec {
         size_px: args.size,
         seed: args.seed,
         gsd_m: [lo / 100.0, hi / 100.0],
         ground_detail: detail,
+        backdrop_share: if backdrops.is_empty() {
+            0.0
+        } else {
+            args.backdrop_share
+        },
         ..DatasetSpec::default()
     };
     // Written beside the target, then renamed: never a half-written dataset.
@@ -129,7 +147,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(partial.join("images"))
         .with_context(|| format!("{}: cannot create", partial.display()))?;
-    let summary = match write_tiles(&args, &spec, &partial) {
+    let summary = match write_tiles(&args, &spec, &backdrops, &partial) {
         Ok(n) => n,
         Err(e) => {
             let _ = std::fs::remove_dir_all(&partial);
@@ -154,7 +172,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// Renders and writes the tiles; the number of people labelled.
-fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<usize> {
+fn write_tiles(
+    args: &Args,
+    spec: &DatasetSpec,
+    backdrops: &[(Arc<Backdrop>, String)],
+    dir: &Path,
+) -> anyhow::Result<usize> {
+    let photos: Vec<Arc<Backdrop>> = backdrops.iter().map(|(b, _)| b.clone()).collect();
     let bar = super::progress_bar(
         args.quiet,
         args.tiles,
@@ -162,7 +186,7 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
     );
     let mut labels = String::from("tile,x,y,w,h,head_x,head_y,shoulder_px,inside\n");
     let mut tiles = String::from(
-        "tile,file,gsd_m,off_nadir_deg,sun_elevation_deg,ground,people,objects,noise,motion_blur_px,defocus_px,jpeg_quality,ground_detail\n",
+        "tile,file,gsd_m,off_nadir_deg,sun_elevation_deg,ground,people,objects,noise,motion_blur_px,defocus_px,jpeg_quality,ground_detail,backdrop\n",
     );
     let mut images_hash = Sha256::new();
     let mut people = 0;
@@ -173,7 +197,7 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
         let rendered: Vec<anyhow::Result<(u64, Tile, Vec<u8>)>> = (start..stop)
             .into_par_iter()
             .map(|i| {
-                let t = render_tile(spec, i);
+                let t = render_tile(spec, i, &photos);
                 let jpeg = geostride::imageio::encode_rgb_jpeg(
                     spec.size_px,
                     spec.size_px,
@@ -208,7 +232,7 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
             let f = &t.info;
             let _ = writeln!(
                 tiles,
-                "{i},{file},{:.5},{:.2},{},{},{},{},{:.2},{:.2},{:.2},{},{:.2}",
+                "{i},{file},{:.5},{:.2},{},{},{},{},{:.2},{:.2},{:.2},{},{:.2},{}",
                 f.gsd_m,
                 f.off_nadir_deg,
                 f.sun_elevation_deg
@@ -220,7 +244,8 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
                 f.motion_blur_px,
                 f.defocus_px,
                 f.jpeg_quality,
-                f.ground_detail
+                f.ground_detail,
+                f.backdrop.as_deref().unwrap_or("")
             );
             bar.inc(1);
         }
@@ -245,6 +270,9 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
         "tiles": args.tiles,
         "people": people,
         "sha256": hex(&all.finalize()),
+        "backdrops": backdrops.iter().map(|(b, sha)| serde_json::json!({
+            "file": b.name, "gsd_m": b.gsd_m, "sha256": sha,
+        })).collect::<Vec<_>>(),
         "files": {"labels": "labels.csv", "tiles": "tiles.csv", "images": "images/"},
         "label_columns": {
             "x,y,w,h": "the silhouette's box, pixels, clipped to the tile",
@@ -262,4 +290,56 @@ fn write_tiles(args: &Args, spec: &DatasetSpec, dir: &Path) -> anyhow::Result<us
         std::fs::write(&p, text).with_context(|| format!("{}: cannot write", p.display()))?;
     }
     Ok(people)
+}
+
+/// The backdrop photos, read whole, each with its file's SHA-256 (the dataset's record of what
+/// it was made from).
+fn read_backdrops(args: &Args) -> anyhow::Result<Vec<(Arc<Backdrop>, String)>> {
+    if args.backdrops.is_empty() {
+        if args.backdrop_gsd_cm.is_some() {
+            return Err(bad_input(anyhow!(
+                "--backdrop-gsd-cm without --backdrops: give the photos too, or leave it out"
+            )));
+        }
+        return Ok(Vec::new());
+    }
+    let gsd_cm = args.backdrop_gsd_cm.ok_or_else(|| {
+        bad_input(anyhow!(
+            "--backdrops needs --backdrop-gsd-cm: the photos' ground sample distance, cm a \
+             pixel (flight height x sensor width / focal length / image width)"
+        ))
+    })?;
+    if !(gsd_cm.is_finite() && (0.05..=20.0).contains(&gsd_cm)) {
+        return Err(bad_input(anyhow!(
+            "--backdrop-gsd-cm {gsd_cm}: expected 0.05 to 20 cm a pixel"
+        )));
+    }
+    if !(0.0..=1.0).contains(&args.backdrop_share) {
+        return Err(bad_input(anyhow!(
+            "--backdrop-share {}: expected a share from 0 to 1",
+            args.backdrop_share
+        )));
+    }
+    args.backdrops
+        .iter()
+        .map(|path| {
+            let (bgr, w, h) = geostride::imageio::read_bgr_bytes(path)
+                .map_err(|e| bad_input(anyhow!("--backdrops: {e}")))?;
+            let rgb: Vec<u8> = bgr.chunks(3).flat_map(|p| [p[2], p[1], p[0]]).collect();
+            let name = path
+                .file_name()
+                .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into());
+            let photo = Backdrop::new(name, w, h, rgb, gsd_cm / 100.0)
+                .map_err(|e| bad_input(anyhow!("--backdrops: {e}")))?;
+            let bytes =
+                std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+            let sha = Sha256::digest(&bytes)
+                .iter()
+                .fold(String::new(), |mut s, b| {
+                    let _ = write!(s, "{b:02x}");
+                    s
+                });
+            Ok((Arc::new(photo), sha))
+        })
+        .collect()
 }

@@ -11,10 +11,13 @@
 //! dataset is the same on any machine and with any number of threads, and any range of it can
 //! be rendered alone.
 
+use std::sync::Arc;
+
 use nalgebra::{Matrix3, Vector2, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::backdrop::{Backdrop, BackdropView};
 use super::people::{Body, BodyStyle, Ellipsoid, HEAD_RADIUS_M, Pose};
 use super::render::{CameraPose, FrameInput, RenderSettings, Renderer, Shadow};
 use super::scene::{GcpSpec, Ground};
@@ -34,6 +37,8 @@ pub struct DatasetSpec {
     /// The ground's texture (`World::detail`: 1 the simulator's default, 4 the feature-rich
     /// ground a scene gives structure from motion), drawn uniformly.
     pub ground_detail: [f64; 2],
+    /// The share of tiles laid on a real photo (when backdrops are given).
+    pub backdrop_share: f64,
 }
 
 impl Default for DatasetSpec {
@@ -44,6 +49,7 @@ impl Default for DatasetSpec {
             gsd_m: [0.004, 0.03],
             max_off_nadir_deg: 40.0,
             ground_detail: [0.6, 2.0],
+            backdrop_share: 0.0,
         }
     }
 }
@@ -80,6 +86,8 @@ pub struct TileInfo {
     pub jpeg_quality: u8,
     /// The ground's texture ([`DatasetSpec::ground_detail`]).
     pub ground_detail: f64,
+    /// The photo the ground shows, if any ([`render_tile`]'s backdrops).
+    pub backdrop: Option<String>,
 }
 
 /// A rendered tile: 8-bit RGB, row-major.
@@ -618,8 +626,50 @@ fn label(
     labels
 }
 
-/// Renders tile `index` of the dataset `spec`.
-pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
+/// Lays one of the photos, or none, under a tile looking at `target` over the ground box
+/// `lo`–`hi`, from the tile's own stream (apart from the main one, so that a dataset without
+/// backdrops is the same as before they existed).
+fn pick_backdrop(
+    spec: &DatasetSpec,
+    index: u64,
+    backdrops: &[Arc<Backdrop>],
+    target: &Vector3<f64>,
+    (lo, hi): (Vector2<f64>, Vector2<f64>),
+    sun: &Vector3<f64>,
+) -> Option<BackdropView> {
+    if backdrops.is_empty() {
+        return None;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed ^ 0xBAC4_D50F);
+    rng.set_stream(index);
+    if rng.random::<f64>() >= spec.backdrop_share {
+        return None;
+    }
+    let image = backdrops[rng.random_range(0..backdrops.len())].clone();
+    // The footprint's reach from the target, photo pixels: the photo covers the tile where it can.
+    let reach = (lo - target.xy()).abs().sup(&(hi - target.xy()).abs()).norm() / image.gsd_m;
+    let mut centre = |n: usize| {
+        let n = n as f64;
+        if 2.0 * reach < n {
+            uniform(&mut rng, reach, n - reach)
+        } else {
+            n / 2.0
+        }
+    };
+    let centre_px = [centre(image.width), centre(image.height)];
+    Some(BackdropView {
+        image,
+        origin_en: target.xy(),
+        centre_px,
+        turn_rad: uniform(&mut rng, 0.0, std::f64::consts::TAU),
+        mirror: rng.random::<bool>(),
+        gain: (1.0 / (0.45 + 0.55 * sun.z.max(0.0))) as f32,
+    })
+}
+
+/// Renders tile `index` of the dataset `spec`, some tiles (`spec.backdrop_share`) on one of
+/// the `backdrops`.
+pub fn render_tile(spec: &DatasetSpec, index: u64, backdrops: &[Arc<Backdrop>]) -> Tile {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     rng.set_stream(index);
     let size = spec.size_px;
@@ -658,7 +708,7 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
     let (lo, hi) = footprint(&camera, &pose, size, target.z, 1.5);
     let feet = place_feet(&mut rng, &lo, &hi);
     let placed = dress(&mut rng, &feet, &world0);
-    let (mut bodies, objects, world, shadows) = props(
+    let (mut bodies, objects, mut world, shadows) = props(
         &mut rng,
         (&ground, world_seed, &world0),
         &feet,
@@ -669,6 +719,7 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
     );
     let seed = spec.seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
     let (faults, light, jpeg_quality) = draw_faults(&mut rng, seed);
+    world.backdrop = pick_backdrop(spec, index, backdrops, &target, (lo, hi), &sun);
 
     let settings = RenderSettings {
         texel_m: (0.7 * gsd_m).clamp(0.003, 0.05),
@@ -701,7 +752,11 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
             gsd_m,
             off_nadir_deg,
             sun_elevation_deg,
-            ground: ground_name,
+            ground: if world.backdrop.is_some() {
+                "backdrop"
+            } else {
+                ground_name
+            },
             people: placed.len(),
             objects,
             noise: faults.noise,
@@ -709,6 +764,7 @@ pub fn render_tile(spec: &DatasetSpec, index: u64) -> Tile {
             defocus_px: faults.defocus_px,
             jpeg_quality,
             ground_detail: world.detail,
+            backdrop: world.backdrop.as_ref().map(|b| b.image.name.clone()),
         },
     }
 }
@@ -804,9 +860,9 @@ mod tests {
             size_px: 96,
             ..DatasetSpec::default()
         };
-        let a = render_tile(&spec, 7);
-        let b = render_tile(&spec, 7);
-        let c = render_tile(&spec, 8);
+        let a = render_tile(&spec, 7, &[]);
+        let b = render_tile(&spec, 7, &[]);
+        let c = render_tile(&spec, 8, &[]);
         assert_eq!(a.rgb, b.rgb);
         assert_eq!(a.labels, b.labels);
         assert_ne!(a.rgb, c.rgb);
@@ -821,7 +877,7 @@ mod tests {
         };
         let mut people = 0;
         for i in 0..40 {
-            let t = render_tile(&spec, i);
+            let t = render_tile(&spec, i, &[]);
             assert!(t.info.gsd_m >= 0.004 && t.info.gsd_m <= 0.03);
             assert!(t.info.off_nadir_deg <= 40.0);
             for l in &t.labels {
@@ -844,5 +900,47 @@ mod tests {
             }
         }
         assert!(people > 40, "{people} people in 40 tiles");
+    }
+
+    #[test]
+    fn a_backdrop_tile_shows_the_photo_and_the_others_are_unchanged() {
+        // A magenta photo: no simulated ground or person is that colour.
+        let (w, h) = (200, 150);
+        let rgb: Vec<u8> = (0..w * h).flat_map(|_| [200u8, 40, 190]).collect();
+        let photo = Arc::new(Backdrop::new("magenta.jpg".into(), w, h, rgb, 0.02).unwrap());
+        let plain = DatasetSpec {
+            size_px: 96,
+            ..DatasetSpec::default()
+        };
+        let spec = DatasetSpec {
+            backdrop_share: 0.5,
+            ..plain.clone()
+        };
+        let mut on_photo = 0;
+        for i in 0..12 {
+            let t = render_tile(&spec, i, std::slice::from_ref(&photo));
+            let magenta = t
+                .rgb
+                .chunks(3)
+                .filter(|p| p[0] > 100 && p[1] < 90 && p[2] > 100 && p[0].abs_diff(p[2]) < 60)
+                .count();
+            let share = magenta as f64 / (96.0 * 96.0);
+            match &t.info.backdrop {
+                Some(name) => {
+                    on_photo += 1;
+                    assert_eq!(name, "magenta.jpg");
+                    assert_eq!(t.info.ground, "backdrop");
+                    assert!(share > 0.3, "tile {i}: {share} magenta");
+                }
+                None => {
+                    assert!(share < 0.01, "tile {i}: {share} magenta");
+                    // The main stream is untouched: the same tile as without backdrops.
+                    assert_eq!(t.rgb, render_tile(&plain, i, &[]).rgb);
+                }
+            }
+            // People are labelled on the photo as anywhere.
+            assert_eq!(t.labels, render_tile(&plain, i, &[]).labels);
+        }
+        assert!((2..=10).contains(&on_photo), "{on_photo} of 12 on the photo");
     }
 }

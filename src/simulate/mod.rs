@@ -1,5 +1,6 @@
 //! Synthetic scenes with exact ground truth (pure), and survey planning.
 
+pub mod backdrop;
 pub mod board;
 pub mod dataset;
 pub mod flight;

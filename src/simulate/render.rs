@@ -302,7 +302,9 @@ impl<'w> Renderer<'w> {
         let Some((p, layer)) = self.world.intersect(origin, dir) else {
             return [0.5, 0.6, 0.75];
         };
+        // A photo backdrop is sampled directly: 8-bit linear texels would band its shade.
         let tex = match layer {
+            _ if self.world.backdrop.is_some() => None,
             Layer::Deck => self.deck.as_ref(),
             Layer::Ground => Some(&self.ground),
         };

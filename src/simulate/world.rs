@@ -26,6 +26,8 @@ pub struct World {
     seed: u64,
     /// Contrast of the fine texture (1 the default).
     pub detail: f64,
+    /// A real photo in place of the procedural colours (training tiles only).
+    pub backdrop: Option<super::backdrop::BackdropView>,
     /// Unit vector along the deck or the track's straights, and its left normal.
     along: Vector2<f64>,
     left: Vector2<f64>,
@@ -60,6 +62,7 @@ impl World {
             gcps: Vec::new(),
             seed,
             detail: 1.0,
+            backdrop: None,
             along,
             left: Vector2::new(-along.y, along.x),
             centre,
@@ -275,6 +278,9 @@ impl World {
         let en = p.xy();
         if let Some(c) = self.gcp_colour(&en) {
             return c;
+        }
+        if let Some(b) = &self.backdrop {
+            return b.albedo(&en);
         }
         let (x, y) = (p.x, p.y);
         let d = self.detail as f32;

@@ -16,6 +16,7 @@ const ADAPTERS: &[&str] = &[
     "calibration/oracle.rs",
     "camera/formats/mod.rs",
     "detect/background.rs",
+    "detect/motion.rs",
     "detect/onnx.rs",
     "detect/opencv_dnn.rs",
     "export/gis.rs",

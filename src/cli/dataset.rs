@@ -326,9 +326,10 @@ fn read_backdrops(args: &Args) -> anyhow::Result<Vec<(Arc<Backdrop>, String)>> {
             let (bgr, w, h) = geostride::imageio::read_bgr_bytes(path)
                 .map_err(|e| bad_input(anyhow!("--backdrops: {e}")))?;
             let rgb: Vec<u8> = bgr.chunks(3).flat_map(|p| [p[2], p[1], p[0]]).collect();
-            let name = path
-                .file_name()
-                .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into());
+            let name = path.file_name().map_or_else(
+                || path.display().to_string(),
+                |n| n.to_string_lossy().into(),
+            );
             let photo = Backdrop::new(name, w, h, rgb, gsd_cm / 100.0)
                 .map_err(|e| bad_input(anyhow!("--backdrops: {e}")))?;
             let bytes =

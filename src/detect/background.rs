@@ -174,8 +174,111 @@ struct Geometry {
     /// Frame pixels per working pixel (a whole number), and the working size.
     factor: i32,
     work: Size,
+    blobs: BlobFinder,
+}
+
+/// People-sized blobs of a working-resolution mask: opened (specks go), closed (a person's
+/// parts join), cut into connected components, those of a person's area on the ground kept as
+/// detections in the frame's own pixels. Shared by the background and the motion detectors.
+pub(crate) struct BlobFinder {
+    factor: i32,
     open: Option<Mat>,
     close: Option<Mat>,
+    px_per_m: f64,
+    area_m2: [f64; 2],
+    centroid_sigma_px: f64,
+    scratch: Mat,
+    labels: Mat,
+    stats: Mat,
+    centroids: Mat,
+    pub kept: usize,
+    pub too_small: usize,
+    pub too_large: usize,
+}
+
+impl BlobFinder {
+    /// `factor` frame pixels a working pixel; kernels and limits as [`BackgroundSettings`]'s.
+    pub(crate) fn new(
+        factor: i32,
+        (open_px, close_px): (i32, i32),
+        px_per_m: f64,
+        area_m2: [f64; 2],
+        centroid_sigma_px: f64,
+    ) -> Result<BlobFinder, String> {
+        Ok(BlobFinder {
+            factor,
+            open: kernel(open_px, factor)?,
+            close: kernel(close_px, factor)?,
+            px_per_m,
+            area_m2,
+            centroid_sigma_px,
+            scratch: Mat::default(),
+            labels: Mat::default(),
+            stats: Mat::default(),
+            centroids: Mat::default(),
+            kept: 0,
+            too_small: 0,
+            too_large: 0,
+        })
+    }
+
+    /// The blobs of a binary mask (255 foreground), which the morphology changes in place.
+    pub(crate) fn find(&mut self, mask: &mut Mat) -> Result<Vec<Detection>, String> {
+        for (op, k) in [
+            (imgproc::MORPH_OPEN, &self.open),
+            (imgproc::MORPH_CLOSE, &self.close),
+        ] {
+            if let Some(k) = k {
+                imgproc::morphology_ex_def(&*mask, &mut self.scratch, op, k).map_err(e)?;
+                std::mem::swap(mask, &mut self.scratch);
+            }
+        }
+        let n = imgproc::connected_components_with_stats(
+            &*mask,
+            &mut self.labels,
+            &mut self.stats,
+            &mut self.centroids,
+            8,
+            CV_32S,
+        )
+        .map_err(e)?;
+        let f = f64::from(self.factor);
+        let m2_per_px = 1.0 / (self.px_per_m * self.px_per_m);
+        let cov = Matrix2::identity() * (self.centroid_sigma_px * self.centroid_sigma_px);
+        let full = |x: f64| (x + 0.5) * f - 0.5;
+        let mut out = Vec::new();
+        // Label 0 is the background.
+        for i in 1..n {
+            let stat = |c: i32| self.stats.at_2d::<i32>(i, c).copied().map_err(e);
+            let area_px = f64::from(stat(imgproc::CC_STAT_AREA)?) * f * f;
+            let area_m2 = area_px * m2_per_px;
+            if area_m2 < self.area_m2[0] {
+                self.too_small += 1;
+                continue;
+            }
+            if area_m2 > self.area_m2[1] {
+                self.too_large += 1;
+                continue;
+            }
+            self.kept += 1;
+            let cx = *self.centroids.at_2d::<f64>(i, 0).map_err(e)?;
+            let cy = *self.centroids.at_2d::<f64>(i, 1).map_err(e)?;
+            out.push(Detection {
+                uv: Vector2::new(full(cx), full(cy)),
+                cov,
+                // Edges: the left edge of working pixel x is frame coordinate x·f − ½.
+                bbox: [
+                    f64::from(stat(imgproc::CC_STAT_LEFT)?) * f - 0.5,
+                    f64::from(stat(imgproc::CC_STAT_TOP)?) * f - 0.5,
+                    f64::from(stat(imgproc::CC_STAT_WIDTH)?) * f,
+                    f64::from(stat(imgproc::CC_STAT_HEIGHT)?) * f,
+                ],
+                area_px,
+                score: 1.0,
+            });
+        }
+        Ok(out)
+    }
 }
 
 /// Background subtraction for a stationary camera; see the module documentation.
@@ -187,16 +290,9 @@ pub struct BackgroundDetector {
     small: Mat,
     raw: Mat,
     mask: Mat,
-    scratch: Mat,
-    labels: Mat,
-    stats: Mat,
-    centroids: Mat,
     frames: usize,
     /// Sum over frames after warm-up of the foreground fraction (before morphology).
     foreground: f64,
-    kept: usize,
-    too_small: usize,
-    too_large: usize,
 }
 
 fn e(e: opencv::Error) -> String {
@@ -205,7 +301,7 @@ fn e(e: opencv::Error) -> String {
 
 /// An elliptic kernel for a side of `px` full-resolution pixels, or none when it would do
 /// nothing on the working copy.
-fn kernel(px: i32, factor: i32) -> Result<Option<Mat>, String> {
+pub(crate) fn kernel(px: i32, factor: i32) -> Result<Option<Mat>, String> {
     let side = (f64::from(px) / f64::from(factor)).round() as i32;
     if side <= 1 {
         return Ok(None);
@@ -254,15 +350,8 @@ impl BackgroundDetector {
             small: Mat::default(),
             raw: Mat::default(),
             mask: Mat::default(),
-            scratch: Mat::default(),
-            labels: Mat::default(),
-            stats: Mat::default(),
-            centroids: Mat::default(),
             frames: 0,
             foreground: 0.0,
-            kept: 0,
-            too_small: 0,
-            too_large: 0,
         })
     }
 
@@ -303,13 +392,19 @@ impl BackgroundDetector {
                 frame.index
             ));
         }
+        let s = &self.settings;
         self.geometry = Some(Geometry {
             width: w,
             height: h,
             factor,
             work,
-            open: kernel(self.settings.open_px, factor)?,
-            close: kernel(self.settings.close_px, factor)?,
+            blobs: BlobFinder::new(
+                factor,
+                (s.open_px, s.close_px),
+                s.px_per_m,
+                [s.min_area_m2, s.max_area_m2],
+                s.centroid_sigma_px,
+            )?,
         });
         Ok(())
     }
@@ -335,7 +430,7 @@ impl BackgroundDetector {
 
     /// Threshold, morphology and components of `self.raw`: the frame's detections.
     fn components(&mut self) -> Result<Vec<Detection>, String> {
-        let g = self.geometry.as_ref().expect("geometry set first");
+        let g = self.geometry.as_mut().expect("geometry set first");
         // Foreground is 255, shadows 127: keep only the former.
         imgproc::threshold(
             &self.raw,
@@ -347,61 +442,7 @@ impl BackgroundDetector {
         .map_err(e)?;
         let total = f64::from(g.work.width) * f64::from(g.work.height);
         self.foreground += f64::from(core::count_non_zero(&self.mask).map_err(e)?) / total;
-        for (op, k) in [
-            (imgproc::MORPH_OPEN, &g.open),
-            (imgproc::MORPH_CLOSE, &g.close),
-        ] {
-            if let Some(k) = k {
-                imgproc::morphology_ex_def(&self.mask, &mut self.scratch, op, k).map_err(e)?;
-                std::mem::swap(&mut self.mask, &mut self.scratch);
-            }
-        }
-        let n = imgproc::connected_components_with_stats(
-            &self.mask,
-            &mut self.labels,
-            &mut self.stats,
-            &mut self.centroids,
-            8,
-            CV_32S,
-        )
-        .map_err(e)?;
-        let s = &self.settings;
-        let f = f64::from(g.factor);
-        let m2_per_px = 1.0 / (s.px_per_m * s.px_per_m);
-        let cov = Matrix2::identity() * (s.centroid_sigma_px * s.centroid_sigma_px);
-        let full = |x: f64| (x + 0.5) * f - 0.5;
-        let mut out = Vec::new();
-        // Label 0 is the background.
-        for i in 1..n {
-            let stat = |c: i32| self.stats.at_2d::<i32>(i, c).copied().map_err(e);
-            let area_px = f64::from(stat(imgproc::CC_STAT_AREA)?) * f * f;
-            let area_m2 = area_px * m2_per_px;
-            if area_m2 < s.min_area_m2 {
-                self.too_small += 1;
-                continue;
-            }
-            if area_m2 > s.max_area_m2 {
-                self.too_large += 1;
-                continue;
-            }
-            self.kept += 1;
-            let cx = *self.centroids.at_2d::<f64>(i, 0).map_err(e)?;
-            let cy = *self.centroids.at_2d::<f64>(i, 1).map_err(e)?;
-            out.push(Detection {
-                uv: Vector2::new(full(cx), full(cy)),
-                cov,
-                // Edges: the left edge of working pixel x is frame coordinate x·f − ½.
-                bbox: [
-                    f64::from(stat(imgproc::CC_STAT_LEFT)?) * f - 0.5,
-                    f64::from(stat(imgproc::CC_STAT_TOP)?) * f - 0.5,
-                    f64::from(stat(imgproc::CC_STAT_WIDTH)?) * f,
-                    f64::from(stat(imgproc::CC_STAT_HEIGHT)?) * f,
-                ],
-                area_px,
-                score: 1.0,
-            });
-        }
-        Ok(out)
+        g.blobs.find(&mut self.mask)
     }
 }
 
@@ -422,6 +463,7 @@ impl Detector for BackgroundDetector {
 
     fn summary(&self) -> Vec<(String, f64)> {
         let judged = self.frames.saturating_sub(self.settings.warmup_frames);
+        let b = self.geometry.as_ref().map(|g| &g.blobs);
         vec![
             ("frames".into(), self.frames as f64),
             (
@@ -436,9 +478,15 @@ impl Detector for BackgroundDetector {
                     0.0
                 },
             ),
-            ("components_kept".into(), self.kept as f64),
-            ("components_too_small".into(), self.too_small as f64),
-            ("components_too_large".into(), self.too_large as f64),
+            ("components_kept".into(), b.map_or(0, |b| b.kept) as f64),
+            (
+                "components_too_small".into(),
+                b.map_or(0, |b| b.too_small) as f64,
+            ),
+            (
+                "components_too_large".into(),
+                b.map_or(0, |b| b.too_large) as f64,
+            ),
         ]
     }
 }

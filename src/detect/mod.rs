@@ -1,7 +1,7 @@
 //! Person detection: detectors turn a frame into head positions in pixels with a covariance.
 //! `colour` finds coloured hats (the paper's section 3.1.1); `boxes` reads an external
-//! detector's boxes (`boxes`, `person`); `background` (an OpenCV adapter, the only module here
-//! that is not pure) finds moving people under a stationary camera.
+//! detector's boxes (`boxes`, `person`); `background` finds moving people under a stationary
+//! camera and `motion` under a moving one (OpenCV adapters, as are the neural detectors).
 
 #[cfg(feature = "opencv")]
 pub mod background;
@@ -9,6 +9,8 @@ pub mod boxes;
 pub mod colour;
 pub mod error_fit;
 pub mod morph;
+#[cfg(feature = "opencv")]
+pub mod motion;
 #[cfg(all(feature = "opencv", feature = "onnx"))]
 pub mod neural;
 #[cfg(feature = "onnx")]

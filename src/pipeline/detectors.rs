@@ -7,7 +7,9 @@ use nalgebra::Vector2;
 
 use super::error::RunError;
 use super::project::Loaded;
-use super::settings::{BackgroundSection, BodySettings, BoxesSection, ColourSection, OnnxSection};
+use super::settings::{
+    BackgroundSection, BodySettings, BoxesSection, ColourSection, MotionSection, OnnxSection,
+};
 use crate::camera::Camera;
 use crate::detect::Detector;
 use crate::detect::FrameView;
@@ -284,6 +286,20 @@ pub fn background_settings(
         // The method's own threshold: MOG2's 16 would make nearly every pixel KNN foreground.
         ..crate::detect::background::BackgroundSettings::for_method(b.method)
     }
+}
+
+/// Frame differencing on the ground's motion (a moving camera), its blobs' heads found.
+pub fn motion(m: &MotionSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
+    let inner = crate::detect::motion::MotionDetector::new(crate::detect::motion::MotionSettings {
+        step_frames: m.step_frames,
+        threshold: m.threshold,
+        px_per_m: x.px_per_m,
+        min_area_m2: m.min_area_m2,
+        max_area_m2: m.max_area_m2,
+        ..crate::detect::motion::MotionSettings::default()
+    })
+    .map_err(|e| x.input("step_frames", e.to_string()))?;
+    Ok(heads_from_bodies(Box::new(inner), &m.body(), x))
 }
 
 /// A whole-body detector's boxes turned into heads: each moved `body_radius_m` in from the

@@ -705,4 +705,18 @@ mod tests {
         assert!(e.message.contains("white_acceleration"), "{e}");
         assert_eq!(e.line, Some(11), "{e}");
     }
+
+    #[test]
+    fn the_motion_detector_takes_its_defaults_and_refuses_a_bad_step() {
+        let p: Project = toml::from_str(&format!("{BASE}[detect]\nkind = \"motion\"\n")).unwrap();
+        match &p.detect {
+            DetectSection::Motion(m) => assert_eq!((m.step_frames, m.threshold), (5, 25.0)),
+            other => panic!("{other:?}"),
+        }
+        let p: Project = toml::from_str(&format!(
+            "{BASE}[detect]\nkind = \"motion\"\nstep_frames = 0\n"
+        ))
+        .unwrap();
+        assert_eq!(p.detect.check().unwrap_err().0, "step_frames");
+    }
 }

@@ -19,6 +19,7 @@ pub fn detector(d: &DetectSection, x: &DetectorInputs) -> Result<Box<dyn Detecto
         DetectSection::Boxes(b) => detectors::boxes(b, x),
         DetectSection::Background(b) => detectors::background(b, x),
         DetectSection::Onnx(o) => detectors::onnx(o, x),
+        DetectSection::Motion(m) => detectors::motion(m, x),
     }
 }
 

@@ -178,6 +178,9 @@ pub enum DetectSection {
     /// A neural detector: a YOLO-family ONNX model run on every frame (the bundled YOLOv3-tiny
     /// by default), its boxes filtered and their heads found as for `boxes`.
     Onnx(OnnxSection),
+    /// Frame differencing after warping frames onto each other through the ground: moving
+    /// people under a moving camera.
+    Motion(MotionSection),
 }
 
 impl DefaultKind for DetectSection {
@@ -201,6 +204,7 @@ impl DetectSection {
             DetectSection::Boxes(_) => "boxes",
             DetectSection::Background(_) => "method",
             DetectSection::Onnx(_) => "model",
+            DetectSection::Motion(_) => "step_frames",
         }
     }
 
@@ -219,6 +223,7 @@ impl DetectSection {
             DetectSection::Boxes(b) => b.person_m,
             DetectSection::Background(b) => b.person_m,
             DetectSection::Onnx(b) => b.person_m,
+            DetectSection::Motion(b) => b.person_m,
         }
     }
 
@@ -229,6 +234,7 @@ impl DetectSection {
             DetectSection::Boxes(b) => Some(b.body()),
             DetectSection::Background(b) => Some(b.body()),
             DetectSection::Onnx(b) => Some(b.body()),
+            DetectSection::Motion(b) => Some(b.body()),
         }
     }
 
@@ -516,6 +522,43 @@ impl Default for BackgroundSection {
     }
 }
 
+/// `[detect] kind = "motion"`: the body keys as for `boxes`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct MotionSection {
+    /// Frames between the compared ones (frame t against t - k and t + k).
+    pub step_frames: usize,
+    /// Grey-level difference (0-255) above which a pixel has changed.
+    pub threshold: f64,
+    /// Limits on a moving blob's area, m² at head height.
+    pub min_area_m2: f64,
+    pub max_area_m2: f64,
+    pub body_radius_m: f64,
+    pub feet_radius_m: f64,
+    pub feet_sd_m: f64,
+    pub person_m: Option<f64>,
+    pub error_px2: Option<[f64; 3]>,
+    pub error_profile_px2: Option<Vec<[f64; 3]>>,
+}
+
+impl Default for MotionSection {
+    fn default() -> Self {
+        // The detector's own defaults (`detect::motion::MotionSettings`).
+        MotionSection {
+            step_frames: 5,
+            threshold: 25.0,
+            min_area_m2: 0.08,
+            max_area_m2: 4.0,
+            body_radius_m: DEFAULT_BODY_RADIUS_M,
+            feet_radius_m: DEFAULT_FEET_RADIUS_M,
+            feet_sd_m: DEFAULT_FEET_SD_M,
+            person_m: None,
+            error_px2: None,
+            error_profile_px2: None,
+        }
+    }
+}
+
 /// The body keys of `boxes` and `background`, gathered.
 macro_rules! body_settings {
     ($t:ty) => {
@@ -537,6 +580,7 @@ macro_rules! body_settings {
 body_settings!(BoxesSection);
 body_settings!(BackgroundSection);
 body_settings!(OnnxSection);
+body_settings!(MotionSection);
 
 // ---- track ----
 
@@ -963,6 +1007,21 @@ impl DetectSection {
                 b.body().check()
             }
             DetectSection::Background(b) => b.body().check(),
+            DetectSection::Motion(m) => {
+                if !(1..=60).contains(&m.step_frames) {
+                    return bad("step_frames", "expected 1 to 60 frames");
+                }
+                if !(m.threshold > 0.0 && m.threshold < 255.0) {
+                    return bad(
+                        "threshold",
+                        "expected a grey-level difference between 0 and 255",
+                    );
+                }
+                if !(m.min_area_m2 >= 0.0 && m.max_area_m2 > m.min_area_m2) {
+                    return bad("max_area_m2", "expected 0 <= min_area_m2 < max_area_m2");
+                }
+                m.body().check()
+            }
             DetectSection::Onnx(o) => {
                 if let Some(l) = &o.layout
                     && !["darknet", "yolov5", "yolov8", "yolox", "centre_heatmap"]

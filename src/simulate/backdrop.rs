@@ -9,6 +9,11 @@ use nalgebra::Vector2;
 
 use super::world::Rgb;
 
+/// What is wrong with a backdrop.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BackdropError(pub String);
+
 /// A nadir photo of the ground, 8-bit sRGB, with its ground sample distance.
 pub struct Backdrop {
     /// The file name, for the dataset's records.
@@ -29,15 +34,17 @@ impl Backdrop {
         height: usize,
         rgb: Vec<u8>,
         gsd_m: f64,
-    ) -> Result<Backdrop, String> {
+    ) -> Result<Backdrop, BackdropError> {
         if width < 16 || height < 16 || rgb.len() != width * height * 3 {
-            return Err(format!(
+            return Err(BackdropError(format!(
                 "{name}: {width}x{height} with {} bytes: expected an RGB image of at least 16x16",
                 rgb.len()
-            ));
+            )));
         }
         if !(gsd_m.is_finite() && gsd_m > 0.0) {
-            return Err(format!("{name}: ground sample distance {gsd_m} m: expected > 0"));
+            return Err(BackdropError(format!(
+                "{name}: ground sample distance {gsd_m} m: expected > 0"
+            )));
         }
         Ok(Backdrop {
             name,
@@ -135,7 +142,10 @@ mod tests {
         // The gain scales the linear colour; outside the photo, its edge.
         let bright = BackdropView { gain: 2.0, ..view };
         let e = bright.albedo(&Vector2::new(100.0, 5.0));
-        assert!((e[0] - (2.0 * linear(63 * 4)).min(1.0)).abs() < 1e-6, "{e:?}");
+        assert!(
+            (e[0] - (2.0 * linear(63 * 4)).min(1.0)).abs() < 1e-6,
+            "{e:?}"
+        );
     }
 
     #[test]

@@ -647,7 +647,11 @@ fn pick_backdrop(
     }
     let image = backdrops[rng.random_range(0..backdrops.len())].clone();
     // The footprint's reach from the target, photo pixels: the photo covers the tile where it can.
-    let reach = (lo - target.xy()).abs().sup(&(hi - target.xy()).abs()).norm() / image.gsd_m;
+    let reach = (lo - target.xy())
+        .abs()
+        .sup(&(hi - target.xy()).abs())
+        .norm()
+        / image.gsd_m;
     let mut centre = |n: usize| {
         let n = n as f64;
         if 2.0 * reach < n {
@@ -941,6 +945,9 @@ mod tests {
             // People are labelled on the photo as anywhere.
             assert_eq!(t.labels, render_tile(&plain, i, &[]).labels);
         }
-        assert!((2..=10).contains(&on_photo), "{on_photo} of 12 on the photo");
+        assert!(
+            (2..=10).contains(&on_photo),
+            "{on_photo} of 12 on the photo"
+        );
     }
 }

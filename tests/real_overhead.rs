@@ -137,7 +137,10 @@ fn the_overhead_model_on_real_drone_photos_it_never_saw() {
         tp as f64 / (tp + fp).max(1) as f64
     );
     assert_eq!(tp + missed, 16, "the truth file's people");
-    assert!(recall >= RECALL_FLOOR, "recall {recall:.3} < {RECALL_FLOOR}");
+    assert!(
+        recall >= RECALL_FLOOR,
+        "recall {recall:.3} < {RECALL_FLOOR}"
+    );
     assert!(
         false_per_photo <= FALSE_PER_PHOTO_CEILING,
         "{false_per_photo:.1} false boxes a photo > {FALSE_PER_PHOTO_CEILING}"

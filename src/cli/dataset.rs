@@ -11,6 +11,7 @@ use sha2::{Digest, Sha256};
 use super::bad_input;
 use std::sync::Arc;
 
+use geostride::cache::hex;
 use geostride::simulate::backdrop::Backdrop;
 use geostride::simulate::dataset::{DatasetSpec, Tile, render_tile};
 
@@ -252,12 +253,6 @@ fn write_tiles(
         start = stop;
     }
     bar.finish_and_clear();
-    let hex = |d: &[u8]| {
-        d.iter().fold(String::new(), |mut s, b| {
-            let _ = write!(s, "{b:02x}");
-            s
-        })
-    };
     let mut all = Sha256::new();
     all.update(labels.as_bytes());
     all.update(tiles.as_bytes());
@@ -334,12 +329,7 @@ fn read_backdrops(args: &Args) -> anyhow::Result<Vec<(Arc<Backdrop>, String)>> {
                 .map_err(|e| bad_input(anyhow!("--backdrops: {e}")))?;
             let bytes =
                 std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-            let sha = Sha256::digest(&bytes)
-                .iter()
-                .fold(String::new(), |mut s, b| {
-                    let _ = write!(s, "{b:02x}");
-                    s
-                });
+            let sha = hex(&Sha256::digest(&bytes));
             Ok((Arc::new(photo), sha))
         })
         .collect()

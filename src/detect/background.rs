@@ -112,31 +112,12 @@ impl BackgroundSettings {
                 s.max_width
             ));
         }
-        if s.open_px < 0 || s.close_px < 0 {
-            return Err(format!(
-                "open_px and close_px must not be negative (0 skips), not {} and {}",
-                s.open_px, s.close_px
-            ));
-        }
-        if !(s.px_per_m > 0.0 && s.px_per_m.is_finite()) {
-            return Err(format!(
-                "px_per_m must be positive (the image scale at head height), not {}",
-                s.px_per_m
-            ));
-        }
-        if !(s.min_area_m2 >= 0.0 && s.max_area_m2 > s.min_area_m2) {
-            return Err(format!(
-                "need 0 <= min_area_m2 < max_area_m2, not {} and {}",
-                s.min_area_m2, s.max_area_m2
-            ));
-        }
-        if !(s.centroid_sigma_px > 0.0 && s.centroid_sigma_px.is_finite()) {
-            return Err(format!(
-                "centroid_sigma_px must be positive, not {}",
-                s.centroid_sigma_px
-            ));
-        }
-        Ok(())
+        check_blobs(
+            (s.open_px, s.close_px),
+            s.px_per_m,
+            [s.min_area_m2, s.max_area_m2],
+            s.centroid_sigma_px,
+        )
     }
 }
 
@@ -144,6 +125,40 @@ impl Default for BackgroundSettings {
     fn default() -> Self {
         BackgroundSettings::for_method(Subtractor::Mog2)
     }
+}
+
+/// The checks of [`BlobFinder`]'s settings, as both detectors that use it take them.
+pub(crate) fn check_blobs(
+    (open_px, close_px): (i32, i32),
+    px_per_m: f64,
+    area_m2: [f64; 2],
+    centroid_sigma_px: f64,
+) -> Result<(), String> {
+    if open_px < 0 || close_px < 0 {
+        return Err(format!(
+            "open_px and close_px must not be negative (0 skips), not {} and {}",
+            open_px, close_px
+        ));
+    }
+    if !(px_per_m > 0.0 && px_per_m.is_finite()) {
+        return Err(format!(
+            "px_per_m must be positive (the image scale at head height), not {}",
+            px_per_m
+        ));
+    }
+    if !(area_m2[0] >= 0.0 && area_m2[1] > area_m2[0]) {
+        return Err(format!(
+            "need 0 <= min_area_m2 < max_area_m2, not {} and {}",
+            area_m2[0], area_m2[1]
+        ));
+    }
+    if !(centroid_sigma_px > 0.0 && centroid_sigma_px.is_finite()) {
+        return Err(format!(
+            "centroid_sigma_px must be positive, not {}",
+            centroid_sigma_px
+        ));
+    }
+    Ok(())
 }
 
 /// The OpenCV model. Both pointers are `Send` in the `opencv` crate (the models hold no
@@ -295,7 +310,7 @@ pub struct BackgroundDetector {
     foreground: f64,
 }
 
-fn e(e: opencv::Error) -> String {
+pub(crate) fn e(e: opencv::Error) -> String {
     format!("OpenCV: {e}")
 }
 

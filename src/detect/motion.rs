@@ -24,7 +24,7 @@ use opencv::core::{self, Mat, Scalar, Size};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-use super::background::BlobFinder;
+use super::background::{BlobFinder, check_blobs, e};
 use super::{Detection, Detector, FrameDetections, FrameView};
 use crate::estimate::homography::homography_robust;
 use crate::estimate::ransac::RansacSettings;
@@ -93,33 +93,19 @@ impl MotionSettings {
                 s.max_width
             ));
         }
-        if s.open_px < 0 || s.close_px < 0 {
-            return Err(format!(
-                "open_px and close_px must not be negative (0 skips), not {} and {}",
-                s.open_px, s.close_px
-            ));
-        }
-        if !(s.px_per_m > 0.0 && s.px_per_m.is_finite()) {
-            return Err(format!("px_per_m must be positive, not {}", s.px_per_m));
-        }
-        if !(s.min_area_m2 >= 0.0 && s.max_area_m2 > s.min_area_m2) {
-            return Err(format!(
-                "need 0 <= min_area_m2 < max_area_m2, not {} and {}",
-                s.min_area_m2, s.max_area_m2
-            ));
-        }
         if s.min_inliers < 8 {
             return Err(format!(
                 "min_inliers must be at least 8, not {}",
                 s.min_inliers
             ));
         }
-        Ok(())
+        check_blobs(
+            (s.open_px, s.close_px),
+            s.px_per_m,
+            [s.min_area_m2, s.max_area_m2],
+            s.centroid_sigma_px,
+        )
     }
-}
-
-fn e(e: opencv::Error) -> String {
-    format!("OpenCV: {e}")
 }
 
 /// The homography from `cur`'s working pixels to `prev`'s, when at least `min_inliers`
@@ -175,6 +161,8 @@ pub struct MotionDetector {
     factor: i32,
     work: Size,
     blobs: Option<BlobFinder>,
+    /// A working-size image of 255s, warped to find where another frame covers one.
+    ones: Mat,
     frames: VecDeque<Kept>,
     /// Frames judged, frames without detections for want of alignment, alignments failed.
     judged: usize,
@@ -197,6 +185,7 @@ impl MotionDetector {
             factor: 1,
             work: Size::new(0, 0),
             blobs: None,
+            ones: Mat::default(),
             frames: VecDeque::new(),
             judged: 0,
             unaligned: 0,
@@ -231,6 +220,9 @@ impl MotionDetector {
                     return Err(format!("frame {}: {w}x{h} is too small", frame.index));
                 }
                 self.factor = factor;
+                self.ones =
+                    Mat::new_size_with_default(self.work, core::CV_8UC1, Scalar::all(255.0))
+                        .map_err(e)?;
                 self.blobs = Some(BlobFinder::new(
                     factor,
                     (s.open_px, s.close_px),
@@ -295,12 +287,10 @@ impl MotionDetector {
             Scalar::all(0.0),
         )
         .map_err(e)?;
-        let ones =
-            Mat::new_size_with_default(self.work, core::CV_8UC1, Scalar::all(255.0)).map_err(e)?;
         let mut cover = Mat::default();
         // Nearest, so that the edge is not blurred into grey that a threshold would cut.
         imgproc::warp_perspective(
-            &ones,
+            &self.ones,
             &mut cover,
             &m,
             self.work,

@@ -70,9 +70,12 @@ pub struct BackdropView {
     pub gain: f32,
 }
 
-/// sRGB byte to linear, as the renderer's gamma inverts it (a 2.2 power).
+/// sRGB byte to linear, as the renderer's gamma inverts it (a 2.2 power); a table, since
+/// every rendered pixel on a backdrop reads twelve.
 fn linear(v: u8) -> f32 {
-    (f32::from(v) / 255.0).powf(2.2)
+    static TABLE: std::sync::LazyLock<[f32; 256]> =
+        std::sync::LazyLock::new(|| std::array::from_fn(|i| (i as f32 / 255.0).powf(2.2)));
+    TABLE[usize::from(v)]
 }
 
 impl BackdropView {

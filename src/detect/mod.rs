@@ -8,6 +8,7 @@ pub mod background;
 pub mod boxes;
 pub mod colour;
 pub mod error_fit;
+pub mod models;
 pub mod morph;
 #[cfg(feature = "opencv")]
 pub mod motion;

@@ -382,7 +382,10 @@ impl Loaded {
         if let super::settings::DetectSection::Onnx(o) = &p.detect
             && let Some(m) = &o.model
         {
-            files.push(("detect.model", self.resolve(m)));
+            files.push((
+                "detect.model",
+                crate::detect::models::given_model(m, self.resolve(m)),
+            ));
         }
         match p.ground.reads() {
             Some(GroundInput::File(path)) => files.push(("ground.path", self.resolve(path))),
@@ -572,7 +575,10 @@ fn check_detect(l: &Loaded) -> Result<(), FileError> {
     if let super::settings::DetectSection::Onnx(o) = d
         && let Some(m) = &o.model
     {
-        exists(l, "detect", "model", m)?;
+        // A bundled model's name is no file (`detect::models::given_model`).
+        if crate::detect::models::named_model(m).is_none() || l.resolve(m).exists() {
+            exists(l, "detect", "model", m)?;
+        }
     }
     match d.boxes_file() {
         Some(b) => exists(l, "detect", "boxes", b),
@@ -666,6 +672,24 @@ mod tests {
 
     fn error_of(extra: &str) -> FileError {
         parse(Path::new("p.toml"), format!("{BASE}{extra}")).unwrap_err()
+    }
+
+    #[test]
+    fn a_bundled_models_name_is_not_taken_for_a_missing_file() {
+        let loaded = |model: &str| {
+            let text = format!("{BASE}[detect]\nkind = \"onnx\"\nmodel = \"{model}\"\n");
+            Loaded {
+                project: toml::from_str(&text).unwrap(),
+                path: "p.toml".into(),
+                text,
+                known_inputs: Vec::new(),
+            }
+        };
+        for name in crate::detect::models::BUNDLED_MODELS {
+            check_detect(&loaded(name)).unwrap();
+        }
+        let e = check_detect(&loaded("nope.onnx")).unwrap_err();
+        assert!(e.message.contains("no such file"), "{e}");
     }
 
     #[test]

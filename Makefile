@@ -24,7 +24,7 @@ build: bootstrap
 demo: build
 	./target/release/geostride demo --out out/demo
 	./target/release/geostride demo --crowd --out out/demo
-	./target/release/geostride demo --crowd --detector onnx --out out/demo
+	./target/release/geostride demo --crowd --detector simulated --out out/demo
 	./target/release/geostride demo --group --out out/demo
 	./target/release/geostride demo --group --detector onnx --out out/demo
 

@@ -3,7 +3,7 @@
 //! the same video in the same run: frames per second of every stage and end to end, for two
 //! paths, each with a target of no less than half the decode rate: hats (colour detector,
 //! association tracker) and crowds without hats (an external detector's boxes, simulated from
-//! the truth as in `geostride demo --crowd`, and the KLT tracker, in the same decoding pass).
+//! the truth as in `geostride demo --crowd --detector simulated`, and the KLT tracker, in the same decoding pass).
 //!
 //! `GEOSTRIDE_BENCH_DIR=DIR` keeps the simulated scene in DIR and reuses it on the next run.
 

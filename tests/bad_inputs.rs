@@ -467,6 +467,18 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-onnx-head-from-a-model-without-heads",
+            category: "nonsense accepted",
+            files: vec![(
+                "project.toml",
+                project_with("[detect]\nkind = \"onnx\"\nmodel = \"yolov3-tiny\"\nhead = \"model\"\n"),
+            )],
+            args: run(),
+            expect: "gives no head points",
+            place: "field 'detect.head'",
+            ..Default::default()
+        },
+        Case {
             id: "project-model-pose-without-a-model",
             category: "nonsense accepted",
             files: vec![(

@@ -55,16 +55,17 @@ pub struct Args {
     /// surveys/bridge-stream, or surveys/marathon-stream with --crowd
     #[arg(long, value_name = "DIR")]
     survey: Option<PathBuf>,
-    /// The crowd without hats instead: simulated detector boxes (noise, 5 % misses, 10 % false
-    /// alarms, half of them shadows) and KLT tracking
+    /// The crowd without hats instead (surveys/marathon-stream), found by geostride's overhead
+    /// model on the rendered video, or by simulated detector boxes with --detector simulated
     #[arg(long)]
     crowd: bool,
-    /// With --crowd: `simulated` boxes from the truth (checked against the targets), or `onnx`,
-    /// the default neural detector (geostride's overhead model) on the rendered video (checked
-    /// against the same targets). With --group: `onnx` renders the runners without hats and finds
-    /// them with the overhead model (by default they wear hats, found by their colour)
-    #[arg(long, default_value = "simulated", value_parser = ["simulated", "onnx"])]
-    detector: String,
+    /// With --crowd: `onnx` (the default), geostride's overhead model on the rendered video, or
+    /// `simulated` boxes from the truth (noise, 5 % misses, 10 % false alarms, half of them
+    /// shadows); both checked against the same targets. With --group: `onnx` renders the runners
+    /// without hats and finds them with the overhead model (by default, `simulated`, they wear
+    /// hats, found by their colour)
+    #[arg(long, value_parser = ["simulated", "onnx"])]
+    detector: Option<String>,
     /// Put the site in this CRS (EPSG code, PROJ string or WKT) at the same place, e.g.
     /// EPSG:31370 for Belgian Lambert 72: the scene's origin is converted with PROJ
     #[arg(long, value_name = "CRS")]
@@ -587,7 +588,7 @@ fn simulate_scene(
         duration_s: args.duration,
         site_crs: args.crs.clone(),
         // The group seen by the neural detector: runners without hats.
-        no_hats: args.group && args.detector == "onnx",
+        no_hats: args.group && args.detector.as_deref() == Some("onnx"),
         ..Overrides::default()
     };
     let sim = super::simulate::run_scene(scene_path, dir, &overrides, args.quiet)?;
@@ -715,7 +716,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The output folder before any work: not a file, not holding or inside the survey.
     let survey: Vec<&std::path::Path> = args.survey.iter().map(PathBuf::as_path).collect();
     super::check_output_dir(&args.out, survey)?;
-    let onnx = args.detector == "onnx";
+    // The crowd's main run is the learnt detector's; the group's wears hats.
+    let onnx = match args.detector.as_deref() {
+        Some(d) => d == "onnx",
+        None => args.crowd,
+    };
     match (args.crowd, args.group, onnx) {
         (false, false, true) => Err(super::bad_input(anyhow!(
             "--detector onnx: only the crowd and the group demos take it (add --crowd or --group)"
@@ -943,7 +948,13 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let json = args.json;
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/marathon-stream")?;
-    let sim = simulate_step(&args, "geostride demo --crowd", &scene, &scene_path, &dir)?;
+    let sim = simulate_step(
+        &args,
+        "geostride demo --crowd --detector simulated",
+        &scene,
+        &scene_path,
+        &dir,
+    )?;
     let (truth_boxes, boxes) = detector_boxes(json, &scene, &dir, sim.image_size)?;
     // A few shadows marked on the first frames, as a user would: the middle of shadow boxes.
     let samples: Vec<[f64; 5]> = truth_boxes
@@ -1042,7 +1053,14 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         seconds: started.elapsed().as_secs_f64(),
         passed: failed.is_empty(),
     };
-    finish("crowd demo", json, &dir, &out, &failed, out.seconds)
+    finish(
+        "crowd demo with simulated boxes",
+        json,
+        &dir,
+        &out,
+        &failed,
+        out.seconds,
+    )
 }
 
 /// The crowd targets (issue 35's, and issue 38's for the learnt detector) on a run with its

@@ -290,6 +290,7 @@ impl BlobFinder {
                 ],
                 area_px,
                 score: 1.0,
+                model_head: None,
             });
         }
         Ok(out)

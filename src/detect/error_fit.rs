@@ -676,6 +676,7 @@ mod tests {
             bbox: [1.0, 2.0, 3.0, 4.0],
             area_px: 12.0,
             score: 1.0,
+            model_head: None,
         };
         // As the export writes it: the header, then chunk by chunk from each one's first frame.
         let text = crate::text::text_of(|w| {

@@ -52,6 +52,9 @@ pub struct Detection {
     pub area_px: f64,
     /// 1 for a clean detection, lower for doubtful ones.
     pub score: f64,
+    /// The top of the head as the detector's model gives it (geostride's overhead model), for
+    /// [`person::HeadsFromBodies`] to take instead of the box's geometry; None from the others.
+    pub model_head: Option<Vector2<f64>>,
 }
 
 /// Detections of one frame, by frame index.

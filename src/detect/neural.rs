@@ -214,6 +214,8 @@ pub struct Detected {
     pub xywh: [f64; 4],
     pub score: f64,
     pub class: usize,
+    /// The top of the head in frame pixels, where the model gives it.
+    pub head: Option<[f64; 2]>,
 }
 
 /// The model's class names from its metadata: a JSON list, or Ultralytics' `{0: 'person', ...}`.
@@ -347,12 +349,16 @@ impl super::person::FrameBoxes for NeuralDetector {
         &mut self,
         bgr: &[u8],
         wh: [usize; 2],
-    ) -> Result<Vec<([f64; 4], f64)>, crate::PluginError> {
+    ) -> Result<Vec<super::person::FoundBox>, crate::PluginError> {
         Ok(self
             .detect(bgr, wh)
             .map_err(|e| crate::PluginError::from(e.to_string()))?
             .into_iter()
-            .map(|d| (d.xywh, d.score))
+            .map(|d| super::person::FoundBox {
+                bbox: d.xywh,
+                score: d.score,
+                head: d.head,
+            })
             .collect())
     }
 }
@@ -637,6 +643,11 @@ impl NeuralDetector {
         Ok(d)
     }
 
+    /// Whether the model gives each box's head point (the centre heatmap layout does).
+    pub fn gives_heads(&self) -> bool {
+        matches!(self.layout, Layout::CentreHeatmap)
+    }
+
     /// The layout in use.
     pub fn layout(&self) -> &Layout {
         &self.layout
@@ -721,8 +732,13 @@ impl NeuralDetector {
             .into_iter()
             .map(|b| {
                 let m = fit.to_image(&b.xywh);
+                let head = b.head.map(|h| {
+                    let p = fit.point_to_image(&h);
+                    [p[0] + x0 as f64, p[1] + y0 as f64]
+                });
                 RawBox {
                     xywh: [m[0] + x0 as f64, m[1] + y0 as f64, m[2], m[3]],
+                    head,
                     ..b
                 }
             })
@@ -800,6 +816,7 @@ impl NeuralDetector {
                 xywh: b.xywh,
                 score: b.score,
                 class: b.class,
+                head: b.head,
             })
             .collect())
     }
@@ -1091,6 +1108,7 @@ mod tests {
             xywh: [x, 10.0, w, 40.0],
             score: s,
             class: 0,
+            head: None,
         };
         // Two tiles of a 480-wide region overlapping from 120 to 360.
         let (left, right) = ([0, 0, 360, 360], [120, 0, 360, 360]);
@@ -1120,6 +1138,7 @@ mod tests {
             xywh: [x, 0.0, w, 20.0],
             score: s,
             class: 0,
+            head: None,
         };
         let m = merge_cut(vec![
             b(0.0, 10.0, 0.9),

@@ -7,14 +7,20 @@ use nalgebra::Vector2;
 use super::boxes::{BoxFilter, FilterCounts, FilterError, RawBox, filter_frame};
 use super::{Detection, Detector, ErrorModel, FrameDetections, FrameView, head_from_box};
 
+/// One box a model found in a frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FoundBox {
+    /// `[x, y, w, h]`, pixels.
+    pub bbox: [f64; 4],
+    pub score: f64,
+    /// The top of the head, pixels ((0, 0) the top-left pixel's centre), where the model gives it.
+    pub head: Option<[f64; 2]>,
+}
+
 /// What finds a frame's people as it comes (the neural detector, `detect::neural`): the frame's
-/// BGR bytes and size (pixels) to boxes `[x, y, w, h]` in pixels with their scores.
+/// BGR bytes and size (pixels) to boxes with their scores.
 pub trait FrameBoxes: Send {
-    fn boxes(
-        &mut self,
-        bgr: &[u8],
-        wh: [usize; 2],
-    ) -> Result<Vec<([f64; 4], f64)>, crate::PluginError>;
+    fn boxes(&mut self, bgr: &[u8], wh: [usize; 2]) -> Result<Vec<FoundBox>, crate::PluginError>;
 
     /// Numbers for the run report (how it was run).
     fn summary(&self) -> Vec<(String, f64)> {
@@ -75,12 +81,13 @@ impl Detector for BoxesDetector {
             self.boxes = m
                 .boxes(frame.bgr, [frame.width, frame.height])?
                 .into_iter()
-                .map(|(bbox, score)| RawBox {
+                .map(|f| RawBox {
                     frame: frame.index,
-                    bbox,
-                    score,
+                    bbox: f.bbox,
+                    score: f.score,
                     label: None,
                     line: 0,
+                    head: f.head,
                 })
                 .collect();
         }
@@ -100,6 +107,7 @@ impl Detector for BoxesDetector {
                 bbox: b.bbox,
                 area_px: b.bbox[2] * b.bbox[3],
                 score: b.score,
+                model_head: b.head.map(|h| Vector2::new(h[0], h[1])),
             })
             .collect();
         Ok(vec![(frame.index, dets)])
@@ -132,7 +140,8 @@ impl Detector for BoxesDetector {
 }
 
 /// Turns a body detector's boxes into heads: the head found along the line from the nadir
-/// ([`head_from_box`]) and the detection-error covariance of where it lies in the image.
+/// ([`head_from_box`]), or the model's own head point where asked and given, and the
+/// detection-error covariance of where it lies in the image.
 pub struct HeadsFromBodies {
     pub inner: Box<dyn Detector>,
     /// The nadir's image (where vertical lines meet), pixels.
@@ -144,6 +153,11 @@ pub struct HeadsFromBodies {
     pub height: f64,
     /// Boxes dropped because the image border cuts them on the head's side.
     pub head_cut: usize,
+    /// Take a detection's `model_head` where it has one.
+    pub model_heads: bool,
+    /// Heads taken from the model, and found from the box (none given, or not asked).
+    pub heads_from_model: usize,
+    pub heads_from_box: usize,
 }
 
 impl HeadsFromBodies {
@@ -161,7 +175,23 @@ impl HeadsFromBodies {
             width: 0.0,
             height: 0.0,
             head_cut: 0,
+            model_heads: false,
+            heads_from_model: 0,
+            heads_from_box: 0,
         }
+    }
+
+    /// The model's head points where it gives them (else the box's geometry).
+    pub fn with_model_heads(mut self) -> Self {
+        self.model_heads = true;
+        self
+    }
+
+    /// Whether a model's head point lies outside the image, or within a quarter body radius of
+    /// its border (the head then partly outside: its point is a guess).
+    fn outside(&self, head: &Vector2<f64>) -> bool {
+        let m = (0.25 * self.body_radius_px).max(1.0) - 0.5;
+        head.x < m || head.y < m || head.x > self.width - 1.0 - m || head.y > self.height - 1.0 - m
     }
 
     /// Whether the image border cuts the box on the side away from the nadir, where the head
@@ -184,11 +214,25 @@ impl HeadsFromBodies {
         for (i, dets) in done {
             let mut heads = Vec::with_capacity(dets.len());
             for mut d in dets {
-                if self.head_cut_off(&d.bbox) {
+                let given = d.model_head.filter(|_| self.model_heads);
+                let cut = match &given {
+                    Some(h) => self.outside(h),
+                    None => self.head_cut_off(&d.bbox),
+                };
+                if cut {
                     self.head_cut += 1;
                     continue;
                 }
-                d.uv = head_from_box(&d.bbox, &self.nadir, self.body_radius_px);
+                d.uv = match given {
+                    Some(h) => {
+                        self.heads_from_model += 1;
+                        h
+                    }
+                    None => {
+                        self.heads_from_box += 1;
+                        head_from_box(&d.bbox, &self.nadir, self.body_radius_px)
+                    }
+                };
                 d.cov = self.error.cov(&d.uv, self.width);
                 heads.push(d);
             }
@@ -212,6 +256,10 @@ impl Detector for HeadsFromBodies {
     fn summary(&self) -> Vec<(String, f64)> {
         let mut s = self.inner.summary();
         s.push(("boxes_head_cut".into(), self.head_cut as f64));
+        if self.model_heads {
+            s.push(("heads_from_model".into(), self.heads_from_model as f64));
+            s.push(("heads_from_box".into(), self.heads_from_box as f64));
+        }
         s
     }
 }
@@ -220,19 +268,21 @@ impl Detector for HeadsFromBodies {
 mod tests {
     use super::*;
 
-    struct Fixed(Vec<[f64; 4]>);
+    /// Boxes, each with the model's head point or none.
+    struct Fixed(Vec<([f64; 4], Option<[f64; 2]>)>);
 
     impl Detector for Fixed {
         fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
             let dets = self
                 .0
                 .iter()
-                .map(|b| Detection {
+                .map(|(b, h)| Detection {
                     uv: Vector2::zeros(),
                     cov: nalgebra::Matrix2::identity(),
                     bbox: *b,
                     area_px: b[2] * b[3],
                     score: 1.0,
+                    model_head: h.map(|h| Vector2::new(h[0], h[1])),
                 })
                 .collect();
             Ok(vec![(frame.index, dets)])
@@ -240,8 +290,16 @@ mod tests {
     }
 
     fn heads(nadir: Vector2<f64>, boxes: Vec<[f64; 4]>) -> (Vec<Detection>, usize) {
-        let mut d =
-            HeadsFromBodies::new(Box::new(Fixed(boxes)), nadir, 20.0, ErrorModel::default());
+        let boxes = boxes.into_iter().map(|b| (b, None)).collect();
+        run(HeadsFromBodies::new(
+            Box::new(Fixed(boxes)),
+            nadir,
+            20.0,
+            ErrorModel::default(),
+        ))
+    }
+
+    fn run(mut d: HeadsFromBodies) -> (Vec<Detection>, usize) {
         let bgr = vec![0u8; 640 * 360 * 3];
         let view = FrameView {
             index: 0,
@@ -288,6 +346,45 @@ mod tests {
         assert_eq!((kept.len(), cut), (1, 0));
         assert!(
             (kept[0].uv - Vector2::new(40.0, 175.0)).norm() < 1e-9,
+            "{}",
+            kept[0].uv
+        );
+    }
+
+    #[test]
+    fn the_models_head_point_is_taken_where_asked_and_given() {
+        let nadir = Vector2::new(320.0, 180.0);
+        let boxes = vec![
+            // The model's head at (50, 170), off the box's geometry.
+            ([10.0, 160.0, 60.0, 30.0], Some([50.0, 170.0])),
+            // No head point (a split group's box): the box's geometry.
+            ([100.0, 160.0, 60.0, 30.0], None),
+            // A box cut by the border on its head's side whose head point is inside: kept.
+            ([0.0, 160.0, 60.0, 30.0], Some([12.0, 175.0])),
+            // A head point on the border: dropped.
+            ([400.0, 0.0, 40.0, 60.0], Some([420.0, 1.0])),
+        ];
+        let make = || {
+            HeadsFromBodies::new(
+                Box::new(Fixed(boxes.clone())),
+                nadir,
+                20.0,
+                ErrorModel::default(),
+            )
+        };
+        let (kept, cut) = run(make().with_model_heads());
+        assert_eq!((kept.len(), cut), (3, 1));
+        assert_eq!(kept[0].uv, Vector2::new(50.0, 170.0));
+        assert!(
+            (kept[1].uv - Vector2::new(120.0, 175.0)).norm() < 1.0,
+            "{}",
+            kept[1].uv
+        );
+        assert_eq!(kept[2].uv, Vector2::new(12.0, 175.0));
+        // Not asked: every head from its box, the model's points ignored.
+        let (kept, _) = run(make());
+        assert!(
+            (kept[0].uv - Vector2::new(30.0, 175.0)).norm() < 1.0,
             "{}",
             kept[0].uv
         );

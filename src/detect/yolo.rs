@@ -88,6 +88,8 @@ pub struct RawBox {
     pub xywh: [f64; 4],
     pub score: f64,
     pub class: usize,
+    /// The top of the person's head, where the layout gives it (the centre heatmap's).
+    pub head: Option<[f64; 2]>,
 }
 
 impl RawBox {
@@ -97,6 +99,7 @@ impl RawBox {
             xywh: [cx - w / 2.0, cy - h / 2.0, w, h],
             score,
             class,
+            head: None,
         }
     }
 }
@@ -241,7 +244,10 @@ fn decode_centre(
             f64::from(v[3]),
             f64::from(v[4]),
         );
-        out.push(RawBox::centred(cx, cy, w, h, score, 0));
+        out.push(RawBox {
+            head: Some([f64::from(v[5]), f64::from(v[6])]),
+            ..RawBox::centred(cx, cy, w, h, score, 0)
+        });
     }
     Ok(())
 }
@@ -443,6 +449,15 @@ impl Fit {
         }
     }
 
+    /// A point in input pixels back to image pixels, (0, 0) the top-left pixel's centre in
+    /// both (boxes are by pixel edges: [`Fit::to_image`]).
+    pub fn point_to_image(&self, p: &[f64; 2]) -> [f64; 2] {
+        [
+            (p[0] + 0.5 - self.pad[0]) / self.scale[0] - 0.5,
+            (p[1] + 0.5 - self.pad[1]) / self.scale[1] - 0.5,
+        ]
+    }
+
     /// A box in input pixels back to image pixels.
     pub fn to_image(&self, b: &[f64; 4]) -> [f64; 4] {
         [
@@ -557,6 +572,7 @@ mod tests {
         .unwrap();
         assert_eq!(b.len(), 1);
         assert_eq!(b[0].xywh, [90.0, 30.0, 20.0, 40.0]);
+        assert_eq!(b[0].head, Some([100.0, 35.0]));
         assert!((b[0].score - 0.9).abs() < 1e-6);
         let six = vec![0.0f32; 12];
         let e = decode(
@@ -730,6 +746,7 @@ mod tests {
             xywh: [x, 0.0, 10.0, 10.0],
             score: s,
             class: 0,
+            head: None,
         };
         let boxes = vec![b(0.0, 0.5), b(1.0, 0.9), b(30.0, 0.4)];
         let mut rev = boxes.clone();
@@ -746,6 +763,7 @@ mod tests {
             xywh,
             score: s,
             class: 0,
+            head: None,
         };
         // A person's whole box and a part of it (IoU 0.25), and a neighbour touching it.
         let boxes = vec![

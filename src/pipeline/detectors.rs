@@ -8,7 +8,8 @@ use nalgebra::Vector2;
 use super::error::RunError;
 use super::project::Loaded;
 use super::settings::{
-    BackgroundSection, BodySettings, BoxesSection, ColourSection, MotionSection, OnnxSection,
+    BackgroundSection, BodySettings, BoxesSection, ColourSection, HeadSource, MotionSection,
+    OnnxSection,
 };
 use crate::camera::Camera;
 use crate::detect::Detector;
@@ -157,7 +158,7 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
     };
     let filter = b.filter(x.px_per_m, shadow);
     let inner = BoxesDetector::new(boxes, filter).map_err(|e| x.input(e.key, e.to_string()))?;
-    Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
+    Ok(Box::new(heads_from_bodies(Box::new(inner), &b.body(), x)))
 }
 
 /// The most a camera's optical axis may lean from straight down for the overhead model to be
@@ -170,30 +171,69 @@ pub fn off_nadir_deg(cam_from_world: &crate::geom::Rigid3) -> f64 {
     (-axis_world.z).clamp(-1.0, 1.0).acos().to_degrees()
 }
 
-/// A neural detector's boxes (a YOLO-family ONNX model on every frame), filtered, their heads
-/// found.
-pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
-    use crate::detect::neural::NeuralDetector;
+/// The model an `onnx` section runs: the one it names, else by the view (from above
+/// geostride's own, from the side YOLOv3-tiny (COCO)).
+pub fn onnx_model(
+    o: &OnnxSection,
+    l: &Loaded,
+    first_pose: &Rigid3,
+) -> Result<std::path::PathBuf, RunError> {
     use crate::detect::onnx::{YOLO_MODEL, bundled_model, given_model, overhead_model};
     let yolo = || {
         bundled_model().ok_or_else(|| {
-            x.input(
+            RunError::Input(l.error(
+                "detect",
                 "model",
                 format!("the bundled model ({YOLO_MODEL}) is not here: run ./scripts/fetch-models.sh, or name a model"),
-            )
+            ))
         })
     };
-    let model = match &o.model {
-        Some(m) => given_model(m, x.l.resolve(m)),
-        // From above, geostride's own model; from the side, YOLOv3-tiny (COCO).
-        None if off_nadir_deg(x.first_pose) <= OVERHEAD_MAX_OFF_NADIR_DEG => {
+    Ok(match &o.model {
+        Some(m) => given_model(m, l.resolve(m)),
+        None if off_nadir_deg(first_pose) <= OVERHEAD_MAX_OFF_NADIR_DEG => {
             overhead_model().map_or_else(yolo, Ok)?
         }
         None => yolo()?,
-    };
+    })
+}
+
+/// Whether an `onnx` detector's heads are its model's head points: `head = "model"` (refused
+/// for a model that gives none), `"box"` never, unset where the model gives them.
+fn heads_from_model(head: Option<HeadSource>, gives_heads: bool) -> Result<bool, String> {
+    match head {
+        Some(HeadSource::Model) if !gives_heads => Err(
+            "head = \"model\": this model gives no head points (only geostride's overhead model, layout centre_heatmap, does); use head = \"box\"".into(),
+        ),
+        Some(HeadSource::Model) => Ok(true),
+        Some(HeadSource::Box) => Ok(false),
+        None => Ok(gives_heads),
+    }
+}
+
+/// Whether a run's `onnx` detector takes its model's head points (then its tracks are heads,
+/// projected as the hat detector's are, and not whole bodies' boxes).
+pub fn onnx_model_heads(
+    o: &OnnxSection,
+    l: &Loaded,
+    first_pose: &Rigid3,
+) -> Result<bool, RunError> {
+    let model = onnx_model(o, l, first_pose)?;
+    let net = crate::detect::neural::NeuralDetector::load(&model, &o.neural())
+        .map_err(|e| RunError::Input(l.error("detect", "model", e.to_string())))?;
+    heads_from_model(o.head, net.gives_heads())
+        .map_err(|e| RunError::Input(l.error("detect", "head", e)))
+}
+
+/// A neural detector's boxes (an ONNX model on every frame), filtered, their heads found (or
+/// the model's own, [`onnx_model_heads`]).
+pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, RunError> {
+    use crate::detect::neural::NeuralDetector;
+    let model = onnx_model(o, x.l, x.first_pose)?;
     let settings = o.neural();
     let mut net =
         NeuralDetector::load(&model, &settings).map_err(|e| x.input("model", e.to_string()))?;
+    let model_heads =
+        heads_from_model(o.head, net.gives_heads()).map_err(|e| x.input("head", e))?;
     if o.tile.is_none() {
         // Tiles at the model's scale: a person about their height at the view's centre.
         let region = match (settings.roi, x.camera.image_size) {
@@ -218,7 +258,12 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
     let filter = o.filter(x.px_per_m);
     let inner = BoxesDetector::from_model(Box::new(net), o.stride, filter)
         .map_err(|e| x.input(e.key, e.to_string()))?;
-    Ok(heads_from_bodies(Box::new(inner), &o.body(), x))
+    let heads = heads_from_bodies(Box::new(inner), &o.body(), x);
+    Ok(if model_heads {
+        Box::new(heads.with_model_heads())
+    } else {
+        Box::new(heads)
+    })
 }
 
 /// The shadows' colours from patches `[frame, x, y, w, h]` of the video.
@@ -268,7 +313,7 @@ pub fn background(
     let inner =
         crate::detect::background::BackgroundDetector::new(background_settings(b, x.px_per_m))
             .map_err(|e| x.input("method", e.to_string()))?;
-    Ok(heads_from_bodies(Box::new(inner), &b.body(), x))
+    Ok(Box::new(heads_from_bodies(Box::new(inner), &b.body(), x)))
 }
 
 /// The background detector's settings for a project's `[detect]` and image scale.
@@ -299,7 +344,7 @@ pub fn motion(m: &MotionSection, x: &DetectorInputs) -> Result<Box<dyn Detector>
         ..crate::detect::motion::MotionSettings::default()
     })
     .map_err(|e| x.input("step_frames", e.to_string()))?;
-    Ok(heads_from_bodies(Box::new(inner), &m.body(), x))
+    Ok(Box::new(heads_from_bodies(Box::new(inner), &m.body(), x)))
 }
 
 /// A whole-body detector's boxes turned into heads: each moved `body_radius_m` in from the
@@ -308,19 +353,19 @@ fn heads_from_bodies(
     inner: Box<dyn Detector>,
     body: &BodySettings,
     x: &DetectorInputs,
-) -> Box<dyn Detector> {
+) -> HeadsFromBodies {
     // Where vertical lines meet: the image of a point straight below the camera.
     let below = x.first_pose.centre() - nalgebra::Vector3::new(0.0, 0.0, 100.0);
     let nadir = x
         .camera
         .project(&x.first_pose.apply(&below))
         .unwrap_or_else(|_| Vector2::new(x.camera.cx, x.camera.cy));
-    Box::new(HeadsFromBodies::new(
+    HeadsFromBodies::new(
         inner,
         nadir,
         body.body_radius_m * x.px_per_m,
         body.error_model(),
-    ))
+    )
 }
 
 #[cfg(test)]

@@ -444,6 +444,20 @@ pub struct OnnxSection {
     pub person_m: Option<f64>,
     pub error_px2: Option<[f64; 3]>,
     pub error_profile_px2: Option<Vec<[f64; 3]>>,
+    /// Where each person's head point comes from: `model` (the model's own head point) or
+    /// `box` (found from the box's geometry) [default: `model` where the model gives one,
+    /// as geostride's overhead model does, else `box`].
+    pub head: Option<HeadSource>,
+}
+
+/// Where an `onnx` detector's head points come from.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum HeadSource {
+    /// The model's head point (its `centre_heatmap` output's).
+    Model,
+    /// Found from the box: [`crate::detect::head_from_box`] and `projection::body`.
+    Box,
 }
 
 impl Default for OnnxSection {
@@ -477,6 +491,7 @@ impl Default for OnnxSection {
             person_m: None,
             error_px2: None,
             error_profile_px2: None,
+            head: None,
         }
     }
 }

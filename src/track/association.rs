@@ -203,6 +203,7 @@ mod tests {
             bbox: [x - 5.0, y - 5.0, 10.0, 10.0],
             area_px: 80.0,
             score: 1.0,
+            model_head: None,
         }
     }
 

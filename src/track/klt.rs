@@ -820,6 +820,7 @@ mod tests {
             bbox: [centre.x - 15.0, centre.y - 15.0, 30.0, 30.0],
             area_px: 900.0,
             score,
+            model_head: None,
         }
     }
 

@@ -1,7 +1,7 @@
-//! `geostride demo --crowd --detector onnx`: the crowd without hats (`surveys/marathon-stream`)
-//! with the default neural detector (geostride's overhead model, `models/overhead-person.onnx`)
-//! on the rendered video instead of boxes simulated from the truth, checked against the same
-//! targets as the simulated boxes (issue 38).
+//! `geostride demo --crowd` (`--detector onnx`, the crowd's main run): the crowd without hats
+//! (`surveys/marathon-stream`) with the default neural detector (geostride's overhead model,
+//! `models/overhead-person.onnx`) on the rendered video, checked against the same targets as
+//! the simulated boxes of `--detector simulated` (issue 38).
 
 use super::*;
 use geostride::pipeline::settings::OnnxSection;
@@ -30,7 +30,7 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
     let (scene, scene_path, dir) = demo_scene(&args, "surveys/marathon-stream")?;
     simulate_step(
         &args,
-        "geostride demo --crowd --detector onnx",
+        "geostride demo --crowd (the overhead model)",
         &scene,
         &scene_path,
         &dir,

@@ -263,6 +263,8 @@ pub(super) fn split_group(b: RawBox, f: &BoxFilter) -> Vec<RawBox> {
         .map(|i| {
             let (i, n) = (i as f64, n as f64);
             let mut p = b.clone();
+            // The group's head point is one person's at most.
+            p.head = None;
             p.bbox = if w >= h {
                 [x + i * w / n, y, w / n, h]
             } else {

@@ -44,6 +44,9 @@ pub struct RawBox {
     pub label: Option<String>,
     /// 1-based line of the file the box came from, for messages (0 if unknown).
     pub line: usize,
+    /// The top of the head, pixels ((0, 0) the top-left pixel's centre), where the detector
+    /// gives it (geostride's overhead model); a file's boxes have none.
+    pub head: Option<[f64; 2]>,
 }
 
 impl RawBox {

@@ -133,6 +133,7 @@ pub(super) fn parse_mot(ctx: FileCtx, text: &str) -> Result<Vec<RawBox>, FileErr
             score,
             label: None,
             line,
+            head: None,
         });
     }
     Ok(out)
@@ -238,6 +239,7 @@ pub(super) fn json_box(
         score,
         label,
         line: at.line.unwrap_or(0),
+        head: None,
     })
 }
 

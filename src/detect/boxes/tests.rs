@@ -286,6 +286,7 @@ fn bx(x: f64, y: f64, w: f64, h: f64, score: f64) -> RawBox {
         score,
         label: None,
         line: 1,
+        head: None,
     }
 }
 

@@ -99,6 +99,7 @@ impl ColourDetector {
                     bbox: [bx0 as f64 - 0.5, by0 as f64 - 0.5, w, h],
                     area_px: c.area as f64,
                     score: 0.5,
+                    model_head: None,
                 });
             }
             merge_fragments(&mut blobs, area_hat, r_hat);
@@ -143,6 +144,7 @@ impl ColourDetector {
                         ],
                         area_px: area,
                         score: (area / area_hat).min(1.0),
+                        model_head: None,
                     });
                 }
             }

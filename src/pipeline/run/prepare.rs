@@ -131,6 +131,18 @@ pub(super) fn prepare<'a>(
     };
     let formats = export_formats(l)?;
     let carried_picks = pose.carried_picks();
+    // Boxes are read for both ends at projection, unless the model gave the heads.
+    let model_heads = match &p.detect {
+        settings::DetectSection::Onnx(o) => detectors::onnx_model_heads(o, l, &first_pose)?,
+        _ => false,
+    };
+    let bodies = match p.detect.body() {
+        Some(b) if !model_heads => Some(Bodies {
+            shape: b.shape(),
+            error: b.error_model(),
+        }),
+        _ => None,
+    };
     let inputs = RunInputs {
         title: if p.name.is_empty() {
             l.path.display().to_string()
@@ -146,10 +158,7 @@ pub(super) fn prepare<'a>(
         surface,
         px_per_m,
         heights,
-        bodies: p.detect.body().map(|b| Bodies {
-            shape: b.shape(),
-            error: b.error_model(),
-        }),
+        bodies,
         out_crs,
         transform,
         first_pose,

@@ -479,6 +479,18 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-motion-check-on-skipped-frames",
+            category: "nonsense accepted",
+            files: vec![(
+                "project.toml",
+                project_with("[detect]\nkind = \"onnx\"\nstride = 3\nmotion_check = true\n"),
+            )],
+            args: run(),
+            expect: "needs stride = 1",
+            place: "field 'detect.motion_check'",
+            ..Default::default()
+        },
+        Case {
             id: "project-model-pose-without-a-model",
             category: "nonsense accepted",
             files: vec![(

@@ -6,6 +6,7 @@
 #[cfg(feature = "opencv")]
 pub mod background;
 pub mod boxes;
+pub mod check;
 pub mod colour;
 pub mod error_fit;
 pub mod models;
@@ -60,6 +61,10 @@ pub struct Detection {
 /// Detections of one frame, by frame index.
 pub type FrameDetections = (usize, Vec<Detection>);
 
+/// Something a check found that the detector missed: the frame and the box `[x, y, w, h]`,
+/// pixels ([`check::CrossCheck`]).
+pub type Missed = (usize, [f64; 4]);
+
 /// Finds people in frames, which come in order. Implementations keep whatever they learn (a
 /// colour model, a background) between calls; one still learning may hold frames back and
 /// return them later, so each call returns the frames it completed, in order.
@@ -72,6 +77,10 @@ pub trait Detector: Send {
     }
     /// Numbers for the run report (what was learnt, say).
     fn summary(&self) -> Vec<(String, f64)> {
+        Vec::new()
+    }
+    /// What a check run beside it found that it missed ([`check::CrossCheck`]), so far.
+    fn missed(&self) -> Vec<Missed> {
         Vec::new()
     }
 }

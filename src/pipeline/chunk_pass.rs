@@ -147,6 +147,9 @@ pub struct ChunkData {
     /// The tracker's tracks over every frame decoded (ids local to the chunk).
     pub image_tracks: Vec<ImageTrack>,
     pub detector_summary: Vec<(String, f64)>,
+    /// What a check beside the detector found that it missed, in the owned frames
+    /// (`[detect] motion_check`).
+    pub missed: Vec<crate::detect::Missed>,
     pub times: ScanTimes,
     /// Whether the start was reached by a (checked) seek rather than by reading from frame 0.
     pub seeked: bool,
@@ -381,9 +384,14 @@ impl Feeder {
     }
 }
 
-/// Detections by frame (from the chunk's first decoded frame), busy seconds and the detector's
-/// summary.
-pub(super) type Detected = (Vec<Vec<Detection>>, f64, Vec<(String, f64)>);
+/// Detections by frame (from the chunk's first decoded frame), busy seconds, the detector's
+/// summary and what its check found that it missed.
+pub(super) type Detected = (
+    Vec<Vec<Detection>>,
+    f64,
+    Vec<(String, f64)>,
+    Vec<crate::detect::Missed>,
+);
 
 /// The detector, beside the decoder, in frame order from frame `first`; each frame's detections
 /// are also sent to the tracker as they come.
@@ -424,7 +432,7 @@ pub(super) fn detect_frames(
     let done = det.finish().map_err(|e| e.to_string())?;
     spent += t.elapsed().as_secs_f64();
     put(done);
-    Ok((out, spent, det.summary()))
+    Ok((out, spent, det.summary(), det.missed()))
 }
 
 /// Runs one chunk. Errors name the video.
@@ -449,6 +457,7 @@ pub(crate) fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<Chunk
                 detections: Vec::new(),
                 image_tracks: Vec::new(),
                 detector_summary: Vec::new(),
+                missed: Vec::new(),
                 times: ScanTimes::default(),
                 seeked: false,
             });
@@ -535,8 +544,8 @@ pub(crate) fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<Chunk
         let (image_tracks, track_s) = tracked
             .unwrap_or_else(|| Ok((Vec::new(), 0.0)))
             .map_err(named)?;
-        let (mut detections, detect_s, detector_summary) = detected
-            .unwrap_or_else(|| Ok((Vec::new(), 0.0, Vec::new())))
+        let (mut detections, detect_s, detector_summary, mut missed) = detected
+            .unwrap_or_else(|| Ok((Vec::new(), 0.0, Vec::new(), Vec::new())))
             .map_err(|e| ScanError::Detector(named(e)))?;
         if let Some(f) = failure {
             return Err(f.into());
@@ -549,6 +558,7 @@ pub(crate) fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<Chunk
             detections.resize(decoded, Vec::new());
         }
         let skip = own.start - first;
+        missed.retain(|m| (own.start..end).contains(&m.0));
         Ok(ChunkData {
             index: job.index,
             start: own.start,
@@ -558,6 +568,7 @@ pub(crate) fn scan_chunk(job: ChunkJob, progress: &dyn Progress) -> Result<Chunk
             detections: detections.into_iter().skip(skip).collect(),
             image_tracks,
             detector_summary,
+            missed,
             times: ScanTimes {
                 decode_s,
                 stabilise_s,

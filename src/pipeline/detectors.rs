@@ -259,11 +259,20 @@ pub fn onnx(o: &OnnxSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, Ru
     let inner = BoxesDetector::from_model(Box::new(net), o.stride, filter)
         .map_err(|e| x.input(e.key, e.to_string()))?;
     let heads = heads_from_bodies(Box::new(inner), &o.body(), x);
-    Ok(if model_heads {
+    let found: Box<dyn Detector> = if model_heads {
         Box::new(heads.with_model_heads())
     } else {
         Box::new(heads)
-    })
+    };
+    if !o.motion_check {
+        return Ok(found);
+    }
+    // A moving blob that no box lies on (within a quarter of a person's height) is reported.
+    let check = motion(&MotionSection::default(), x)?;
+    let margin_px = 0.25 * x.l.project.projection.head_height_m * x.px_per_m;
+    Ok(Box::new(crate::detect::check::CrossCheck::new(
+        found, check, margin_px,
+    )))
 }
 
 /// The shadows' colours from patches `[frame, x, y, w, h]` of the video.

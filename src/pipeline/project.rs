@@ -743,4 +743,17 @@ mod tests {
         .unwrap();
         assert_eq!(p.detect.check().unwrap_err().0, "step_frames");
     }
+
+    #[test]
+    fn the_motion_check_needs_every_frame_detected() {
+        let detect = |extra: &str| {
+            let p: Project = toml::from_str(&format!(
+                "{BASE}[detect]\nkind = \"onnx\"\nmotion_check = true\n{extra}"
+            ))
+            .unwrap();
+            p.detect.check()
+        };
+        assert!(detect("").is_ok());
+        assert_eq!(detect("stride = 2\n").unwrap_err().0, "motion_check");
+    }
 }

@@ -448,6 +448,10 @@ pub struct OnnxSection {
     /// `box` (found from the box's geometry) [default: `model` where the model gives one,
     /// as geostride's overhead model does, else `box`].
     pub head: Option<HeadSource>,
+    /// Also run the motion detector (`kind = "motion"` with its defaults) as a check: its
+    /// moving blobs that no box lies on are reported (`motion-check.csv`, the run report's
+    /// `check_*` counts) [default: false; it about doubles the detection's time].
+    pub motion_check: bool,
 }
 
 /// Where an `onnx` detector's head points come from.
@@ -492,6 +496,7 @@ impl Default for OnnxSection {
             error_px2: None,
             error_profile_px2: None,
             head: None,
+            motion_check: false,
         }
     }
 }
@@ -1049,6 +1054,12 @@ impl DetectSection {
                 }
                 if o.stride == 0 {
                     return bad("stride", "expected 1 or more");
+                }
+                if o.motion_check && o.stride > 1 {
+                    return bad(
+                        "motion_check",
+                        "the check compares every frame: it needs stride = 1 (the frames the model skips would all count as missed)",
+                    );
                 }
                 o.neural().check()?;
                 filter_check(&o.filter(1.0))?;

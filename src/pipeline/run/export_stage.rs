@@ -212,6 +212,34 @@ fn write_detections(o: &mut dyn std::io::Write, x: &ExportInputs) -> std::io::Re
     Ok(())
 }
 
+/// `motion-check.csv`: what the motion check found that the detector missed, every chunk's
+/// read back in turn; the count of blobs and of frames.
+fn write_missed(x: &ExportInputs, w: &mut Written) -> Result<(usize, usize), RunError> {
+    let (mut blobs, mut frames) = (0, 0);
+    x.put(
+        "motion-check.csv",
+        &mut |o| {
+            writeln!(o, "frame,x,y,width,height")?;
+            for (stage, key) in &x.chunks {
+                let chunk = x
+                    .cache
+                    .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
+                    .ok_or_else(|| gone(x.cache, stage))?;
+                let mut last = None;
+                for (f, b) in &chunk.missed {
+                    writeln!(o, "{f},{:.1},{:.1},{:.1},{:.1}", b[0], b[1], b[2], b[3])?;
+                    blobs += 1;
+                    frames += usize::from(last != Some(*f));
+                    last = Some(*f);
+                }
+            }
+            Ok(())
+        },
+        w,
+    )?;
+    Ok((blobs, frames))
+}
+
 /// `trajectories.geojson` and `positions.geojson`: RFC 7946, WGS 84 longitude, latitude and
 /// ellipsoidal height, through PROJ (its own handles: this runs on a worker thread). Both files
 /// are written together, a trajectory at a time, each converted once.
@@ -343,6 +371,16 @@ pub(super) fn export_stage(
         outputs.extend(w.outputs);
         warnings.extend(w.warnings);
         transformations.extend(w.transformations);
+    }
+    if inputs.motion_check {
+        let mut w = Written::default();
+        let (blobs, frames) = write_missed(x, &mut w)?;
+        outputs.extend(w.outputs);
+        if blobs > 0 {
+            warnings.push(format!(
+                "the motion check found {blobs} moving blob(s) in {frames} frame(s) that no detection lies on: motion-check.csv lists them"
+            ));
+        }
     }
     let record = StageRecord {
         name: "export".into(),

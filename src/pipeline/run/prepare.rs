@@ -167,6 +167,7 @@ pub(super) fn prepare<'a>(
         scan_key,
         palette,
         formats,
+        motion_check: matches!(&p.detect, settings::DetectSection::Onnx(o) if o.motion_check),
     };
     Ok(Prepared {
         env: Env {
@@ -395,6 +396,8 @@ pub(super) struct RunInputs {
     pub(super) palette: Option<crate::detect::colour::Palette>,
     /// The export formats, in the project's order.
     pub(super) formats: Vec<crate::export::ExportFormat>,
+    /// Whether the detector is checked by the motion detector (`motion-check.csv`).
+    pub(super) motion_check: bool,
 }
 
 /// The image scale of a head, pixels per metre, where the camera looks: at the head-height point

@@ -131,18 +131,7 @@ pub(super) fn prepare<'a>(
     };
     let formats = export_formats(l)?;
     let carried_picks = pose.carried_picks();
-    // Boxes are read for both ends at projection, unless the model gave the heads.
-    let model_heads = match &p.detect {
-        settings::DetectSection::Onnx(o) => detectors::onnx_model_heads(o, l, &first_pose)?,
-        _ => false,
-    };
-    let bodies = match p.detect.body() {
-        Some(b) if !model_heads => Some(Bodies {
-            shape: b.shape(),
-            error: b.error_model(),
-        }),
-        _ => None,
-    };
+    let bodies = bodies(l, &first_pose)?;
     let inputs = RunInputs {
         title: if p.name.is_empty() {
             l.path.display().to_string()
@@ -398,6 +387,23 @@ pub(super) struct RunInputs {
     pub(super) formats: Vec<crate::export::ExportFormat>,
     /// Whether the detector is checked by the motion detector (`motion-check.csv`).
     pub(super) motion_check: bool,
+}
+
+/// How a whole-body detector's boxes are read at projection (both ends), unless the model gave
+/// the heads (`[detect] head`); None for the hat detector.
+fn bodies(l: &Loaded, first_pose: &crate::geom::Rigid3) -> Result<Option<Bodies>, RunError> {
+    let p = &l.project;
+    let model_heads = match &p.detect {
+        settings::DetectSection::Onnx(o) => detectors::onnx_model_heads(o, l, first_pose)?,
+        _ => false,
+    };
+    Ok(match p.detect.body() {
+        Some(b) if !model_heads => Some(Bodies {
+            shape: b.shape(),
+            error: b.error_model(),
+        }),
+        _ => None,
+    })
 }
 
 /// The image scale of a head, pixels per metre, where the camera looks: at the head-height point

@@ -398,4 +398,14 @@ mod tests {
             assert_eq!(s.px_per_m, 40.0);
         }
     }
+
+    #[test]
+    fn the_models_heads_are_taken_where_it_gives_them_unless_told() {
+        use HeadSource::{Box as FromBox, Model};
+        assert_eq!(heads_from_model(None, true), Ok(true));
+        assert_eq!(heads_from_model(None, false), Ok(false));
+        assert_eq!(heads_from_model(Some(FromBox), true), Ok(false));
+        assert_eq!(heads_from_model(Some(Model), true), Ok(true));
+        assert!(heads_from_model(Some(Model), false).is_err());
+    }
 }

@@ -37,7 +37,10 @@ pub struct BoxesDetector {
     model: Option<(Box<dyn FrameBoxes>, usize)>,
     filter: BoxFilter,
     counts: FilterCounts,
-    frames: usize,
+    /// One past the last frame pushed.
+    frames_end: usize,
+    /// The video's length in frames, when known (a chunk of it sees only some).
+    video_frames: Option<usize>,
 }
 
 impl BoxesDetector {
@@ -50,8 +53,16 @@ impl BoxesDetector {
             model: None,
             filter,
             counts: FilterCounts::default(),
-            frames: 0,
+            frames_end: 0,
+            video_frames: None,
         })
+    }
+
+    /// The video's length in frames: the box file's frames beyond it are counted against it,
+    /// not against the frames this detector was given (a chunk's).
+    pub fn with_video_frames(mut self, frames: Option<usize>) -> Self {
+        self.video_frames = frames;
+        self
     }
 
     /// Boxes found by `model` in each frame as it comes.
@@ -66,14 +77,15 @@ impl BoxesDetector {
             model: Some((model, stride.max(1))),
             filter,
             counts: FilterCounts::default(),
-            frames: 0,
+            frames_end: 0,
+            video_frames: None,
         })
     }
 }
 
 impl Detector for BoxesDetector {
     fn push(&mut self, frame: &FrameView) -> Result<Vec<FrameDetections>, crate::PluginError> {
-        self.frames += 1;
+        self.frames_end = self.frames_end.max(frame.index + 1);
         if let Some((m, stride)) = self.model.as_mut() {
             if frame.index % *stride != 0 {
                 return Ok(vec![(frame.index, Vec::new())]);
@@ -115,10 +127,17 @@ impl Detector for BoxesDetector {
 
     fn summary(&self) -> Vec<(String, f64)> {
         let n = &self.counts;
-        let first_beyond = self.boxes.partition_point(|b| b.frame < self.frames);
-        let mut beyond: Vec<usize> = self.boxes[first_beyond..].iter().map(|b| b.frame).collect();
-        beyond.dedup();
-        let beyond = beyond.len();
+        // A file's frames beyond the video (a model's boxes are the current frame's).
+        let end = self.video_frames.unwrap_or(self.frames_end);
+        let beyond = if self.model.is_some() {
+            0
+        } else {
+            let first_beyond = self.boxes.partition_point(|b| b.frame < end);
+            let mut frames: Vec<usize> =
+                self.boxes[first_beyond..].iter().map(|b| b.frame).collect();
+            frames.dedup();
+            frames.len()
+        };
         [
             ("boxes_read", n.read),
             ("boxes_low_score", n.low_score),
@@ -388,5 +407,45 @@ mod tests {
             "{}",
             kept[0].uv
         );
+    }
+
+    #[test]
+    fn box_frames_beyond_the_video_are_counted_against_the_video_not_the_chunk() {
+        use crate::detect::boxes::{BoxFilter, RawBox};
+        // Boxes on frames 0-9 and on frame 12 of a 10-frame video.
+        let boxes: Vec<RawBox> = (0..10)
+            .chain([12])
+            .map(|frame| RawBox {
+                frame,
+                bbox: [10.0, 10.0, 20.0, 40.0],
+                score: 0.9,
+                label: None,
+                line: frame + 1,
+                head: None,
+            })
+            .collect();
+        let beyond = |video: Option<usize>, frames: std::ops::Range<usize>| {
+            let mut d = BoxesDetector::new(boxes.clone(), BoxFilter::new(40.0))
+                .unwrap()
+                .with_video_frames(video);
+            let bgr = vec![0u8; 64 * 64 * 3];
+            for index in frames {
+                let f = FrameView {
+                    index,
+                    width: 64,
+                    height: 64,
+                    bgr: &bgr,
+                };
+                d.push(&f).unwrap();
+            }
+            d.summary()
+                .into_iter()
+                .find(|(k, _)| k == "box_frames_beyond_video")
+                .map(|(_, v)| v)
+        };
+        // A chunk holding frames 5-7 of the video: one frame beyond (12), not frames 3-12.
+        assert_eq!(beyond(Some(10), 5..8), Some(1.0));
+        // Without the video's length, beyond the last frame given.
+        assert_eq!(beyond(None, 0..10), Some(1.0));
     }
 }

@@ -157,7 +157,9 @@ pub fn boxes(b: &BoxesSection, x: &DetectorInputs) -> Result<Box<dyn Detector>, 
         Some(shadow_model(&b.shadow_samples, x)?)
     };
     let filter = b.filter(x.px_per_m, shadow);
-    let inner = BoxesDetector::new(boxes, filter).map_err(|e| x.input(e.key, e.to_string()))?;
+    let inner = BoxesDetector::new(boxes, filter)
+        .map_err(|e| x.input(e.key, e.to_string()))?
+        .with_video_frames(x.frames);
     Ok(Box::new(heads_from_bodies(Box::new(inner), &b.body(), x)))
 }
 

@@ -79,7 +79,19 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
         json,
         "   geostride's overhead model on the rendered video (trained on other simulated tiles), checked against the simulated boxes' targets with its fitted error model."
     );
-    let checks = crowd_checks(&args, &scene, &e, &cons);
+    // The people's heads are the model's own head points (`[detect] head`), not the boxes'.
+    let from_model = report
+        .stages
+        .iter()
+        .find(|s| s.name == "scan")
+        .and_then(|s| s.counts.get("heads_from_model"))
+        .copied()
+        .unwrap_or(0.0);
+    let mut checks = crowd_checks(&args, &scene, &e, &cons).to_vec();
+    checks.push((
+        from_model >= 0.9 * detections,
+        format!("the heads from the model's head points ({from_model:.0} for {detections:.0} detections)"),
+    ));
     let failed: Vec<&String> = checks.iter().filter(|c| !c.0).map(|c| &c.1).collect();
     let out = OnnxCrowdReport {
         detector: fitted,

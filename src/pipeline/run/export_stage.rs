@@ -129,6 +129,17 @@ impl ExportInputs<'_> {
             .map_err(|e| std::io::Error::other(e.to_string()))
     }
 
+    /// The scan's chunks read back from their caches, one at a time.
+    fn chunk_data(
+        &self,
+    ) -> impl Iterator<Item = std::io::Result<crate::pipeline::chunk_pass::ChunkData>> + '_ {
+        self.chunks.iter().map(|(stage, key)| {
+            self.cache
+                .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
+                .ok_or_else(|| gone(self.cache, stage))
+        })
+    }
+
     /// The file `name` written piece by piece into its temporary (an hour's outputs never stand
     /// whole in memory); a failed write leaves no file.
     fn put(
@@ -200,11 +211,8 @@ fn write_format(f: ExportFormat, x: &ExportInputs) -> Result<Written, RunError> 
 fn write_detections(o: &mut dyn std::io::Write, x: &ExportInputs) -> std::io::Result<()> {
     use crate::detect::error_fit::{DETECTIONS_HEADER, write_detection_rows};
     writeln!(o, "{DETECTIONS_HEADER}")?;
-    for (stage, key) in &x.chunks {
-        let chunk = x
-            .cache
-            .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
-            .ok_or_else(|| gone(x.cache, stage))?;
+    for chunk in x.chunk_data() {
+        let chunk = chunk?;
         if chunk.end > chunk.start {
             write_detection_rows(o, chunk.start, &chunk.detections)?;
         }
@@ -220,11 +228,8 @@ fn write_missed(x: &ExportInputs, w: &mut Written) -> Result<(usize, usize), Run
         "motion-check.csv",
         &mut |o| {
             writeln!(o, "frame,x,y,width,height")?;
-            for (stage, key) in &x.chunks {
-                let chunk = x
-                    .cache
-                    .load::<crate::pipeline::chunk_pass::ChunkData>(stage, key)
-                    .ok_or_else(|| gone(x.cache, stage))?;
+            for chunk in x.chunk_data() {
+                let chunk = chunk?;
                 let mut last = None;
                 for (f, b) in &chunk.missed {
                     writeln!(o, "{f},{:.1},{:.1},{:.1},{:.1}", b[0], b[1], b[2], b[3])?;

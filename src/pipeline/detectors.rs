@@ -219,11 +219,20 @@ pub fn onnx_model_heads(
     l: &Loaded,
     first_pose: &Rigid3,
 ) -> Result<bool, RunError> {
+    if o.head == Some(HeadSource::Box) {
+        return Ok(false);
+    }
+    // The model's session and metadata only: the detector itself is built (and tried on an
+    // input) by `onnx`.
+    use crate::detect::yolo::CENTRE_HEATMAP_LAYOUT;
     let model = onnx_model(o, l, first_pose)?;
-    let net = crate::detect::neural::NeuralDetector::load(&model, &o.neural())
+    let net = crate::detect::onnx::OnnxModel::load(&model, 1)
         .map_err(|e| RunError::Input(l.error("detect", "model", e.to_string())))?;
-    heads_from_model(o.head, net.gives_heads())
-        .map_err(|e| RunError::Input(l.error("detect", "head", e)))
+    let gives_heads = match &o.layout {
+        Some(layout) => layout == "centre_heatmap",
+        None => net.metadata("geostride.layout").as_deref() == Some(CENTRE_HEATMAP_LAYOUT),
+    };
+    heads_from_model(o.head, gives_heads).map_err(|e| RunError::Input(l.error("detect", "head", e)))
 }
 
 /// A neural detector's boxes (an ONNX model on every frame), filtered, their heads found (or

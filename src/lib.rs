@@ -67,6 +67,7 @@ pub mod simulate;
 pub mod smooth;
 #[cfg(feature = "gdal")]
 pub mod survey;
+pub mod targets;
 pub mod terrain;
 pub mod text;
 pub mod track;

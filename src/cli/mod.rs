@@ -9,6 +9,7 @@ pub mod demo;
 mod detect;
 mod evaluate;
 mod fit_error;
+mod gcp;
 mod plan;
 mod pose;
 mod pose_video;
@@ -80,6 +81,9 @@ enum Command {
     Evaluate(evaluate::Args),
     /// Fit a detector's error model (detect.error_px2) to heads annotated in some frames
     FitError(fit_error::Args),
+    /// Ground control targets in photos and video: found and identified automatically
+    #[command(subcommand)]
+    Gcp(gcp::Command),
     /// Render a simulated scene (drone video of walkers or runners) with exact ground truth
     Simulate(simulate::Args),
     /// Camera pose from ground control points: one image, or every frame of a hovering video
@@ -129,6 +133,7 @@ impl Cli {
             Command::Slurm(args) => cluster::run_slurm(args),
             Command::Track(args) => track::run(args),
             Command::Survey(cmd) => survey::run(cmd),
+            Command::Gcp(cmd) => gcp::run(cmd),
             Command::Plan(args) => plan::run(args),
             Command::Pose(args) if args.video.is_some() => pose_video::run(&args),
             Command::Pose(args) => pose::run(args),

@@ -654,6 +654,15 @@ pub(super) fn cases() -> Vec<Case> {
         with("pose-annotated-onto-its-image", "input overwritten", pose_image(&["--image", frame, "--annotated", frame]), "would overwrite the input", frame),
         with("pose-video-missing", "wrong code", pose_video(&["--out", "pv"]).into_iter().map(|w| if w == "video.mp4" { "nope.mp4".into() } else { w }).collect(), "nope.mp4", "nope.mp4"),
         with("pose-video-out-is-a-file", "wrong code", pose_video(&["--out", "heights.csv"]), "is a file", "heights.csv"),
+        // --- gcp find -------------------------------------------------------------------------------
+        case("gcp-find-onto-its-gcps", "input overwritten", &["gcp", "find", frame, "--gcps", "gcps.csv", "--out", "gcps.csv"], "would overwrite the input", "gcps.csv"),
+        case("gcp-find-image-missing", "wrong code", &["gcp", "find", "nope.png", "--gcps", "gcps.csv", "--out", "found.csv"], "no such file", "nope.png"),
+        case("gcp-find-not-an-image", "wrong code", &["gcp", "find", "fake.png", "--gcps", "gcps.csv", "--out", "found.csv"], "fake.png", "fake.png")
+            .file("fake.png", "not an image at all\n".into()),
+        case("gcp-find-image-claiming-a-gigapixel", "runaway memory", &["gcp", "find", "huge.jpg", "--gcps", "gcps.csv", "--out", "found.csv"], "its header claims 32000x32000", "huge.jpg")
+            .bytes("huge.jpg", jpeg_claiming(32000, 32000)),
+        case("gcp-find-heading-tolerance-500", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--heading", "0:500", "--out", "found.csv"], "tolerance", "--heading"),
+        case("gcp-find-video-frame-beyond-its-end", "wrong code", &["gcp", "find", "video.mp4", "--frame", "100000", "--gcps", "gcps.csv", "--out", "found.csv"], "100000", "video.mp4"),
         // --- track ----------------------------------------------------------------------------------
         with("track-px-per-m-0", "nonsense accepted", track(&["--px-per-m", "0", "--out", "t"]), "positive number", "--px-per-m"),
         with("track-px-per-m-huge", "nonsense accepted", track(&["--px-per-m", "1e9", "--out", "t"]), "--px-per-m", "--px-per-m"),

@@ -1,0 +1,291 @@
+//! `geostride gcp find`: ground control targets found in photos or video frames and identified
+//! from their layout, written as picks.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, anyhow};
+use nalgebra::Vector2;
+use serde::Serialize;
+
+use super::survey::{ReadArgs, read_framed};
+use super::{bad_input, check_output_file};
+use geostride::targets::{
+    Gray, Identification, LayoutSettings, TargetSettings, find_targets, identify_by_layout,
+};
+
+#[derive(clap::Subcommand)]
+pub enum Command {
+    /// Find the checker targets (a square in four black and white quadrants) in photos or a
+    /// video frame, tell which surveyed point each is from their layout, and write the picks
+    Find(FindArgs),
+}
+
+#[derive(clap::Args)]
+pub struct FindArgs {
+    /// Photos (any format OpenCV reads) or videos (.mp4, .mov, .avi, .mkv, .m4v, .mts: the
+    /// frame --frame is searched)
+    #[arg(required = true, value_name = "IMAGE-OR-VIDEO")]
+    inputs: Vec<PathBuf>,
+    /// Ground control points: any survey file `geostride survey` reads
+    #[arg(long, value_name = "FILE")]
+    gcps: PathBuf,
+    #[command(flatten)]
+    read: ReadArgs,
+    /// The video frame to search, from 0; its picks are named 'VIDEO#N' as `pose` reads them
+    #[arg(long, default_value = "0", value_name = "N")]
+    frame: usize,
+    /// Where the image's top points, a bearing in degrees from north through east, with a
+    /// tolerance (default 45): needed when the targets' layout is symmetric
+    #[arg(long, value_parser = parse_heading, value_name = "DEG[:TOL]")]
+    heading: Option<(f64, f64)>,
+    /// Least difference between a target's white and black quadrants, grey levels
+    #[arg(long, default_value = "40", value_name = "LEVELS")]
+    min_contrast: f64,
+    /// The picks CSV to write (name,image,u,v,sigma)
+    #[arg(long, value_name = "FILE")]
+    out: PathBuf,
+    /// Print the report as JSON
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_heading(s: &str) -> Result<(f64, f64), String> {
+    let (d, t) = s.split_once(':').unwrap_or((s, "45"));
+    let d: f64 = d
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}': a bearing in degrees, e.g. 0 or 90:30"))?;
+    let t: f64 = t
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}': the tolerance after ':' is not a number"))?;
+    if !(d.is_finite() && t > 0.0 && t <= 180.0) {
+        return Err(format!(
+            "'{s}': a finite bearing and a tolerance in (0, 180] degrees"
+        ));
+    }
+    Ok((d, t))
+}
+
+pub fn run(cmd: Command) -> anyhow::Result<()> {
+    match cmd {
+        Command::Find(args) => find(&args),
+    }
+}
+
+#[derive(Serialize)]
+struct ImageReport {
+    image: String,
+    width: usize,
+    height: usize,
+    targets: Vec<TargetReport>,
+    identified: usize,
+    /// Why nothing was identified, when so.
+    not_identified: Option<String>,
+    rejected: Vec<RejectedReport>,
+}
+
+#[derive(Serialize)]
+struct TargetReport {
+    u: f64,
+    v: f64,
+    sigma_px: f64,
+    contrast: f64,
+    size_px: f64,
+    /// The surveyed point it is, when identified.
+    name: Option<String>,
+    residual_px: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct RejectedReport {
+    u: f64,
+    v: f64,
+    reason: String,
+}
+
+const VIDEO_EXTENSIONS: [&str; 6] = ["mp4", "mov", "avi", "mkv", "m4v", "mts"];
+
+fn is_video(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| VIDEO_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
+/// The image to search and the name its picks carry.
+fn load(path: &Path, frame: usize) -> anyhow::Result<(Gray, String)> {
+    let file_name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .ok_or_else(|| bad_input(anyhow!("{}: not a file name", path.display())))?
+        .to_string();
+    if is_video(path) {
+        let (bytes, w, h) = geostride::video::source::FrameReader::frame_bgr_bytes(path, frame)
+            .map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
+        Ok((Gray::from_bgr(&bytes, w, h), format!("{file_name}#{frame}")))
+    } else {
+        let (bytes, w, h) = geostride::imageio::read_bgr_bytes(path).map_err(bad_input)?;
+        Ok((Gray::from_bgr(&bytes, w, h), file_name))
+    }
+}
+
+fn find(args: &FindArgs) -> anyhow::Result<()> {
+    let mut inputs: Vec<&Path> = args.inputs.iter().map(PathBuf::as_path).collect();
+    inputs.push(&args.gcps);
+    inputs.extend(args.read.picks.iter().map(PathBuf::as_path));
+    check_output_file(&args.out, &inputs)?;
+    let framed = read_framed(&args.gcps, &args.read, None).map_err(bad_input)?;
+    let names: Vec<String> = framed
+        .survey
+        .points
+        .iter()
+        .map(|p| p.name.clone())
+        .collect();
+    let ground: Vec<Vector2<f64>> = framed.local.iter().map(|p| p.xy()).collect();
+    if ground.len() < 4 {
+        return Err(bad_input(anyhow!(
+            "{}: {} points; telling targets apart by their layout needs at least four",
+            args.gcps.display(),
+            ground.len()
+        )));
+    }
+    let target_settings = TargetSettings {
+        min_contrast: args.min_contrast,
+        ..TargetSettings::default()
+    };
+    let layout = LayoutSettings {
+        heading_deg: args.heading,
+        ..LayoutSettings::default()
+    };
+    let mut csv = String::from("name,image,u,v,sigma\n");
+    let mut reports = Vec::new();
+    for path in &args.inputs {
+        let (gray, image) = load(path, args.frame)?;
+        let report = search(&gray, image, &ground, &names, &target_settings, &layout);
+        for t in &report.targets {
+            if let Some(name) = &t.name {
+                let _ = writeln!(
+                    csv,
+                    "{name},{},{:.3},{:.3},{:.3}",
+                    report.image, t.u, t.v, t.sigma_px
+                );
+            }
+        }
+        reports.push(report);
+    }
+    let picked: usize = reports.iter().map(|r| r.identified).sum();
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    } else {
+        print!("{}", text_report(&reports));
+    }
+    if picked == 0 {
+        return Err(anyhow!(
+            "no target identified in {} image(s); nothing written (see the report above)",
+            reports.len()
+        ));
+    }
+    geostride::io::write_atomic(&args.out, csv.as_bytes())
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    if !args.json {
+        println!("Written: {} ({picked} picks)", args.out.display());
+    }
+    Ok(())
+}
+
+fn search(
+    gray: &Gray,
+    image: String,
+    ground: &[Vector2<f64>],
+    names: &[String],
+    target_settings: &TargetSettings,
+    layout: &LayoutSettings,
+) -> ImageReport {
+    let (found, rejected) = find_targets(gray, target_settings);
+    let centres: Vec<(Vector2<f64>, f64)> = found.iter().map(|c| (c.uv, c.sigma_px)).collect();
+    let mut targets: Vec<TargetReport> = found
+        .iter()
+        .map(|c| TargetReport {
+            u: c.uv.x,
+            v: c.uv.y,
+            sigma_px: c.sigma_px,
+            contrast: c.contrast,
+            size_px: c.size_px,
+            name: None,
+            residual_px: None,
+        })
+        .collect();
+    let (identified, not_identified) = match identify_by_layout(ground, &centres, layout) {
+        Identification::Found { identified, .. } => {
+            for i in &identified {
+                targets[i.target].name = Some(names[i.point].clone());
+                targets[i.target].residual_px = Some(i.residual_px);
+            }
+            (identified.len(), None)
+        }
+        Identification::NotIdentified(why) => (0, Some(why)),
+    };
+    ImageReport {
+        image,
+        width: gray.width,
+        height: gray.height,
+        targets,
+        identified,
+        not_identified,
+        rejected: rejected
+            .into_iter()
+            .map(|r| RejectedReport {
+                u: r.uv.x,
+                v: r.uv.y,
+                reason: r.reason,
+            })
+            .collect(),
+    }
+}
+
+fn text_report(reports: &[ImageReport]) -> String {
+    let mut s = String::new();
+    for r in reports {
+        let _ = writeln!(
+            s,
+            "{} ({}x{}): {} targets, {} identified",
+            r.image,
+            r.width,
+            r.height,
+            r.targets.len(),
+            r.identified
+        );
+        for t in &r.targets {
+            let _ = writeln!(
+                s,
+                "  {:<12} ({:8.2}, {:8.2})  σ {:.2} px  size {:.0} px  contrast {:.0}{}",
+                t.name.as_deref().unwrap_or("?"),
+                t.u,
+                t.v,
+                t.sigma_px,
+                t.size_px,
+                t.contrast,
+                t.residual_px
+                    .map_or(String::new(), |e| format!("  residual {e:.2} px"))
+            );
+        }
+        if let Some(why) = &r.not_identified {
+            let _ = writeln!(s, "  not identified: {why}");
+        }
+        if !r.rejected.is_empty() {
+            let _ = writeln!(s, "  {} places refused:", r.rejected.len());
+            for x in r.rejected.iter().take(8) {
+                let _ = writeln!(s, "    ({:8.2}, {:8.2})  {}", x.u, x.v, x.reason);
+            }
+            if r.rejected.len() > 8 {
+                let _ = writeln!(
+                    s,
+                    "    ... and {} more (--json lists all)",
+                    r.rejected.len() - 8
+                );
+            }
+        }
+    }
+    s
+}

@@ -1,0 +1,172 @@
+//! `geostride gcp find` on simulated video frames with exact truth: checker targets (0.6 m, about
+//! 27 px from 30 m) found, identified from their layout alone, and placed against the truth
+//! (the simulator's picks with no pick noise); a symmetric layout refused unless the heading
+//! tells it apart.
+
+#![cfg(all(feature = "opencv", feature = "gdal"))]
+
+mod common;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+/// A hovering camera 30 m up, turned 20°, over targets at `gcps` (east, north), few people.
+fn scene(heading_deg: f64, gcps: &[(&str, f64, f64)]) -> String {
+    let mut s = format!(
+        "name = \"GCP targets\"\nseed = 5\nduration_s = 0.2\nfps = 25\n\
+         [site]\ncrs = \"EPSG:3812\"\norigin = [654500.0, 696000.0, 52.0]\n\
+         [camera]\ncalibration = \"mini3pro\"\nvideo_mode = [1920, 1080]\n\
+         [camera.motion]\nkind = \"hover\"\nposition = [0.0, 0.0, 30.0]\nheading_deg = {heading_deg}\n\
+         drift_m = 0.0\njitter_deg = 0.0\n\
+         [ground]\nkind = \"deck\"\nheading_deg = 90\nwidth_m = 30.0\nlength_m = 60.0\nheight_m = 0.0\n\
+         [people]\nmode = \"stream\"\nrate_per_s = 0.5\ngait = \"walk\"\nhats = false\n\
+         [output]\nvideo = true\ncheckerboards = 0\npick_noise_px = 0.0\n"
+    );
+    for (name, e, n) in gcps {
+        s += &format!("[[gcp]]\nname = \"{name}\"\nposition = [{e}, {n}]\n");
+    }
+    s
+}
+
+fn simulate(dir: &Path, scene_text: &str) {
+    std::fs::write(dir.join("scene.toml"), scene_text).unwrap();
+    let out = common::geostride()
+        .arg("simulate")
+        .arg(dir.join("scene.toml"))
+        .arg("--out")
+        .arg(dir.join("sim"))
+        .arg("-q")
+        .output()
+        .unwrap();
+    common::assert_success(&out);
+}
+
+fn picks(path: &Path) -> HashMap<String, (f64, f64, f64)> {
+    common::read_csv(path)
+        .into_iter()
+        .map(|r| {
+            let sigma = r.get("sigma").and_then(|s| s.parse().ok()).unwrap_or(0.0);
+            (
+                r["name"].clone(),
+                (common::num(&r, "u"), common::num(&r, "v"), sigma),
+            )
+        })
+        .collect()
+}
+
+fn find(dir: &Path, extra: &[&str]) -> std::process::Output {
+    common::geostride()
+        .current_dir(dir)
+        .args([
+            "gcp",
+            "find",
+            "sim/video.mp4",
+            "--gcps",
+            "sim/gcps.csv",
+            "--out",
+            "found.csv",
+        ])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn targets_are_found_identified_by_layout_and_placed_within_a_fifth_of_a_pixel() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let gcps = [
+        ("G1", -15.0, -6.0),
+        ("G2", -8.0, 7.0),
+        ("G3", 2.0, -4.0),
+        ("G4", 9.0, 8.5),
+        ("G5", 14.0, -7.5),
+        ("G6", -2.0, 3.0),
+        ("CHK-1", 5.5, 1.0),
+    ];
+    simulate(dir, &scene(20.0, &gcps));
+    let out = find(dir, &[]);
+    common::assert_success(&out);
+    let truth = picks(&dir.join("sim/picks.csv"));
+    let found = picks(&dir.join("found.csv"));
+    assert_eq!(truth.len(), 7, "all seven in view");
+    let mut sq = 0.0;
+    for (name, (u, v, _)) in &truth {
+        let (fu, fv, sigma) = found.get(name).unwrap_or_else(|| {
+            panic!(
+                "{name} not picked: {}",
+                String::from_utf8_lossy(&out.stdout)
+            )
+        });
+        let e2 = (fu - u).powi(2) + (fv - v).powi(2);
+        assert!(e2.sqrt() < 0.5, "{name}: {} px from the truth", e2.sqrt());
+        assert!(*sigma > 0.0 && *sigma < 0.5, "{name}: σ {sigma}");
+        sq += e2;
+    }
+    assert_eq!(found.len(), truth.len(), "no pick beyond the truth's");
+    // Issue 39 asks for 0.2 px; measured 0.04 px through the video's compression (0.17 px while
+    // the simulator drew targets from its ground texture, whose texels moved their edges).
+    let rms = (sq / (2.0 * truth.len() as f64)).sqrt();
+    assert!(rms <= 0.1, "centre RMS {rms} px");
+    // `pose` reads the picks as written.
+    let pose = common::geostride()
+        .current_dir(dir)
+        .args([
+            "pose",
+            "--camera",
+            "sim/camera.json",
+            "--gcps",
+            "sim/gcps.csv",
+            "--picks",
+            "found.csv",
+        ])
+        .args(["--image-size", "1920x1080", "--picks-image", "video.mp4#0"])
+        .output()
+        .unwrap();
+    common::assert_success(&pose);
+}
+
+#[test]
+fn a_symmetric_layout_is_refused_without_a_heading_and_identified_with_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    // Two rows of four, 6 m apart: a half turn maps the grid onto itself.
+    let gcps: Vec<(String, f64, f64)> = (0..8)
+        .map(|k| {
+            (
+                format!("P{}", k + 1),
+                -13.5 + 9.0 * (k % 4) as f64,
+                if k < 4 { -3.0 } else { 3.0 },
+            )
+        })
+        .collect();
+    let named: Vec<(&str, f64, f64)> = gcps
+        .iter()
+        .map(|(n, e, nn)| (n.as_str(), *e, *nn))
+        .collect();
+    simulate(dir, &scene(0.0, &named));
+    let out = find(dir, &[]);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("ambiguous"));
+    assert!(!dir.join("found.csv").exists(), "nothing written");
+    // The drone's heading, roughly: the image's top is north.
+    let out = find(dir, &["--heading", "10:45"]);
+    common::assert_success(&out);
+    let truth = picks(&dir.join("sim/picks.csv"));
+    let found = picks(&dir.join("found.csv"));
+    assert!(
+        found.len() + 1 >= truth.len(),
+        "{} of {}",
+        found.len(),
+        truth.len()
+    );
+    for (name, (u, v, _)) in &found {
+        let (tu, tv, _) = truth[name];
+        assert!((u - tu).hypot(v - tv) < 1.0, "{name} is another target");
+    }
+}

@@ -286,63 +286,6 @@ impl<'w> Renderer<'w> {
         }
     }
 
-    /// The image boxes of the GCP targets in view, pixels, a pixel beyond their edges.
-    fn target_boxes(&self, c: &Vector3<f64>, r_wc: &Matrix3<f64>) -> Vec<[i64; 4]> {
-        let half = super::world::GCP_TARGET_M / 2.0;
-        let (w, h) = (self.width as i64, self.height as i64);
-        self.world
-            .gcps
-            .iter()
-            .filter_map(|(_, g)| {
-                let mut bx = [i64::MAX, i64::MAX, i64::MIN, i64::MIN];
-                for k in 0..4 {
-                    let p = g + Vector3::new(
-                        if k & 1 == 0 { -half } else { half },
-                        if k & 2 == 0 { -half } else { half },
-                        0.0,
-                    );
-                    let uv = self.camera.project(&(r_wc.transpose() * (p - c))).ok()?;
-                    bx = [
-                        bx[0].min(uv.x.floor() as i64 - 2),
-                        bx[1].min(uv.y.floor() as i64 - 2),
-                        bx[2].max(uv.x.ceil() as i64 + 2),
-                        bx[3].max(uv.y.ceil() as i64 + 2),
-                    ];
-                }
-                (bx[2] >= 0 && bx[3] >= 0 && bx[0] < w && bx[1] < h).then_some(bx)
-            })
-            .collect()
-    }
-
-    /// A pixel over a GCP target: the mean of 4×4 sub-pixel rays, each on the exact target, so
-    /// that its edges and centre lie where the survey says (anti-aliased as a lens would).
-    fn target_pixel(
-        &self,
-        c: &Vector3<f64>,
-        r_wc: &Matrix3<f64>,
-        centre: Vector3<f64>,
-        u: usize,
-        v: usize,
-        shadows: &ShadowGrid,
-    ) -> Rgb {
-        const N: u32 = 4;
-        let du = self.ray_step(u, v, true);
-        let dv = self.ray_step(u, v, false);
-        let mut sum = [0f32; 3];
-        for sy in 0..N {
-            for sx in 0..N {
-                let ox = (f64::from(sx) + 0.5) / f64::from(N) - 0.5;
-                let oy = (f64::from(sy) + 0.5) / f64::from(N) - 0.5;
-                let ray = (centre + du * ox + dv * oy).normalize();
-                let col = self.ground_colour(c, &(r_wc * ray), shadows, true);
-                for k in 0..3 {
-                    sum[k] += col[k];
-                }
-            }
-        }
-        sum.map(|v| v / (N * N) as f32)
-    }
-
     /// The ray of a pixel centre.
     fn pixel_ray(&self, u: usize, v: usize) -> Option<Vector3<f64>> {
         let a = self.rays[v * self.width + u];
@@ -355,15 +298,13 @@ impl<'w> Renderer<'w> {
         origin: &Vector3<f64>,
         dir: &Vector3<f64>,
         shadows: &ShadowGrid,
-        exact: bool,
     ) -> Rgb {
         let Some((p, layer)) = self.world.intersect(origin, dir) else {
             return [0.5, 0.6, 0.75];
         };
-        // A photo backdrop is sampled directly: 8-bit linear texels would band its shade; and
-        // so are GCP targets (`exact`), whose edges the texels would move by up to half a texel.
+        // A photo backdrop is sampled directly: 8-bit linear texels would band its shade.
         let tex = match layer {
-            _ if exact || self.world.backdrop.is_some() => None,
+            _ if self.world.backdrop.is_some() => None,
             Layer::Deck => self.deck.as_ref(),
             Layer::Ground => Some(&self.ground),
         };
@@ -414,7 +355,6 @@ impl<'w> Renderer<'w> {
             })
             .collect();
         order.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let targets = self.target_boxes(&c, &r_wc);
         let light = f.light as f32;
         let shadows = ShadowGrid::new(f.shadows, &self.ground);
         let mut out = vec![0u8; w * h * 3];
@@ -428,15 +368,8 @@ impl<'w> Renderer<'w> {
                 for dv in 0..rows {
                     let v = v0 + dv;
                     for u in 0..w {
-                        let on_target = targets.iter().any(|b| {
-                            (b[0]..=b[2]).contains(&(u as i64))
-                                && (b[1]..=b[3]).contains(&(v as i64))
-                        });
                         let colour = match self.pixel_ray(u, v) {
-                            Some(ray) if on_target => {
-                                self.target_pixel(&c, &r_wc, ray, u, v, &shadows)
-                            }
-                            Some(ray) => self.ground_colour(&c, &(r_wc * ray), &shadows, false),
+                            Some(ray) => self.ground_colour(&c, &(r_wc * ray), &shadows),
                             None => [0.0, 0.0, 0.0],
                         };
                         acc.push(colour);

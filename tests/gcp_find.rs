@@ -104,10 +104,11 @@ fn targets_are_found_identified_by_layout_and_placed_within_a_fifth_of_a_pixel()
         sq += e2;
     }
     assert_eq!(found.len(), truth.len(), "no pick beyond the truth's");
-    // Issue 39 asks for 0.2 px; measured 0.04 px through the video's compression (0.17 px while
-    // the simulator drew targets from its ground texture, whose texels moved their edges).
+    // Issue 39's 0.2 px. Measured 0.17 px, most of it the simulator's: it draws targets from
+    // its ground texture, whose texels move their edges by up to half a texel (drawn exactly,
+    // 0.04 px; docs/survey.md).
     let rms = (sq / (2.0 * truth.len() as f64)).sqrt();
-    assert!(rms <= 0.1, "centre RMS {rms} px");
+    assert!(rms <= 0.2, "centre RMS {rms} px");
     // `pose` reads the picks as written.
     let pose = common::geostride()
         .current_dir(dir)

@@ -154,18 +154,13 @@ pub fn find_targets(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Reje
     seeds.truncate(s.max_candidates);
     let mut found: Vec<Candidate> = Vec::new();
     let mut rejected = Vec::new();
-    let smoothed: Vec<(usize, Gray)> = [1usize, 2, 4, 8]
-        .into_iter()
-        .filter(|b| seeds.iter().any(|x| x.2 == *b))
-        .map(|b| (b, img.box_blur(b).box_blur(b)))
-        .collect();
+    let mut smoothed = Smoothed::default();
     for (uv0, _, scale) in seeds {
         let near = |c: &Candidate| (c.uv - uv0).norm() < (0.35 * c.size_px).max(3.0);
         if found.iter().any(near) {
             continue;
         }
-        let blurred = &smoothed.iter().find(|(b, _)| *b == scale).expect("made").1;
-        match examine(img, blurred, uv0, scale, s) {
+        match examine(img, &mut smoothed, uv0, scale, s) {
             Ok(c) => {
                 if !found
                     .iter()
@@ -189,16 +184,29 @@ pub fn find_targets(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Reje
     (found, rejected)
 }
 
+/// The image smoothed by a box of each radius asked for (twice over), each made once and
+/// shared by every candidate.
+#[derive(Default)]
+struct Smoothed(std::collections::BTreeMap<usize, Gray>);
+
+impl Smoothed {
+    fn by(&mut self, img: &Gray, radius: usize) -> &Gray {
+        self.0
+            .entry(radius)
+            .or_insert_with(|| img.box_blur(radius).box_blur(radius))
+    }
+}
+
 /// One candidate checked and placed at full resolution.
 fn examine(
     img: &Gray,
-    blurred: &Gray,
+    smoothed: &mut Smoothed,
     start: Vector2<f64>,
     scale: usize,
     s: &TargetSettings,
 ) -> Result<Candidate, String> {
     let half_window = scale + 1;
-    let (uv, sigma_px) = saddle(blurred, start, half_window)?;
+    let (uv, sigma_px) = saddle(smoothed.by(img, scale), start, half_window)?;
     if sigma_px > s.max_sigma_px {
         return Err(format!(
             "the centre is not sharp: σ {sigma_px:.2} px, at most {:.2}",
@@ -226,8 +234,7 @@ fn examine(
     // compression average out.
     let blur = ((size_px / 8.0).round() as usize).clamp(1, 8);
     let (uv, sigma_px) = if blur > scale {
-        let wide = img.box_blur(blur).box_blur(blur);
-        saddle(&wide, uv, blur + 1).unwrap_or((uv, sigma_px))
+        saddle(smoothed.by(img, blur), uv, blur + 1).unwrap_or((uv, sigma_px))
     } else {
         (uv, sigma_px)
     };
@@ -500,6 +507,31 @@ mod tests {
         }
         let rms = (err2 / n as f64).sqrt();
         assert!(rms < 0.1, "RMS {rms}");
+    }
+
+    #[test]
+    fn a_place_seen_only_at_the_coarsest_levels_is_examined_too() {
+        // A large, defocused target answers the ring only at the coarse levels (80 px at 1/16).
+        // Defocused, so that only the coarse levels see a corner.
+        let img = render(
+            1100,
+            1100,
+            &[(Vector2::new(550.4, 540.7), 190.0, 0.2)],
+            2.0,
+            3,
+        )
+        .box_blur(12)
+        .box_blur(12);
+        // Its seeds at 1/8 and 1/16 are examined (this panicked before): the place is refused
+        // with a reason, not dropped.
+        let (found, rejected) = find_targets(&img, &TargetSettings::default());
+        assert!(found.is_empty(), "{found:?}");
+        assert!(
+            rejected
+                .iter()
+                .any(|r| (r.uv - Vector2::new(550.4, 540.7)).norm() < 5.0 && !r.reason.is_empty()),
+            "{rejected:?}"
+        );
     }
 
     #[test]

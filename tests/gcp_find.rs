@@ -30,15 +30,7 @@ fn scene(heading_deg: f64, gcps: &[(&str, f64, f64)]) -> String {
 
 fn simulate(dir: &Path, scene_text: &str) {
     std::fs::write(dir.join("scene.toml"), scene_text).unwrap();
-    let out = common::geostride()
-        .arg("simulate")
-        .arg(dir.join("scene.toml"))
-        .arg("--out")
-        .arg(dir.join("sim"))
-        .arg("-q")
-        .output()
-        .unwrap();
-    common::assert_success(&out);
+    common::simulate(&dir.join("scene.toml"), &dir.join("sim"));
 }
 
 fn picks(path: &Path) -> HashMap<String, (f64, f64, f64)> {

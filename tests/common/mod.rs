@@ -122,9 +122,15 @@ pub fn simulate_scene(name: &str, dir: &std::path::Path) {
     let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/scenes")
         .join(format!("{name}.toml"));
+    simulate(&scene, dir);
+}
+
+/// Simulates the scene file `scene` into `dir`, failing the test on an error.
+#[allow(dead_code)]
+pub fn simulate(scene: &std::path::Path, dir: &std::path::Path) {
     let out = geostride()
         .arg("simulate")
-        .arg(&scene)
+        .arg(scene)
         .arg("--out")
         .arg(dir)
         .arg("-q")

@@ -12,6 +12,8 @@
 #   python3-torch, python3-pil, python3-onnx (Debian 12's PyTorch 1.13, CPU only, pinned by the
 #   release): scripts/train_detector.py trains the overhead person detector (`make model`, and a
 #   few steps of it in `make test`); geostride itself never runs Python.
+#   chromium, chromium-driver and python3-selenium: tests/gcp_pick.rs drives the picking page
+#   (`geostride gcp pick`) in a real headless browser; geostride itself never needs them.
 #   Slurm (slurmctld, slurmd, sbatch) and munge: the test suite starts a one-node cluster on
 #   localhost (tests/slurm.rs) and runs `geostride slurm --submit` on it.
 #
@@ -30,6 +32,7 @@ packages=(
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
   python3 python3-venv python3-pip
   python3-torch python3-pil python3-onnx
+  chromium chromium-driver python3-selenium
   slurmctld slurmd slurm-client munge
 )
 if [ "${1:-}" = "--bench" ]; then

@@ -117,6 +117,21 @@ pub fn encode_rgb_jpeg(
     Ok(buf.to_vec())
 }
 
+/// Tightly packed 8-bit BGR encoded as PNG (lossless: what a page shows is what was searched).
+pub fn encode_bgr_png(bgr: &[u8], width: usize, height: usize) -> Result<Vec<u8>, ImageError> {
+    let path = Path::new("(png)");
+    let err = |e: opencv::Error| file_error(path, e);
+    let mat = Mat::new_rows_cols_with_data(height as i32, width as i32 * 3, bgr).map_err(err)?;
+    let mat = mat.reshape(3, height as i32).map_err(err)?;
+    let mut buf = Vector::<u8>::new();
+    // Level 1: a 4K frame in a fraction of a second; the size matters little on 127.0.0.1.
+    let params = Vector::from_slice(&[imgcodecs::IMWRITE_PNG_COMPRESSION, 1]);
+    if !imgcodecs::imencode(".png", &mat, &mut buf, &params).map_err(err)? {
+        return Err(file_error(path, "OpenCV cannot encode PNG"));
+    }
+    Ok(buf.to_vec())
+}
+
 /// A scalar map for [`write_heatmap`]: row-major values, a title, and the unit of the labels
 /// (values are multiplied by `scale` for them, e.g. 100 for centimetres).
 pub struct HeatMap<'a> {

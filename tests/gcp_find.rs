@@ -10,24 +10,6 @@ mod common;
 use std::collections::HashMap;
 use std::path::Path;
 
-/// A hovering camera 30 m up, turned 20°, over targets at `gcps` (east, north), few people.
-fn scene(heading_deg: f64, gcps: &[(&str, f64, f64)]) -> String {
-    let mut s = format!(
-        "name = \"GCP targets\"\nseed = 5\nduration_s = 0.2\nfps = 25\n\
-         [site]\ncrs = \"EPSG:3812\"\norigin = [654500.0, 696000.0, 52.0]\n\
-         [camera]\ncalibration = \"mini3pro\"\nvideo_mode = [1920, 1080]\n\
-         [camera.motion]\nkind = \"hover\"\nposition = [0.0, 0.0, 30.0]\nheading_deg = {heading_deg}\n\
-         drift_m = 0.0\njitter_deg = 0.0\n\
-         [ground]\nkind = \"deck\"\nheading_deg = 90\nwidth_m = 30.0\nlength_m = 60.0\nheight_m = 0.0\n\
-         [people]\nmode = \"stream\"\nrate_per_s = 0.5\ngait = \"walk\"\nhats = false\n\
-         [output]\nvideo = true\ncheckerboards = 0\npick_noise_px = 0.0\n"
-    );
-    for (name, e, n) in gcps {
-        s += &format!("[[gcp]]\nname = \"{name}\"\nposition = [{e}, {n}]\n");
-    }
-    s
-}
-
 fn simulate(dir: &Path, scene_text: &str) {
     std::fs::write(dir.join("scene.toml"), scene_text).unwrap();
     common::simulate(&dir.join("scene.toml"), &dir.join("sim"));
@@ -76,7 +58,7 @@ fn targets_are_found_identified_by_layout_and_placed_within_a_fifth_of_a_pixel()
         ("G6", -2.0, 3.0),
         ("CHK-1", 5.5, 1.0),
     ];
-    simulate(dir, &scene(20.0, &gcps));
+    simulate(dir, &common::target_scene(20.0, &gcps));
     let out = find(dir, &[]);
     common::assert_success(&out);
     let truth = picks(&dir.join("sim/picks.csv"));
@@ -137,7 +119,7 @@ fn a_symmetric_layout_is_refused_without_a_heading_and_identified_with_one() {
         .iter()
         .map(|(n, e, nn)| (n.as_str(), *e, *nn))
         .collect();
-    simulate(dir, &scene(0.0, &named));
+    simulate(dir, &common::target_scene(0.0, &named));
     let out = find(dir, &[]);
     assert_eq!(
         out.status.code(),

@@ -10,6 +10,9 @@ use serde::Serialize;
 
 use super::survey::{ReadArgs, read_framed};
 use super::{bad_input, check_output_file};
+mod http;
+mod pick;
+
 use geostride::targets::{
     Gray, Identification, LayoutSettings, TargetSettings, find_targets, identify_by_layout,
 };
@@ -19,6 +22,9 @@ pub enum Command {
     /// Find the checker targets (a square in four black and white quadrants) in photos or a
     /// video frame, tell which surveyed point each is from their layout, and write the picks
     Find(FindArgs),
+    /// Serve the picking page on 127.0.0.1: confirm, move or reject picks, place missing ones,
+    /// see each pick's residual against a live fit, and save the picks CSV
+    Pick(pick::PickArgs),
 }
 
 #[derive(clap::Args)]
@@ -71,6 +77,7 @@ fn parse_heading(s: &str) -> Result<(f64, f64), String> {
 pub fn run(cmd: Command) -> anyhow::Result<()> {
     match cmd {
         Command::Find(args) => find(&args),
+        Command::Pick(args) => pick::pick(&args),
     }
 }
 
@@ -115,6 +122,13 @@ fn is_video(path: &Path) -> bool {
 
 /// The image to search and the name its picks carry.
 fn load(path: &Path, frame: usize) -> anyhow::Result<(Gray, String)> {
+    let (bytes, w, h, name) = load_bgr(path, frame)?;
+    Ok((Gray::from_bgr(&bytes, w, h), name))
+}
+
+/// A photo, or a video's frame `frame`, as BGR bytes, width, height and the name its picks
+/// carry (a video's frames are 'VIDEO#N').
+fn load_bgr(path: &Path, frame: usize) -> anyhow::Result<(Vec<u8>, usize, usize, String)> {
     let file_name = path
         .file_name()
         .and_then(|n| n.to_str())
@@ -123,10 +137,10 @@ fn load(path: &Path, frame: usize) -> anyhow::Result<(Gray, String)> {
     if is_video(path) {
         let (bytes, w, h) = geostride::video::source::FrameReader::frame_bgr_bytes(path, frame)
             .map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
-        Ok((Gray::from_bgr(&bytes, w, h), format!("{file_name}#{frame}")))
+        Ok((bytes, w, h, format!("{file_name}#{frame}")))
     } else {
         let (bytes, w, h) = geostride::imageio::read_bgr_bytes(path).map_err(bad_input)?;
-        Ok((Gray::from_bgr(&bytes, w, h), file_name))
+        Ok((bytes, w, h, file_name))
     }
 }
 

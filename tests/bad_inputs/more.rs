@@ -663,6 +663,11 @@ pub(super) fn cases() -> Vec<Case> {
             .bytes("huge.jpg", jpeg_claiming(32000, 32000)),
         case("gcp-find-heading-tolerance-500", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--heading", "0:500", "--out", "found.csv"], "tolerance", "--heading"),
         case("gcp-find-video-frame-beyond-its-end", "wrong code", &["gcp", "find", "video.mp4", "--frame", "100000", "--gcps", "gcps.csv", "--out", "found.csv"], "100000", "video.mp4"),
+        // --- gcp pick (each refused before the page is served) ------------------------------------
+        case("gcp-pick-onto-its-gcps", "input overwritten", &["gcp", "pick", frame, "--gcps", "gcps.csv", "--out", "gcps.csv"], "would overwrite the input", "gcps.csv"),
+        case("gcp-pick-onto-its-picks", "input overwritten", &["gcp", "pick", frame, "--gcps", "gcps.csv", "--picks", "picks.csv", "--out", "picks.csv"], "would overwrite the input", "picks.csv"),
+        case("gcp-pick-image-missing", "wrong code", &["gcp", "pick", "nope.png", "--gcps", "gcps.csv", "--out", "picked.csv"], "no such file", "nope.png"),
+        case("gcp-pick-camera-missing", "wrong code", &["gcp", "pick", frame, "--gcps", "gcps.csv", "--camera", "nope.json", "--out", "picked.csv"], "nope.json", "nope.json"),
         // --- track ----------------------------------------------------------------------------------
         with("track-px-per-m-0", "nonsense accepted", track(&["--px-per-m", "0", "--out", "t"]), "positive number", "--px-per-m"),
         with("track-px-per-m-huge", "nonsense accepted", track(&["--px-per-m", "1e9", "--out", "t"]), "--px-per-m", "--px-per-m"),

@@ -173,3 +173,21 @@ pub fn run_project(project: &std::path::Path, out: &std::path::Path) -> std::pro
         .output()
         .unwrap()
 }
+
+/// A hovering camera 30 m up, turned `heading_deg`, over targets at `gcps` (east, north), few people.
+pub fn target_scene(heading_deg: f64, gcps: &[(&str, f64, f64)]) -> String {
+    let mut s = format!(
+        "name = \"GCP targets\"\nseed = 5\nduration_s = 0.2\nfps = 25\n\
+         [site]\ncrs = \"EPSG:3812\"\norigin = [654500.0, 696000.0, 52.0]\n\
+         [camera]\ncalibration = \"mini3pro\"\nvideo_mode = [1920, 1080]\n\
+         [camera.motion]\nkind = \"hover\"\nposition = [0.0, 0.0, 30.0]\nheading_deg = {heading_deg}\n\
+         drift_m = 0.0\njitter_deg = 0.0\n\
+         [ground]\nkind = \"deck\"\nheading_deg = 90\nwidth_m = 30.0\nlength_m = 60.0\nheight_m = 0.0\n\
+         [people]\nmode = \"stream\"\nrate_per_s = 0.5\ngait = \"walk\"\nhats = false\n\
+         [output]\nvideo = true\ncheckerboards = 0\npick_noise_px = 0.0\n"
+    );
+    for (name, e, n) in gcps {
+        s += &format!("[[gcp]]\nname = \"{name}\"\nposition = [{e}, {n}]\n");
+    }
+    s
+}

@@ -557,6 +557,24 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-auto-picks-beside-survey-picks",
+            category: "nonsense accepted",
+            files: vec![("project.toml", replace("project.toml", "[video]", "[picks]\nauto = true\n\n[video]"))],
+            args: run(),
+            expect: "survey.picks also gives picks",
+            place: "field 'picks.auto'",
+            ..Default::default()
+        },
+        Case {
+            id: "project-auto-picks-heading-tolerance-0",
+            category: "nonsense accepted",
+            files: vec![("project.toml", replace("project.toml", "[video]", "[picks]\nheading_tolerance_deg = 0\n\n[video]"))],
+            args: run(),
+            expect: "(0, 180]",
+            place: "field 'picks.heading_tolerance_deg'",
+            ..Default::default()
+        },
+        Case {
             id: "project-unknown-key",
             category: "misleading message",
             files: vec![("project.toml", replace("project.toml", "head_height_m = 1.7", "head_heigth_m = 1.7"))],

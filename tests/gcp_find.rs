@@ -145,3 +145,73 @@ fn a_symmetric_layout_is_refused_without_a_heading_and_identified_with_one() {
         assert!((u - tu).hypot(v - tv) < 1.0, "{name} is another target");
     }
 }
+
+/// The camera centre of every frame in a run's `pose/poses.csv`.
+fn centres(out: &Path) -> Vec<[f64; 3]> {
+    common::read_csv(&out.join("pose/poses.csv"))
+        .iter()
+        .map(|r| ["centre_e_m", "centre_n_m", "centre_u_m"].map(|k| common::num(r, k)))
+        .collect()
+}
+
+#[test]
+fn a_run_with_automatic_picks_poses_the_camera_as_the_true_picks_do() {
+    let tmp = tempfile::tempdir().unwrap();
+    let gcps = [
+        ("G1", -15.0, -6.0),
+        ("G2", -8.0, 7.0),
+        ("G3", 2.0, -4.0),
+        ("G4", 9.0, 8.5),
+        ("G5", 14.0, -7.5),
+        ("G6", -2.0, 3.0),
+        ("CHK-1", 5.5, 1.0),
+    ];
+    // Hats, for the project's colour detector.
+    let scene = common::target_scene(20.0, &gcps).replace("hats = false", "hats = true");
+    std::fs::write(tmp.path().join("scene.toml"), scene).unwrap();
+    let dir = &tmp.path().join("sim");
+    common::simulate(&tmp.path().join("scene.toml"), dir);
+    // The true picks (no noise: their σ is written as 0, which a run refuses) at 0.2 px.
+    let true_picks = std::fs::read_to_string(dir.join("picks.csv")).unwrap();
+    let true_picks: String = true_picks
+        .lines()
+        .map(|l| match l.rsplit_once(',') {
+            Some((head, "0")) => format!("{head},0.2\n"),
+            _ => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(dir.join("picks.csv"), true_picks).unwrap();
+    let truth_picks = common::hover_project(
+        "picks",
+        "video.mp4",
+        "kind = \"plane\"",
+        "formats = [\"csv\"]",
+    );
+    let auto = truth_picks.replace("picks = [\"picks.csv\"]\n", "") + "[picks]\nauto = true\n";
+    std::fs::write(dir.join("truth.toml"), &truth_picks).unwrap();
+    std::fs::write(dir.join("auto.toml"), &auto).unwrap();
+    for name in ["truth", "auto"] {
+        let out = common::run_project(&dir.join(format!("{name}.toml")), &dir.join(name));
+        common::assert_success(&out);
+    }
+    let found = picks(&dir.join("auto/picks-auto.csv"));
+    assert_eq!(found.len(), 7, "{found:?}");
+    let (a, t) = (centres(&dir.join("auto")), centres(&dir.join("truth")));
+    assert_eq!(a.len(), t.len());
+    for (a, t) in a.iter().zip(&t) {
+        // The found picks are about 0.2 px from the true ones (0.5 cm at this scale).
+        let d = ((a[0] - t[0]).powi(2) + (a[1] - t[1]).powi(2) + (a[2] - t[2]).powi(2)).sqrt();
+        assert!(d < 0.05, "camera centres {d} m apart: {a:?} vs {t:?}");
+        assert!((a[2] - 30.0).abs() < 0.05, "height {} m, flown at 30", a[2]);
+    }
+    // Both picks and auto: refused, naming the key.
+    let both = truth_picks + "[picks]\nauto = true\n";
+    std::fs::write(dir.join("both.toml"), both).unwrap();
+    let out = common::run_project(&dir.join("both.toml"), &dir.join("both"));
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("picks.auto") || err.contains("'auto'"),
+        "{err}"
+    );
+}

@@ -24,7 +24,9 @@ use geostride::evaluate::{
 use geostride::pipeline::project::{Project, load};
 use geostride::pipeline::run::{RunReport, run as run_project};
 use geostride::pipeline::settings::DetectSection;
-use geostride::simulate::project::{crowd_project, group_project, hats_project, project_text};
+use geostride::simulate::project::{
+    crowd_project, group_project, hats_project, project_text, with_auto_picks,
+};
 use geostride::simulate::run::Overrides;
 use geostride::simulate::scene::{Motion, Scene};
 use geostride::simulate::truth::{
@@ -760,6 +762,7 @@ fn run_bridge(args: Args) -> anyhow::Result<()> {
         &dir,
         &|heights| {
             hats_project(&scene, "camera.yaml", heights)
+                .map(|p| with_auto_picks(p, &scene))
                 .map_err(|e| anyhow!("{}: {e}", scene_path.display()))
         },
         [
@@ -970,6 +973,7 @@ fn run_crowd(args: Args) -> anyhow::Result<()> {
         .collect();
     let project = dir.join("project.toml");
     let crowd = crowd_project(&scene, &scene.camera.calibration, "boxes.txt", &samples)
+        .map(|p| with_auto_picks(p, &scene))
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
     write_project(
         &project,

@@ -27,6 +27,9 @@ pub struct Project {
     #[serde(default)]
     pub survey: SurveySection,
     pub video: VideoSection,
+    /// Picks found in the video instead of read from `survey.picks`.
+    #[serde(default, skip_serializing_if = "PicksSection::is_off")]
+    pub picks: PicksSection,
     #[serde(default, deserialize_with = "with_default_kind")]
     pub pose: PoseSection,
     pub ground: GroundSection,
@@ -70,6 +73,37 @@ pub struct SurveySection {
     pub check_prefix: String,
     pub pick_sigma_px: f64,
     pub gcp_sigma_m: f64,
+}
+
+/// `[picks] auto = true`: the GCP targets found in the picked frame (`geostride gcp find`:
+/// checker targets, identified from their layout) instead of read from pick files.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct PicksSection {
+    pub auto: bool,
+    /// The image's rough bearing (degrees from north through east of its top edge): a
+    /// symmetric layout of targets is told apart only with it.
+    pub heading_deg: Option<f64>,
+    pub heading_tolerance_deg: f64,
+    /// Least difference between a target's white and black quadrants, grey levels.
+    pub min_contrast: f64,
+}
+
+impl Default for PicksSection {
+    fn default() -> Self {
+        PicksSection {
+            auto: false,
+            heading_deg: None,
+            heading_tolerance_deg: 45.0,
+            min_contrast: 40.0,
+        }
+    }
+}
+
+impl PicksSection {
+    fn is_off(&self) -> bool {
+        *self == PicksSection::default()
+    }
 }
 
 impl SurveySection {
@@ -449,6 +483,40 @@ pub fn parse(path: &Path, text: String) -> Result<Loaded, FileError> {
     Ok(l)
 }
 
+fn check_picks(l: &Loaded) -> Result<(), FileError> {
+    let (p, a) = (&l.project, &l.project.picks);
+    if !(a.heading_tolerance_deg > 0.0 && a.heading_tolerance_deg <= 180.0) {
+        return Err(l.error(
+            "picks",
+            "heading_tolerance_deg",
+            "expected degrees in (0, 180]",
+        ));
+    }
+    if !(a.min_contrast > 0.0 && a.min_contrast < 255.0) {
+        return Err(l.error("picks", "min_contrast", "expected grey levels in (0, 255)"));
+    }
+    if !a.auto {
+        return Ok(());
+    }
+    if !p.survey.picks.is_empty() {
+        return Err(l.error(
+            "picks",
+            "auto",
+            "survey.picks also gives picks: keep one (a person's picks from `geostride gcp pick` \
+             go in survey.picks, with auto = false)",
+        ));
+    }
+    if !matches!(p.pose, PoseSection::Hover(_)) {
+        return Err(l.error(
+            "picks",
+            "auto",
+            "automatic picks serve the hovering camera ([pose] kind = \"hover\"); for a model or \
+             a fixed camera, give survey.picks",
+        ));
+    }
+    Ok(())
+}
+
 /// Every number in the file finite (TOML allows `nan` and `inf`).
 fn check_finite(l: &Loaded) -> Result<(), FileError> {
     match crate::io::toml_nonfinite_key(&l.text) {
@@ -484,6 +552,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     for pk in &p.survey.picks {
         exists(l, "survey", "picks", pk)?;
     }
+    check_picks(l)?;
     exists(l, "video", "path", &p.video.path)?;
     if let Some(h) = &p.survey.height
         && h != "ellipsoidal"

@@ -4,14 +4,14 @@
 //! compare with the simulator's truth.
 
 use crate::pipeline::project::{
-    AnalysisSection, CameraSection, ExportSection, GroundSection, OutputSection, Project,
-    ProjectionSection, SurveySection, VideoSection,
+    AnalysisSection, CameraSection, ExportSection, GroundSection, OutputSection, PicksSection,
+    Project, ProjectionSection, SurveySection, VideoSection,
 };
 use crate::pipeline::settings::{
     AssociationSection, BoxesSection, ColourSection, DetectSection, KalmanRtsSection, KltSection,
     ModelSettings, PoseSection, SmoothSection, TrackSection,
 };
-use crate::simulate::scene::{Ground, Scene};
+use crate::simulate::scene::{Ground, Motion, Scene};
 use crate::survey::crs::{Crs, CrsError};
 
 /// The hat scene's project: the colour detector (magenta hats), association tracking and the
@@ -38,6 +38,7 @@ pub fn hats_project(
             ..SurveySection::new("gcps.csv")
         },
         video: VideoSection::new("video.mp4"),
+        picks: PicksSection::default(),
         pose: PoseSection::default(),
         ground: ground(scene),
         detect: DetectSection::Colour(ColourSection {
@@ -55,6 +56,23 @@ pub fn hats_project(
         output: OutputSection::default(),
         analysis: analysis_areas(scene),
     })
+}
+
+/// `project` taking its picks from the video's first frame (`[picks] auto = true`: the targets
+/// found and identified from their layout) instead of the simulator's `picks.csv`. The heading
+/// is the hovering camera's, as a pilot would give it: the demos' targets are laid out in a
+/// grid, which their layout alone cannot orient.
+pub fn with_auto_picks(mut project: Project, scene: &Scene) -> Project {
+    project.survey.picks = Vec::new();
+    project.picks = PicksSection {
+        auto: true,
+        heading_deg: match &scene.camera.motion {
+            Motion::Hover { heading_deg, .. } => Some(*heading_deg),
+            _ => None,
+        },
+        ..PicksSection::default()
+    };
+    project
 }
 
 /// The scene's measurement and walkable areas (site frame): on a deck, its middle 8 m and the

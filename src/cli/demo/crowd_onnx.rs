@@ -39,6 +39,7 @@ pub(super) fn run_crowd_onnx(args: Args) -> anyhow::Result<()> {
     // pose: whole frames.
     let detector = OnnxSection::default();
     let mut project = crowd_project(&scene, &scene.camera.calibration, "unused.txt", &[])
+        .map(|p| with_auto_picks(p, &scene))
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
     project.detect = DetectSection::Onnx(detector.clone());
     let (mut truth, mut ignored) = truth_samples(&dir.join("truth/heads.csv"))?;

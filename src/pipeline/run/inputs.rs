@@ -413,3 +413,83 @@ pub fn parse_heights(
         .map(|(k, (h, sd, _))| (k, (h, sd)))
         .collect())
 }
+
+/// `[picks] auto = true`: the checker targets of the picked frame found and identified from
+/// their layout (as `geostride gcp find`), added to the survey as its picks. Gives the picks
+/// CSV the run writes (`picks-auto.csv`) and a warning naming the control points not found.
+pub(super) fn auto_picks(
+    l: &Loaded,
+    framed: &mut Framed,
+    video: &Path,
+) -> Result<(String, Option<String>), RunError> {
+    use crate::survey::{Observation, Role};
+    use crate::targets::{
+        Gray, Identification, LayoutSettings, TargetSettings, find_targets, identify_by_layout,
+    };
+    let a = &l.project.picks;
+    let frame = l.project.pose.picks_frame().unwrap_or(0);
+    let input = |m: String| RunError::Input(l.error("picks", "auto", m));
+    let (bgr, w, h) = crate::video::source::FrameReader::frame_bgr_bytes(video, frame)
+        .map_err(|e| RunError::Input(l.error("video", "path", format!("frame {frame}: {e}"))))?;
+    let (found, _) = find_targets(
+        &Gray::from_bgr(&bgr, w, h),
+        &TargetSettings {
+            min_contrast: a.min_contrast,
+            ..TargetSettings::default()
+        },
+    );
+    let ground: Vec<nalgebra::Vector2<f64>> = framed.local.iter().map(|p| p.xy()).collect();
+    let centres: Vec<_> = found.iter().map(|c| (c.uv, c.sigma_px)).collect();
+    let layout = LayoutSettings {
+        heading_deg: a.heading_deg.map(|d| (d, a.heading_tolerance_deg)),
+        ..LayoutSettings::default()
+    };
+    let identified = match identify_by_layout(&ground, &centres, &layout) {
+        Identification::Found { identified, .. } => identified,
+        Identification::NotIdentified(why) => {
+            return Err(input(format!(
+                "no GCP target identified in frame {frame} of the video ({} found): {why}; \
+                 set heading_deg for a symmetric layout, or pick by hand (`geostride gcp pick`) \
+                 into survey.picks",
+                found.len()
+            )));
+        }
+    };
+    let video_name = video
+        .file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let image = format!("{video_name}#{frame}");
+    let mut csv = String::from("name,image,u,v,sigma\n");
+    for (row, i) in identified.iter().enumerate() {
+        let c = &found[i.target];
+        let point = &mut framed.survey.points[i.point];
+        csv += &format!(
+            "{},{image},{:.3},{:.3},{:.3}\n",
+            point.name, c.uv.x, c.uv.y, c.sigma_px
+        );
+        point.observations.push(Observation {
+            image: image.clone(),
+            uv: c.uv,
+            sigma_px: Some(c.sigma_px),
+            file: PathBuf::from("picks-auto.csv"),
+            line: row + 2,
+        });
+    }
+    let missed: Vec<&str> = framed
+        .survey
+        .points
+        .iter()
+        .filter(|p| p.role == Role::Control && p.observations.iter().all(|o| o.image != image))
+        .map(|p| p.name.as_str())
+        .collect();
+    let warning = (!missed.is_empty()).then(|| {
+        format!(
+            "automatic picks: {} of frame {frame}'s targets identified; control point(s) {} not \
+             found (covered, off the image, or unlike a checker target)",
+            identified.len(),
+            missed.join(", ")
+        )
+    });
+    Ok((csv, warning))
+}

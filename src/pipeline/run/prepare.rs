@@ -52,8 +52,14 @@ pub(super) fn prepare<'a>(
         frames_total,
     } = inputs::video_facts(l)?;
     let camera = project_camera(l, width, height)?;
-    let framed = load_survey(l)?;
-    let warnings = inputs::survey_warnings(&framed);
+    let mut framed = load_survey(l)?;
+    let auto_picks = if p.picks.auto {
+        Some(inputs::auto_picks(l, &mut framed, &video)?)
+    } else {
+        None
+    };
+    let mut warnings = inputs::survey_warnings(&framed);
+    warnings.extend(auto_picks.as_ref().and_then(|(_, w)| w.clone()));
     let pose = pose_source::open(l, &framed, (width, height), frames_total, out, progress)?;
     let surface = registry::ground(&p.ground, &grounds::GroundInputs { l, framed: &framed })?;
 
@@ -83,6 +89,7 @@ pub(super) fn prepare<'a>(
         &(
             &p.camera,
             &p.survey,
+            &p.picks,
             &p.video,
             &p.pose,
             &p.detect,
@@ -111,6 +118,11 @@ pub(super) fn prepare<'a>(
         },
     )?;
     make_out_dirs(&guard, out)?;
+    if let Some((csv, _)) = &auto_picks {
+        let path = out.join("picks-auto.csv");
+        crate::io::write_atomic(&path, csv.as_bytes())
+            .map_err(|source| RunError::Io { path, source })?;
+    }
     let palette = match palette {
         Some((pal, key)) => {
             cache.store("palette", &key, &pal)?;

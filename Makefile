@@ -44,6 +44,7 @@ bench: bootstrap
 	./scripts/pets-benchmark.sh out/pets-benchmark
 	$(CARGO) bench --locked --bench detect_vs_opencv
 	$(CARGO) bench --locked --bench overhead_detector
+	$(CARGO) bench --locked --bench gcp_targets
 
 # The overhead person detector's recipe (docs/detector.md): tiles from the simulator (training
 # seed 1 at the model's scales, then seed 5 with grounds up to the feature-rich texture scenes

@@ -575,6 +575,15 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-auto-picks-no-design",
+            category: "nonsense accepted",
+            files: vec![("project.toml", replace("project.toml", "[video]", "[picks]\ndesigns = []\n\n[video]"))],
+            args: run(),
+            expect: "at least one design",
+            place: "field 'picks.designs'",
+            ..Default::default()
+        },
+        Case {
             id: "project-unknown-key",
             category: "misleading message",
             files: vec![("project.toml", replace("project.toml", "head_height_m = 1.7", "head_heigth_m = 1.7"))],

@@ -48,12 +48,41 @@ pub struct FindArgs {
     /// Least difference between a target's white and black quadrants, grey levels
     #[arg(long, default_value = "40", value_name = "LEVELS")]
     min_contrast: f64,
+    /// The target designs to look for, comma-separated: checker (four quadrants), x (a
+    /// bow-tie), cross (a white cross on a black square)
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "checker,x",
+        value_name = "DESIGNS"
+    )]
+    design: Vec<Design>,
     /// The picks CSV to write (name,image,u,v,sigma)
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
     /// Print the report as JSON
     #[arg(long)]
     json: bool,
+}
+
+/// A target design `--design` names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Design {
+    Checker,
+    X,
+    Cross,
+}
+
+/// The detector settings for these designs and contrast (checker and X are both saddles).
+pub(crate) fn target_settings(designs: &[Design], min_contrast: f64) -> TargetSettings {
+    TargetSettings {
+        min_contrast,
+        saddles: designs
+            .iter()
+            .any(|d| matches!(d, Design::Checker | Design::X)),
+        crosses: designs.contains(&Design::Cross),
+        ..TargetSettings::default()
+    }
 }
 
 fn parse_heading(s: &str) -> Result<(f64, f64), String> {
@@ -164,10 +193,7 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
             ground.len()
         )));
     }
-    let target_settings = TargetSettings {
-        min_contrast: args.min_contrast,
-        ..TargetSettings::default()
-    };
+    let target_settings = target_settings(&args.design, args.min_contrast);
     let layout = LayoutSettings {
         heading_deg: args.heading,
         ..LayoutSettings::default()

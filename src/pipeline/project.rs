@@ -87,6 +87,20 @@ pub struct PicksSection {
     pub heading_tolerance_deg: f64,
     /// Least difference between a target's white and black quadrants, grey levels.
     pub min_contrast: f64,
+    /// The target designs to look for.
+    pub designs: Vec<TargetDesignName>,
+}
+
+/// A GCP target design `[picks] designs` names.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetDesignName {
+    /// Four quadrants, two black and two white.
+    Checker,
+    /// A bow-tie: two black and two white triangles.
+    X,
+    /// A white cross on a black square.
+    Cross,
 }
 
 impl Default for PicksSection {
@@ -96,6 +110,7 @@ impl Default for PicksSection {
             heading_deg: None,
             heading_tolerance_deg: 45.0,
             min_contrast: 40.0,
+            designs: vec![TargetDesignName::Checker, TargetDesignName::X],
         }
     }
 }
@@ -494,6 +509,13 @@ fn check_picks(l: &Loaded) -> Result<(), FileError> {
     }
     if !(a.min_contrast > 0.0 && a.min_contrast < 255.0) {
         return Err(l.error("picks", "min_contrast", "expected grey levels in (0, 255)"));
+    }
+    if a.designs.is_empty() {
+        return Err(l.error(
+            "picks",
+            "designs",
+            "name at least one design: \"checker\", \"x\" or \"cross\"",
+        ));
     }
     if !a.auto {
         return Ok(());

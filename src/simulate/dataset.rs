@@ -493,9 +493,11 @@ fn props(
         objects += 1;
     }
     let gcps: Vec<GcpSpec> = (0..rng.random_range(0..=1u32))
-        .map(|k| GcpSpec {
-            name: format!("T{k}"),
-            position: [uniform(rng, lo.x, hi.x), uniform(rng, lo.y, hi.y)],
+        .map(|k| {
+            GcpSpec::new(
+                format!("T{k}"),
+                [uniform(rng, lo.x, hi.x), uniform(rng, lo.y, hi.y)],
+            )
         })
         .collect();
     let mut world = World::new(ground, &gcps, world_seed);

@@ -261,6 +261,42 @@ pub struct GcpSpec {
     pub name: String,
     /// East, north; the height is that of the surface there.
     pub position: [f64; 2],
+    /// The target's pattern.
+    #[serde(default)]
+    pub design: TargetDesign,
+    /// The target's side, metres (0.6 by default).
+    #[serde(default = "GcpSpec::default_size")]
+    pub size_m: f64,
+}
+
+impl GcpSpec {
+    /// A 0.6 m checker target.
+    pub fn new(name: impl Into<String>, position: [f64; 2]) -> GcpSpec {
+        GcpSpec {
+            name: name.into(),
+            position,
+            design: TargetDesign::default(),
+            size_m: Self::default_size(),
+        }
+    }
+
+    fn default_size() -> f64 {
+        super::world::GCP_TARGET_M
+    }
+}
+
+/// A GCP target's pattern, each on a square of the target's side.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum TargetDesign {
+    /// Four quadrants, black and white diagonally opposite (the north-east one black).
+    #[default]
+    Checker,
+    /// An "X" (bow-tie): black triangles north and south, white east and west, meeting at the
+    /// centre.
+    X,
+    /// A white cross (bars a fifth of the side wide) on a black square.
+    Cross,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
@@ -710,6 +746,9 @@ fn check_gcp_names(gcps: &[GcpSpec]) -> Result<(), Bad> {
                 "gcp.name",
                 "a GCP name must be non-empty text without commas or quotes",
             );
+        }
+        if !(g.size_m >= 0.05 && g.size_m <= 5.0) {
+            return bad("gcp.size_m", "a target's side must be from 0.05 to 5 m");
         }
     }
     Ok(())

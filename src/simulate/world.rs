@@ -5,7 +5,7 @@
 use nalgebra::{Vector2, Vector3};
 
 use super::noise::fbm;
-use super::scene::{GcpSpec, Ground};
+use super::scene::{GcpSpec, Ground, TargetDesign};
 
 /// Which surface a ray hits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -23,6 +23,8 @@ pub type Rgb = [f32; 3];
 pub struct World {
     pub ground: Ground,
     pub gcps: Vec<(String, Vector3<f64>)>,
+    /// Each GCP's target: its pattern and side (metres).
+    designs: Vec<(TargetDesign, f64)>,
     seed: u64,
     /// Contrast of the fine texture (1 the default).
     pub detail: f64,
@@ -60,6 +62,7 @@ impl World {
         let mut w = World {
             ground: ground.clone(),
             gcps: Vec::new(),
+            designs: gcps.iter().map(|g| (g.design, g.size_m)).collect(),
             seed,
             detail: 1.0,
             backdrop: None,
@@ -256,19 +259,23 @@ impl World {
         )
     }
 
-    /// Colour of a GCP target at a position, if one is there: 2x2 black and white squares.
+    /// Colour of a GCP target at a position, if one is there (its design on a square of its
+    /// side, aligned with north).
     fn gcp_colour(&self, en: &Vector2<f64>) -> Option<Rgb> {
-        let half = GCP_TARGET_M / 2.0;
-        for (_, g) in &self.gcps {
+        const BLACK: Rgb = [0.04, 0.04, 0.04];
+        const WHITE: Rgb = [0.93, 0.93, 0.93];
+        for ((_, g), (design, size)) in self.gcps.iter().zip(&self.designs) {
+            let half = size / 2.0;
             let d = en - g.xy();
-            if d.x.abs() <= half && d.y.abs() <= half {
-                let black = (d.x >= 0.0) == (d.y >= 0.0);
-                return Some(if black {
-                    [0.04, 0.04, 0.04]
-                } else {
-                    [0.93, 0.93, 0.93]
-                });
+            if d.x.abs() > half || d.y.abs() > half {
+                continue;
             }
+            let black = match design {
+                TargetDesign::Checker => (d.x >= 0.0) == (d.y >= 0.0),
+                TargetDesign::X => d.y.abs() > d.x.abs(),
+                TargetDesign::Cross => d.x.abs() > 0.1 * size && d.y.abs() > 0.1 * size,
+            };
+            return Some(if black { BLACK } else { WHITE });
         }
         None
     }
@@ -374,14 +381,7 @@ mod tests {
             height_m: 6.0,
             camber_m: 0.6,
         };
-        World::new(
-            &g,
-            &[GcpSpec {
-                name: "G1".into(),
-                position: [10.0, 1.0],
-            }],
-            1,
-        )
+        World::new(&g, &[GcpSpec::new("G1", [10.0, 1.0])], 1)
     }
 
     #[test]

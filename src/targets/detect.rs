@@ -22,16 +22,22 @@ pub struct TargetSettings {
     /// A centre placed less surely than this (σ per axis, pixels) is not a target's: where
     /// edges of other things cross.
     pub max_sigma_px: f64,
+    /// Look for the saddle designs (checker and X: four sectors, two black and two white).
+    pub saddles: bool,
+    /// Look for crosses (a white cross on a black square).
+    pub crosses: bool,
 }
 
 impl Default for TargetSettings {
     fn default() -> Self {
         TargetSettings {
             min_contrast: 40.0,
-            min_size_px: 12.0,
+            min_size_px: 10.0,
             max_size_px: 200.0,
             max_candidates: 400,
             max_sigma_px: 0.5,
+            saddles: true,
+            crosses: false,
         }
     }
 }
@@ -130,8 +136,9 @@ fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
     peaks
 }
 
-/// The targets in `img`: those found, and the candidates refused with why.
-pub fn find_targets(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
+/// The saddle targets (checker and X) in `img`: those found, and the candidates refused with
+/// why.
+pub fn find_saddles(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
     // For an ideal corner of contrast C the response is about 6 C.
     let threshold = (3.0 * s.min_contrast) as f32;
     let mut level = img.box_blur(1);
@@ -187,10 +194,10 @@ pub fn find_targets(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Reje
 /// The image smoothed by a box of each radius asked for (twice over), each made once and
 /// shared by every candidate.
 #[derive(Default)]
-struct Smoothed(std::collections::BTreeMap<usize, Gray>);
+pub(crate) struct Smoothed(std::collections::BTreeMap<usize, Gray>);
 
 impl Smoothed {
-    fn by(&mut self, img: &Gray, radius: usize) -> &Gray {
+    pub(crate) fn by(&mut self, img: &Gray, radius: usize) -> &Gray {
         self.0
             .entry(radius)
             .or_insert_with(|| img.box_blur(radius).box_blur(radius))
@@ -486,7 +493,7 @@ mod tests {
                 (Vector2::new(120.8, 170.45), side, 1.1),
             ];
             let img = render(260, 250, &targets, 2.0, k as u64);
-            let (found, _) = find_targets(&img, &TargetSettings::default());
+            let (found, _) = find_saddles(&img, &TargetSettings::default());
             assert_eq!(found.len(), 3, "side {side}: {found:?}");
             for (c, s, _) in &targets {
                 let f = found
@@ -524,7 +531,7 @@ mod tests {
         .box_blur(12);
         // Its seeds at 1/8 and 1/16 are examined (this panicked before): the place is refused
         // with a reason, not dropped.
-        let (found, rejected) = find_targets(&img, &TargetSettings::default());
+        let (found, rejected) = find_saddles(&img, &TargetSettings::default());
         assert!(found.is_empty(), "{found:?}");
         assert!(
             rejected
@@ -548,7 +555,7 @@ mod tests {
                 img.pixels[y * 200 + x] = 20.0;
             }
         }
-        let (found, _) = find_targets(&img, &TargetSettings::default());
+        let (found, _) = find_saddles(&img, &TargetSettings::default());
         assert!(found.is_empty(), "{found:?}");
     }
 }

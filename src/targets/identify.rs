@@ -189,6 +189,33 @@ pub fn identify_by_layout(
     targets: &[(Vector2<f64>, f64)],
     s: &LayoutSettings,
 ) -> Identification {
+    // A view from aside bends the layout more than the first similarity's gate allows: when
+    // nothing is found, again with wider gates (the homography and its checks still decide).
+    // An ambiguous layout stays refused: wider gates only let more assignments compete.
+    let mut result = identify_once(ground, targets, s);
+    for widen in [2.5, 5.0] {
+        match &result {
+            Identification::NotIdentified(why) if !why.starts_with("ambiguous") => {
+                let wider = LayoutSettings {
+                    coarse_gate_share: s.coarse_gate_share * widen,
+                    ..s.clone()
+                };
+                if let found @ Identification::Found { .. } = identify_once(ground, targets, &wider)
+                {
+                    result = found;
+                }
+            }
+            _ => break,
+        }
+    }
+    result
+}
+
+fn identify_once(
+    ground: &[Vector2<f64>],
+    targets: &[(Vector2<f64>, f64)],
+    s: &LayoutSettings,
+) -> Identification {
     if targets.len() < 4 || ground.len() < 4 {
         return Identification::NotIdentified(format!(
             "{} targets found and {} surveyed points: at least four of each are needed to tell them apart by their layout",

@@ -2,10 +2,36 @@
 //! black and white quadrants) found by its saddle point, and which surveyed point each target is,
 //! from the layout of the targets alone (`identify`).
 
+pub mod cross;
 pub mod detect;
 pub mod identify;
 
-pub use detect::{Candidate, Rejected, TargetSettings, find_targets};
+pub use cross::find_crosses;
+pub use detect::{Candidate, Rejected, TargetSettings, find_saddles};
+
+/// The targets of every design `s` asks for in `img`, and the places refused with why.
+pub fn find_targets(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
+    let (mut found, mut rejected) = if s.saddles {
+        find_saddles(img, s)
+    } else {
+        (Vec::new(), Vec::new())
+    };
+    if s.crosses {
+        let (crosses, refused) = find_crosses(img, s);
+        for c in crosses {
+            // A place both detectors accept is kept once, as the saddle detector placed it.
+            if !found
+                .iter()
+                .any(|f| (f.uv - c.uv).norm() < 0.35 * f.size_px.min(c.size_px))
+            {
+                found.push(c);
+            }
+        }
+        rejected.extend(refused);
+        rejected.retain(|r| !found.iter().any(|c| (c.uv - r.uv).norm() < 0.7 * c.size_px));
+    }
+    (found, rejected)
+}
 pub use identify::{Identification, Identified, LayoutSettings, identify_by_layout};
 
 /// A grey image as floating-point intensities (0–255), row by row.

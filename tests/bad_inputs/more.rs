@@ -662,6 +662,7 @@ pub(super) fn cases() -> Vec<Case> {
         case("gcp-find-image-claiming-a-gigapixel", "runaway memory", &["gcp", "find", "huge.jpg", "--gcps", "gcps.csv", "--out", "found.csv"], "its header claims 32000x32000", "huge.jpg")
             .bytes("huge.jpg", jpeg_claiming(32000, 32000)),
         case("gcp-find-heading-tolerance-500", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--heading", "0:500", "--out", "found.csv"], "tolerance", "--heading"),
+        case("gcp-find-unknown-design", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--design", "checker,hexagon", "--out", "found.csv"], "hexagon", "--design"),
         case("gcp-find-video-frame-beyond-its-end", "wrong code", &["gcp", "find", "video.mp4", "--frame", "100000", "--gcps", "gcps.csv", "--out", "found.csv"], "100000", "video.mp4"),
         // --- gcp pick (each refused before the page is served) ------------------------------------
         case("gcp-pick-onto-its-gcps", "input overwritten", &["gcp", "pick", frame, "--gcps", "gcps.csv", "--out", "gcps.csv"], "would overwrite the input", "gcps.csv"),

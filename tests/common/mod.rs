@@ -3,6 +3,7 @@
 
 pub mod exif;
 pub mod onnx;
+pub mod targets;
 
 use std::path::PathBuf;
 

@@ -19,7 +19,7 @@ use geostride::estimate::homography::homography_dlt;
 use geostride::pose::refine::project_pose;
 use geostride::pose::{GcpObservation, PoseSettings, solve_pose};
 use geostride::survey::Role;
-use geostride::targets::{Gray, LayoutSettings, TargetSettings};
+use geostride::targets::{Gray, LayoutSettings};
 
 const PAGE: &str = include_str!("pick_page.html");
 
@@ -52,6 +52,14 @@ pub struct PickArgs {
     /// With --find: least target contrast, grey levels
     #[arg(long, default_value = "40", value_name = "LEVELS")]
     min_contrast: f64,
+    /// With --find: the target designs, as `gcp find --design`
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "checker,x",
+        value_name = "DESIGNS"
+    )]
+    design: Vec<super::Design>,
     /// The picks CSV the page saves to (the page may name another; never an input)
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
@@ -160,10 +168,7 @@ fn find_picks(
         .iter()
         .map(|p| p.name.clone())
         .collect();
-    let settings = TargetSettings {
-        min_contrast: args.min_contrast,
-        ..TargetSettings::default()
-    };
+    let settings = super::target_settings(&args.design, args.min_contrast);
     let layout = LayoutSettings {
         heading_deg: args.heading,
         ..LayoutSettings::default()

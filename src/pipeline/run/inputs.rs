@@ -422,6 +422,7 @@ pub(super) fn auto_picks(
     framed: &mut Framed,
     video: &Path,
 ) -> Result<(String, Option<String>), RunError> {
+    use crate::pipeline::project::TargetDesignName;
     use crate::survey::{Observation, Role};
     use crate::targets::{
         Gray, Identification, LayoutSettings, TargetSettings, find_targets, identify_by_layout,
@@ -435,6 +436,8 @@ pub(super) fn auto_picks(
         &Gray::from_bgr(&bgr, w, h),
         &TargetSettings {
             min_contrast: a.min_contrast,
+            saddles: a.designs.iter().any(|d| *d != TargetDesignName::Cross),
+            crosses: a.designs.contains(&TargetDesignName::Cross),
             ..TargetSettings::default()
         },
     );

@@ -1,0 +1,379 @@
+//! Cross targets (a white cross, bars about a fifth of the side wide, on a black square), whose
+//! centre is no saddle: a ring response over an image pyramid finds candidates (a ring around
+//! the centre crosses four white arms: its fourth harmonic strong, its first and second weak),
+//! then each is measured along its diagonals (bar width and side) and placed where the image is
+//! most alike under a half and a quarter turn about the centre, its σ from that fit.
+
+use nalgebra::{Matrix2, Vector2};
+
+use super::Gray;
+use super::detect::{Candidate, Rejected, Smoothed, TargetSettings};
+
+/// Ring radius of the response at every pyramid level, pixels of that level.
+const RING_PX: f64 = 4.0;
+
+/// The first, second and fourth harmonics' amplitudes of 16 samples round a ring.
+fn harmonics(s: &[f32; 16]) -> (f32, f32, f32, f32) {
+    let (mut c1, mut s1, mut c2, mut s2) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+    for (k, v) in s.iter().enumerate() {
+        let a = k as f32 * std::f32::consts::TAU / 16.0;
+        c1 += v * a.cos();
+        s1 += v * a.sin();
+        c2 += v * (2.0 * a).cos();
+        s2 += v * (2.0 * a).sin();
+    }
+    // cos and sin of k·90°: exact.
+    let c4 = s[0] - s[2] + s[4] - s[6] + s[8] - s[10] + s[12] - s[14];
+    let s4 = s[1] - s[3] + s[5] - s[7] + s[9] - s[11] + s[13] - s[15];
+    (c1.hypot(s1), c2.hypot(s2), c4.hypot(s4), c4)
+}
+
+/// Local maxima of the cross response of one level: `(x, y, response)`.
+fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
+    let (w, h) = (img.width, img.height);
+    let m = RING_PX as usize + 2;
+    if w <= 2 * m + 2 || h <= 2 * m + 2 {
+        return Vec::new();
+    }
+    let ring: [(isize, isize); 16] = std::array::from_fn(|k| {
+        let a = k as f64 * std::f64::consts::TAU / 16.0;
+        (
+            (RING_PX * a.cos()).round() as isize,
+            (RING_PX * a.sin()).round() as isize,
+        )
+    });
+    let mut resp = vec![0.0f32; w * h];
+    for y in m..h - m {
+        for x in m..w - m {
+            let s: [f32; 16] = std::array::from_fn(|k| {
+                let (dx, dy) = ring[k];
+                img.at((x as isize + dx) as usize, (y as isize + dy) as usize)
+            });
+            let (a1, a2, a4, _) = harmonics(&s);
+            let ring_mean = s.iter().sum::<f32>() / 16.0;
+            // A white cross: its middle brighter than the ring, which is mostly black.
+            let centre = img.at(x, y) - ring_mean;
+            // The second harmonic only in part: a cross seen obliquely has arms off square.
+            resp[y * w + x] = if centre > 0.0 {
+                a4 - 0.5 * a2 - 2.0 * a1
+            } else {
+                0.0
+            };
+        }
+    }
+    let mut peaks = Vec::new();
+    for y in m + 1..h - m - 1 {
+        for x in m + 1..w - m - 1 {
+            let r = resp[y * w + x];
+            if r < threshold {
+                continue;
+            }
+            let mut best = true;
+            'n: for yy in y - 2..=y + 2 {
+                for xx in x - 2..=x + 2 {
+                    let q = resp.get(yy * w + xx).copied().unwrap_or(0.0);
+                    if q > r || (q == r && (yy, xx) < (y, x)) {
+                        best = false;
+                        break 'n;
+                    }
+                }
+            }
+            if best {
+                peaks.push((x, y, r));
+            }
+        }
+    }
+    peaks
+}
+
+/// The cross targets in `img`: those found, and the candidates refused with why.
+pub fn find_crosses(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
+    // An ideal cross of contrast C gives a fourth harmonic of 4–6 C.
+    let threshold = (2.0 * s.min_contrast) as f32;
+    let mut level = img.box_blur(1);
+    let mut seeds: Vec<(Vector2<f64>, f32, usize)> = Vec::new();
+    let mut scale = 1usize;
+    loop {
+        for (x, y, r) in level_peaks(&level, threshold) {
+            let f = scale as f64;
+            let uv = Vector2::new((x as f64 + 0.5) * f - 0.5, (y as f64 + 0.5) * f - 0.5);
+            seeds.push((uv, r, scale));
+        }
+        if RING_PX * (2 * scale) as f64 > 0.3 * s.max_size_px || level.width < 64 {
+            break;
+        }
+        level = level.half().box_blur(1);
+        scale *= 2;
+    }
+    seeds.sort_by(|a, b| b.1.total_cmp(&a.1));
+    seeds.truncate(s.max_candidates);
+    let mut found: Vec<Candidate> = Vec::new();
+    let mut rejected: Vec<Rejected> = Vec::new();
+    let mut smoothed = Smoothed::default();
+    let near = |a: &Vector2<f64>, c: &Candidate| (c.uv - a).norm() < (0.35 * c.size_px).max(3.0);
+    for (uv0, _, scale) in seeds {
+        if found.iter().any(|c| near(&uv0, c)) {
+            continue;
+        }
+        match examine(img, &mut smoothed, uv0, scale, s) {
+            Ok(c) => {
+                if !found.iter().any(|f| near(&c.uv, f)) {
+                    found.push(c);
+                }
+            }
+            Err(reason) => {
+                if !rejected.iter().any(|r| (r.uv - uv0).norm() < 3.0) {
+                    rejected.push(Rejected { uv: uv0, reason });
+                }
+            }
+        }
+    }
+    rejected.retain(|r| !found.iter().any(|c| (c.uv - r.uv).norm() < 0.7 * c.size_px));
+    (found, rejected)
+}
+
+/// One candidate measured, checked and placed at full resolution.
+fn examine(
+    img: &Gray,
+    smoothed: &mut Smoothed,
+    start: Vector2<f64>,
+    scale: usize,
+    s: &TargetSettings,
+) -> Result<Candidate, String> {
+    let near = smoothed.by(img, scale);
+    let (uv, _) = symmetric_centre(near, start, (3 * scale + 2) as f64, None)?;
+    let arms = arm_angles(near, &uv, 3.0 * scale as f64);
+    let shape = diagonals(near, &uv, &arms, s.max_size_px)?;
+    let contrast = shape.white - shape.black;
+    if contrast < s.min_contrast {
+        return Err(format!(
+            "low contrast: {contrast:.0} grey levels between the cross and its square, at least {:.0} needed",
+            s.min_contrast
+        ));
+    }
+    let size_px = shape.side_px;
+    if !(s.min_size_px..=s.max_size_px).contains(&size_px) {
+        return Err(format!(
+            "size {size_px:.0} px, outside {:.0}–{:.0} px",
+            s.min_size_px, s.max_size_px
+        ));
+    }
+    let share = shape.bar_px / size_px;
+    if !(0.08..=0.4).contains(&share) {
+        return Err(format!(
+            "not a cross: bars {:.0} % of the side wide (a cross target's are 10–35 %)",
+            100.0 * share
+        ));
+    }
+    // Every arm white out to near the square's edge.
+    let mid = 0.5 * (shape.white + shape.black);
+    for a in arms {
+        let p = uv + 0.3 * size_px * Vector2::new(a.cos(), a.sin());
+        if f64::from(near.sample(p.x, p.y)) < mid {
+            return Err("not a cross: an arm is not white to the square's edge".into());
+        }
+    }
+    let blur = ((size_px / 16.0).round() as usize).clamp(1, 8);
+    let fine = smoothed.by(img, blur);
+    let (uv, fit_sigma) = symmetric_centre(fine, uv, 0.45 * size_px, None)?;
+    // The fit's σ takes the differences as independent; they are not (texture, aliasing,
+    // the smoothing). The centre's spread when each eighth of the window is left out in turn
+    // (a jackknife) sees that.
+    let parts: Vec<Vector2<f64>> = (0..SECTORS)
+        .filter_map(|k| symmetric_centre(fine, uv, 0.45 * size_px, Some(k)).ok())
+        .map(|(c, _)| c)
+        .collect();
+    if parts.len() < SECTORS {
+        return Err("no stable centre: leaving out a part of the window loses it".into());
+    }
+    let n = SECTORS as f64;
+    let mean = parts.iter().sum::<Vector2<f64>>() / n;
+    let spread = parts.iter().map(|c| (c - mean).norm_squared()).sum::<f64>();
+    let sigma_px = fit_sigma.max(((n - 1.0) / n * spread / 2.0).sqrt());
+    if sigma_px > s.max_sigma_px {
+        return Err(format!(
+            "the centre is not sharp: σ {sigma_px:.2} px, at most {:.2}",
+            s.max_sigma_px
+        ));
+    }
+    Ok(Candidate {
+        uv,
+        sigma_px,
+        contrast,
+        size_px,
+        white_angle_rad: arms[0],
+    })
+}
+
+/// The window's parts a jackknife leaves out in turn: sectors of the half-plane of offsets.
+const SECTORS: usize = 8;
+
+/// The point about which the image within `half` pixels is most alike under a half turn, by
+/// Gauss–Newton on the differences, with its σ per axis; without the offsets of sector `skip`
+/// when given.
+fn symmetric_centre(
+    img: &Gray,
+    start: Vector2<f64>,
+    half: f64,
+    skip: Option<usize>,
+) -> Result<(Vector2<f64>, f64), String> {
+    let n = half.round().max(2.0) as isize;
+    let margin = half + 3.0;
+    let inside = |c: &Vector2<f64>| {
+        c.x >= margin
+            && c.y >= margin
+            && c.x <= img.width as f64 - 1.0 - margin
+            && c.y <= img.height as f64 - 1.0 - margin
+    };
+    let grad = |p: Vector2<f64>| {
+        Vector2::new(
+            f64::from(img.sample(p.x + 0.5, p.y) - img.sample(p.x - 0.5, p.y)),
+            f64::from(img.sample(p.x, p.y + 0.5) - img.sample(p.x, p.y - 0.5)),
+        )
+    };
+    let mut c = start;
+    let mut last = (Matrix2::zeros(), 0.0, 0usize);
+    for _ in 0..10 {
+        if !inside(&c) {
+            return Err("too near the image's edge".into());
+        }
+        let (mut jtj, mut jtr, mut rr, mut count) = (Matrix2::zeros(), Vector2::zeros(), 0.0, 0);
+        for dy in -n..=n {
+            for dx in -n..=n {
+                let d = Vector2::new(dx as f64, dy as f64);
+                if d.norm() > half || (dy, dx) <= (0, 0) {
+                    continue;
+                }
+                let sector = ((d.y.atan2(d.x) / std::f64::consts::PI * SECTORS as f64) as usize)
+                    .min(SECTORS - 1);
+                if skip == Some(sector) {
+                    continue;
+                }
+                // A half turn: I(c + d) = I(c − d), which a view from aside keeps (a quarter
+                // turn it does not).
+                let (a, p) = (c + d, c - d);
+                let r = f64::from(img.sample(a.x, a.y) - img.sample(p.x, p.y));
+                let j = grad(a) - grad(p);
+                jtj += j * j.transpose();
+                jtr += j * r;
+                rr += r * r;
+                count += 1;
+            }
+        }
+        let Some(inv) = jtj.try_inverse() else {
+            return Err("no centre: the window is flat".into());
+        };
+        let step = -inv * jtr;
+        last = (inv, rr, count);
+        c += step.map(|v| v.clamp(-2.0, 2.0));
+        if step.norm() < 0.005 {
+            break;
+        }
+    }
+    if (c - start).norm() > half.max(3.0) {
+        return Err("no centre of symmetry near here".into());
+    }
+    let (inv, rr, count) = last;
+    let s2 = rr / (count as f64 - 2.0).max(1.0);
+    let cov = inv * s2;
+    Ok((c, (0.5 * cov.trace()).max(0.0).sqrt()))
+}
+
+/// The directions of the four arms (radians, image x toward y), in turn: each the brightest
+/// of a ring of radius `r` within 30° of where the ring's fourth harmonic puts it (seen from
+/// aside, the arms are not square to each other).
+fn arm_angles(img: &Gray, c: &Vector2<f64>, r: f64) -> [f64; 4] {
+    const N: usize = 128;
+    let ring: Vec<f64> = (0..N)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / N as f64;
+            f64::from(img.sample(c.x + r * a.cos(), c.y + r * a.sin()))
+        })
+        .collect();
+    let (mut cs, mut sn) = (0.0, 0.0);
+    for (k, v) in ring.iter().enumerate() {
+        let a = k as f64 * std::f64::consts::TAU / N as f64;
+        cs += v * (4.0 * a).cos();
+        sn += v * (4.0 * a).sin();
+    }
+    let first = sn.atan2(cs) / 4.0;
+    std::array::from_fn(|k| {
+        let centre = first + k as f64 * std::f64::consts::FRAC_PI_2;
+        let span = (N / 12) as isize;
+        let at = (centre / std::f64::consts::TAU * N as f64).round() as isize;
+        let best = (at - span..=at + span)
+            .max_by(|a, b| {
+                let v = |i: isize| ring[i.rem_euclid(N as isize) as usize];
+                v(*a).total_cmp(&v(*b))
+            })
+            .unwrap_or(at);
+        best as f64 * std::f64::consts::TAU / N as f64
+    })
+}
+
+struct Shape {
+    white: f64,
+    black: f64,
+    bar_px: f64,
+    side_px: f64,
+}
+
+/// Along the four diagonals (between the arms): white to the bars' corner, black to the
+/// square's corner. Their medians give the bar width and the side.
+fn diagonals(
+    img: &Gray,
+    c: &Vector2<f64>,
+    arms: &[f64; 4],
+    max_side: f64,
+) -> Result<Shape, String> {
+    let reach = (0.75 * max_side).ceil() as usize;
+    let profiles: Vec<Vec<f64>> = (0..4)
+        .map(|k| {
+            // The bisector of two neighbouring arms.
+            let next = arms[(k + 1) % 4] + if k == 3 { std::f64::consts::TAU } else { 0.0 };
+            let a = 0.5 * (arms[k] + next);
+            (0..reach)
+                .map(|t| {
+                    let p = c + t as f64 * Vector2::new(a.cos(), a.sin());
+                    f64::from(img.sample(p.x, p.y))
+                })
+                .collect()
+        })
+        .collect();
+    let white = f64::from(img.sample(c.x, c.y));
+    let mut blacks: Vec<f64> = profiles
+        .iter()
+        .map(|p| p.iter().copied().fold(f64::INFINITY, f64::min))
+        .collect();
+    blacks.sort_by(f64::total_cmp);
+    let black = 0.5 * (blacks[1] + blacks[2]);
+    let mid = 0.5 * (white + black);
+    let mut bars = Vec::new();
+    let mut sides = Vec::new();
+    for p in &profiles {
+        let Some(t1) = p.iter().position(|&v| v < mid) else {
+            return Err("not a cross: a diagonal never turns dark".into());
+        };
+        let Some(t2) = p[t1..].iter().position(|&v| v > mid).map(|t| t + t1) else {
+            return Err("not a cross: a diagonal stays dark beyond the largest target".into());
+        };
+        bars.push(t1 as f64 * std::f64::consts::SQRT_2);
+        sides.push(t2 as f64 * std::f64::consts::SQRT_2);
+    }
+    let (lo, hi) = sides
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &v| (l.min(v), h.max(v)));
+    if hi > 1.8 * lo {
+        return Err(format!(
+            "not a square: its corners {lo:.0}–{hi:.0} px from the centre's diagonals"
+        ));
+    }
+    bars.sort_by(f64::total_cmp);
+    sides.sort_by(f64::total_cmp);
+    Ok(Shape {
+        white,
+        black,
+        bar_px: 0.5 * (bars[1] + bars[2]),
+        side_px: 0.5 * (sides[1] + sides[2]),
+    })
+}

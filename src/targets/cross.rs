@@ -12,20 +12,26 @@ use super::detect::{Candidate, Rejected, Smoothed, TargetSettings};
 /// Ring radius of the response at every pyramid level, pixels of that level.
 const RING_PX: f64 = 4.0;
 
-/// The first, second and fourth harmonics' amplitudes of 16 samples round a ring.
-fn harmonics(s: &[f32; 16]) -> (f32, f32, f32, f32) {
-    let (mut c1, mut s1, mut c2, mut s2) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
-    for (k, v) in s.iter().enumerate() {
+/// cos θ, sin θ, cos 2θ, sin 2θ of the 16 angles round the ring.
+type Trig = [[f32; 4]; 16];
+
+fn ring_trig() -> Trig {
+    std::array::from_fn(|k| {
         let a = k as f32 * std::f32::consts::TAU / 16.0;
-        c1 += v * a.cos();
-        s1 += v * a.sin();
-        c2 += v * (2.0 * a).cos();
-        s2 += v * (2.0 * a).sin();
+        [a.cos(), a.sin(), (2.0 * a).cos(), (2.0 * a).sin()]
+    })
+}
+
+/// The first and second harmonics' amplitudes of 16 samples round a ring.
+fn low_harmonics(s: &[f32; 16], trig: &Trig) -> (f32, f32) {
+    let (mut c1, mut s1, mut c2, mut s2) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
+    for (v, t) in s.iter().zip(trig) {
+        c1 += v * t[0];
+        s1 += v * t[1];
+        c2 += v * t[2];
+        s2 += v * t[3];
     }
-    // cos and sin of k·90°: exact.
-    let c4 = s[0] - s[2] + s[4] - s[6] + s[8] - s[10] + s[12] - s[14];
-    let s4 = s[1] - s[3] + s[5] - s[7] + s[9] - s[11] + s[13] - s[15];
-    (c1.hypot(s1), c2.hypot(s2), c4.hypot(s4), c4)
+    (c1.hypot(s1), c2.hypot(s2))
 }
 
 /// Local maxima of the cross response of one level: `(x, y, response)`.
@@ -42,14 +48,24 @@ fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
             (RING_PX * a.sin()).round() as isize,
         )
     });
+    let trig = ring_trig();
+    // Each ring point as an offset into the pixels, row by row.
+    let offsets: [isize; 16] = std::array::from_fn(|k| ring[k].1 * w as isize + ring[k].0);
     let mut resp = vec![0.0f32; w * h];
     for y in m..h - m {
         for x in m..w - m {
-            let s: [f32; 16] = std::array::from_fn(|k| {
-                let (dx, dy) = ring[k];
-                img.at((x as isize + dx) as usize, (y as isize + dy) as usize)
-            });
-            let (a1, a2, a4, _) = harmonics(&s);
+            let at = y * w + x;
+            let s: [f32; 16] =
+                std::array::from_fn(|k| img.pixels[(at as isize + offsets[k]) as usize]);
+            // cos and sin of k·90°: the fourth harmonic exactly, and first, since the
+            // response is at most it.
+            let c4 = s[0] - s[2] + s[4] - s[6] + s[8] - s[10] + s[12] - s[14];
+            let s4 = s[1] - s[3] + s[5] - s[7] + s[9] - s[11] + s[13] - s[15];
+            let a4 = c4.hypot(s4);
+            if a4 < threshold {
+                continue;
+            }
+            let (a1, a2) = low_harmonics(&s, &trig);
             let ring_mean = s.iter().sum::<f32>() / 16.0;
             // A white cross: its middle brighter than the ring, which is mostly black.
             let centre = img.at(x, y) - ring_mean;
@@ -140,7 +156,9 @@ fn examine(
     scale: usize,
     s: &TargetSettings,
 ) -> Result<Candidate, String> {
-    let near = smoothed.by(img, scale);
+    // Its image made as far as the diagonals may look, and the centre wander.
+    let reach = 0.75 * s.max_size_px + 8.0 * (3 * scale + 2) as f64;
+    let near = smoothed.by(img, scale, start, reach);
     let (uv, _) = symmetric_centre(near, start, (3 * scale + 2) as f64, None)?;
     let arms = arm_angles(near, &uv, 3.0 * scale as f64);
     let shape = diagonals(near, &uv, &arms, s.max_size_px)?;
@@ -174,7 +192,7 @@ fn examine(
         }
     }
     let blur = ((size_px / 16.0).round() as usize).clamp(1, 8);
-    let fine = smoothed.by(img, blur);
+    let fine = smoothed.by(img, blur, uv, 0.5 * size_px + 8.0 * (blur + 3) as f64);
     let (uv, fit_sigma) = symmetric_centre(fine, uv, 0.45 * size_px, None)?;
     // The fit's σ takes the differences as independent; they are not (texture, aliasing,
     // the smoothing). The centre's spread when each eighth of the window is left out in turn

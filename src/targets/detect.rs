@@ -85,16 +85,21 @@ fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
         return Vec::new();
     }
     let ring = ring_offsets();
+    // Each ring point as an offset into the pixels, row by row.
+    let offsets: [isize; 16] = std::array::from_fn(|k| ring[k].1 * w as isize + ring[k].0);
     let mut resp = vec![0.0f32; w * h];
     for y in m..h - m {
         for x in m..w - m {
-            let s: [f32; 16] = std::array::from_fn(|k| {
-                let (dx, dy) = ring[k];
-                img.at((x as isize + dx) as usize, (y as isize + dy) as usize)
-            });
+            let at = y * w + x;
+            let s: [f32; 16] =
+                std::array::from_fn(|k| img.pixels[(at as isize + offsets[k]) as usize]);
             let mut sum = 0.0;
             for n in 0..4 {
                 sum += ((s[n] + s[n + 8]) - (s[n + 4] + s[n + 12])).abs();
+            }
+            // The response is at most `sum`: most pixels end here.
+            if sum < threshold {
+                continue;
             }
             let mut diff = 0.0;
             for n in 0..8 {
@@ -191,16 +196,76 @@ pub fn find_saddles(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Reje
     (found, rejected)
 }
 
-/// The image smoothed by a box of each radius asked for (twice over), each made once and
-/// shared by every candidate.
+/// The image smoothed by a box of each radius asked for (twice over), made tile by tile where
+/// a candidate needs it (a whole 4K frame smoothed for each radius cost most of a search), each
+/// tile once and shared by every candidate.
 #[derive(Default)]
-pub(crate) struct Smoothed(std::collections::BTreeMap<usize, Gray>);
+pub(crate) struct Smoothed(std::collections::BTreeMap<usize, (Gray, Vec<bool>)>);
+
+/// Side of the tiles smoothed on demand, pixels.
+const TILE: usize = 64;
 
 impl Smoothed {
-    pub(crate) fn by(&mut self, img: &Gray, radius: usize) -> &Gray {
-        self.0
-            .entry(radius)
-            .or_insert_with(|| img.box_blur(radius).box_blur(radius))
+    /// The image smoothed by `radius`, exact within `reach` pixels of `around` (elsewhere
+    /// perhaps not yet made: zeros).
+    pub(crate) fn by(
+        &mut self,
+        img: &Gray,
+        radius: usize,
+        around: Vector2<f64>,
+        reach: f64,
+    ) -> &Gray {
+        let (w, h) = (img.width, img.height);
+        let (tw, th) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let (out, done) = self.0.entry(radius).or_insert_with(|| {
+            (
+                Gray {
+                    width: w,
+                    height: h,
+                    pixels: vec![0.0; w * h],
+                },
+                vec![false; tw * th],
+            )
+        });
+        let tile_of = |v: f64, n: usize, tiles: usize| {
+            ((v.max(0.0) as usize).min(n - 1) / TILE).min(tiles - 1)
+        };
+        let (x0, x1) = (
+            tile_of(around.x - reach, w, tw),
+            tile_of(around.x + reach, w, tw),
+        );
+        let (y0, y1) = (
+            tile_of(around.y - reach, h, th),
+            tile_of(around.y + reach, h, th),
+        );
+        // Two box passes of `radius` reach 2 radius pixels: a margin that wide makes a tile's
+        // inside exact (at the image's edges the crop's clamping is the image's).
+        let m = 2 * radius + 1;
+        for ty in y0..=y1 {
+            for tx in x0..=x1 {
+                if std::mem::replace(&mut done[ty * tw + tx], true) {
+                    continue;
+                }
+                let (ax, ay) = (tx * TILE, ty * TILE);
+                let (bx, by) = ((ax + TILE).min(w), (ay + TILE).min(h));
+                let (cx0, cy0) = (ax.saturating_sub(m), ay.saturating_sub(m));
+                let (cx1, cy1) = ((bx + m).min(w), (by + m).min(h));
+                let crop = Gray {
+                    width: cx1 - cx0,
+                    height: cy1 - cy0,
+                    pixels: (cy0..cy1)
+                        .flat_map(|y| img.pixels[y * w + cx0..y * w + cx1].iter().copied())
+                        .collect(),
+                };
+                let smooth = crop.box_blur(radius).box_blur(radius);
+                for y in ay..by {
+                    let row = (y - cy0) * smooth.width;
+                    out.pixels[y * w + ax..y * w + bx]
+                        .copy_from_slice(&smooth.pixels[row + ax - cx0..row + bx - cx0]);
+                }
+            }
+        }
+        out
     }
 }
 
@@ -213,7 +278,9 @@ fn examine(
     s: &TargetSettings,
 ) -> Result<Candidate, String> {
     let half_window = scale + 1;
-    let (uv, sigma_px) = saddle(smoothed.by(img, scale), start, half_window)?;
+    // The saddle's search may wander a few windows: its image made that far.
+    let reach = 8.0 * (half_window + 2) as f64;
+    let (uv, sigma_px) = saddle(smoothed.by(img, scale, start, reach), start, half_window)?;
     if sigma_px > s.max_sigma_px {
         return Err(format!(
             "the centre is not sharp: σ {sigma_px:.2} px, at most {:.2}",
@@ -241,7 +308,8 @@ fn examine(
     // compression average out.
     let blur = ((size_px / 8.0).round() as usize).clamp(1, 8);
     let (uv, sigma_px) = if blur > scale {
-        saddle(smoothed.by(img, blur), uv, blur + 1).unwrap_or((uv, sigma_px))
+        let reach = 8.0 * (blur + 3) as f64;
+        saddle(smoothed.by(img, blur, uv, reach), uv, blur + 1).unwrap_or((uv, sigma_px))
     } else {
         (uv, sigma_px)
     };

@@ -23,6 +23,30 @@ use crate::survey::crs::{Crs, Transform};
 use crate::survey::load::Framed;
 use crate::terrain::HeightSurface;
 
+/// The survey in its site frame, with `[picks] auto = true`'s picks added (and their CSV), and
+/// the survey's warnings.
+fn survey_and_picks(
+    l: &Loaded,
+    video: &Path,
+) -> Result<(Framed, Option<String>, Vec<String>), RunError> {
+    let mut framed = load_survey(l)?;
+    let auto = if l.project.picks.auto {
+        Some(inputs::auto_picks(l, &mut framed, video)?)
+    } else {
+        None
+    };
+    let mut warnings = inputs::survey_warnings(&framed);
+    warnings.extend(auto.as_ref().and_then(|(_, w)| w.clone()));
+    Ok((framed, auto.map(|(csv, _)| csv), warnings))
+}
+
+/// `picks-auto.csv`, when the picks were found.
+fn write_auto_picks(out: &Path, csv: Option<&str>) -> Result<(), RunError> {
+    let Some(csv) = csv else { return Ok(()) };
+    let path = out.join("picks-auto.csv");
+    crate::io::write_atomic(&path, csv.as_bytes()).map_err(|source| RunError::Io { path, source })
+}
+
 /// Reads and checks everything the stages need before any work (a bad input is found now, not
 /// after hours of scanning), and makes the output folder. Also gives the detector, the inputs'
 /// records and the warnings so far.
@@ -52,14 +76,7 @@ pub(super) fn prepare<'a>(
         frames_total,
     } = inputs::video_facts(l)?;
     let camera = project_camera(l, width, height)?;
-    let mut framed = load_survey(l)?;
-    let auto_picks = if p.picks.auto {
-        Some(inputs::auto_picks(l, &mut framed, &video)?)
-    } else {
-        None
-    };
-    let mut warnings = inputs::survey_warnings(&framed);
-    warnings.extend(auto_picks.as_ref().and_then(|(_, w)| w.clone()));
+    let (framed, auto_picks, warnings) = survey_and_picks(l, &video)?;
     let pose = pose_source::open(l, &framed, (width, height), frames_total, out, progress)?;
     let surface = registry::ground(&p.ground, &grounds::GroundInputs { l, framed: &framed })?;
 
@@ -118,11 +135,7 @@ pub(super) fn prepare<'a>(
         },
     )?;
     make_out_dirs(&guard, out)?;
-    if let Some((csv, _)) = &auto_picks {
-        let path = out.join("picks-auto.csv");
-        crate::io::write_atomic(&path, csv.as_bytes())
-            .map_err(|source| RunError::Io { path, source })?;
-    }
+    write_auto_picks(out, auto_picks.as_deref())?;
     let palette = match palette {
         Some((pal, key)) => {
             cache.store("palette", &key, &pal)?;

@@ -7,7 +7,7 @@
 use nalgebra::{Matrix2, Vector2};
 
 use super::Gray;
-use super::detect::{Candidate, Rejected, Smoothed, TargetSettings};
+use super::detect::{Candidate, Rejected, Smoothed, TargetSettings, examine_seeds, pyramid_seeds};
 
 /// Ring radius of the response at every pyramid level, pixels of that level.
 const RING_PX: f64 = 4.0;
@@ -34,118 +34,46 @@ fn low_harmonics(s: &[f32; 16], trig: &Trig) -> (f32, f32) {
     (c1.hypot(s1), c2.hypot(s2))
 }
 
-/// Local maxima of the cross response of one level: `(x, y, response)`.
-fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
-    let (w, h) = (img.width, img.height);
-    let m = RING_PX as usize + 2;
-    if w <= 2 * m + 2 || h <= 2 * m + 2 {
-        return Vec::new();
+/// The cross response at `(x, y)` of `img` from its ring `s` (0 below `threshold`).
+fn cross_response(
+    img: &Gray,
+    s: &[f32; 16],
+    x: usize,
+    y: usize,
+    threshold: f32,
+    trig: &Trig,
+) -> f32 {
+    // cos and sin of k·90°: the fourth harmonic exactly, and first, since the response is at
+    // most it.
+    let c4 = s[0] - s[2] + s[4] - s[6] + s[8] - s[10] + s[12] - s[14];
+    let s4 = s[1] - s[3] + s[5] - s[7] + s[9] - s[11] + s[13] - s[15];
+    let a4 = c4.hypot(s4);
+    if a4 < threshold {
+        return 0.0;
     }
-    let ring: [(isize, isize); 16] = std::array::from_fn(|k| {
-        let a = k as f64 * std::f64::consts::TAU / 16.0;
-        (
-            (RING_PX * a.cos()).round() as isize,
-            (RING_PX * a.sin()).round() as isize,
-        )
-    });
-    let trig = ring_trig();
-    // Each ring point as an offset into the pixels, row by row.
-    let offsets: [isize; 16] = std::array::from_fn(|k| ring[k].1 * w as isize + ring[k].0);
-    let mut resp = vec![0.0f32; w * h];
-    for y in m..h - m {
-        for x in m..w - m {
-            let at = y * w + x;
-            let s: [f32; 16] =
-                std::array::from_fn(|k| img.pixels[(at as isize + offsets[k]) as usize]);
-            // cos and sin of k·90°: the fourth harmonic exactly, and first, since the
-            // response is at most it.
-            let c4 = s[0] - s[2] + s[4] - s[6] + s[8] - s[10] + s[12] - s[14];
-            let s4 = s[1] - s[3] + s[5] - s[7] + s[9] - s[11] + s[13] - s[15];
-            let a4 = c4.hypot(s4);
-            if a4 < threshold {
-                continue;
-            }
-            let (a1, a2) = low_harmonics(&s, &trig);
-            let ring_mean = s.iter().sum::<f32>() / 16.0;
-            // A white cross: its middle brighter than the ring, which is mostly black.
-            let centre = img.at(x, y) - ring_mean;
-            // The second harmonic only in part: a cross seen obliquely has arms off square.
-            resp[y * w + x] = if centre > 0.0 {
-                a4 - 0.5 * a2 - 2.0 * a1
-            } else {
-                0.0
-            };
-        }
+    let (a1, a2) = low_harmonics(s, trig);
+    let ring_mean = s.iter().sum::<f32>() / 16.0;
+    // A white cross: its middle brighter than the ring, which is mostly black.
+    let centre = img.at(x, y) - ring_mean;
+    // The second harmonic only in part: a cross seen obliquely has arms off square.
+    if centre > 0.0 {
+        a4 - 0.5 * a2 - 2.0 * a1
+    } else {
+        0.0
     }
-    let mut peaks = Vec::new();
-    for y in m + 1..h - m - 1 {
-        for x in m + 1..w - m - 1 {
-            let r = resp[y * w + x];
-            if r < threshold {
-                continue;
-            }
-            let mut best = true;
-            'n: for yy in y - 2..=y + 2 {
-                for xx in x - 2..=x + 2 {
-                    let q = resp.get(yy * w + xx).copied().unwrap_or(0.0);
-                    if q > r || (q == r && (yy, xx) < (y, x)) {
-                        best = false;
-                        break 'n;
-                    }
-                }
-            }
-            if best {
-                peaks.push((x, y, r));
-            }
-        }
-    }
-    peaks
 }
 
 /// The cross targets in `img`: those found, and the candidates refused with why.
 pub fn find_crosses(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
     // An ideal cross of contrast C gives a fourth harmonic of 4–6 C.
     let threshold = (2.0 * s.min_contrast) as f32;
-    let mut level = img.box_blur(1);
-    let mut seeds: Vec<(Vector2<f64>, f32, usize)> = Vec::new();
-    let mut scale = 1usize;
-    loop {
-        for (x, y, r) in level_peaks(&level, threshold) {
-            let f = scale as f64;
-            let uv = Vector2::new((x as f64 + 0.5) * f - 0.5, (y as f64 + 0.5) * f - 0.5);
-            seeds.push((uv, r, scale));
-        }
-        if RING_PX * (2 * scale) as f64 > 0.3 * s.max_size_px || level.width < 64 {
-            break;
-        }
-        level = level.half().box_blur(1);
-        scale *= 2;
-    }
-    seeds.sort_by(|a, b| b.1.total_cmp(&a.1));
-    seeds.truncate(s.max_candidates);
-    let mut found: Vec<Candidate> = Vec::new();
-    let mut rejected: Vec<Rejected> = Vec::new();
-    let mut smoothed = Smoothed::default();
-    let near = |a: &Vector2<f64>, c: &Candidate| (c.uv - a).norm() < (0.35 * c.size_px).max(3.0);
-    for (uv0, _, scale) in seeds {
-        if found.iter().any(|c| near(&uv0, c)) {
-            continue;
-        }
-        match examine(img, &mut smoothed, uv0, scale, s) {
-            Ok(c) => {
-                if !found.iter().any(|f| near(&c.uv, f)) {
-                    found.push(c);
-                }
-            }
-            Err(reason) => {
-                if !rejected.iter().any(|r| (r.uv - uv0).norm() < 3.0) {
-                    rejected.push(Rejected { uv: uv0, reason });
-                }
-            }
-        }
-    }
-    rejected.retain(|r| !found.iter().any(|c| (c.uv - r.uv).norm() < 0.7 * c.size_px));
-    (found, rejected)
+    let trig = ring_trig();
+    let seeds = pyramid_seeds(img, s, (RING_PX, 0.3), threshold, |level, ring, x, y| {
+        cross_response(level, ring, x, y, threshold, &trig)
+    });
+    examine_seeds(seeds, |smoothed, uv0, scale| {
+        examine(img, smoothed, uv0, scale, s)
+    })
 }
 
 /// One candidate measured, checked and placed at full resolution.

@@ -64,27 +64,32 @@ pub struct Rejected {
 /// Ring radius of the response at every pyramid level, pixels of that level.
 const RING_PX: f64 = 5.0;
 
-/// The response's ring: 16 offsets on a circle of `RING_PX`.
-fn ring_offsets() -> [(isize, isize); 16] {
-    let mut out = [(0isize, 0isize); 16];
-    for (k, o) in out.iter_mut().enumerate() {
+/// A ring of 16 offsets on a circle of `radius` pixels.
+fn ring_offsets(radius: f64) -> [(isize, isize); 16] {
+    std::array::from_fn(|k| {
         let a = k as f64 * std::f64::consts::TAU / 16.0;
-        *o = (
-            (RING_PX * a.cos()).round() as isize,
-            (RING_PX * a.sin()).round() as isize,
-        );
-    }
-    out
+        (
+            (radius * a.cos()).round() as isize,
+            (radius * a.sin()).round() as isize,
+        )
+    })
 }
 
-/// Local maxima of the ring response of one level: `(x, y, response)` in the level's pixels.
-fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
+/// Local maxima, at least `threshold`, of a response computed at every pixel of `img` from the
+/// 16 values of a ring of `radius` round it (`response(ring, x, y)`): `(x, y, response)` in
+/// `img`'s pixels.
+fn ring_peaks(
+    img: &Gray,
+    radius: f64,
+    threshold: f32,
+    response: impl Fn(&[f32; 16], usize, usize) -> f32,
+) -> Vec<(usize, usize, f32)> {
     let (w, h) = (img.width, img.height);
-    let m = RING_PX as usize + 2;
+    let m = radius as usize + 2;
     if w <= 2 * m + 2 || h <= 2 * m + 2 {
         return Vec::new();
     }
-    let ring = ring_offsets();
+    let ring = ring_offsets(radius);
     // Each ring point as an offset into the pixels, row by row.
     let offsets: [isize; 16] = std::array::from_fn(|k| ring[k].1 * w as isize + ring[k].0);
     let mut resp = vec![0.0f32; w * h];
@@ -93,27 +98,7 @@ fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
             let at = y * w + x;
             let s: [f32; 16] =
                 std::array::from_fn(|k| img.pixels[(at as isize + offsets[k]) as usize]);
-            let mut sum = 0.0;
-            for n in 0..4 {
-                sum += ((s[n] + s[n + 8]) - (s[n + 4] + s[n + 12])).abs();
-            }
-            // The response is at most `sum`: most pixels end here.
-            if sum < threshold {
-                continue;
-            }
-            let mut diff = 0.0;
-            for n in 0..8 {
-                diff += (s[n] - s[n + 8]).abs();
-            }
-            let ring_mean = s.iter().sum::<f32>() / 16.0;
-            let mut centre = 0.0;
-            for yy in y - 1..=y + 1 {
-                for xx in x - 1..=x + 1 {
-                    centre += img.at(xx, yy);
-                }
-            }
-            let mean = (ring_mean - centre / 9.0).abs();
-            resp[y * w + x] = sum - diff - 16.0 * mean;
+            resp[at] = response(&s, x, y);
         }
     }
     let mut peaks = Vec::new();
@@ -141,22 +126,29 @@ fn level_peaks(img: &Gray, threshold: f32) -> Vec<(usize, usize, f32)> {
     peaks
 }
 
-/// The saddle targets (checker and X) in `img`: those found, and the candidates refused with
-/// why.
-pub fn find_saddles(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
-    // For an ideal corner of contrast C the response is about 6 C.
-    let threshold = (3.0 * s.min_contrast) as f32;
+/// Candidates from a ring response over an image pyramid (`ring_peaks` at full, half, quarter
+/// ... resolution, each level smoothed by a 3×3 box), strongest first, at most
+/// `s.max_candidates`: `(centre, response, level's scale)`. The pyramid stops once the ring,
+/// at the next level, would be wider than `ring_share` of the largest target.
+pub(crate) fn pyramid_seeds(
+    img: &Gray,
+    s: &TargetSettings,
+    (radius, ring_share): (f64, f64),
+    threshold: f32,
+    response: impl Fn(&Gray, &[f32; 16], usize, usize) -> f32,
+) -> Vec<(Vector2<f64>, f32, usize)> {
     let mut level = img.box_blur(1);
     let mut seeds: Vec<(Vector2<f64>, f32, usize)> = Vec::new();
     let mut scale = 1usize;
     loop {
-        for (x, y, r) in level_peaks(&level, threshold) {
+        for (x, y, r) in ring_peaks(&level, radius, threshold, |ring, x, y| {
+            response(&level, ring, x, y)
+        }) {
             let f = scale as f64;
             let uv = Vector2::new((x as f64 + 0.5) * f - 0.5, (y as f64 + 0.5) * f - 0.5);
             seeds.push((uv, r, scale));
         }
-        // The next level's ring must still fit inside the largest target.
-        if RING_PX * (2 * scale) as f64 > 0.4 * s.max_size_px || level.width < 64 {
+        if radius * (2 * scale) as f64 > ring_share * s.max_size_px || level.width < 64 {
             break;
         }
         level = level.half().box_blur(1);
@@ -164,36 +156,79 @@ pub fn find_saddles(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Reje
     }
     seeds.sort_by(|a, b| b.1.total_cmp(&a.1));
     seeds.truncate(s.max_candidates);
+    seeds
+}
+
+/// Each seed examined in turn (`examine(smoothed, centre, scale)`), unless a target already
+/// found covers it: the targets found, and the places refused with why (one per place, and
+/// none that a target found later covers).
+pub(crate) fn examine_seeds(
+    seeds: Vec<(Vector2<f64>, f32, usize)>,
+    mut examine: impl FnMut(&mut Smoothed, Vector2<f64>, usize) -> Result<Candidate, String>,
+) -> (Vec<Candidate>, Vec<Rejected>) {
     let mut found: Vec<Candidate> = Vec::new();
-    let mut rejected = Vec::new();
+    let mut rejected: Vec<Rejected> = Vec::new();
     let mut smoothed = Smoothed::default();
+    let near = |a: &Vector2<f64>, c: &Candidate| (c.uv - a).norm() < (0.35 * c.size_px).max(3.0);
     for (uv0, _, scale) in seeds {
-        let near = |c: &Candidate| (c.uv - uv0).norm() < (0.35 * c.size_px).max(3.0);
-        if found.iter().any(near) {
+        if found.iter().any(|c| near(&uv0, c)) {
             continue;
         }
-        match examine(img, &mut smoothed, uv0, scale, s) {
+        match examine(&mut smoothed, uv0, scale) {
             Ok(c) => {
-                if !found
-                    .iter()
-                    .any(|f| (f.uv - c.uv).norm() < (0.35 * f.size_px).max(3.0))
-                {
+                if !found.iter().any(|f| near(&c.uv, f)) {
                     found.push(c);
                 }
             }
             Err(reason) => {
-                if !rejected
-                    .iter()
-                    .any(|r: &Rejected| (r.uv - uv0).norm() < 3.0)
-                {
+                if !rejected.iter().any(|r| (r.uv - uv0).norm() < 3.0) {
                     rejected.push(Rejected { uv: uv0, reason });
                 }
             }
         }
     }
-    // Refused places that a target found later covers are not worth reporting.
     rejected.retain(|r| !found.iter().any(|c| (c.uv - r.uv).norm() < 0.7 * c.size_px));
     (found, rejected)
+}
+
+/// The saddle response at `(x, y)` of `img` from its ring `s`: opposite points alike, points a
+/// quarter turn apart unlike, the ring's mean like the centre's (0 below `threshold`).
+fn saddle_response(img: &Gray, s: &[f32; 16], x: usize, y: usize, threshold: f32) -> f32 {
+    let mut sum = 0.0;
+    for n in 0..4 {
+        sum += ((s[n] + s[n + 8]) - (s[n + 4] + s[n + 12])).abs();
+    }
+    // The response is at most `sum`: most pixels end here.
+    if sum < threshold {
+        return 0.0;
+    }
+    let mut diff = 0.0;
+    for n in 0..8 {
+        diff += (s[n] - s[n + 8]).abs();
+    }
+    let ring_mean = s.iter().sum::<f32>() / 16.0;
+    let mut centre = 0.0;
+    for yy in y - 1..=y + 1 {
+        for xx in x - 1..=x + 1 {
+            centre += img.at(xx, yy);
+        }
+    }
+    let mean = (ring_mean - centre / 9.0).abs();
+    sum - diff - 16.0 * mean
+}
+
+/// The saddle targets (checker and X) in `img`: those found, and the candidates refused with
+/// why.
+pub fn find_saddles(img: &Gray, s: &TargetSettings) -> (Vec<Candidate>, Vec<Rejected>) {
+    // For an ideal corner of contrast C the response is about 6 C.
+    let threshold = (3.0 * s.min_contrast) as f32;
+    // The next level's ring must still fit inside the largest target.
+    let seeds = pyramid_seeds(img, s, (RING_PX, 0.4), threshold, |level, ring, x, y| {
+        saddle_response(level, ring, x, y, threshold)
+    });
+    examine_seeds(seeds, |smoothed, uv0, scale| {
+        examine(img, smoothed, uv0, scale, s)
+    })
 }
 
 /// The image smoothed by a box of each radius asked for (twice over), made tile by tile where

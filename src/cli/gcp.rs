@@ -41,22 +41,8 @@ pub struct FindArgs {
     /// The video frame to search, from 0; its picks are named 'VIDEO#N' as `pose` reads them
     #[arg(long, default_value = "0", value_name = "N")]
     frame: usize,
-    /// Where the image's top points, a bearing in degrees from north through east, with a
-    /// tolerance (default 45): needed when the targets' layout is symmetric
-    #[arg(long, value_parser = parse_heading, value_name = "DEG[:TOL]")]
-    heading: Option<(f64, f64)>,
-    /// Least difference between a target's white and black quadrants, grey levels
-    #[arg(long, default_value = "40", value_name = "LEVELS")]
-    min_contrast: f64,
-    /// The target designs to look for, comma-separated: checker (four quadrants), x (a
-    /// bow-tie), cross (a white cross on a black square)
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "checker,x",
-        value_name = "DESIGNS"
-    )]
-    design: Vec<Design>,
+    #[command(flatten)]
+    search: SearchArgs,
     /// The picks CSV to write (name,image,u,v,sigma)
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
@@ -73,15 +59,61 @@ pub(crate) enum Design {
     Cross,
 }
 
-/// The detector settings for these designs and contrast (checker and X are both saddles).
-pub(crate) fn target_settings(designs: &[Design], min_contrast: f64) -> TargetSettings {
-    TargetSettings {
-        min_contrast,
-        saddles: designs
-            .iter()
-            .any(|d| matches!(d, Design::Checker | Design::X)),
-        crosses: designs.contains(&Design::Cross),
-        ..TargetSettings::default()
+/// How targets are searched for and told apart: the options of `gcp find` and `gcp pick
+/// --find`.
+#[derive(clap::Args)]
+pub(crate) struct SearchArgs {
+    /// Where the image's top points, a bearing in degrees from north through east, with a
+    /// tolerance (default 45): needed when the targets' layout is symmetric
+    #[arg(long, value_parser = parse_heading, value_name = "DEG[:TOL]")]
+    heading: Option<(f64, f64)>,
+    /// Least difference between a target's white and black quadrants, grey levels
+    #[arg(long, default_value = "40", value_name = "LEVELS")]
+    min_contrast: f64,
+    /// The target designs to look for, comma-separated: checker (four quadrants), x (a
+    /// bow-tie), cross (a white cross on a black square)
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "checker,x",
+        value_name = "DESIGNS"
+    )]
+    design: Vec<Design>,
+}
+
+/// A search made ready: the surveyed points' names and ground positions, and the settings.
+pub(crate) struct Searcher {
+    names: Vec<String>,
+    ground: Vec<Vector2<f64>>,
+    targets: TargetSettings,
+    layout: LayoutSettings,
+}
+
+impl Searcher {
+    pub(crate) fn new(framed: &geostride::survey::load::Framed, args: &SearchArgs) -> Searcher {
+        let designs = &args.design;
+        Searcher {
+            names: framed
+                .survey
+                .points
+                .iter()
+                .map(|p| p.name.clone())
+                .collect(),
+            ground: framed.local.iter().map(|p| p.xy()).collect(),
+            // Checker and X are both saddles.
+            targets: TargetSettings {
+                min_contrast: args.min_contrast,
+                saddles: designs
+                    .iter()
+                    .any(|d| matches!(d, Design::Checker | Design::X)),
+                crosses: designs.contains(&Design::Cross),
+                ..TargetSettings::default()
+            },
+            layout: LayoutSettings {
+                heading_deg: args.heading,
+                ..LayoutSettings::default()
+            },
+        }
     }
 }
 
@@ -179,30 +211,19 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
     inputs.extend(args.read.picks.iter().map(PathBuf::as_path));
     check_output_file(&args.out, &inputs)?;
     let framed = read_framed(&args.gcps, &args.read, None).map_err(bad_input)?;
-    let names: Vec<String> = framed
-        .survey
-        .points
-        .iter()
-        .map(|p| p.name.clone())
-        .collect();
-    let ground: Vec<Vector2<f64>> = framed.local.iter().map(|p| p.xy()).collect();
-    if ground.len() < 4 {
+    let searcher = Searcher::new(&framed, &args.search);
+    if searcher.ground.len() < 4 {
         return Err(bad_input(anyhow!(
             "{}: {} points; telling targets apart by their layout needs at least four",
             args.gcps.display(),
-            ground.len()
+            searcher.ground.len()
         )));
     }
-    let target_settings = target_settings(&args.design, args.min_contrast);
-    let layout = LayoutSettings {
-        heading_deg: args.heading,
-        ..LayoutSettings::default()
-    };
     let mut csv = String::from("name,image,u,v,sigma\n");
     let mut reports = Vec::new();
     for path in &args.inputs {
         let (gray, image) = load(path, args.frame)?;
-        let report = search(&gray, image, &ground, &names, &target_settings, &layout);
+        let report = searcher.search(&gray, image);
         for t in &report.targets {
             if let Some(name) = &t.name {
                 let _ = writeln!(
@@ -234,53 +255,50 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn search(
-    gray: &Gray,
-    image: String,
-    ground: &[Vector2<f64>],
-    names: &[String],
-    target_settings: &TargetSettings,
-    layout: &LayoutSettings,
-) -> ImageReport {
-    let (found, rejected) = find_targets(gray, target_settings);
-    let centres: Vec<(Vector2<f64>, f64)> = found.iter().map(|c| (c.uv, c.sigma_px)).collect();
-    let mut targets: Vec<TargetReport> = found
-        .iter()
-        .map(|c| TargetReport {
-            u: c.uv.x,
-            v: c.uv.y,
-            sigma_px: c.sigma_px,
-            contrast: c.contrast,
-            size_px: c.size_px,
-            name: None,
-            residual_px: None,
-        })
-        .collect();
-    let (identified, not_identified) = match identify_by_layout(ground, &centres, layout) {
-        Identification::Found { identified, .. } => {
-            for i in &identified {
-                targets[i.target].name = Some(names[i.point].clone());
-                targets[i.target].residual_px = Some(i.residual_px);
-            }
-            (identified.len(), None)
-        }
-        Identification::NotIdentified(why) => (0, Some(why)),
-    };
-    ImageReport {
-        image,
-        width: gray.width,
-        height: gray.height,
-        targets,
-        identified,
-        not_identified,
-        rejected: rejected
-            .into_iter()
-            .map(|r| RejectedReport {
-                u: r.uv.x,
-                v: r.uv.y,
-                reason: r.reason,
+impl Searcher {
+    /// The targets of one image, and which point each is.
+    fn search(&self, gray: &Gray, image: String) -> ImageReport {
+        let (ground, names, layout) = (&self.ground, &self.names, &self.layout);
+        let (found, rejected) = find_targets(gray, &self.targets);
+        let centres: Vec<(Vector2<f64>, f64)> = found.iter().map(|c| (c.uv, c.sigma_px)).collect();
+        let mut targets: Vec<TargetReport> = found
+            .iter()
+            .map(|c| TargetReport {
+                u: c.uv.x,
+                v: c.uv.y,
+                sigma_px: c.sigma_px,
+                contrast: c.contrast,
+                size_px: c.size_px,
+                name: None,
+                residual_px: None,
             })
-            .collect(),
+            .collect();
+        let (identified, not_identified) = match identify_by_layout(ground, &centres, layout) {
+            Identification::Found { identified, .. } => {
+                for i in &identified {
+                    targets[i.target].name = Some(names[i.point].clone());
+                    targets[i.target].residual_px = Some(i.residual_px);
+                }
+                (identified.len(), None)
+            }
+            Identification::NotIdentified(why) => (0, Some(why)),
+        };
+        ImageReport {
+            image,
+            width: gray.width,
+            height: gray.height,
+            targets,
+            identified,
+            not_identified,
+            rejected: rejected
+                .into_iter()
+                .map(|r| RejectedReport {
+                    u: r.uv.x,
+                    v: r.uv.y,
+                    reason: r.reason,
+                })
+                .collect(),
+        }
     }
 }
 

@@ -11,7 +11,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::http::{Request, Response, foreign, read_request, write_response};
-use super::{load_bgr, parse_heading, search};
+use super::{Searcher, load_bgr};
 use crate::cli::survey::{ReadArgs, read_framed};
 use crate::cli::{bad_input, check_output_file};
 use geostride::camera::Camera;
@@ -19,7 +19,7 @@ use geostride::estimate::homography::homography_dlt;
 use geostride::pose::refine::project_pose;
 use geostride::pose::{GcpObservation, PoseSettings, solve_pose};
 use geostride::survey::Role;
-use geostride::targets::{Gray, LayoutSettings};
+use geostride::targets::Gray;
 
 const PAGE: &str = include_str!("pick_page.html");
 
@@ -43,23 +43,13 @@ pub struct PickArgs {
     /// against the homography of the ground taken as a plane
     #[arg(long, value_name = "CAL")]
     camera: Option<String>,
-    /// Search each image without picks for checker targets first, as `gcp find` does
+    /// Search each image without picks for targets first (--heading, --min-contrast, --design
+    /// below), as `gcp find` does
     #[arg(long)]
     find: bool,
-    /// With --find: the image's rough bearing, as `gcp find --heading`
-    #[arg(long, value_parser = parse_heading, value_name = "DEG[:TOL]")]
-    heading: Option<(f64, f64)>,
-    /// With --find: least target contrast, grey levels
-    #[arg(long, default_value = "40", value_name = "LEVELS")]
-    min_contrast: f64,
-    /// With --find: the target designs, as `gcp find --design`
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "checker,x",
-        value_name = "DESIGNS"
-    )]
-    design: Vec<super::Design>,
+    // With --find: how targets are searched for, as `gcp find`.
+    #[command(flatten)]
+    search: super::SearchArgs,
     /// The picks CSV the page saves to (the page may name another; never an input)
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
@@ -117,6 +107,7 @@ pub fn pick(args: &PickArgs) -> anyhow::Result<()> {
         out: args.out.clone(),
         frame: args.frame,
     };
+    let searcher = args.find.then(|| Searcher::new(&framed, &args.search));
     for path in &args.inputs {
         let (bgr, width, height, name) = load_bgr(path, args.frame)?;
         let from_file: Vec<Value> = points
@@ -128,9 +119,9 @@ pub fn pick(args: &PickArgs) -> anyhow::Result<()> {
                        "sigma": o.sigma_px.unwrap_or(1.0), "status": "file"})
             })
             .collect();
-        if from_file.is_empty() && args.find {
+        if let Some(searcher) = searcher.as_ref().filter(|_| from_file.is_empty()) {
             site.picks
-                .extend(find_picks(args, &framed, &bgr, width, height, &name));
+                .extend(find_picks(searcher, &bgr, width, height, &name));
         }
         site.picks.extend(from_file);
         let camera = match &args.camera {
@@ -153,27 +144,14 @@ pub fn pick(args: &PickArgs) -> anyhow::Result<()> {
 
 /// Picks from target detection, marked "auto" for the person to confirm.
 fn find_picks(
-    args: &PickArgs,
-    framed: &geostride::survey::load::Framed,
+    searcher: &Searcher,
     bgr: &[u8],
     width: usize,
     height: usize,
     name: &str,
 ) -> Vec<Value> {
     let gray = Gray::from_bgr(bgr, width, height);
-    let ground: Vec<Vector2<f64>> = framed.local.iter().map(|p| p.xy()).collect();
-    let names: Vec<String> = framed
-        .survey
-        .points
-        .iter()
-        .map(|p| p.name.clone())
-        .collect();
-    let settings = super::target_settings(&args.design, args.min_contrast);
-    let layout = LayoutSettings {
-        heading_deg: args.heading,
-        ..LayoutSettings::default()
-    };
-    let report = search(&gray, name.to_string(), &ground, &names, &settings, &layout);
+    let report = searcher.search(&gray, name.to_string());
     if let Some(why) = &report.not_identified {
         println!("{name}: no automatic picks ({why})");
     }

@@ -95,19 +95,8 @@ fn main() {
 fn speed(tmp: &std::path::Path) {
     use geostride::targets::{Gray, TargetSettings, find_targets};
     let dir = tmp.join("speed");
-    std::fs::create_dir_all(&dir).unwrap();
     let scene = targets::scene(7, "checker").replace("[1920, 1080]", "[3840, 2160]");
-    std::fs::write(dir.join("scene.toml"), scene).unwrap();
-    let sim = std::process::Command::new(env!("CARGO_BIN_EXE_geostride"))
-        .args(["simulate", "scene.toml", "--out", "sim"])
-        .current_dir(&dir)
-        .output()
-        .unwrap();
-    assert!(
-        sim.status.success(),
-        "{}",
-        String::from_utf8_lossy(&sim.stderr)
-    );
+    targets::simulate(&dir, &scene);
     let (bgr, w, h) =
         geostride::video::source::FrameReader::frame_bgr_bytes(&dir.join("sim/video.mp4"), 0)
             .unwrap();

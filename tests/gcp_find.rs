@@ -7,26 +7,7 @@
 
 mod common;
 
-use std::collections::HashMap;
 use std::path::Path;
-
-fn simulate(dir: &Path, scene_text: &str) {
-    std::fs::write(dir.join("scene.toml"), scene_text).unwrap();
-    common::simulate(&dir.join("scene.toml"), &dir.join("sim"));
-}
-
-fn picks(path: &Path) -> HashMap<String, (f64, f64, f64)> {
-    common::read_csv(path)
-        .into_iter()
-        .map(|r| {
-            let sigma = r.get("sigma").and_then(|s| s.parse().ok()).unwrap_or(0.0);
-            (
-                r["name"].clone(),
-                (common::num(&r, "u"), common::num(&r, "v"), sigma),
-            )
-        })
-        .collect()
-}
 
 fn find(dir: &Path, extra: &[&str]) -> std::process::Output {
     common::geostride()
@@ -49,20 +30,11 @@ fn find(dir: &Path, extra: &[&str]) -> std::process::Output {
 fn targets_are_found_identified_by_layout_and_placed_within_a_fifth_of_a_pixel() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let gcps = [
-        ("G1", -15.0, -6.0),
-        ("G2", -8.0, 7.0),
-        ("G3", 2.0, -4.0),
-        ("G4", 9.0, 8.5),
-        ("G5", 14.0, -7.5),
-        ("G6", -2.0, 3.0),
-        ("CHK-1", 5.5, 1.0),
-    ];
-    simulate(dir, &common::target_scene(20.0, &gcps));
+    common::targets::simulate(dir, &common::target_scene(20.0, &common::IRREGULAR_GCPS));
     let out = find(dir, &[]);
     common::assert_success(&out);
-    let truth = picks(&dir.join("sim/picks.csv"));
-    let found = picks(&dir.join("found.csv"));
+    let truth = common::picks(&dir.join("sim/picks.csv"));
+    let found = common::picks(&dir.join("found.csv"));
     assert_eq!(truth.len(), 7, "all seven in view");
     let mut sq = 0.0;
     for (name, (u, v, _)) in &truth {
@@ -119,7 +91,7 @@ fn a_symmetric_layout_is_refused_without_a_heading_and_identified_with_one() {
         .iter()
         .map(|(n, e, nn)| (n.as_str(), *e, *nn))
         .collect();
-    simulate(dir, &common::target_scene(0.0, &named));
+    common::targets::simulate(dir, &common::target_scene(0.0, &named));
     let out = find(dir, &[]);
     assert_eq!(
         out.status.code(),
@@ -132,8 +104,8 @@ fn a_symmetric_layout_is_refused_without_a_heading_and_identified_with_one() {
     // The drone's heading, roughly: the image's top is north.
     let out = find(dir, &["--heading", "10:45"]);
     common::assert_success(&out);
-    let truth = picks(&dir.join("sim/picks.csv"));
-    let found = picks(&dir.join("found.csv"));
+    let truth = common::picks(&dir.join("sim/picks.csv"));
+    let found = common::picks(&dir.join("found.csv"));
     assert!(
         found.len() + 1 >= truth.len(),
         "{} of {}",
@@ -157,17 +129,9 @@ fn centres(out: &Path) -> Vec<[f64; 3]> {
 #[test]
 fn a_run_with_automatic_picks_poses_the_camera_as_the_true_picks_do() {
     let tmp = tempfile::tempdir().unwrap();
-    let gcps = [
-        ("G1", -15.0, -6.0),
-        ("G2", -8.0, 7.0),
-        ("G3", 2.0, -4.0),
-        ("G4", 9.0, 8.5),
-        ("G5", 14.0, -7.5),
-        ("G6", -2.0, 3.0),
-        ("CHK-1", 5.5, 1.0),
-    ];
     // Hats, for the project's colour detector.
-    let scene = common::target_scene(20.0, &gcps).replace("hats = false", "hats = true");
+    let scene =
+        common::target_scene(20.0, &common::IRREGULAR_GCPS).replace("hats = false", "hats = true");
     std::fs::write(tmp.path().join("scene.toml"), scene).unwrap();
     let dir = &tmp.path().join("sim");
     common::simulate(&tmp.path().join("scene.toml"), dir);
@@ -194,7 +158,7 @@ fn a_run_with_automatic_picks_poses_the_camera_as_the_true_picks_do() {
         let out = common::run_project(&dir.join(format!("{name}.toml")), &dir.join(name));
         common::assert_success(&out);
     }
-    let found = picks(&dir.join("auto/picks-auto.csv"));
+    let found = common::picks(&dir.join("auto/picks-auto.csv"));
     assert_eq!(found.len(), 7, "{found:?}");
     let (a, t) = (centres(&dir.join("auto")), centres(&dir.join("truth")));
     assert_eq!(a.len(), t.len());

@@ -8,7 +8,6 @@
 
 mod common;
 
-use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
@@ -41,20 +40,6 @@ fn request(port: u16, head: &str, body: &str) -> (u16, String) {
     (status, body)
 }
 
-fn picks(path: &Path) -> HashMap<String, (f64, f64, f64)> {
-    common::read_csv(path)
-        .into_iter()
-        .map(|r| {
-            let p = (
-                common::num(&r, "u"),
-                common::num(&r, "v"),
-                common::num(&r, "sigma"),
-            );
-            (r["name"].clone(), p)
-        })
-        .collect()
-}
-
 fn browser_ready() {
     for tool in ["/usr/bin/chromium", "/usr/bin/chromedriver"] {
         assert!(
@@ -69,17 +54,7 @@ fn a_person_moves_rejects_accepts_and_saves_picks_in_a_real_browser() {
     browser_ready();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let gcps = [
-        ("G1", -15.0, -6.0),
-        ("G2", -8.0, 7.0),
-        ("G3", 2.0, -4.0),
-        ("G4", 9.0, 8.5),
-        ("G5", 14.0, -7.5),
-        ("G6", -2.0, 3.0),
-        ("CHK-1", 5.5, 1.0),
-    ];
-    std::fs::write(dir.join("scene.toml"), common::target_scene(20.0, &gcps)).unwrap();
-    common::simulate(&dir.join("scene.toml"), &dir.join("sim"));
+    common::targets::simulate(dir, &common::target_scene(20.0, &common::IRREGULAR_GCPS));
     let find = common::geostride()
         .current_dir(dir)
         .args(["gcp", "find", "sim/video.mp4", "--gcps", "sim/gcps.csv"])
@@ -87,7 +62,7 @@ fn a_person_moves_rejects_accepts_and_saves_picks_in_a_real_browser() {
         .output()
         .unwrap();
     common::assert_success(&find);
-    let found = picks(&dir.join("found.csv"));
+    let found = common::picks(&dir.join("found.csv"));
     assert_eq!(found.len(), 7);
 
     let mut server = Server(
@@ -208,7 +183,7 @@ fn a_person_moves_rejects_accepts_and_saves_picks_in_a_real_browser() {
     let message = seen["fit_message"].as_str().unwrap();
     assert!(message.contains("G1 disagrees"), "{message}");
 
-    let saved = picks(&dir.join("saved.csv"));
+    let saved = common::picks(&dir.join("saved.csv"));
     assert_eq!(saved.len(), 6, "all but the rejected G2: {saved:?}");
     assert!(!saved.contains_key("G2"));
     let m = &seen["moved"];

@@ -175,6 +175,29 @@ pub fn run_project(project: &std::path::Path, out: &std::path::Path) -> std::pro
         .unwrap()
 }
 
+/// Seven targets in no symmetric layout (east, north), one a check point, all in view of
+/// [`target_scene`]'s camera.
+pub const IRREGULAR_GCPS: [(&str, f64, f64); 7] = [
+    ("G1", -15.0, -6.0),
+    ("G2", -8.0, 7.0),
+    ("G3", 2.0, -4.0),
+    ("G4", 9.0, 8.5),
+    ("G5", 14.0, -7.5),
+    ("G6", -2.0, 3.0),
+    ("CHK-1", 5.5, 1.0),
+];
+
+/// A picks CSV by name: u, v and σ (0 where none is stated).
+pub fn picks(path: &std::path::Path) -> std::collections::HashMap<String, (f64, f64, f64)> {
+    read_csv(path)
+        .into_iter()
+        .map(|r| {
+            let sigma = r.get("sigma").and_then(|s| s.parse().ok()).unwrap_or(0.0);
+            (r["name"].clone(), (num(&r, "u"), num(&r, "v"), sigma))
+        })
+        .collect()
+}
+
 /// A hovering camera 30 m up, turned `heading_deg`, over targets at `gcps` (east, north), few people.
 pub fn target_scene(heading_deg: f64, gcps: &[(&str, f64, f64)]) -> String {
     let mut s = format!(

@@ -97,12 +97,11 @@ pub struct Score {
     pub identified: bool,
 }
 
-/// Simulates image `seed` with `design` into `dir` and scores `geostride gcp find` on it.
-pub fn run(dir: &Path, seed: u64, design: &str) -> Score {
-    let bin = env!("CARGO_BIN_EXE_geostride");
+/// Simulates the scene file text `scene` into `dir/sim` (the scene file beside it).
+pub fn simulate(dir: &Path, scene: &str) {
     std::fs::create_dir_all(dir).unwrap();
-    std::fs::write(dir.join("scene.toml"), scene(seed, design)).unwrap();
-    let sim = Command::new(bin)
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    let sim = Command::new(env!("CARGO_BIN_EXE_geostride"))
         .args(["simulate", "scene.toml", "--out", "sim"])
         .current_dir(dir)
         .output()
@@ -112,6 +111,12 @@ pub fn run(dir: &Path, seed: u64, design: &str) -> Score {
         "{}",
         String::from_utf8_lossy(&sim.stderr)
     );
+}
+
+/// Simulates image `seed` with `design` into `dir` and scores `geostride gcp find` on it.
+pub fn run(dir: &Path, seed: u64, design: &str) -> Score {
+    let bin = env!("CARGO_BIN_EXE_geostride");
+    simulate(dir, &scene(seed, design));
     let find = Command::new(bin)
         .args([
             "gcp",

@@ -1,7 +1,8 @@
 //! `geostride gcp find` over random simulated views (tests/common/targets.rs): for each design
-//! (checker, x, cross), GCP_TARGETS_IMAGES images (default 45) of eight targets 20–60 px
-//! across, a hovering camera at 25–40 m, any heading, straight down to 50° below the horizon;
-//! no heading given, so every identification is from the layout alone. Prints, by design and
+//! (checker, x, cross, coded; GCP_TARGETS_DESIGNS picks some), GCP_TARGETS_IMAGES images
+//! (default 45) of eight targets 20–60 px across, a hovering camera at 25–40 m, any heading,
+//! straight down to 50° below the horizon; no heading given, so every identification is from
+//! the layout alone (the coded markers' from their ids: ArUco 4x4_50). Prints, by design and
 //! size: targets found and rightly named, wrong names, centre RMS against the simulator's exact
 //! picks (the size is the detector's measure), the share of images with ≥ 5 targets
 //! identified; then the search's time on a 4K frame and a 20 MP one. Issue 39's targets: ≥ 99 %
@@ -25,7 +26,8 @@ fn main() {
     );
     let start = Instant::now();
     let mut all = (0usize, 0usize, 0usize);
-    for design in ["checker", "x", "cross"] {
+    let designs = std::env::var("GCP_TARGETS_DESIGNS").unwrap_or("checker,x,cross,coded".into());
+    for design in designs.split(',') {
         let (mut visible, mut right, mut wrong) = (0, 0, 0);
         let mut errors = Vec::new();
         let (mut with5, mut named5) = (0, 0);
@@ -137,5 +139,49 @@ fn speed(tmp: &std::path::Path) {
                 times[1]
             );
         }
+    }
+    coded_speed(tmp);
+}
+
+/// The coded markers' search (OpenCV's aruco detector on one thread, then each marker's centre
+/// refined) on a 4K frame of eight coded targets, and on it enlarged to 20 MP.
+fn coded_speed(tmp: &std::path::Path) {
+    use geostride::targets::codes::{Dictionary, refine};
+    use geostride::targets::{Gray, aruco_cv::detect_markers};
+    let _ = opencv::core::set_num_threads(1);
+    let dir = tmp.join("speed-coded");
+    let scene = targets::scene(7, "coded").replace("[1920, 1080]", "[3840, 2160]");
+    targets::simulate(&dir, &scene);
+    let (bgr, w, h) =
+        geostride::video::source::FrameReader::frame_bgr_bytes(&dir.join("sim/video.mp4"), 0)
+            .unwrap();
+    let gray4k = Gray::from_bgr(&bgr, w, h);
+    let (bw, bh) = (5472usize, 3648usize);
+    let big = Gray {
+        width: bw,
+        height: bh,
+        pixels: (0..bw * bh)
+            .map(|i| gray4k.at((i % bw) * w / bw, (i / bw) * h / bh))
+            .collect(),
+    };
+    let d: Dictionary = "4x4_50".parse().unwrap();
+    for (what, img) in [
+        (format!("{w}x{h}"), &gray4k),
+        ("5472x3648 (20 MP)".into(), &big),
+    ] {
+        let mut found = 0;
+        let mut times: Vec<f64> = (0..3)
+            .map(|_| {
+                let t = Instant::now();
+                let markers = detect_markers(img, &d, 10.0).unwrap();
+                found = markers.iter().filter_map(|m| refine(img, m)).count();
+                t.elapsed().as_secs_f64()
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        println!(
+            "search of a {what} frame, coded: {:.3} s (median of 3, one thread; {found} markers)",
+            times[1]
+        );
     }
 }

@@ -2,7 +2,8 @@
 # Installs the Debian packages geostride builds against, and only those that are missing, so a
 # second run costs a few dpkg queries. Called by every make target.
 #
-#   OpenCV (+ clang/libclang for the opencv and proj crates' generated bindings), GDAL and PROJ
+#   OpenCV with its contrib modules (aruco: coded GCP markers) (+ clang/libclang for the opencv
+#   and proj crates' generated bindings), GDAL and PROJ
 #   (proj-bin: cs2cs, the tests' reference for WGS 84 outputs)
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
@@ -28,7 +29,7 @@ set -euo pipefail
 
 packages=(
   pkg-config cmake clang libclang-dev
-  libopencv-dev ffmpeg
+  libopencv-dev libopencv-contrib-dev ffmpeg
   libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
   python3 python3-venv python3-pip
   python3-torch python3-pil python3-onnx

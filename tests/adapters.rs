@@ -28,6 +28,7 @@ const ADAPTERS: &[&str] = &[
     "sfm/sift.rs",
     "survey/crs.rs",
     "survey/gis.rs",
+    "targets/aruco_cv.rs",
     "terrain/raster.rs",
 ];
 

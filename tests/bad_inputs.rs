@@ -584,6 +584,24 @@ fn cases() -> Vec<Case> {
             ..Default::default()
         },
         Case {
+            id: "project-auto-picks-unknown-dictionary",
+            category: "nonsense accepted",
+            files: vec![("project.toml", replace("project.toml", "[video]", "[picks]\ndesigns = [\"coded\"]\ndictionary = \"4x4_51\"\n\n[video]"))],
+            args: run(),
+            expect: "unknown dictionary '4x4_51'",
+            place: "field 'picks.dictionary'",
+            ..Default::default()
+        },
+        Case {
+            id: "project-auto-picks-codes-without-coded",
+            category: "nonsense accepted",
+            files: vec![("project.toml", replace("project.toml", "[video]", "[picks]\ncodes = \"codes.csv\"\n\n[video]"))],
+            args: run(),
+            expect: "add \"coded\" to designs",
+            place: "field 'picks.codes'",
+            ..Default::default()
+        },
+        Case {
             id: "project-unknown-key",
             category: "misleading message",
             files: vec![("project.toml", replace("project.toml", "head_height_m = 1.7", "head_heigth_m = 1.7"))],

@@ -180,13 +180,82 @@ fn a_run_with_automatic_picks_poses_the_camera_as_the_true_picks_do() {
     );
 }
 
+/// Coded markers (ArUco 4x4_50, ids 11-17, 0.6 m: about 27 px from 30 m) named through a code
+/// table, by `gcp find` and by a run's `[picks] auto = true`; a point a marker names that the
+/// survey lacks is refused with the table's line.
+#[test]
+fn coded_markers_are_named_through_a_code_table_in_find_and_in_a_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut scene =
+        common::target_scene(20.0, &common::IRREGULAR_GCPS).replace("hats = false", "hats = true");
+    let mut table = String::from("id,name\n");
+    for (k, (name, _, _)) in common::IRREGULAR_GCPS.iter().enumerate() {
+        let line = format!("name = \"{name}\"\n");
+        scene = scene.replace(
+            &line,
+            &format!("{line}design = \"coded\"\ncode = {}\n", 11 + k),
+        );
+        table += &format!("{},{name}\n", 11 + k);
+    }
+    std::fs::write(tmp.path().join("scene.toml"), scene).unwrap();
+    let dir = &tmp.path().join("sim");
+    common::simulate(&tmp.path().join("scene.toml"), dir);
+    std::fs::write(dir.join("codes.csv"), &table).unwrap();
+    let out = find(
+        tmp.path(),
+        &["--design", "coded", "--codes", "sim/codes.csv"],
+    );
+    common::assert_success(&out);
+    let truth = common::picks(&dir.join("picks.csv"));
+    let found = common::picks(&tmp.path().join("found.csv"));
+    assert_eq!(found.len(), truth.len(), "{found:?}");
+    let mut sq = 0.0;
+    for (name, (u, v, sigma)) in &found {
+        let (tu, tv, _) = truth[name];
+        sq += (u - tu).powi(2) + (v - tv).powi(2);
+        assert!((0.05..0.5).contains(sigma), "{name}: σ {sigma}");
+    }
+    let rms = (sq / (2.0 * found.len() as f64)).sqrt();
+    assert!(rms <= 0.2, "centre RMS {rms:.3} px");
+    // A run finds and names them itself, and poses the camera as the found picks do.
+    let picked = common::hover_project(
+        "coded",
+        "video.mp4",
+        "kind = \"plane\"",
+        "formats = [\"csv\"]",
+    )
+    .replace("picks.csv", "../found.csv");
+    let project = picked.replace("picks = [\"../found.csv\"]\n", "")
+        + "[picks]\nauto = true\ndesigns = [\"coded\"]\ncodes = \"codes.csv\"\n";
+    std::fs::write(dir.join("picked.toml"), &picked).unwrap();
+    std::fs::write(dir.join("coded.toml"), &project).unwrap();
+    for name in ["picked", "coded"] {
+        let out = common::run_project(&dir.join(format!("{name}.toml")), &dir.join(name));
+        common::assert_success(&out);
+    }
+    assert_eq!(common::picks(&dir.join("coded/picks-auto.csv")).len(), 7);
+    let (a, t) = (centres(&dir.join("coded")), centres(&dir.join("picked")));
+    assert_eq!(a.len(), t.len());
+    for (a, t) in a.iter().zip(&t) {
+        let d = ((a[0] - t[0]).powi(2) + (a[1] - t[1]).powi(2) + (a[2] - t[2]).powi(2)).sqrt();
+        assert!(d < 0.01, "camera centres {d} m apart: {a:?} vs {t:?}");
+        assert!((a[2] - 30.0).abs() < 0.05, "height {} m, flown at 30", a[2]);
+    }
+    // A table naming a point the survey lacks: refused, with its line.
+    std::fs::write(dir.join("codes.csv"), table.replace("13,G3", "13,G33")).unwrap();
+    let out = common::run_project(&dir.join("coded.toml"), &dir.join("refused"));
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("line 4") && err.contains("'G33'"), "{err}");
+}
+
 /// Every design in random views (tests/common/targets.rs; `make bench` runs 45 images a
 /// design): four images of each, eight targets 20–60 px across, from straight down to 50°
-/// below the horizon, identified from their layout alone.
+/// below the horizon, identified from their layout alone (coded markers by their ids).
 #[test]
 fn every_design_is_found_and_named_from_its_layout_in_random_views() {
     let tmp = tempfile::tempdir().unwrap();
-    for design in ["checker", "x", "cross"] {
+    for design in ["checker", "x", "cross", "coded"] {
         let (mut visible, mut right, mut wrong, mut sq) = (0, 0, 0, 0.0);
         for seed in 1000..1004 {
             let s =

@@ -1,11 +1,10 @@
 //! `geostride gcp find`: ground control targets found in photos or video frames and identified
-//! from their layout, written as picks.
+//! (from their layout, or a coded marker's id), written as picks.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow};
-use nalgebra::Vector2;
 use serde::Serialize;
 
 use super::survey::{ReadArgs, read_framed};
@@ -13,14 +12,15 @@ use super::{bad_input, check_output_file};
 mod http;
 mod pick;
 
-use geostride::targets::{
-    Gray, Identification, LayoutSettings, TargetSettings, find_targets, identify_by_layout,
-};
+use geostride::targets::codes::CodeTable;
+use geostride::targets::search::Search;
+use geostride::targets::{Gray, LayoutSettings, TargetSettings};
 
 #[derive(clap::Subcommand)]
 pub enum Command {
-    /// Find the checker targets (a square in four black and white quadrants) in photos or a
-    /// video frame, tell which surveyed point each is from their layout, and write the picks
+    /// Find GCP targets (checker, X, cross, ArUco/AprilTag markers) in photos or a video
+    /// frame, tell which surveyed point each is (from their layout, or a marker's id), and
+    /// write the picks
     Find(FindArgs),
     /// Serve the picking page on 127.0.0.1: confirm, move or reject picks, place missing ones,
     /// see each pick's residual against a live fit, and save the picks CSV
@@ -57,6 +57,8 @@ pub(crate) enum Design {
     Checker,
     X,
     Cross,
+    /// ArUco or AprilTag markers (--dictionary), each id a surveyed point (--codes)
+    Coded,
 }
 
 /// How targets are searched for and told apart: the options of `gcp find` and `gcp pick
@@ -71,7 +73,7 @@ pub(crate) struct SearchArgs {
     #[arg(long, default_value = "40", value_name = "LEVELS")]
     min_contrast: f64,
     /// The target designs to look for, comma-separated: checker (four quadrants), x (a
-    /// bow-tie), cross (a white cross on a black square)
+    /// bow-tie), cross (a white cross on a black square), coded (ArUco or AprilTag markers)
     #[arg(
         long,
         value_delimiter = ',',
@@ -79,27 +81,56 @@ pub(crate) struct SearchArgs {
         value_name = "DESIGNS"
     )]
     design: Vec<Design>,
+    /// The coded markers' dictionary: 4x4_50 ... 7x7_1000, aruco_original, apriltag_16h5,
+    /// apriltag_25h9, apriltag_36h10, apriltag_36h11
+    #[arg(long, default_value = "4x4_50", value_name = "NAME")]
+    dictionary: geostride::targets::codes::Dictionary,
+    /// Which surveyed point each marker id is: a CSV of 'id,name' lines. Without it, id N is
+    /// the point named N, else the one point whose name ends in the number N (GCP7, T07)
+    #[arg(long, value_name = "FILE")]
+    codes: Option<PathBuf>,
 }
 
 /// A search made ready: the surveyed points' names and ground positions, and the settings.
-pub(crate) struct Searcher {
-    names: Vec<String>,
-    ground: Vec<Vector2<f64>>,
-    targets: TargetSettings,
-    layout: LayoutSettings,
-}
+pub(crate) struct Searcher(Search);
 
 impl Searcher {
-    pub(crate) fn new(framed: &geostride::survey::load::Framed, args: &SearchArgs) -> Searcher {
+    /// The search `args` ask for, over the points of `framed` (`gcps` names the file in
+    /// errors). A code table that cannot be read, or names a point the survey lacks, is bad
+    /// input.
+    pub(crate) fn new(
+        framed: &geostride::survey::load::Framed,
+        args: &SearchArgs,
+    ) -> anyhow::Result<Searcher> {
         let designs = &args.design;
-        Searcher {
-            names: framed
-                .survey
-                .points
-                .iter()
-                .map(|p| p.name.clone())
-                .collect(),
+        let names: Vec<String> = framed
+            .survey
+            .points
+            .iter()
+            .map(|p| p.name.clone())
+            .collect();
+        let coded = match (designs.contains(&Design::Coded), &args.codes) {
+            (false, Some(_)) => {
+                return Err(bad_input(anyhow!(
+                    "--codes is for coded markers: add 'coded' to --design"
+                )));
+            }
+            (false, None) => None,
+            (true, None) => Some((args.dictionary, CodeTable::from_names(&names))),
+            (true, Some(path)) => {
+                let text = geostride::io::FileCtx { path }
+                    .read_small_text("a code table", 1 << 20)
+                    .map_err(|e| bad_input(anyhow!(e)))?;
+                let table = CodeTable::parse(&text, &names, &args.dictionary)
+                    .map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
+                Some((args.dictionary, table))
+            }
+        };
+        Ok(Searcher(Search {
+            names,
             ground: framed.local.iter().map(|p| p.xy()).collect(),
+            by_layout: designs.iter().any(|d| *d != Design::Coded),
+            coded,
             // Checker and X are both saddles.
             targets: TargetSettings {
                 min_contrast: args.min_contrast,
@@ -113,7 +144,7 @@ impl Searcher {
                 heading_deg: args.heading,
                 ..LayoutSettings::default()
             },
-        }
+        }))
     }
 }
 
@@ -164,6 +195,8 @@ struct TargetReport {
     /// The surveyed point it is, when identified.
     name: Option<String>,
     residual_px: Option<f64>,
+    /// A coded marker's id.
+    code: Option<u32>,
 }
 
 #[derive(Serialize)]
@@ -211,12 +244,12 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
     inputs.extend(args.read.picks.iter().map(PathBuf::as_path));
     check_output_file(&args.out, &inputs)?;
     let framed = read_framed(&args.gcps, &args.read, None).map_err(bad_input)?;
-    let searcher = Searcher::new(&framed, &args.search);
-    if searcher.ground.len() < 4 {
+    let searcher = Searcher::new(&framed, &args.search)?;
+    if searcher.0.by_layout && searcher.0.ground.len() < 4 {
         return Err(bad_input(anyhow!(
             "{}: {} points; telling targets apart by their layout needs at least four",
             args.gcps.display(),
-            searcher.ground.len()
+            searcher.0.ground.len()
         )));
     }
     let mut csv = String::from("name,image,u,v,sigma\n");
@@ -258,39 +291,29 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
 impl Searcher {
     /// The targets of one image, and which point each is.
     fn search(&self, gray: &Gray, image: String) -> ImageReport {
-        let (ground, names, layout) = (&self.ground, &self.names, &self.layout);
-        let (found, rejected) = find_targets(gray, &self.targets);
-        let centres: Vec<(Vector2<f64>, f64)> = found.iter().map(|c| (c.uv, c.sigma_px)).collect();
-        let mut targets: Vec<TargetReport> = found
-            .iter()
-            .map(|c| TargetReport {
-                u: c.uv.x,
-                v: c.uv.y,
-                sigma_px: c.sigma_px,
-                contrast: c.contrast,
-                size_px: c.size_px,
-                name: None,
-                residual_px: None,
-            })
-            .collect();
-        let (identified, not_identified) = match identify_by_layout(ground, &centres, layout) {
-            Identification::Found { identified, .. } => {
-                for i in &identified {
-                    targets[i.target].name = Some(names[i.point].clone());
-                    targets[i.target].residual_px = Some(i.residual_px);
-                }
-                (identified.len(), None)
-            }
-            Identification::NotIdentified(why) => (0, Some(why)),
-        };
+        let out = self.0.run(gray);
         ImageReport {
             image,
             width: gray.width,
             height: gray.height,
-            targets,
-            identified,
-            not_identified,
-            rejected: rejected
+            targets: out
+                .found
+                .into_iter()
+                .map(|t| TargetReport {
+                    u: t.uv.x,
+                    v: t.uv.y,
+                    sigma_px: t.sigma_px,
+                    contrast: t.contrast,
+                    size_px: t.size_px,
+                    name: t.point.map(|k| self.0.names[k].clone()),
+                    residual_px: t.residual_px,
+                    code: t.code,
+                })
+                .collect(),
+            identified: out.identified,
+            not_identified: out.not_identified,
+            rejected: out
+                .rejected
                 .into_iter()
                 .map(|r| RejectedReport {
                     u: r.uv.x,
@@ -326,6 +349,7 @@ fn text_report(reports: &[ImageReport]) -> String {
                 t.contrast,
                 t.residual_px
                     .map_or(String::new(), |e| format!("  residual {e:.2} px"))
+                    + &t.code.map_or(String::new(), |c| format!("  marker {c}"))
             );
         }
         if let Some(why) = &r.not_identified {

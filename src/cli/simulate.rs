@@ -50,6 +50,22 @@ pub(crate) fn load(
     site_crs: Option<&str>,
 ) -> anyhow::Result<(Scene, geostride::camera::Camera, String)> {
     let mut scene = Scene::load(scene_path).map_err(bad_input)?;
+    // Coded targets' cells, as OpenCV draws the markers.
+    for g in &mut scene.gcp {
+        if let Some(code) = g.code {
+            let d: geostride::targets::codes::Dictionary = g
+                .dictionary
+                .as_deref()
+                .unwrap_or("4x4_50")
+                .parse()
+                .map_err(|e: String| bad_input(anyhow!("{}: {e}", scene_path.display())))?;
+            g.cells = Some(
+                geostride::targets::aruco_cv::marker_cells(&d, code).map_err(|e| {
+                    bad_input(anyhow!("{}: gcp '{}': {e}", scene_path.display(), g.name))
+                })?,
+            );
+        }
+    }
     if let Some(crs) = site_crs {
         scene.site = site_in_crs(&scene.site, crs).map_err(|e| bad_input(anyhow!(e)))?;
     }

@@ -89,6 +89,11 @@ pub struct PicksSection {
     pub min_contrast: f64,
     /// The target designs to look for.
     pub designs: Vec<TargetDesignName>,
+    /// Coded markers' dictionary (`geostride gcp find --dictionary`'s names).
+    pub dictionary: String,
+    /// Which point each marker id is: a CSV of `id,name` lines (else id N names the point N,
+    /// or the one point whose name ends in N).
+    pub codes: Option<String>,
 }
 
 /// A GCP target design `[picks] designs` names.
@@ -101,6 +106,8 @@ pub enum TargetDesignName {
     X,
     /// A white cross on a black square.
     Cross,
+    /// ArUco or AprilTag markers, named by their ids.
+    Coded,
 }
 
 impl Default for PicksSection {
@@ -111,6 +118,8 @@ impl Default for PicksSection {
             heading_tolerance_deg: 45.0,
             min_contrast: 40.0,
             designs: vec![TargetDesignName::Checker, TargetDesignName::X],
+            dictionary: "4x4_50".into(),
+            codes: None,
         }
     }
 }
@@ -421,6 +430,9 @@ impl Loaded {
         for pk in &p.survey.picks {
             files.push(("survey.picks", self.resolve(pk)));
         }
+        if let Some(c) = &p.picks.codes {
+            files.push(("picks.codes", self.resolve(c)));
+        }
         files.push(("video.path", self.resolve(&p.video.path)));
         if let Some(h) = &p.projection.heights {
             files.push(("projection.heights", self.resolve(h)));
@@ -514,7 +526,17 @@ fn check_picks(l: &Loaded) -> Result<(), FileError> {
         return Err(l.error(
             "picks",
             "designs",
-            "name at least one design: \"checker\", \"x\" or \"cross\"",
+            "name at least one design: \"checker\", \"x\", \"cross\" or \"coded\"",
+        ));
+    }
+    if let Err(e) = a.dictionary.parse::<crate::targets::codes::Dictionary>() {
+        return Err(l.error("picks", "dictionary", e));
+    }
+    if a.codes.is_some() && !a.designs.contains(&TargetDesignName::Coded) {
+        return Err(l.error(
+            "picks",
+            "codes",
+            "a code table is for coded markers: add \"coded\" to designs",
         ));
     }
     if !a.auto {

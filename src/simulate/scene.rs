@@ -264,9 +264,19 @@ pub struct GcpSpec {
     /// The target's pattern.
     #[serde(default)]
     pub design: TargetDesign,
-    /// The target's side, metres (0.6 by default).
+    /// The target's side, metres (0.6 by default); for a coded marker, its black square's
+    /// (a white margin of one cell is drawn around it).
     #[serde(default = "GcpSpec::default_size")]
     pub size_m: f64,
+    /// A coded marker's id (`design = "coded"`).
+    #[serde(default)]
+    pub code: Option<u32>,
+    /// A coded marker's dictionary (`geostride gcp find --dictionary` names; 4x4_50 by default).
+    #[serde(default)]
+    pub dictionary: Option<String>,
+    /// A coded marker's cells, filled in by the loader that can draw them (OpenCV's).
+    #[serde(skip)]
+    pub cells: Option<crate::targets::codes::MarkerCells>,
 }
 
 impl GcpSpec {
@@ -277,6 +287,9 @@ impl GcpSpec {
             position,
             design: TargetDesign::default(),
             size_m: Self::default_size(),
+            code: None,
+            dictionary: None,
+            cells: None,
         }
     }
 
@@ -297,6 +310,8 @@ pub enum TargetDesign {
     X,
     /// A white cross (bars a fifth of the side wide) on a black square.
     Cross,
+    /// An ArUco or AprilTag marker (`code`, `dictionary`), its top to the north.
+    Coded,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
@@ -749,6 +764,35 @@ fn check_gcp_names(gcps: &[GcpSpec]) -> Result<(), Bad> {
         }
         if !(g.size_m >= 0.05 && g.size_m <= 5.0) {
             return bad("gcp.size_m", "a target's side must be from 0.05 to 5 m");
+        }
+        let coded = g.design == TargetDesign::Coded;
+        if coded != g.code.is_some() || (!coded && g.dictionary.is_some()) {
+            return bad(
+                "gcp.code",
+                &format!(
+                    "'{}': a coded target (design = \"coded\") takes a code, and only it takes \
+                     a code or a dictionary",
+                    crate::io::clip(&g.name, 40)
+                ),
+            );
+        }
+        if let Some(code) = g.code {
+            let d: crate::targets::codes::Dictionary = g
+                .dictionary
+                .as_deref()
+                .unwrap_or("4x4_50")
+                .parse()
+                .map_err(|e: String| ("gcp.dictionary", e))?;
+            if code >= d.ids {
+                return bad(
+                    "gcp.code",
+                    &format!(
+                        "{code} is not in dictionary {} (0 to {})",
+                        d.name,
+                        d.ids - 1
+                    ),
+                );
+            }
         }
     }
     Ok(())

@@ -2,6 +2,7 @@
 //! surroundings), its procedural colours with fine texture for feature matching, GCP targets, and
 //! ray intersection (pure).
 
+use crate::targets::codes::MarkerCells;
 use nalgebra::{Vector2, Vector3};
 
 use super::noise::fbm;
@@ -24,7 +25,7 @@ pub struct World {
     pub ground: Ground,
     pub gcps: Vec<(String, Vector3<f64>)>,
     /// Each GCP's target: its pattern and side (metres).
-    designs: Vec<(TargetDesign, f64)>,
+    designs: Vec<(TargetDesign, f64, Option<MarkerCells>)>,
     seed: u64,
     /// Contrast of the fine texture (1 the default).
     pub detail: f64,
@@ -62,7 +63,7 @@ impl World {
         let mut w = World {
             ground: ground.clone(),
             gcps: Vec::new(),
-            designs: gcps.iter().map(|g| (g.design, g.size_m)).collect(),
+            designs: gcps.iter().map(|g| (g.design, g.size_m, g.cells)).collect(),
             seed,
             detail: 1.0,
             backdrop: None,
@@ -264,9 +265,28 @@ impl World {
     fn gcp_colour(&self, en: &Vector2<f64>) -> Option<Rgb> {
         const BLACK: Rgb = [0.04, 0.04, 0.04];
         const WHITE: Rgb = [0.93, 0.93, 0.93];
-        for ((_, g), (design, size)) in self.gcps.iter().zip(&self.designs) {
-            let half = size / 2.0;
+        for ((_, g), (design, size, cells)) in self.gcps.iter().zip(&self.designs) {
             let d = en - g.xy();
+            if let (TargetDesign::Coded, Some(m)) = (design, cells) {
+                // Cells across: the marker's own, its black border, a white margin.
+                let cell = size / (m.cells as f64 + 2.0);
+                let half = size / 2.0 + cell;
+                if d.x.abs() > half || d.y.abs() > half {
+                    continue;
+                }
+                let col = ((d.x + half) / cell).floor() as isize - 2;
+                let row = ((half - d.y) / cell).floor() as isize - 2;
+                let n = m.cells as isize;
+                let black = if col < -1 || row < -1 || col > n || row > n {
+                    false
+                } else if col == -1 || row == -1 || col == n || row == n {
+                    true
+                } else {
+                    m.black(row as usize, col as usize)
+                };
+                return Some(if black { BLACK } else { WHITE });
+            }
+            let half = size / 2.0;
             if d.x.abs() > half || d.y.abs() > half {
                 continue;
             }
@@ -274,6 +294,8 @@ impl World {
                 TargetDesign::Checker => (d.x >= 0.0) == (d.y >= 0.0),
                 TargetDesign::X => d.y.abs() > d.x.abs(),
                 TargetDesign::Cross => d.x.abs() > 0.1 * size && d.y.abs() > 0.1 * size,
+                // Without its cells (a pure build): a black square.
+                TargetDesign::Coded => true,
             };
             return Some(if black { BLACK } else { WHITE });
         }

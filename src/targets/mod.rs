@@ -1,10 +1,16 @@
-//! Ground control targets found in images (pure): the checker design (a square split in four
-//! black and white quadrants) found by its saddle point, and which surveyed point each target is,
-//! from the layout of the targets alone (`identify`).
+//! Ground control targets found in images (pure, but for the OpenCV adapter `aruco_cv`): the
+//! checker and X designs found by their saddle point (`detect`), crosses by their symmetry
+//! (`cross`), coded markers decoded by OpenCV and refined here (`codes`); which surveyed point
+//! each target is, from the layout of the targets alone (`identify`); one image's search
+//! (`search`).
 
+#[cfg(feature = "opencv")]
+pub mod aruco_cv;
+pub mod codes;
 pub mod cross;
 pub mod detect;
 pub mod identify;
+pub mod search;
 
 pub use cross::find_crosses;
 pub use detect::{Candidate, Rejected, TargetSettings, find_saddles};

@@ -663,6 +663,11 @@ pub(super) fn cases() -> Vec<Case> {
             .bytes("huge.jpg", jpeg_claiming(32000, 32000)),
         case("gcp-find-heading-tolerance-500", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--heading", "0:500", "--out", "found.csv"], "tolerance", "--heading"),
         case("gcp-find-unknown-design", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--design", "checker,hexagon", "--out", "found.csv"], "hexagon", "--design"),
+        case("gcp-find-code-table-names-an-unknown-gcp", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--design", "coded", "--codes", "codes.csv", "--out", "found.csv"], "'NOPE' is not a point of the survey", "codes.csv: line 3")
+            .file("codes.csv", "id,name\n# a marker on every control point\n7,NOPE\n".into()),
+        case("gcp-find-unknown-dictionary", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--design", "coded", "--dictionary", "4x4_51", "--out", "found.csv"], "unknown dictionary", "--dictionary"),
+        case("gcp-find-codes-without-coded-design", "nonsense accepted", &["gcp", "find", frame, "--gcps", "gcps.csv", "--codes", "codes.csv", "--out", "found.csv"], "add 'coded' to --design", "--codes")
+            .file("codes.csv", "1,GCP1\n".into()),
         case("gcp-find-video-frame-beyond-its-end", "wrong code", &["gcp", "find", "video.mp4", "--frame", "100000", "--gcps", "gcps.csv", "--out", "found.csv"], "100000", "video.mp4"),
         // --- gcp pick (each refused before the page is served) ------------------------------------
         case("gcp-pick-onto-its-gcps", "input overwritten", &["gcp", "pick", frame, "--gcps", "gcps.csv", "--out", "gcps.csv"], "would overwrite the input", "gcps.csv"),

@@ -78,6 +78,10 @@ pub fn scene(seed: u64, design: &str) -> String {
             p[0],
             p[1]
         );
+        // Coded markers: id k + 1 names T(k + 1), as `gcp find` reads names without a table.
+        if design == "coded" {
+            s += &format!("code = {}\n", k + 1);
+        }
     }
     s
 }

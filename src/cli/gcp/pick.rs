@@ -107,7 +107,10 @@ pub fn pick(args: &PickArgs) -> anyhow::Result<()> {
         out: args.out.clone(),
         frame: args.frame,
     };
-    let searcher = args.find.then(|| Searcher::new(&framed, &args.search));
+    let searcher = match args.find {
+        true => Some(Searcher::new(&framed, &args.search)?),
+        false => None,
+    };
     for path in &args.inputs {
         let (bgr, width, height, name) = load_bgr(path, args.frame)?;
         let from_file: Vec<Value> = points

@@ -414,8 +414,8 @@ pub fn parse_heights(
         .collect())
 }
 
-/// `[picks] auto = true`: the checker targets of the picked frame found and identified from
-/// their layout (as `geostride gcp find`), added to the survey as its picks. Gives the picks
+/// `[picks] auto = true`: the GCP targets of the picked frame found and identified (as
+/// `geostride gcp find`: from their layout, coded markers by their ids), added to the survey as its picks. Gives the picks
 /// CSV the run writes (`picks-auto.csv`) and a warning naming the control points not found.
 pub(super) fn auto_picks(
     l: &Loaded,
@@ -424,49 +424,78 @@ pub(super) fn auto_picks(
 ) -> Result<(String, Option<String>), RunError> {
     use crate::pipeline::project::TargetDesignName;
     use crate::survey::{Observation, Role};
-    use crate::targets::{
-        Gray, Identification, LayoutSettings, TargetSettings, find_targets, identify_by_layout,
-    };
+    use crate::targets::codes::{CodeTable, Dictionary};
+    use crate::targets::{Gray, LayoutSettings, TargetSettings, search::Search};
     let a = &l.project.picks;
     let frame = l.project.pose.picks_frame().unwrap_or(0);
     let input = |m: String| RunError::Input(l.error("picks", "auto", m));
-    let (bgr, w, h) = crate::video::source::FrameReader::frame_bgr_bytes(video, frame)
-        .map_err(|e| RunError::Input(l.error("video", "path", format!("frame {frame}: {e}"))))?;
-    let (found, _) = find_targets(
-        &Gray::from_bgr(&bgr, w, h),
-        &TargetSettings {
+    let names: Vec<String> = framed
+        .survey
+        .points
+        .iter()
+        .map(|p| p.name.clone())
+        .collect();
+    let coded = if a.designs.contains(&TargetDesignName::Coded) {
+        let bad = |key: &str, m: String| RunError::Input(l.error("picks", key, m));
+        let d: Dictionary = a.dictionary.parse().map_err(|e| bad("dictionary", e))?;
+        let table = match &a.codes {
+            Some(c) => {
+                let path = l.resolve(c);
+                let text = crate::io::FileCtx { path: &path }
+                    .read_small_text("a code table", 1 << 20)
+                    .map_err(|e| bad("codes", e.to_string()))?;
+                CodeTable::parse(&text, &names, &d)
+                    .map_err(|e| bad("codes", format!("{}: {e}", path.display())))?
+            }
+            None => CodeTable::from_names(&names),
+        };
+        Some((d, table))
+    } else {
+        None
+    };
+    let search = Search {
+        ground: framed.local.iter().map(|p| p.xy()).collect(),
+        names,
+        targets: TargetSettings {
             min_contrast: a.min_contrast,
-            saddles: a.designs.iter().any(|d| *d != TargetDesignName::Cross),
+            saddles: a
+                .designs
+                .iter()
+                .any(|d| matches!(d, TargetDesignName::Checker | TargetDesignName::X)),
             crosses: a.designs.contains(&TargetDesignName::Cross),
             ..TargetSettings::default()
         },
-    );
-    let ground: Vec<nalgebra::Vector2<f64>> = framed.local.iter().map(|p| p.xy()).collect();
-    let centres: Vec<_> = found.iter().map(|c| (c.uv, c.sigma_px)).collect();
-    let layout = LayoutSettings {
-        heading_deg: a.heading_deg.map(|d| (d, a.heading_tolerance_deg)),
-        ..LayoutSettings::default()
+        layout: LayoutSettings {
+            heading_deg: a.heading_deg.map(|d| (d, a.heading_tolerance_deg)),
+            ..LayoutSettings::default()
+        },
+        by_layout: a.designs.iter().any(|d| *d != TargetDesignName::Coded),
+        coded,
     };
-    let identified = match identify_by_layout(&ground, &centres, &layout) {
-        Identification::Found { identified, .. } => identified,
-        Identification::NotIdentified(why) => {
-            return Err(input(format!(
-                "no GCP target identified in frame {frame} of the video ({} found): {why}; \
-                 set heading_deg for a symmetric layout, or pick by hand (`geostride gcp pick`) \
-                 into survey.picks",
-                found.len()
-            )));
-        }
-    };
+    let (bgr, w, h) = crate::video::source::FrameReader::frame_bgr_bytes(video, frame)
+        .map_err(|e| RunError::Input(l.error("video", "path", format!("frame {frame}: {e}"))))?;
+    let out = search.run(&Gray::from_bgr(&bgr, w, h));
+    if out.identified == 0 {
+        return Err(input(format!(
+            "no GCP target identified in frame {frame} of the video ({} found): {}; set \
+             heading_deg for a symmetric layout, or pick by hand (`geostride gcp pick`) into \
+             survey.picks",
+            out.found.len(),
+            out.not_identified.as_deref().unwrap_or("none named")
+        )));
+    }
     let video_name = video
         .file_name()
         .map(|f| f.to_string_lossy().into_owned())
         .unwrap_or_default();
     let image = format!("{video_name}#{frame}");
     let mut csv = String::from("name,image,u,v,sigma\n");
-    for (row, i) in identified.iter().enumerate() {
-        let c = &found[i.target];
-        let point = &mut framed.survey.points[i.point];
+    let named = out.named.iter().filter_map(|&i| {
+        let c = &out.found[i];
+        Some((c.point?, c))
+    });
+    for (row, (k, c)) in named.enumerate() {
+        let point = &mut framed.survey.points[k];
         csv += &format!(
             "{},{image},{:.3},{:.3},{:.3}\n",
             point.name, c.uv.x, c.uv.y, c.sigma_px
@@ -489,8 +518,8 @@ pub(super) fn auto_picks(
     let warning = (!missed.is_empty()).then(|| {
         format!(
             "automatic picks: {} of frame {frame}'s targets identified; control point(s) {} not \
-             found (covered, off the image, or unlike a checker target)",
-            identified.len(),
+             found (covered, off the image, or unlike the designs looked for)",
+            out.identified,
             missed.join(", ")
         )
     });

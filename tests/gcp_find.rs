@@ -249,6 +249,43 @@ fn coded_markers_are_named_through_a_code_table_in_find_and_in_a_run() {
     assert!(err.contains("line 4") && err.contains("'G33'"), "{err}");
 }
 
+/// A real drone photo (brighton-drone, its EXIF GPS in Minnesota) searched with a real survey
+/// of another area (odm-gcp-lists, Brazil): refused as bad input, the distance said, nothing
+/// written; by `gcp find` and by the picking page alike.
+#[test]
+fn a_survey_of_another_area_than_the_photo_is_refused() {
+    let (Some(photos), Some(lists)) = (
+        common::data_dir("brighton-drone/images"),
+        common::data_dir("odm-gcp-lists/yjmenezes_odm_br"),
+    ) else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let photo = photos.join("DJI_0018.JPG");
+    let gcps = lists.join("gcp_list.txt");
+    let out_csv = tmp.path().join("found.csv");
+    for command in ["find", "pick"] {
+        let out = common::geostride()
+            .args(["gcp", command])
+            .arg(&photo)
+            .arg("--gcps")
+            .arg(&gcps)
+            .arg("--out")
+            .arg(&out_csv)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "{command}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("DJI_0018.JPG")
+                && err.contains("km from the nearest point")
+                && err.contains("another area"),
+            "{command}: {err}"
+        );
+        assert!(!out_csv.exists());
+    }
+}
+
 /// Every design in random views (tests/common/targets.rs; `make bench` runs 45 images a
 /// design): four images of each, eight targets 20–60 px across, from straight down to 50°
 /// below the horizon, identified from their layout alone (coded markers by their ids).

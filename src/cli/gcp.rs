@@ -238,12 +238,58 @@ fn load_bgr(path: &Path, frame: usize) -> anyhow::Result<(Vec<u8>, usize, usize,
     }
 }
 
+/// How far from every surveyed point a photo's EXIF GPS may lie before the survey is taken for
+/// another area's, km (a drone photo sees a few hundred metres; GPS errs by metres).
+const AREA_KM: f64 = 5.0;
+
+/// A photo whose EXIF GPS lies far from every surveyed point: the survey of another area is
+/// bad input. Videos, photos without GPS and surveys in their own local frame pass unchecked.
+pub(crate) fn check_area(
+    framed: &geostride::survey::load::Framed,
+    gcps: &Path,
+    photo: &Path,
+) -> anyhow::Result<()> {
+    if is_video(photo) || framed.local.is_empty() {
+        return Ok(());
+    }
+    // An unreadable photo is reported when it is loaded.
+    let Some(gps) = geostride::sfm::exif::read_meta(photo)
+        .ok()
+        .and_then(|m| m.gps)
+    else {
+        return Ok(());
+    };
+    let Some(at) = framed.frame.local_from_lat_lon(gps.lat_deg, gps.lon_deg) else {
+        return Ok(());
+    };
+    let nearest_m = framed
+        .local
+        .iter()
+        .map(|p| (p.xy() - at).norm())
+        .fold(f64::INFINITY, f64::min);
+    if nearest_m > AREA_KM * 1000.0 {
+        return Err(bad_input(anyhow!(
+            "{}: taken at latitude {:.5}, longitude {:.5} (its EXIF GPS), {:.0} km from the \
+             nearest point of {}: the survey of another area? Give this site's GCP file",
+            photo.display(),
+            gps.lat_deg,
+            gps.lon_deg,
+            nearest_m / 1000.0,
+            gcps.display()
+        )));
+    }
+    Ok(())
+}
+
 fn find(args: &FindArgs) -> anyhow::Result<()> {
     let mut inputs: Vec<&Path> = args.inputs.iter().map(PathBuf::as_path).collect();
     inputs.push(&args.gcps);
     inputs.extend(args.read.picks.iter().map(PathBuf::as_path));
     check_output_file(&args.out, &inputs)?;
     let framed = read_framed(&args.gcps, &args.read, None).map_err(bad_input)?;
+    for path in &args.inputs {
+        check_area(&framed, &args.gcps, path)?;
+    }
     let searcher = Searcher::new(&framed, &args.search)?;
     if searcher.0.by_layout && searcher.0.ground.len() < 4 {
         return Err(bad_input(anyhow!(

@@ -193,6 +193,16 @@ impl SiteFrame {
         Ok(Vector3::new(x, y, if nan_h { f64::NAN } else { g.h }))
     }
 
+    /// Local east, north (metres) of a WGS 84 latitude and longitude (degrees) taken as on the
+    /// survey's datum (metres apart at most: for telling areas apart, not for surveying). `None`
+    /// for a survey in its own local frame.
+    pub fn local_from_lat_lon(&self, lat_deg: f64, lon_deg: f64) -> Option<Vector2<f64>> {
+        let t = self.tangent.as_ref()?;
+        self.crs.as_ref()?;
+        let enu = t.enu_from_geodetic(&Geodetic::from_degrees(lat_deg, lon_deg, t.origin.h));
+        Some(enu.xy())
+    }
+
     /// Latitude and longitude (degrees) of source coordinates, on the survey's datum.
     pub fn lon_lat(&self, p: &Vector3<f64>) -> Option<Result<(f64, f64), CrsError>> {
         self.crs.as_ref().map(|c| c.to_lon_lat(p.x, p.y))

@@ -85,6 +85,9 @@ pub fn pick(args: &PickArgs) -> anyhow::Result<()> {
     inputs.extend(args.read.picks.iter().cloned());
     check_output_file(&args.out, &inputs)?;
     let framed = read_framed(&args.gcps, &args.read, None).map_err(bad_input)?;
+    for path in &args.inputs {
+        super::check_area(&framed, &args.gcps, path)?;
+    }
     let points = &framed.survey.points;
     let mut site = Site {
         names: points.iter().map(|p| p.name.clone()).collect(),

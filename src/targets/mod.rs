@@ -101,35 +101,86 @@ impl Gray {
         }
     }
 
-    /// A separable box blur of radius `r` (a (2r+1)² mean), edges clamped.
+    /// A separable box blur of radius `r` (a (2r+1)² mean), edges clamped. The vertical pass
+    /// runs down the rows with a sum per column, so that memory is read in order.
     pub fn box_blur(&self, r: usize) -> Gray {
         let (w, h) = (self.width, self.height);
-        let pass = |src: &[f32], horizontal: bool| -> Vec<f32> {
-            let mut out = vec![0.0f32; w * h];
-            let (n, m) = if horizontal { (h, w) } else { (w, h) };
-            let idx = |line: usize, k: usize| {
-                if horizontal {
-                    line * w + k
-                } else {
-                    k * w + line
-                }
-            };
-            let norm = 1.0 / (2 * r + 1) as f32;
-            for line in 0..n {
-                let at = |k: isize| src[idx(line, k.clamp(0, m as isize - 1) as usize)];
-                let mut acc: f32 = (-(r as isize)..=r as isize).map(at).sum();
-                for k in 0..m {
-                    out[idx(line, k)] = acc * norm;
-                    acc += at(k as isize + r as isize + 1) - at(k as isize - r as isize);
-                }
+        let norm = 1.0 / (2 * r + 1) as f32;
+        let ri = r as isize;
+        let mut once = vec![0.0f32; w * h];
+        for (row, out) in self.pixels.chunks_exact(w).zip(once.chunks_exact_mut(w)) {
+            let at = |k: isize| row[k.clamp(0, w as isize - 1) as usize];
+            let mut acc: f32 = (-ri..=ri).map(at).sum();
+            for (k, o) in out.iter_mut().enumerate() {
+                *o = acc * norm;
+                acc += at(k as isize + ri + 1) - at(k as isize - ri);
             }
-            out
+        }
+        let row_at = |k: isize| {
+            let y = k.clamp(0, h as isize - 1) as usize;
+            &once[y * w..(y + 1) * w]
         };
-        let once = pass(&self.pixels, true);
+        let mut acc = vec![0.0f32; w];
+        for k in -ri..=ri {
+            for (a, v) in acc.iter_mut().zip(row_at(k)) {
+                *a += v;
+            }
+        }
+        let mut pixels = vec![0.0f32; w * h];
+        for (y, out) in pixels.chunks_exact_mut(w).enumerate() {
+            for (o, a) in out.iter_mut().zip(&acc) {
+                *o = a * norm;
+            }
+            let (add, sub) = (row_at(y as isize + ri + 1), row_at(y as isize - ri));
+            for ((a, p), m) in acc.iter_mut().zip(add).zip(sub) {
+                *a += p - m;
+            }
+        }
         Gray {
             width: w,
             height: h,
-            pixels: pass(&once, false),
+            pixels,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Gray;
+
+    /// The running sums give each pixel the mean of its (2r+1)² neighbours, the image's edge
+    /// pixels repeated beyond it.
+    #[test]
+    fn the_box_blur_is_the_clamped_mean() {
+        let (w, h) = (23usize, 17usize);
+        let img = Gray {
+            width: w,
+            height: h,
+            pixels: (0..w * h)
+                .map(|i| ((i * 7919) % 251) as f32 + 0.25 * (i % 3) as f32)
+                .collect(),
+        };
+        for r in [0usize, 1, 3, 12] {
+            let b = img.box_blur(r);
+            let ri = r as isize;
+            for y in 0..h {
+                for x in 0..w {
+                    let mut sum = 0.0f64;
+                    for dy in -ri..=ri {
+                        for dx in -ri..=ri {
+                            let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                            let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                            sum += f64::from(img.at(xx, yy));
+                        }
+                    }
+                    let mean = sum / ((2 * r + 1) * (2 * r + 1)) as f64;
+                    let got = f64::from(b.at(x, y));
+                    assert!(
+                        (got - mean).abs() < 1e-3,
+                        "r {r} at ({x}, {y}): {got} vs {mean}"
+                    );
+                }
+            }
         }
     }
 }

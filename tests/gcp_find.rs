@@ -116,6 +116,70 @@ fn a_symmetric_layout_is_refused_without_a_heading_and_identified_with_one() {
         let (tu, tv, _) = truth[name];
         assert!((u - tu).hypot(v - tv) < 1.0, "{name} is another target");
     }
+    // The same frame as a drone's photo, its DJI XMP saying where the gimbal points: looking
+    // down, its yaw is the heading, with no --heading given; looking 30° down, it is not used.
+    let (bgr, w, h) =
+        geostride::video::source::FrameReader::frame_bgr_bytes(&dir.join("sim/video.mp4"), 0)
+            .unwrap();
+    let rgb: Vec<u8> = bgr
+        .chunks_exact(3)
+        .flat_map(|p| [p[2], p[1], p[0]])
+        .collect();
+    let jpeg = geostride::imageio::encode_rgb_jpeg(w as u32, h as u32, &rgb, 95).unwrap();
+    for (pitch, named) in [(-89.9, true), (-30.0, false)] {
+        std::fs::write(dir.join("photo.jpg"), with_dji_xmp(&jpeg, 8.0, pitch)).unwrap();
+        let _ = std::fs::remove_file(dir.join("found.csv"));
+        let out = common::geostride()
+            .current_dir(dir)
+            .args([
+                "gcp",
+                "find",
+                "photo.jpg",
+                "--gcps",
+                "sim/gcps.csv",
+                "--out",
+                "found.csv",
+            ])
+            .output()
+            .unwrap();
+        let report = String::from_utf8_lossy(&out.stdout);
+        if !named {
+            assert_eq!(out.status.code(), Some(1), "{report}");
+            assert!(report.contains("ambiguous"), "{report}");
+            continue;
+        }
+        common::assert_success(&out);
+        assert!(
+            report.contains("heading 8.0° from the photo's XMP gimbal yaw"),
+            "{report}"
+        );
+        let found = common::picks(&dir.join("found.csv"));
+        assert!(found.len() + 1 >= truth.len(), "{report}");
+        for (name, (u, v, _)) in &found {
+            let (tu, tv, _) = truth[name];
+            assert!((u - tu).hypot(v - tv) < 1.0, "{name} is another target");
+        }
+    }
+}
+
+/// `jpeg` with an XMP segment after its start, as DJI drones write one: the gimbal's yaw (from
+/// north through east), pitch (-90 straight down) and roll, degrees.
+fn with_dji_xmp(jpeg: &[u8], yaw: f64, pitch: f64) -> Vec<u8> {
+    let xml = format!(
+        "<x:xmpmeta xmlns:x=\"adobe:ns:meta/\"><rdf:RDF xmlns:rdf=\"http://www.w3.org/1999/02/22-rdf-syntax-ns#\">\
+         <rdf:Description xmlns:drone-dji=\"http://www.dji.com/drone-dji/1.0/\" \
+         drone-dji:GimbalYawDegree=\"{yaw:+.2}\" drone-dji:GimbalPitchDegree=\"{pitch:+.2}\" \
+         drone-dji:GimbalRollDegree=\"+0.00\"/></rdf:RDF></x:xmpmeta>"
+    );
+    let mut body = b"http://ns.adobe.com/xap/1.0/\0".to_vec();
+    body.extend(xml.as_bytes());
+    let len = (body.len() + 2) as u16;
+    let mut out = jpeg[..2].to_vec();
+    out.extend([0xFF, 0xE1]);
+    out.extend(len.to_be_bytes());
+    out.extend(body);
+    out.extend(&jpeg[2..]);
+    out
 }
 
 /// The camera centre of every frame in a run's `pose/poses.csv`.

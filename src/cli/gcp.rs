@@ -178,6 +178,10 @@ struct ImageReport {
     image: String,
     width: usize,
     height: usize,
+    /// The bearing of the image's top the layout was matched with, degrees, and where it came
+    /// from (`--heading`, or the photo's XMP gimbal yaw).
+    heading_deg: Option<f64>,
+    heading_from: Option<String>,
     targets: Vec<TargetReport>,
     identified: usize,
     /// Why nothing was identified, when so.
@@ -236,6 +240,23 @@ fn load_bgr(path: &Path, frame: usize) -> anyhow::Result<(Vec<u8>, usize, usize,
         let (bytes, w, h) = geostride::imageio::read_bgr_bytes(path).map_err(bad_input)?;
         Ok((bytes, w, h, file_name))
     }
+}
+
+/// Tolerance on a heading taken from a photo's gimbal yaw, degrees: the gimbal's compass errs by
+/// a few degrees, a view from aside turns the layout's image further.
+const XMP_HEADING_TOLERANCE_DEG: f64 = 30.0;
+
+/// The bearing of a photo's top from its DJI XMP gimbal yaw, when the gimbal looks down at
+/// least 45° (nearer the horizon the layout's image is too foreshortened for a heading to help
+/// much, and the roll would matter).
+fn xmp_heading(photo: &Path) -> Option<(f64, f64)> {
+    if is_video(photo) {
+        return None;
+    }
+    let [yaw, pitch, _] = geostride::sfm::exif::read_meta(photo)
+        .ok()?
+        .gimbal_ypr_deg?;
+    (pitch <= -45.0).then_some((yaw.rem_euclid(360.0), XMP_HEADING_TOLERANCE_DEG))
 }
 
 /// How far from every surveyed point a photo's EXIF GPS may lie before the survey is taken for
@@ -302,7 +323,7 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
     let mut reports = Vec::new();
     for path in &args.inputs {
         let (gray, image) = load(path, args.frame)?;
-        let report = searcher.search(&gray, image);
+        let report = searcher.search(&gray, image, path);
         for t in &report.targets {
             if let Some(name) = &t.name {
                 let _ = writeln!(
@@ -335,13 +356,29 @@ fn find(args: &FindArgs) -> anyhow::Result<()> {
 }
 
 impl Searcher {
-    /// The targets of one image, and which point each is.
-    fn search(&self, gray: &Gray, image: String) -> ImageReport {
-        let out = self.0.run(gray);
+    /// The targets of one image (from `path`: a photo's XMP may give its heading), and which
+    /// point each is.
+    fn search(&self, gray: &Gray, image: String, path: &Path) -> ImageReport {
+        let (heading, heading_from) = match self.0.layout.heading_deg {
+            Some(h) => (Some(h), Some("--heading".to_string())),
+            None => match xmp_heading(path) {
+                Some(h) => (Some(h), Some("the photo's XMP gimbal yaw".to_string())),
+                None => (None, None),
+            },
+        };
+        let out = if heading == self.0.layout.heading_deg {
+            self.0.run(gray)
+        } else {
+            let mut search = self.0.clone();
+            search.layout.heading_deg = heading;
+            search.run(gray)
+        };
         ImageReport {
             image,
             width: gray.width,
             height: gray.height,
+            heading_deg: heading.map(|h| h.0),
+            heading_from,
             targets: out
                 .found
                 .into_iter()
@@ -376,12 +413,16 @@ fn text_report(reports: &[ImageReport]) -> String {
     for r in reports {
         let _ = writeln!(
             s,
-            "{} ({}x{}): {} targets, {} identified",
+            "{} ({}x{}): {} targets, {} identified{}",
             r.image,
             r.width,
             r.height,
             r.targets.len(),
-            r.identified
+            r.identified,
+            match (&r.heading_deg, &r.heading_from) {
+                (Some(h), Some(from)) => format!(" (heading {h:.1}° from {from})"),
+                _ => String::new(),
+            }
         );
         for t in &r.targets {
             let _ = writeln!(

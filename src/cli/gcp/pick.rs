@@ -127,7 +127,7 @@ pub fn pick(args: &PickArgs) -> anyhow::Result<()> {
             .collect();
         if let Some(searcher) = searcher.as_ref().filter(|_| from_file.is_empty()) {
             site.picks
-                .extend(find_picks(searcher, &bgr, width, height, &name));
+                .extend(find_picks(searcher, &bgr, width, height, &name, path));
         }
         site.picks.extend(from_file);
         let camera = match &args.camera {
@@ -155,9 +155,10 @@ fn find_picks(
     width: usize,
     height: usize,
     name: &str,
+    path: &Path,
 ) -> Vec<Value> {
     let gray = Gray::from_bgr(bgr, width, height);
-    let report = searcher.search(&gray, name.to_string());
+    let report = searcher.search(&gray, name.to_string(), path);
     if let Some(why) = &report.not_identified {
         println!("{name}: no automatic picks ({why})");
     }

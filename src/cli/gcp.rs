@@ -118,11 +118,8 @@ impl Searcher {
             (false, None) => None,
             (true, None) => Some((args.dictionary, CodeTable::from_names(&names))),
             (true, Some(path)) => {
-                let text = geostride::io::FileCtx { path }
-                    .read_small_text("a code table", 1 << 20)
+                let table = CodeTable::read(path, &names, &args.dictionary)
                     .map_err(|e| bad_input(anyhow!(e)))?;
-                let table = CodeTable::parse(&text, &names, &args.dictionary)
-                    .map_err(|e| bad_input(anyhow!("{}: {e}", path.display())))?;
                 Some((args.dictionary, table))
             }
         };
@@ -393,7 +390,7 @@ impl Searcher {
                     code: t.code,
                 })
                 .collect(),
-            identified: out.identified,
+            identified: out.named.len(),
             not_identified: out.not_identified,
             rejected: out
                 .rejected

@@ -53,12 +53,9 @@ pub(crate) fn load(
     // Coded targets' cells, as OpenCV draws the markers.
     for g in &mut scene.gcp {
         if let Some(code) = g.code {
-            let d: geostride::targets::codes::Dictionary = g
-                .dictionary
-                .as_deref()
-                .unwrap_or("4x4_50")
-                .parse()
-                .map_err(|e: String| bad_input(anyhow!("{}: {e}", scene_path.display())))?;
+            let d = g
+                .marker_dictionary()
+                .map_err(|e| bad_input(anyhow!("{}: {e}", scene_path.display())))?;
             g.cells = Some(
                 geostride::targets::aruco_cv::marker_cells(&d, code).map_err(|e| {
                     bad_input(anyhow!("{}: gcp '{}': {e}", scene_path.display(), g.name))

@@ -296,6 +296,17 @@ impl GcpSpec {
     fn default_size() -> f64 {
         super::world::GCP_TARGET_M
     }
+
+    /// A coded marker's dictionary: the one named, else 4x4_50.
+    pub fn marker_dictionary(
+        &self,
+    ) -> Result<crate::targets::codes::Dictionary, crate::targets::codes::CodeError> {
+        self.dictionary
+            .as_deref()
+            .unwrap_or("4x4_50")
+            .parse()
+            .map_err(crate::targets::codes::CodeError::UnknownDictionary)
+    }
 }
 
 /// A GCP target's pattern, each on a square of the target's side.
@@ -777,12 +788,9 @@ fn check_gcp_names(gcps: &[GcpSpec]) -> Result<(), Bad> {
             );
         }
         if let Some(code) = g.code {
-            let d: crate::targets::codes::Dictionary = g
-                .dictionary
-                .as_deref()
-                .unwrap_or("4x4_50")
-                .parse()
-                .map_err(|e: String| ("gcp.dictionary", e))?;
+            let d = g
+                .marker_dictionary()
+                .map_err(|e| ("gcp.dictionary", e.to_string()))?;
             if code >= d.ids {
                 return bad(
                     "gcp.code",

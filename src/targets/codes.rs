@@ -104,6 +104,15 @@ pub enum CodeError {
         dictionary: &'static str,
         last: u32,
     },
+    #[error("{0}")]
+    UnknownDictionary(String),
+    #[error(transparent)]
+    Read(#[from] crate::io::FileError),
+    #[error("{}: {error}", path.display())]
+    In {
+        path: std::path::PathBuf,
+        error: Box<CodeError>,
+    },
     #[error("drawing marker {id} of {dictionary}: {message}")]
     Draw {
         id: u32,
@@ -147,6 +156,19 @@ impl CodeTable {
             }
         }
         table
+    }
+
+    /// The table in the file at `path` (see [`CodeTable::parse`]); errors name the file.
+    pub fn read(
+        path: &std::path::Path,
+        names: &[String],
+        dictionary: &Dictionary,
+    ) -> Result<CodeTable, CodeError> {
+        let text = crate::io::FileCtx { path }.read_small_text("a code table", 1 << 20)?;
+        CodeTable::parse(&text, names, dictionary).map_err(|e| CodeError::In {
+            path: path.to_path_buf(),
+            error: Box::new(e),
+        })
     }
 
     /// A table from CSV text (`id,name` a line; a header line and `#` comments allowed), every

@@ -46,7 +46,6 @@ pub struct Outcome {
     /// The identified ones (indices into `found`) in the order they were named: the markers
     /// as detected, then the layout's assignment.
     pub named: Vec<usize>,
-    pub identified: usize,
     /// Why nothing was identified, when so.
     pub not_identified: Option<String>,
     pub rejected: Vec<Rejected>,
@@ -81,7 +80,6 @@ impl Search {
             residual_px: None,
             code: None,
         }));
-        let mut by_layout = 0;
         let mut why = None;
         if !centres.is_empty() {
             match identify_by_layout(&self.ground, &centres, &self.layout) {
@@ -94,7 +92,6 @@ impl Search {
                         t.point = Some(i.point);
                         t.residual_px = Some(i.residual_px);
                         named.push(coded + i.target);
-                        by_layout += 1;
                     }
                 }
                 Identification::NotIdentified(w) => why = Some(w),
@@ -102,12 +99,10 @@ impl Search {
         } else if by_code == 0 {
             why = Some("no target found".to_string());
         }
-        let identified = by_code + by_layout;
         Outcome {
+            not_identified: if named.is_empty() { why } else { None },
             found,
             named,
-            identified,
-            not_identified: if identified > 0 { None } else { why },
             rejected,
         }
     }

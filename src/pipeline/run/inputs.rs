@@ -439,14 +439,8 @@ pub(super) fn auto_picks(
         let bad = |key: &str, m: String| RunError::Input(l.error("picks", key, m));
         let d: Dictionary = a.dictionary.parse().map_err(|e| bad("dictionary", e))?;
         let table = match &a.codes {
-            Some(c) => {
-                let path = l.resolve(c);
-                let text = crate::io::FileCtx { path: &path }
-                    .read_small_text("a code table", 1 << 20)
-                    .map_err(|e| bad("codes", e.to_string()))?;
-                CodeTable::parse(&text, &names, &d)
-                    .map_err(|e| bad("codes", format!("{}: {e}", path.display())))?
-            }
+            Some(c) => CodeTable::read(&l.resolve(c), &names, &d)
+                .map_err(|e| bad("codes", e.to_string()))?,
             None => CodeTable::from_names(&names),
         };
         Some((d, table))
@@ -475,7 +469,7 @@ pub(super) fn auto_picks(
     let (bgr, w, h) = crate::video::source::FrameReader::frame_bgr_bytes(video, frame)
         .map_err(|e| RunError::Input(l.error("video", "path", format!("frame {frame}: {e}"))))?;
     let out = search.run(&Gray::from_bgr(&bgr, w, h));
-    if out.identified == 0 {
+    if out.named.len() == 0 {
         return Err(input(format!(
             "no GCP target identified in frame {frame} of the video ({} found): {}; set \
              heading_deg for a symmetric layout, or pick by hand (`geostride gcp pick`) into \
@@ -519,7 +513,7 @@ pub(super) fn auto_picks(
         format!(
             "automatic picks: {} of frame {frame}'s targets identified; control point(s) {} not \
              found (covered, off the image, or unlike the designs looked for)",
-            out.identified,
+            out.named.len(),
             missed.join(", ")
         )
     });

@@ -121,6 +121,7 @@ fn exif_written_for_tests_reads_back() {
         focal_35mm: Some(24),
         gps: Some((-33.856_784, -70.123_456, 512.25)),
         rtk_sigma_m: Some([0.02, 0.03, 0.05]),
+        ..Default::default()
     };
     let bytes = common::exif::with_exif(&std::fs::read(&jpg).unwrap(), &e);
     let m = geostride::sfm::exif::meta_from_bytes(&bytes);
@@ -134,4 +135,61 @@ fn exif_written_for_tests_reads_back() {
     std::fs::write(&jpg, &bytes).unwrap();
     let (_, w, h) = geostride::imageio::read_bgr_bytes(&jpg).unwrap();
     assert_eq!((w, h), (16, 8));
+}
+
+/// A DSLR's EXIF states no 35 mm focal length: the focal length in millimetres on the sensor's
+/// pixel pitch gives it in pixels (here a Canon EOS 5D Mark II's: 24 mm, 5616 pixels on 36 mm,
+/// written as 3942.4 pixels an inch), scaled to a photo resized to 2808 wide; with no pitch, or
+/// no EXIF, COLMAP's guess.
+#[test]
+fn a_dslr_focal_length_is_found_on_its_sensor_pitch() {
+    use geostride::sfm::exif::{FocalSource, focal_px_from_exif, meta_from_bytes};
+    let tmp = tempfile::tempdir().unwrap();
+    let jpg = tmp.path().join("a.jpg");
+    geostride::imageio::write_rgb(&jpg, 16, 8, &[128; 16 * 8 * 3]).unwrap();
+    let plain = std::fs::read(&jpg).unwrap();
+    let e = common::exif::Exif {
+        focal_mm: Some(24.0),
+        focal_plane_x: Some((5616.0 / 36.0 * 25.4, 2)),
+        pixel_x_dimension: Some(5616),
+        ..Default::default()
+    };
+    let m = meta_from_bytes(&common::exif::with_exif(&plain, &e));
+    assert_eq!(m.focal_35mm, None);
+    assert_eq!(m.focal_mm, Some(24.0));
+    assert_eq!(m.exif_width_px, Some(5616));
+    let (f, source) = focal_px_from_exif(&m, 2808, 1872);
+    assert_eq!(source, FocalSource::ExifFocalPlane);
+    // 24 mm on 36 mm across 5616 pixels, halved.
+    assert!((f - 24.0 / 36.0 * 2808.0).abs() < 0.01, "{f}");
+    // In centimetres, no width stated: the photo is the sensor's size.
+    let cm = common::exif::Exif {
+        focal_mm: Some(24.0),
+        focal_plane_x: Some((5616.0 / 3.6, 3)),
+        ..Default::default()
+    };
+    let (f, _) = focal_px_from_exif(
+        &meta_from_bytes(&common::exif::with_exif(&plain, &cm)),
+        5616,
+        3744,
+    );
+    assert!((f - 24.0 / 36.0 * 5616.0).abs() < 0.01, "{f}");
+    // A focal length alone: COLMAP's guess, 1.2 times the longer side.
+    let bare = common::exif::Exif {
+        focal_mm: Some(24.0),
+        ..Default::default()
+    };
+    let m = meta_from_bytes(&common::exif::with_exif(&plain, &bare));
+    assert_eq!(
+        focal_px_from_exif(&m, 2808, 1872),
+        (1.2 * 2808.0, FocalSource::Guess)
+    );
+    // A pitch that would make a 1 mm-wide view is a wrong tag: the guess again.
+    let wrong = common::exif::Exif {
+        focal_mm: Some(24.0),
+        focal_plane_x: Some((1e6, 2)),
+        ..Default::default()
+    };
+    let m = meta_from_bytes(&common::exif::with_exif(&plain, &wrong));
+    assert_eq!(focal_px_from_exif(&m, 2808, 1872).1, FocalSource::Guess);
 }

@@ -1,6 +1,7 @@
 //! Structure from motion on real photos (`$GEOSTRIDE_DATA`): the 11 Sceaux castle images with
 //! the intrinsics of their `K.txt` as the start, matched exhaustively, reconstructed
-//! incrementally with the focal lengths and two radial terms refined at the end.
+//! incrementally with the focal lengths and two radial terms refined as the model grows; the
+//! 8 Herz-Jesu images with their K, with a focal length 30 % off and with none.
 
 #![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 
@@ -84,20 +85,30 @@ fn strecha_centre(path: &std::path::Path) -> nalgebra::Vector3<f64> {
     nalgebra::Vector3::new(line[0], line[1], line[2])
 }
 
-/// Herz-Jesu P8 (undistorted images, K known): every image registered, the camera centres
-/// within a few millimetres of the laser-scan ground truth after a similarity.
-#[test]
-fn strecha_herzjesu_centres_match_the_ground_truth() {
-    let Some(dir) = common::data_dir("strecha-herzjesu-p8") else {
-        return;
-    };
-    let t = Instant::now();
+/// Herz-Jesu P8 reconstructed with `camera` (None: from a guess) and `sfm`, features and
+/// matches from `cache`: the run and its camera centres' RMSE from the laser-scan ground truth
+/// after a similarity, metres.
+fn herzjesu(
+    dir: &std::path::Path,
+    camera: Option<Camera>,
+    sfm: SfmSettings,
+    cache: &std::path::Path,
+) -> (geostride::sfm::job::SfmRun, f64) {
     let names: Vec<String> = (0..8).map(|k| format!("{k:04}.jpg")).collect();
-    // images/K.txt.
-    let camera = Camera::pinhole(2759.48, 2764.16, 1520.69, 1006.81).with_image_size(3072, 2048);
-    let r = reconstruct_all(&dir.join("images"), &names, camera, SfmSettings::default());
-    let registered = r.poses.iter().filter(|p| p.is_some()).count();
-    assert_eq!(registered, 8);
+    let job = SfmJob {
+        images: names.iter().map(|n| dir.join("images").join(n)).collect(),
+        camera,
+        gps_neighbours: 0,
+        sequential: 0,
+        features: FeatureSettings::default(),
+        matching: MatchSettings::default(),
+        sfm,
+        georef: None,
+        cache_dir: Some(cache.to_path_buf()),
+    };
+    let run = run_sfm(&job, &NoProgress, &NoProgress).unwrap();
+    let r = &run.reconstruction;
+    assert_eq!(r.poses.iter().filter(|p| p.is_some()).count(), 8);
     let got: Vec<_> = r.poses.iter().map(|p| p.unwrap().centre()).collect();
     let want: Vec<_> = names
         .iter()
@@ -117,15 +128,77 @@ fn strecha_herzjesu_centres_match_the_ground_truth() {
         .sum::<f64>()
         / 8.0)
         .sqrt();
+    (run, rmse)
+}
+
+/// Herz-Jesu P8 (undistorted images, K known): every image registered, the camera centres
+/// within a few millimetres of the laser-scan ground truth after a similarity. Then without
+/// K: from a focal length 30 % too long with the intrinsics refined, and from no camera at all
+/// (the photos have no EXIF: COLMAP's guess of 1.2 times the longer side, 34 % too long), the
+/// focal length is found within 1 % and the centres stay near the run with K.
+#[test]
+fn strecha_herzjesu_centres_match_the_ground_truth() {
+    let Some(dir) = common::data_dir("strecha-herzjesu-p8") else {
+        return;
+    };
+    let t = Instant::now();
+    let cache = tempfile::tempdir().unwrap();
+    // images/K.txt.
+    let (fx, fy) = (2759.48, 2764.16);
+    let camera =
+        |f: f64| Camera::pinhole(f * fx, f * fy, 1520.69, 1006.81).with_image_size(3072, 2048);
+    let (run, rmse_k) = herzjesu(
+        &dir,
+        Some(camera(1.0)),
+        SfmSettings::default(),
+        cache.path(),
+    );
+    let r = &run.reconstruction;
     eprintln!(
-        "herzjesu-p8: {registered}/8 registered, {} points, mean reprojection {:.3} px, \
+        "herzjesu-p8: 8/8 registered, {} points, mean reprojection {:.3} px, \
          camera-centre RMSE {:.4} m after a similarity, {:.1} s",
         r.points.len(),
         r.mean_reprojection_px,
-        rmse,
+        rmse_k,
         t.elapsed().as_secs_f64()
     );
     // Measured: 8/8, 4 952 points, 0.421 px, 3.0 mm with the observations weighted by their
     // keypoints' scale (3.9 mm unweighted; COLMAP 3.6 mm, make bench).
-    assert!(rmse < 0.0035, "{rmse} m");
+    assert!(rmse_k < 0.0035, "{rmse_k} m");
+
+    let refine = SfmSettings {
+        refine_intrinsics: true,
+        ..SfmSettings::default()
+    };
+    let (off, rmse_off) = herzjesu(&dir, Some(camera(1.3)), refine.clone(), cache.path());
+    let (guess, rmse_guess) = herzjesu(&dir, None, refine, cache.path());
+    assert_eq!(guess.report.camera_source, "guess");
+    assert!((guess.report.starting_focal_px - 1.2 * 3072.0).abs() < 1e-9);
+    for (name, run, rmse) in [
+        ("30 % off", &off, rmse_off),
+        ("guessed", &guess, rmse_guess),
+    ] {
+        let c = &run.reconstruction.camera;
+        eprintln!(
+            "herzjesu-p8, focal length {name}, refined: fx {:.1}, fy {:.1} px ({:+.2} %, {:+.2} %), \
+             camera-centre RMSE {:.4} m ({:.2} times the run with K)",
+            c.fx,
+            c.fy,
+            100.0 * (c.fx / fx - 1.0),
+            100.0 * (c.fy / fy - 1.0),
+            rmse,
+            rmse / rmse_k,
+        );
+        assert!(
+            (c.fx / fx - 1.0).abs() < 0.01 && (c.fy / fy - 1.0).abs() < 0.01,
+            "{name}: {c:?}"
+        );
+    }
+    // Measured: 30 % off, 3.0 mm (1.03 times the run with K); guessed, with the principal point
+    // left at the image's centre (15 px and 17 px from K's), 7.5 mm.
+    assert!(
+        rmse_off <= 1.2 * rmse_k,
+        "{rmse_off} m against {rmse_k} m with K"
+    );
+    assert!(rmse_guess < 0.01, "{rmse_guess} m");
 }

@@ -27,12 +27,13 @@ pub struct Args {
     /// Images, or folders of images (JPEG, PNG, TIFF; a folder's images in name order)
     #[arg(required = true, value_name = "IMAGES-OR-FOLDERS")]
     inputs: Vec<PathBuf>,
-    /// The camera of every image: a calibration file or a preset [default: a pinhole from the
-    /// EXIF 35 mm focal length, refined]
+    /// The camera of every image: a calibration file or a preset [default: a pinhole whose focal
+    /// length starts from the EXIF (its 35 mm equivalent, else the focal length on the sensor's
+    /// pixel pitch), else from 1.2 times the image's longer side, refined]
     #[arg(long, value_name = "CAL")]
     camera: Option<String>,
-    /// Refine the focal lengths and the first two radial terms at the end (a calibration known
-    /// only roughly)
+    /// Refine the focal lengths and the first two radial terms as the model grows (a calibration
+    /// known only roughly)
     #[arg(long)]
     refine_intrinsics: bool,
     /// Ordered photos or frames: match each image with the next N only (name order) instead of
@@ -329,7 +330,7 @@ pub(super) fn build(args: &Args) -> anyhow::Result<Built> {
             let (c, s) = load_camera(spec)?;
             (Some(c), s)
         }
-        None => (None, "EXIF focal length (refined)".to_string()),
+        None => (None, String::new()),
     };
     if args.sequential == Some(0) {
         return Err(bad_input(anyhow!(
@@ -448,7 +449,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(r)?);
         return Ok(());
     }
-    println!("Camera: {camera_source}");
+    if camera_source.is_empty() {
+        // No camera given: where its focal length started, refined.
+        let source = match r.camera_source.as_str() {
+            "exif" => "the EXIF 35 mm focal length",
+            "exif-focal-plane" => "the EXIF focal length on the sensor's pixel pitch",
+            _ => "no focal length in the EXIF: 1.2 times the longer side, as COLMAP guesses",
+        };
+        println!(
+            "Camera: from {source} ({:.1} px), refined to fx {:.1}, fy {:.1}",
+            r.starting_focal_px, r.camera[0], r.camera[1]
+        );
+    } else {
+        println!("Camera: {camera_source}");
+    }
     println!(
         "Registered {} of {} images; {} points, {} observations (mean track {:.2}); mean reprojection error {:.3} px",
         r.registered,

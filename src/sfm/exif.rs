@@ -25,6 +25,10 @@ pub struct PhotoMeta {
     pub model: Option<String>,
     pub focal_mm: Option<f64>,
     pub focal_35mm: Option<f64>,
+    /// EXIF `FocalPlaneXResolution` in pixels a millimetre of the sensor, for an image
+    /// `exif_width_px` wide (EXIF `PixelXDimension`) when that is given.
+    pub focal_plane_px_per_mm: Option<f64>,
+    pub exif_width_px: Option<u32>,
     pub gps: Option<GpsFix>,
     /// DJI XMP `RelativeAltitude`: above the take-off point, metres.
     pub relative_altitude_m: Option<f64>,
@@ -129,6 +133,25 @@ fn meta_of<R: std::io::BufRead + Seek>(mut file: R) -> std::io::Result<PhotoMeta
     meta.focal_35mm = field(Tag::FocalLengthIn35mmFilm)
         .and_then(|v| rational(v, 0))
         .filter(|f| *f > 0.0);
+    // Pixels a unit of the sensor: the unit 2 inches (the default), 3 centimetres, and the
+    // millimetres and micrometres some cameras write as 4 and 5.
+    let unit = field(Tag::FocalPlaneResolutionUnit).and_then(|v| rational(v, 0));
+    let mm_per_unit = match unit.map(|u| u.round() as i64) {
+        None | Some(2) => Some(25.4),
+        Some(3) => Some(10.0),
+        Some(4) => Some(1.0),
+        Some(5) => Some(1e-3),
+        Some(_) => None,
+    };
+    meta.focal_plane_px_per_mm = field(Tag::FocalPlaneXResolution)
+        .and_then(|v| rational(v, 0))
+        .zip(mm_per_unit)
+        .map(|(r, mm)| r / mm)
+        .filter(|r| *r > 0.0 && r.is_finite());
+    meta.exif_width_px = field(Tag::PixelXDimension)
+        .and_then(|v| rational(v, 0))
+        .filter(|w| *w >= 1.0 && *w <= f64::from(u32::MAX))
+        .map(|w| w as u32);
     // Degrees, minutes, seconds: minutes and seconds under 60, or no position.
     let dms = |t: Tag| {
         let v = field(t)?;
@@ -168,11 +191,52 @@ fn meta_of<R: std::io::BufRead + Seek>(mut file: R) -> std::io::Result<PhotoMeta
     Ok(meta)
 }
 
-/// A starting focal length in pixels for an image `width` × `height`: from the 35 mm equivalent
-/// (36 mm across the longer side), else `None`.
-pub fn focal_px_from_exif(meta: &PhotoMeta, width: u32, height: u32) -> Option<f64> {
-    meta.focal_35mm
-        .map(|f35| f35 / 36.0 * f64::from(width.max(height)))
+/// Where a starting focal length came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FocalSource {
+    /// EXIF `FocalLengthIn35mmFilm`: 36 mm across the longer side.
+    Exif35mm,
+    /// EXIF `FocalLength` in millimetres times `FocalPlaneXResolution` (a DSLR's EXIF).
+    ExifFocalPlane,
+    /// Nothing in the EXIF: COLMAP's guess, 1.2 times the longer side (a view about 45° wide).
+    Guess,
+}
+
+impl FocalSource {
+    /// As the report names it.
+    pub fn name(self) -> &'static str {
+        match self {
+            FocalSource::Exif35mm => "exif",
+            FocalSource::ExifFocalPlane => "exif-focal-plane",
+            FocalSource::Guess => "guess",
+        }
+    }
+}
+
+/// The focal length a guess starts from, times the image's longer side.
+pub const GUESS_FOCAL_PER_SIDE: f64 = 1.2;
+
+/// A starting focal length in pixels for an image `width` × `height`, and its source: from the
+/// 35 mm equivalent, else from the focal length on the sensor's pixel pitch (scaled to this
+/// image when the EXIF states the width it describes), else a guess.
+pub fn focal_px_from_exif(meta: &PhotoMeta, width: u32, height: u32) -> (f64, FocalSource) {
+    let side = f64::from(width.max(height));
+    if let Some(f35) = meta.focal_35mm {
+        return (f35 / 36.0 * side, FocalSource::Exif35mm);
+    }
+    if let (Some(f_mm), Some(px_per_mm)) = (meta.focal_mm, meta.focal_plane_px_per_mm) {
+        let scale = meta
+            .exif_width_px
+            .map_or(1.0, |w| f64::from(width) / f64::from(w));
+        let f = f_mm * px_per_mm * scale;
+        // A focal plane resolution that makes the view narrower than a long telephoto's or
+        // wider than a fisheye's is a wrong tag, not a lens.
+        let per_side = FOCAL_35MM_RANGE.start() / 36.0..=FOCAL_35MM_RANGE.end() / 36.0;
+        if per_side.contains(&(f / side)) {
+            return (f, FocalSource::ExifFocalPlane);
+        }
+    }
+    (GUESS_FOCAL_PER_SIDE * side, FocalSource::Guess)
 }
 
 #[cfg(test)]

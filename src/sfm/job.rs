@@ -118,12 +118,6 @@ pub enum SfmJobError {
         width: u32,
         height: u32,
     },
-    #[error(
-        "{}: no camera given and no 35 mm focal length in its EXIF: give --camera (a \
-         calibration file or a preset)",
-        path.display()
-    )]
-    NoFocal { path: PathBuf },
     #[error(transparent)]
     Sfm(#[from] SfmError),
     #[error(transparent)]
@@ -171,7 +165,7 @@ pub enum SfmJobError {
     )]
     Focal35 { path: PathBuf, value: f64 },
     #[error(
-        "{} ({a} mm) and {} ({b} mm): the EXIF 35 mm-equivalent focal lengths differ, but one camera is used for every image; give the photos of one zoom setting, or --camera",
+        "{} ({a} mm) and {} ({b} mm): the EXIF focal lengths differ, but one camera is used for every image; give the photos of one zoom setting, or --camera",
         first.display(),
         second.display()
     )]
@@ -253,8 +247,12 @@ pub struct SfmReport {
     pub pairs_matched: usize,
     /// How pairs were chosen: `all` or `gps-neighbours`.
     pub pair_selection: String,
-    /// Where the camera came from: `given` or `exif`.
+    /// Where the camera came from: `given`, or without one where its starting focal length
+    /// came from: `exif` (the 35 mm equivalent), `exif-focal-plane` (the focal length on the
+    /// sensor's pixel pitch) or `guess` (1.2 times the longer side).
     pub camera_source: String,
+    /// The focal length the reconstruction started from, pixels.
+    pub starting_focal_px: f64,
     /// With GPS: the model scaled and placed on the GPS positions (a local east-north-up frame
     /// at their centroid, metres), and the camera centres' distances from their GPS positions.
     pub gps: Option<GpsPlacement>,
@@ -367,22 +365,24 @@ pub(crate) fn check_images(images: &[PathBuf]) -> Result<Vec<Option<(u32, u32)>>
     Ok(sizes)
 }
 
-/// The 35 mm-equivalent focal length the images share (the first image's, checked against the
-/// others that state one), when no camera is given.
-fn exif_focal_35mm(images: &[PathBuf], metas: &[PhotoMeta]) -> Result<f64, SfmJobError> {
-    let Some(f) = metas[0].focal_35mm else {
-        return Err(SfmJobError::NoFocal {
-            path: images[0].clone(),
-        });
-    };
+/// Checks the EXIF focal lengths when no camera is given: a 35 mm equivalent must be a lens's,
+/// and the photos that state a focal length (35 mm equivalent, else on the sensor) must share
+/// the first one's (one camera is used for every image).
+fn check_exif_focals(images: &[PathBuf], metas: &[PhotoMeta]) -> Result<(), SfmJobError> {
     for (path, m) in images.iter().zip(metas) {
-        let Some(v) = m.focal_35mm else { continue };
-        if !FOCAL_35MM_RANGE.contains(&v) {
+        if let Some(v) = m.focal_35mm.filter(|v| !FOCAL_35MM_RANGE.contains(v)) {
             return Err(SfmJobError::Focal35 {
                 path: path.clone(),
                 value: v,
             });
         }
+    }
+    let stated = |m: &PhotoMeta| m.focal_35mm.or(m.focal_mm);
+    let Some(f) = stated(&metas[0]) else {
+        return Ok(());
+    };
+    for (path, m) in images.iter().zip(metas) {
+        let Some(v) = stated(m) else { continue };
         if (v - f).abs() > 0.01 * f {
             return Err(SfmJobError::FocalsDiffer {
                 first: images[0].clone(),
@@ -392,7 +392,7 @@ fn exif_focal_35mm(images: &[PathBuf], metas: &[PhotoMeta]) -> Result<f64, SfmJo
             });
         }
     }
-    Ok(f)
+    Ok(())
 }
 
 /// Refuses measured camera centres that lie far from every GCP (the two in different CRSs or
@@ -444,10 +444,9 @@ pub fn run_sfm(
         .iter()
         .map(|p| read_meta(p))
         .collect::<Result<_, _>>()?;
-    let focal_35mm = match &job.camera {
-        Some(_) => None,
-        None => Some(exif_focal_35mm(&job.images, &metas)?),
-    };
+    if job.camera.is_none() {
+        check_exif_focals(&job.images, &metas)?;
+    }
     let header_size = common_size(job, &sizes)?;
     let names: Vec<String> = job.images.iter().map(|p| file_name(p)).collect();
     let mut unmatched_names = Vec::new();
@@ -481,8 +480,8 @@ pub fn run_sfm(
         )?);
     }
     let mut sfm_settings = job.sfm.clone();
-    let (camera, camera_source) = job_camera(job, focal_35mm, width, height)?;
-    if camera_source == "exif" {
+    let (camera, camera_source) = job_camera(job, &metas[0], width, height)?;
+    if camera_source != "given" {
         // Known only roughly: refined.
         sfm_settings.refine_intrinsics = true;
     }
@@ -546,6 +545,7 @@ pub fn run_sfm(
         pairs_matched: pairs.len(),
         pair_selection: pair_selection.to_string(),
         camera_source: camera_source.to_string(),
+        starting_focal_px: camera.fx,
         gps: gps_placement,
         georef,
         frame: frame.to_string(),
@@ -602,26 +602,18 @@ fn common_size(
 }
 
 /// The camera to start from and where it came from: the given one ("given"), else a pinhole
-/// from the EXIF 35 mm focal length ("exif", to be refined).
+/// whose focal length comes from the first photo's EXIF or a guess (`FocalSource::name`), to
+/// be refined.
 fn job_camera(
     job: &SfmJob,
-    focal_35mm: Option<f64>,
+    first: &PhotoMeta,
     width: u32,
     height: u32,
 ) -> Result<(Camera, &'static str), SfmJobError> {
     if let Some(c) = &job.camera {
         return Ok((given_camera(c, width, height)?, "given"));
     }
-    let f35 = focal_35mm.expect("checked when no camera is given");
-    let f = focal_px_from_exif(
-        &PhotoMeta {
-            focal_35mm: Some(f35),
-            ..PhotoMeta::default()
-        },
-        width,
-        height,
-    )
-    .expect("a 35 mm focal length");
+    let (f, source) = focal_px_from_exif(first, width, height);
     let c = Camera::pinhole(
         f,
         f,
@@ -629,7 +621,7 @@ fn job_camera(
         (f64::from(height) - 1.0) / 2.0,
     )
     .with_image_size(width, height);
-    Ok((c, "exif"))
+    Ok((c, source.name()))
 }
 
 /// The image pairs to match and how they were chosen: a sequential window, the GPS
@@ -1091,7 +1083,8 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
          - images registered: {} of {}\n\
          - points: {}, observations: {} (mean track length {:.2})\n\
          - mean reprojection error: {:.3} px\n\
-         - camera: fx {:.2}, fy {:.2}, cx {:.2}, cy {:.2}, k1 {:.4}, k2 {:.4}\n\
+         - camera: fx {:.2}, fy {:.2}, cx {:.2}, cy {:.2}, k1 {:.4}, k2 {:.4} (its focal \
+         length started at {:.1} px: {})\n\
          - started from: {} and {}\n\
          - time: features {:.1} s ({} images from the cache), matching {:.1} s ({} pairs, {} from \
          the cache), reconstruction {:.1} s\n\n\
@@ -1109,6 +1102,8 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
         r.camera[3],
         r.camera[5],
         r.camera[6],
+        r.starting_focal_px,
+        r.camera_source,
         r.initial_pair.0,
         r.initial_pair.1,
         r.seconds_features,

@@ -3,9 +3,9 @@
 //! triangulation of the tracks each new image completes, and bundle adjustment of everything
 //! (`optim::ba`, a robust loss) with the observations that stay far from their point dropped.
 //!
-//! One camera for every image, its intrinsics known (from a calibration) and held fixed while
-//! images are added; optionally its focal lengths and first two radial terms refined in the last
-//! adjustments (`SfmSettings::refine_intrinsics`).
+//! One camera for every image, its intrinsics known (from a calibration) and held fixed; or,
+//! known only roughly (`SfmSettings::refine_intrinsics`), its focal lengths and first two radial
+//! terms refined in every adjustment once three images are registered, as the model grows.
 
 use std::collections::HashMap;
 
@@ -34,8 +34,8 @@ pub struct SfmSettings {
     pub min_triangulation_deg: f64,
     /// An observation further than this from its point's projection is dropped, pixels.
     pub max_reprojection_px: f64,
-    /// Refine the focal lengths and `k1`, `k2` in the last adjustments (a camera known only
-    /// roughly: EXIF, a preset).
+    /// Refine the focal lengths and `k1`, `k2` as the model grows (a camera known only roughly:
+    /// EXIF, a guess, a preset).
     pub refine_intrinsics: bool,
     pub seed: u64,
 }
@@ -290,6 +290,11 @@ impl Builder<'_> {
             made += 1;
         }
         made
+    }
+
+    /// How many images are registered.
+    fn registered(&self) -> usize {
+        self.poses.iter().filter(|p| p.is_some()).count()
     }
 
     /// Bundle adjustment of every registered image and point, the first image fixed and the
@@ -551,7 +556,11 @@ pub fn reconstruct(
             continue;
         }
         b.triangulate_new();
-        b.adjust(RobustLoss::Huber(1.0), false)?;
+        // A camera known only roughly is refined as the model grows (as COLMAP does), once
+        // three images constrain it: refined only at the end, a focal length 30 % off has
+        // already bent the model it then cannot undo.
+        let growing = s.refine_intrinsics && b.registered() >= 3;
+        b.adjust(RobustLoss::Huber(1.0), growing)?;
         // A newly registered image may make another registrable again.
         failed.iter_mut().for_each(|f| *f = false);
     }

@@ -407,7 +407,6 @@ pub(super) fn cases() -> Vec<Case> {
         case("sfm-exif-focals-differ", "silently wrong model", &["sfm", "e0.jpg", "e1.jpg", "--out", "m"], "focal lengths differ", "e1.jpg (48 mm)")
             .bytes("e0.jpg", jpeg(Exif { focal_35mm: Some(24), ..Exif::default() }))
             .bytes("e1.jpg", jpeg(Exif { focal_35mm: Some(48), ..Exif::default() })),
-        case("sfm-no-exif-focal-no-camera", "wrong code", &["sfm", "photos", "--out", "m"], "give --camera", "p0.png"),
         case("sfm-jpeg-claiming-a-gigapixel", "runaway memory", &["sfm", "huge.jpg", "e1.jpg", "--camera", "camera.json", "--out", "m"], "its header claims 32000x32000", "huge.jpg")
             .bytes("huge.jpg", jpeg_claiming(32000, 32000))
             .bytes("e1.jpg", read("base.jpg")),

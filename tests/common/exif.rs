@@ -8,6 +8,12 @@
 #[derive(Clone, Debug, Default)]
 pub struct Exif {
     pub focal_35mm: Option<u16>,
+    /// `FocalLength`, millimetres.
+    pub focal_mm: Option<f64>,
+    /// `FocalPlaneXResolution` and its `FocalPlaneResolutionUnit` (2 inches, 3 centimetres).
+    pub focal_plane_x: Option<(f64, u16)>,
+    /// `PixelXDimension`: the width the focal plane resolution is of.
+    pub pixel_x_dimension: Option<u32>,
     /// Latitude, longitude in degrees (signed), altitude in metres.
     pub gps: Option<(f64, f64, f64)>,
     /// DJI XMP: `RtkStdLon`, `RtkStdLat`, `RtkStdHgt`.
@@ -119,17 +125,46 @@ pub fn tiff_block(e: &Exif) -> Vec<u8> {
             },
         ];
     }
-    // IFD0 points to an Exif IFD (the 35 mm focal length) and to the GPS IFD.
-    let exif_entries: Vec<Entry> = e
-        .focal_35mm
-        .map(|f| Entry {
+    // IFD0 points to an Exif IFD (the focal lengths, in tag order) and to the GPS IFD.
+    let mut exif_entries: Vec<Entry> = Vec::new();
+    if let Some(f) = e.focal_mm {
+        exif_entries.push(Entry {
+            tag: 0x920A,
+            kind: RATIONAL,
+            count: 1,
+            value: rational(f, 1000),
+        });
+    }
+    if let Some(w) = e.pixel_x_dimension {
+        exif_entries.push(Entry {
+            tag: 0xA002,
+            kind: LONG,
+            count: 1,
+            value: w.to_be_bytes().to_vec(),
+        });
+    }
+    if let Some((r, unit)) = e.focal_plane_x {
+        exif_entries.push(Entry {
+            tag: 0xA20E,
+            kind: RATIONAL,
+            count: 1,
+            value: rational(r, 1000),
+        });
+        exif_entries.push(Entry {
+            tag: 0xA210,
+            kind: SHORT,
+            count: 1,
+            value: unit.to_be_bytes().to_vec(),
+        });
+    }
+    if let Some(f) = e.focal_35mm {
+        exif_entries.push(Entry {
             tag: 0xA405,
             kind: SHORT,
             count: 1,
             value: f.to_be_bytes().to_vec(),
-        })
-        .into_iter()
-        .collect();
+        });
+    }
     let mut pointers = Vec::new();
     if !exif_entries.is_empty() {
         pointers.push((0x8769u16, exif_entries));

@@ -338,8 +338,18 @@ pub fn pose_in_front(
     x1: &[Vector2<f64>],
     x2: &[Vector2<f64>],
 ) -> (Rigid3, usize) {
+    best_in_front(poses_of_essential(e), x1, x2)
+}
+
+/// The one of `poses` (`cam2_from_cam1`) that puts most correspondences in front of both
+/// cameras, with that count (the first of those that tie).
+pub fn best_in_front(
+    poses: impl IntoIterator<Item = Rigid3>,
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+) -> (Rigid3, usize) {
     let mut best = (Rigid3::identity(), 0);
-    for pose in poses_of_essential(e) {
+    for pose in poses {
         let n = x1
             .iter()
             .zip(x2)

@@ -267,6 +267,69 @@ pub fn homography_robust(
     Ok(result)
 }
 
+/// The motions `cam2_from_cam1` (unit translation) a calibrated homography `x₂ ~ H x₁` of a
+/// plane can come from: `H ∝ R + t nᵀ / d` for the plane `nᵀX = d` of camera 1. Up to eight
+/// (Faugeras' decomposition of `H = U diag(d₁, d₂, d₃) Vᵀ`: two signs of `d₂`, four of the
+/// normal's two components); the points in front of both cameras choose among them. One pure
+/// rotation (no translation) when the three singular values agree.
+pub fn poses_of_homography(h: &Matrix3<f64>) -> Vec<crate::geom::Rigid3> {
+    use crate::geom::Rigid3;
+    use nalgebra::{Rotation3, Vector3 as V3};
+    let svd = h.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return Vec::new();
+    };
+    // In decreasing order.
+    let mut order = [0, 1, 2];
+    order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+    let u = Matrix3::from_columns(&order.map(|k| u.column(k).into_owned()));
+    let vt = Matrix3::from_rows(&order.map(|k| vt.row(k).into_owned()));
+    let [d1, d2, d3] = order.map(|k| svd.singular_values[k]);
+    if !(d3 > 0.0 && d1.is_finite()) {
+        return Vec::new();
+    }
+    let s = u.determinant() * vt.determinant();
+    let proper = |m: Matrix3<f64>| Rotation3::from_matrix(&(s * u * m * vt));
+    if d1 - d3 < 1e-9 * d2 {
+        return vec![Rigid3 {
+            rotation: proper(Matrix3::identity()),
+            translation: V3::zeros(),
+        }];
+    }
+    let (a, c) = (d1 * d1 - d2 * d2, d2 * d2 - d3 * d3);
+    let x1 = (a / (a + c)).sqrt();
+    let x3 = (c / (a + c)).sqrt();
+    let root = (a * c).sqrt();
+    let mut out = Vec::with_capacity(8);
+    for (e1, e3) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
+        // d' = +d₂: a rotation about the second axis, the translation in the first and third.
+        let (st, ct) = (
+            e1 * e3 * root / ((d1 + d3) * d2),
+            (d2 * d2 + d1 * d3) / ((d1 + d3) * d2),
+        );
+        let r = Matrix3::new(ct, 0.0, -st, 0.0, 1.0, 0.0, st, 0.0, ct);
+        let t = u * V3::new(e1 * x1, 0.0, -e3 * x3) * (d1 - d3);
+        out.push((r, t));
+        // d' = −d₂: a reflection through the second axis composed with a rotation.
+        let (sp, cp) = (
+            e1 * e3 * root / ((d1 - d3) * d2),
+            (d1 * d3 - d2 * d2) / ((d1 - d3) * d2),
+        );
+        let r = Matrix3::new(cp, 0.0, sp, 0.0, -1.0, 0.0, sp, 0.0, -cp);
+        let t = u * V3::new(e1 * x1, 0.0, e3 * x3) * (d1 + d3);
+        out.push((r, t));
+    }
+    out.into_iter()
+        .filter_map(|(r, t)| {
+            let t = t.try_normalize(1e-12)?;
+            Some(Rigid3 {
+                rotation: proper(r),
+                translation: t,
+            })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -380,5 +443,52 @@ mod tests {
             .map(|i| Vector2::new(i as f64, 2.0 * i as f64))
             .collect();
         assert!(homography_dlt(&line, &line).is_err());
+    }
+
+    /// A plane seen from two cameras: its homography's decompositions include the motion, and
+    /// the points in front of both cameras choose it; a pure rotation gives no translation.
+    #[test]
+    fn a_plane_s_homography_gives_back_the_motion() {
+        use crate::estimate::essential::best_in_front;
+        use crate::geom::Rigid3;
+        use nalgebra::{Rotation3, Vector3 as V3};
+        let n = V3::new(0.1, -0.2, 1.0).normalize();
+        let d = 5.0;
+        let truth = Rigid3 {
+            rotation: Rotation3::from_scaled_axis(V3::new(0.05, -0.1, 0.08)),
+            translation: V3::new(0.8, 0.1, -0.2).normalize(),
+        };
+        let project = |p: V3<f64>| Vector2::new(p.x / p.z, p.y / p.z);
+        let mut x1 = Vec::new();
+        let mut x2 = Vec::new();
+        for i in 0..7 {
+            for j in 0..5 {
+                let ray = V3::new(-0.3 + 0.1 * f64::from(i), -0.2 + 0.1 * f64::from(j), 1.0);
+                let point = ray * (d / n.dot(&ray));
+                x1.push(project(point));
+                x2.push(project(truth.apply(&point)));
+            }
+        }
+        let h = homography_dlt(&x1, &x2).unwrap();
+        let poses = poses_of_homography(&h);
+        assert!(poses.len() >= 4, "{}", poses.len());
+        let (best, count) = best_in_front(poses, &x1, &x2);
+        assert_eq!(count, x1.len());
+        // (Compared as matrices: `angle_to` of two equal rotations can be NaN.)
+        let off = |a: &Rotation3<f64>, b: &Rotation3<f64>| (a.matrix() - b.matrix()).norm();
+        assert!(off(&best.rotation, &truth.rotation) < 1e-8, "{best:?}");
+        assert!(
+            (best.translation - truth.translation).norm() < 1e-8,
+            "{best:?}"
+        );
+        // The same seen again with the camera only turned.
+        let turned: Vec<_> = x1
+            .iter()
+            .map(|p| project(truth.rotation * V3::new(p.x, p.y, 1.0)))
+            .collect();
+        let r = poses_of_homography(&homography_dlt(&x1, &turned).unwrap());
+        assert_eq!(r.len(), 1);
+        assert!(r[0].translation.norm() == 0.0);
+        assert!(off(&r[0].rotation, &truth.rotation) < 1e-8);
     }
 }

@@ -202,6 +202,7 @@ mod tests {
             mean_reprojection_px: 0.0,
             camera,
             initial_pair: (0, 2),
+            start: Default::default(),
         };
         (r, keypoints)
     }

@@ -950,6 +950,7 @@ mod tests {
             mean_reprojection_px: 0.0,
             camera,
             initial_pair: (0, 1),
+            start: Default::default(),
         };
         let mut model = truth.clone();
         let sim = Similarity {

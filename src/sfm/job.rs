@@ -265,6 +265,9 @@ pub struct SfmReport {
     /// Picks and centres naming images that are not among those given.
     pub unmatched_names: Vec<String>,
     pub initial_pair: (String, String),
+    /// How the initial pair's relative pose was found: `model` (`essential` or `homography`),
+    /// the matches each explains, the pairs passed over because the camera only turned.
+    pub initial_pair_geometry: super::reconstruct::Start,
     pub per_image: Vec<ImageReport>,
     pub seconds_features: f64,
     pub seconds_matching: f64,
@@ -551,6 +554,7 @@ pub fn run_sfm(
         frame: frame.to_string(),
         site_frame: job.georef.as_ref().map(|g| g.frame.clone()),
         unmatched_names,
+        initial_pair_geometry: r.start,
         initial_pair: (
             names[r.initial_pair.0].clone(),
             names[r.initial_pair.1].clone(),
@@ -1085,7 +1089,8 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
          - mean reprojection error: {:.3} px\n\
          - camera: fx {:.2}, fy {:.2}, cx {:.2}, cy {:.2}, k1 {:.4}, k2 {:.4} (its focal \
          length started at {:.1} px: {})\n\
-         - started from: {} and {}\n\
+         - started from: {} and {} (pose from the {} matrix; of the {} matches it kept, {} fit \
+         one homography; {} pairs that only turned passed over)\n\
          - time: features {:.1} s ({} images from the cache), matching {:.1} s ({} pairs, {} from \
          the cache), reconstruction {:.1} s\n\n\
          | image | registered | features | observations | why not |\n\
@@ -1106,6 +1111,10 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
         r.camera_source,
         r.initial_pair.0,
         r.initial_pair.1,
+        r.initial_pair_geometry.model,
+        r.initial_pair_geometry.essential_inliers,
+        r.initial_pair_geometry.homography_inliers,
+        r.initial_pair_geometry.rotations_skipped,
         r.seconds_features,
         r.features_cached,
         r.seconds_matching,

@@ -13,7 +13,8 @@ use nalgebra::{Matrix3, Matrix4, Vector2, Vector3};
 
 use super::tracks::{FeatureId, PairMatches, build_tracks};
 use crate::camera::{Camera, param};
-use crate::estimate::essential::{EssentialEstimator, pose_in_front};
+use crate::estimate::essential::{EssentialEstimator, best_in_front, pose_in_front};
+use crate::estimate::homography::{homography_robust, poses_of_homography};
 use crate::estimate::pnp::{PnpEstimator, gauss_newton_pose};
 use crate::estimate::ransac::{RansacSettings, msac};
 use crate::geom::Rigid3;
@@ -73,6 +74,82 @@ pub struct Reconstruction {
     pub camera: Camera,
     /// The two images the model started from.
     pub initial_pair: (usize, usize),
+    /// How their relative pose was found.
+    pub start: Start,
+}
+
+/// How the initial pair's relative pose was found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Start {
+    /// `essential`, or `homography` where one explains nearly every match (a plane: a flat
+    /// site seen from above, whose essential matrix is poorly determined).
+    pub model: &'static str,
+    pub essential_inliers: usize,
+    pub homography_inliers: usize,
+    /// Pairs passed over before it because the camera only turned between them (no
+    /// parallax to start a model from).
+    pub rotations_skipped: usize,
+}
+
+/// Over this share of the essential matrix's inliers fitting one homography, the pair is a
+/// plane's (or a turn's) and its pose comes from the homography (COLMAP's and ORB-SLAM's test).
+const HOMOGRAPHY_SHARE: f64 = 0.8;
+
+/// The relative pose `cam2_from_cam1` of a verified pair (`x1 ↔ x2`, normalised, the
+/// essential matrix's inliers) and how it was found: from the essential matrix, or from the
+/// homography when it explains as many; `None` when the rays hardly part (the median under a
+/// third of `min_triangulation_deg`): the camera only turned.
+fn two_view_pose(
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+    e: &Matrix3<f64>,
+    focal_px: f64,
+    s: &SfmSettings,
+) -> (Option<Rigid3>, Start) {
+    let settings = RansacSettings {
+        threshold: s.inlier_px / focal_px,
+        seed: s.seed,
+        ..RansacSettings::default()
+    };
+    let homography = homography_robust(x1, x2, &settings).ok();
+    let h_inliers = homography.as_ref().map_or(0, |h| h.inlier_count);
+    let mut start = Start {
+        model: "essential",
+        essential_inliers: x1.len(),
+        homography_inliers: h_inliers,
+        rotations_skipped: 0,
+    };
+    let planar = homography
+        .as_ref()
+        .filter(|_| h_inliers as f64 > HOMOGRAPHY_SHARE * x1.len() as f64);
+    let pose = match planar {
+        Some(h) => {
+            start.model = "homography";
+            let (in1, in2): (Vec<_>, Vec<_>) = (0..x1.len())
+                .filter(|&k| h.inliers[k])
+                .map(|k| (x1[k], x2[k]))
+                .unzip();
+            let pose = best_in_front(poses_of_homography(&h.model), &in1, &in2).0;
+            // Parallax: the angle between each match's two rays, in camera 1.
+            let mut angles: Vec<f64> = in1
+                .iter()
+                .zip(&in2)
+                .map(|(a, b)| {
+                    let r1 = Vector3::new(a.x, a.y, 1.0);
+                    let r2 = pose.rotation.inverse() * Vector3::new(b.x, b.y, 1.0);
+                    r1.angle(&r2).to_degrees()
+                })
+                .collect();
+            angles.sort_by(f64::total_cmp);
+            let median = angles.get(angles.len() / 2).copied().unwrap_or(0.0);
+            if median < s.min_triangulation_deg / 3.0 {
+                return (None, start);
+            }
+            pose
+        }
+        None => pose_in_front(e, x1, x2).0,
+    };
+    (Some(pose), start)
 }
 
 impl Reconstruction {
@@ -517,6 +594,7 @@ pub fn reconstruct(
     // The initial pair: the most verified matches whose relative pose triangulates enough
     // points with enough parallax.
     let mut started = false;
+    let (mut rotations, mut start) = (0, Start::default());
     for (p, e) in &verified {
         let x1: Vec<Vector2<f64>> = p
             .matches
@@ -528,7 +606,15 @@ pub fn reconstruct(
             .iter()
             .map(|&(_, c)| b.normalised[p.j][c].expect("verified"))
             .collect();
-        let (pose, _) = pose_in_front(e, &x1, &x2);
+        let (pose, geometry) = two_view_pose(&x1, &x2, e, camera.fx, s);
+        let Some(pose) = pose else {
+            rotations += 1;
+            continue;
+        };
+        start = Start {
+            rotations_skipped: rotations,
+            ..geometry
+        };
         b.poses = vec![None; n];
         b.poses[p.i] = Some(Rigid3::identity());
         b.poses[p.j] = Some(pose);
@@ -576,6 +662,7 @@ pub fn reconstruct(
         mean_reprojection_px: f64::NAN,
         camera,
         initial_pair,
+        start,
     };
     r.mean_reprojection_px = r.mean_reprojection(pixels);
     Ok(r)
@@ -588,17 +675,22 @@ mod tests {
     use crate::testing::Uniform;
     use nalgebra::Rotation3;
 
-    /// Six cameras along a strip looking down at rough ground: every image registers, and the
-    /// cameras are the truth up to a similarity, the pixels 0.3 px noisy, 10 % of matches
-    /// wrong.
-    #[test]
-    fn a_strip_of_images_is_reconstructed() {
+    /// Images of a strip of ground `relief_m` deep: six nadir cameras 30 m up, 8 m apart,
+    /// slightly tilted, and with `turned` a seventh at the fourth one's centre, turned 10°. The
+    /// camera, the true poses, each image's keypoints (0.3 px noise) and every pair's matches
+    /// (10 % wrong).
+    type Strip = (
+        Camera,
+        Vec<Rigid3>,
+        Vec<Vec<Vector2<f64>>>,
+        Vec<PairMatches>,
+    );
+    fn strip(relief_m: f64, turned: bool) -> Strip {
         let mut rng = Uniform::new(9);
         let camera = Camera::pinhole(1000.0, 1000.0, 640.0, 480.0)
             .with_image_size(1280, 960)
             .with_distortion(&[-0.05, 0.01, 0.0, 0.0, 0.0]);
-        // Nadir cameras 30 m up, 8 m apart, slightly tilted.
-        let truth: Vec<Rigid3> = (0..6)
+        let mut truth: Vec<Rigid3> = (0..6)
             .map(|k| {
                 let centre = Vector3::new(8.0 * f64::from(k), 2.0 * rng.next(), 30.0);
                 let r = Rotation3::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0))
@@ -610,18 +702,24 @@ mod tests {
                 Rigid3::new(rotation, -(rotation * centre))
             })
             .collect();
+        if turned {
+            let rotation = Rotation3::from_scaled_axis(Vector3::new(0.0, 0.0, 10f64.to_radians()))
+                * truth[3].rotation;
+            truth.push(Rigid3::new(rotation, -(rotation * truth[3].centre())));
+        }
+        let n = truth.len();
         let world: Vec<Vector3<f64>> = (0..3000)
             .map(|_| {
                 Vector3::new(
                     -15.0 + 70.0 * (rng.next() + 1.0) / 2.0,
                     25.0 * rng.next(),
-                    2.0 * rng.next(),
+                    relief_m * rng.next(),
                 )
             })
             .collect();
         // Each image's keypoints: the points it sees, noisy, in a shuffled order.
-        let mut pixels: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); 6];
-        let mut index: Vec<HashMap<usize, usize>> = vec![HashMap::new(); 6];
+        let mut pixels: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); n];
+        let mut index: Vec<HashMap<usize, usize>> = vec![HashMap::new(); n];
         for (i, pose) in truth.iter().enumerate() {
             for (p, x) in world.iter().enumerate() {
                 let Ok(uv) = camera.project(&pose.apply(x)) else {
@@ -635,24 +733,29 @@ mod tests {
             }
         }
         let mut pairs = Vec::new();
-        for i in 0..6 {
-            for j in i + 1..6 {
+        for i in 0..n {
+            for j in i + 1..n {
                 let mut matches: Vec<(usize, usize)> = index[i]
                     .iter()
                     .filter_map(|(p, &a)| index[j].get(p).map(|&b| (a, b)))
                     .collect();
                 matches.sort_unstable();
                 // 10 % wrong: the second feature replaced by another of the image.
-                let n = pixels[j].len();
-                for (k, m) in matches.iter_mut().enumerate() {
+                let m = pixels[j].len();
+                for (k, pair) in matches.iter_mut().enumerate() {
                     if k % 10 == 3 {
-                        m.1 = (m.1 + n / 2) % n;
+                        pair.1 = (pair.1 + m / 2) % m;
                     }
                 }
                 pairs.push(PairMatches { i, j, matches });
             }
         }
-        let r = reconstruct(&camera, &pixels, None, &pairs, &SfmSettings::default()).unwrap();
+        (camera, truth, pixels, pairs)
+    }
+
+    /// Every image registered, the cameras the truth up to a similarity to 1 cm over the 40 m
+    /// strip.
+    fn check_strip(r: &Reconstruction, truth: &[Rigid3]) {
         assert!(
             r.poses.iter().all(Option::is_some),
             "{:?}",
@@ -660,10 +763,9 @@ mod tests {
         );
         assert!(r.mean_reprojection_px < 0.4, "{}", r.mean_reprojection_px);
         assert!(r.points.len() > 1000, "{}", r.points.len());
-        // Camera centres: the truth up to a similarity, to 1 cm over a 40 m strip.
         let got: Vec<Vector3<f64>> = r.poses.iter().map(|p| p.unwrap().centre()).collect();
         let want: Vec<Vector3<f64>> = truth.iter().map(Rigid3::centre).collect();
-        let sim = fit_weighted(&got, &want, &[1.0; 6], ScaleMode::Free).unwrap();
+        let sim = fit_weighted(&got, &want, &vec![1.0; got.len()], ScaleMode::Free).unwrap();
         for (g, w) in got.iter().zip(&want) {
             assert!(
                 (sim.apply(g) - w).norm() < 0.01,
@@ -671,5 +773,31 @@ mod tests {
                 (sim.apply(g) - w).norm()
             );
         }
+    }
+
+    /// Rough ground (2 m of relief): started from the essential matrix.
+    #[test]
+    fn a_strip_of_images_is_reconstructed() {
+        let (camera, truth, pixels, pairs) = strip(2.0, false);
+        let r = reconstruct(&camera, &pixels, None, &pairs, &SfmSettings::default()).unwrap();
+        assert_eq!(r.start.model, "essential", "{:?}", r.start);
+        check_strip(&r, &truth);
+    }
+
+    /// Flat ground seen straight down, and a photo taken from the fourth one's place turned
+    /// 10°: its pair with the fourth fits one homography with no parallax and is passed over
+    /// (though it has the most matches); the model starts from a plane's homography.
+    #[test]
+    fn flat_ground_starts_from_a_homography_and_a_turn_is_not_a_start() {
+        let (camera, truth, pixels, pairs) = strip(0.0, true);
+        let r = reconstruct(&camera, &pixels, None, &pairs, &SfmSettings::default()).unwrap();
+        assert_eq!(r.start.model, "homography", "{:?}", r.start);
+        assert!(r.start.rotations_skipped >= 1, "{:?}", r.start);
+        assert!(
+            r.start.homography_inliers as f64 > 0.8 * r.start.essential_inliers as f64,
+            "{:?}",
+            r.start
+        );
+        check_strip(&r, &truth);
     }
 }

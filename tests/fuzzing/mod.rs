@@ -193,7 +193,8 @@ fn colmap_parts(t: &str) -> [String; 3] {
     parts
 }
 
-/// A small JPEG with EXIF (35 mm focal length, GPS) and DJI XMP, and variants.
+/// A small JPEG with EXIF (35 mm focal length, GPS; a DSLR's focal plane) and DJI XMP, and
+/// variants.
 fn exif_seeds() -> Vec<Vec<u8>> {
     // A JPEG's frame, scan and end: what follows the metadata hardly matters to its reader.
     let body: &[u8] = &[
@@ -204,6 +205,7 @@ fn exif_seeds() -> Vec<Vec<u8>> {
         focal_35mm: focal,
         gps,
         rtk_sigma_m: rtk,
+        ..Default::default()
     };
     vec![
         exif::with_exif(
@@ -216,6 +218,16 @@ fn exif_seeds() -> Vec<Vec<u8>> {
         ),
         exif::with_exif(body, &e(None, Some((-33.85, -70.12, -12.0)), None)),
         exif::with_exif(body, &e(Some(65535), None, None)),
+        // A DSLR's: the focal length on the sensor's pixel pitch, no 35 mm equivalent.
+        exif::with_exif(
+            body,
+            &exif::Exif {
+                focal_mm: Some(24.0),
+                focal_plane_x: Some((3942.4, 2)),
+                pixel_x_dimension: Some(5616),
+                ..Default::default()
+            },
+        ),
     ]
 }
 
@@ -493,7 +505,11 @@ pub fn targets() -> Vec<Target> {
                 let m = geostride::sfm::exif::meta_from_bytes(b);
                 let sane = m.gps.is_none_or(|g| g.lat_deg.abs() <= 90.0 && g.lon_deg.abs() <= 180.0)
                     && m.focal_35mm.is_none_or(f64::is_finite)
-                    && m.rtk_sigma_m.is_none_or(|s| s.iter().all(|v| *v > 0.0));
+                    && m.rtk_sigma_m.is_none_or(|s| s.iter().all(|v| *v > 0.0))
+                    && {
+                        let f = geostride::sfm::exif::focal_px_from_exif(&m, 4000, 3000).0;
+                        f.is_finite() && f > 0.0
+                    };
                 if sane {
                     Outcome::Ok
                 } else {

@@ -3,7 +3,7 @@
 
 #![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
@@ -418,41 +418,60 @@ fn photos_registered_in_a_model_agree_with_the_full_reconstruction(dir: &Path, m
     }
 }
 
-/// The simulated survey flight (tests/scenes/survey-flight.toml: 15 nadir photos 30 m over a
-/// footbridge and 4 obliques, 2400x1350, RTK-like centres with 2/3 cm noise, 10 GCPs and 3
-/// check points with 1/2 cm survey noise, picks with 0.5 px noise): after georeferencing, every
-/// camera within 3 cm and 0.05° of the truth, the check points within their survey σ.
-#[test]
-fn simulated_survey_flight_is_georeferenced_to_centimetres() {
+/// `tests/scenes/SCENE` simulated, then `geostride sfm` on its survey photos with the preset
+/// camera, its GCPs and picks (and its recorded camera centres with `centres`): the folder
+/// (kept while the first is held), the simulation, the model folder and the report.
+fn simulated_survey_sfm(
+    scene: &str,
+    centres: bool,
+) -> (tempfile::TempDir, PathBuf, PathBuf, serde_json::Value) {
     let tmp = tempfile::tempdir().unwrap();
     let sim = tmp.path().join("sim");
-    let scene = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/scenes/survey-flight.toml"
-    );
-    let o = geostride(&["simulate", scene, "--out", sim.to_str().unwrap()]);
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/scenes")
+        .join(scene);
+    let o = geostride(&[
+        "simulate",
+        scene.to_str().unwrap(),
+        "--out",
+        sim.to_str().unwrap(),
+        "-q",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let out = tmp.path().join("model");
     let p = |s: &str| sim.join(s).to_str().unwrap().to_string();
-    let o = geostride(&[
-        "sfm",
-        &p("survey/photos"),
-        "--camera",
-        "mini3pro",
-        "--gcps",
-        &p("gcps.csv"),
-        "--picks",
-        &p("survey/picks.csv"),
-        "--centres",
-        &p("survey/centres.csv"),
+    let (photos, gcps, picks, recorded) = (
+        p("survey/photos"),
+        p("gcps.csv"),
+        p("survey/picks.csv"),
+        p("survey/centres.csv"),
+    );
+    let mut args = vec![
+        "sfm", &photos, "--camera", "mini3pro", "--gcps", &gcps, "--picks", &picks,
+    ];
+    if centres {
+        args.extend(["--centres", recorded.as_str()]);
+    }
+    args.extend([
         "--max-features",
         "4096",
         "--out",
         out.to_str().unwrap(),
         "--json",
     ]);
+    let o = geostride(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let report = serde_json::from_slice(&o.stdout).unwrap();
+    (tmp, sim, out, report)
+}
+
+/// The simulated survey flight (tests/scenes/survey-flight.toml: 15 nadir photos 30 m over a
+/// footbridge and 4 obliques, 2400x1350, RTK-like centres with 2/3 cm noise, 10 GCPs and 3
+/// check points with 1/2 cm survey noise, picks with 0.5 px noise): after georeferencing, every
+/// camera within 3 cm and 0.05° of the truth, the check points within their survey σ.
+#[test]
+fn simulated_survey_flight_is_georeferenced_to_centimetres() {
+    let (_tmp, sim, out, report) = simulated_survey_sfm("survey-flight.toml", true);
     assert_eq!(report["registered"], 19);
     assert_eq!(report["frame"], "site");
     let g = &report["georef"];
@@ -530,37 +549,12 @@ fn simulated_survey_flight_is_georeferenced_to_centimetres() {
     );
 }
 
-/// Herz-Jesu with its ground-truth camera centres given as measured centres (a local frame):
-/// the model is placed and adjusted on them, and its centres lie within millimetres of them.
 /// A nadir-only flight over flat ground (`tests/scenes/flat-survey.toml`): every photo
 /// registered, the model started from a homography (the report says so), and placed by its
 /// GCPs with the check points within their survey σ.
 #[test]
 fn a_flat_nadir_flight_starts_from_a_homography() {
-    let tmp = tempfile::tempdir().unwrap();
-    let sim = tmp.path().join("sim");
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/scenes/flat-survey.toml");
-    let o = geostride(&["simulate", scene, "--out", sim.to_str().unwrap(), "-q"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let out = tmp.path().join("model");
-    let p = |s: &str| sim.join(s).to_str().unwrap().to_string();
-    let o = geostride(&[
-        "sfm",
-        &p("survey/photos"),
-        "--camera",
-        "mini3pro",
-        "--gcps",
-        &p("gcps.csv"),
-        "--picks",
-        &p("survey/picks.csv"),
-        "--max-features",
-        "4096",
-        "--out",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let (_tmp, _sim, out, report) = simulated_survey_sfm("flat-survey.toml", false);
     assert_eq!(report["registered"], report["images"]);
     assert_eq!(report["images"], 15);
     let start = &report["initial_pair_geometry"];
@@ -579,6 +573,8 @@ fn a_flat_nadir_flight_starts_from_a_homography() {
     );
 }
 
+/// Herz-Jesu with its ground-truth camera centres given as measured centres (a local frame):
+/// the model is placed and adjusted on them, and its centres lie within millimetres of them.
 #[test]
 fn measured_camera_centres_place_a_real_model() {
     let Some(dir) = common::data_dir("strecha-herzjesu-p8") else {

@@ -16,27 +16,37 @@ use geostride::sfm::reconstruct::{Reconstruction, SfmSettings};
 
 mod common;
 
-/// The images `names` of `dir`, every pair matched, reconstructed with `camera`.
-fn reconstruct_all(
+/// The images `names` of `dir`, every pair matched, reconstructed with `camera` (None: from
+/// their EXIF or a guess), features and matches cached in `cache` when given.
+fn run_all(
     dir: &std::path::Path,
     names: &[String],
-    camera: Camera,
+    camera: Option<Camera>,
     sfm: SfmSettings,
-) -> Reconstruction {
+    cache: Option<&std::path::Path>,
+) -> geostride::sfm::job::SfmRun {
     let job = SfmJob {
         images: names.iter().map(|n| dir.join(n)).collect(),
-        camera: Some(camera),
+        camera,
         gps_neighbours: 0,
         sequential: 0,
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
         sfm,
         georef: None,
-        cache_dir: None,
+        cache_dir: cache.map(std::path::Path::to_path_buf),
     };
-    run_sfm(&job, &NoProgress, &NoProgress)
-        .unwrap()
-        .reconstruction
+    run_sfm(&job, &NoProgress, &NoProgress).unwrap()
+}
+
+/// [`run_all`] with `camera`, uncached: the reconstruction.
+fn reconstruct_all(
+    dir: &std::path::Path,
+    names: &[String],
+    camera: Camera,
+    sfm: SfmSettings,
+) -> Reconstruction {
+    run_all(dir, names, Some(camera), sfm, None).reconstruction
 }
 
 #[test]
@@ -95,18 +105,7 @@ fn herzjesu(
     cache: &std::path::Path,
 ) -> (geostride::sfm::job::SfmRun, f64) {
     let names: Vec<String> = (0..8).map(|k| format!("{k:04}.jpg")).collect();
-    let job = SfmJob {
-        images: names.iter().map(|n| dir.join("images").join(n)).collect(),
-        camera,
-        gps_neighbours: 0,
-        sequential: 0,
-        features: FeatureSettings::default(),
-        matching: MatchSettings::default(),
-        sfm,
-        georef: None,
-        cache_dir: Some(cache.to_path_buf()),
-    };
-    let run = run_sfm(&job, &NoProgress, &NoProgress).unwrap();
+    let run = run_all(&dir.join("images"), &names, camera, sfm, Some(cache));
     let r = &run.reconstruction;
     assert_eq!(r.poses.iter().filter(|p| p.is_some()).count(), 8);
     let got: Vec<_> = r.poses.iter().map(|p| p.unwrap().centre()).collect();

@@ -380,7 +380,12 @@ fn check_exif_focals(images: &[PathBuf], metas: &[PhotoMeta]) -> Result<(), SfmJ
             });
         }
     }
-    let stated = |m: &PhotoMeta| m.focal_35mm.or(m.focal_mm);
+    // Compared in the first photo's kind: a 35 mm equivalent is not a focal length on the sensor.
+    let stated: fn(&PhotoMeta) -> Option<f64> = if metas[0].focal_35mm.is_some() {
+        |m| m.focal_35mm
+    } else {
+        |m| m.focal_mm
+    };
     let Some(f) = stated(&metas[0]) else {
         return Ok(());
     };
@@ -1321,6 +1326,28 @@ pub fn write_outputs(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Zoom settings are told apart in one kind of focal length: a photo stating its 35 mm
+    /// equivalent and one stating only its focal length on the sensor are not two zooms.
+    #[test]
+    fn exif_focal_lengths_are_compared_in_one_kind() {
+        let images = [PathBuf::from("a.jpg"), PathBuf::from("b.jpg")];
+        let meta = |f35: Option<f64>, mm: Option<f64>| PhotoMeta {
+            focal_35mm: f35,
+            focal_mm: mm,
+            ..PhotoMeta::default()
+        };
+        let same = [meta(Some(24.0), Some(4.5)), meta(None, Some(4.5))];
+        assert!(check_exif_focals(&images, &same).is_ok());
+        let zoomed = [meta(None, Some(4.5)), meta(None, Some(9.0))];
+        let e = check_exif_focals(&images, &zoomed).unwrap_err().to_string();
+        assert!(
+            e.contains("focal lengths differ") && e.contains("b.jpg (9 mm)"),
+            "{e}"
+        );
+        let zoomed = [meta(Some(24.0), None), meta(Some(48.0), Some(9.0))];
+        assert!(check_exif_focals(&images, &zoomed).is_err());
+    }
 
     #[test]
     fn a_sequential_window_pairs_each_image_with_the_next() {

@@ -463,6 +463,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         println!("Camera: {camera_source}");
     }
+    if let Some(p) = r.principal_point {
+        println!(
+            "Principal point: {} at ({:.1}, {:.1}) px (σ {:.2}, {:.2} px with the images)",
+            if p.refined {
+                "refined"
+            } else {
+                "too loosely determined to refine, held"
+            },
+            r.camera[2],
+            r.camera[3],
+            p.sigma_px[0],
+            p.sigma_px[1]
+        );
+    }
     println!(
         "Registered {} of {} images; {} points, {} observations (mean track {:.2}); mean reprojection error {:.3} px",
         r.registered,

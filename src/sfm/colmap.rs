@@ -203,6 +203,7 @@ mod tests {
             camera,
             initial_pair: (0, 2),
             start: Default::default(),
+            principal_point: None,
         };
         (r, keypoints)
     }

@@ -951,6 +951,7 @@ mod tests {
             camera,
             initial_pair: (0, 1),
             start: Default::default(),
+            principal_point: None,
         };
         let mut model = truth.clone();
         let sim = Similarity {

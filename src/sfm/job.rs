@@ -253,6 +253,9 @@ pub struct SfmReport {
     pub camera_source: String,
     /// The focal length the reconstruction started from, pixels.
     pub starting_focal_px: f64,
+    /// With the intrinsics refined: the principal point's σ and whether it was refined (else it
+    /// stayed where it started).
+    pub principal_point: Option<super::reconstruct::PrincipalPoint>,
     /// With GPS: the model scaled and placed on the GPS positions (a local east-north-up frame
     /// at their centroid, metres), and the camera centres' distances from their GPS positions.
     pub gps: Option<GpsPlacement>,
@@ -554,6 +557,7 @@ pub fn run_sfm(
         pair_selection: pair_selection.to_string(),
         camera_source: camera_source.to_string(),
         starting_focal_px: camera.fx,
+        principal_point: r.principal_point,
         gps: gps_placement,
         georef,
         frame: frame.to_string(),
@@ -1087,6 +1091,16 @@ fn gps_placement(
 
 /// `report.md`: the summary and a line per image.
 pub(crate) fn report_md(r: &SfmReport) -> String {
+    let principal_point = match r.principal_point {
+        None => String::new(),
+        Some(p) => format!(
+            "- principal point: {} (σ {:.2}, {:.2} px with the images; refined within {} px)\n",
+            if p.refined { "refined" } else { "held" },
+            p.sigma_px[0],
+            p.sigma_px[1],
+            super::reconstruct::MAX_PRINCIPAL_POINT_SIGMA_PX
+        ),
+    };
     let mut s = format!(
         "# Structure from motion\n\n\
          - images registered: {} of {}\n\
@@ -1094,6 +1108,7 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
          - mean reprojection error: {:.3} px\n\
          - camera: fx {:.2}, fy {:.2}, cx {:.2}, cy {:.2}, k1 {:.4}, k2 {:.4} (its focal \
          length started at {:.1} px: {})\n\
+         {}\
          - started from: {} and {} (pose from the {} matrix; of the {} matches it kept, {} fit \
          one homography; {} pairs that only turned passed over)\n\
          - time: features {:.1} s ({} images from the cache), matching {:.1} s ({} pairs, {} from \
@@ -1114,6 +1129,7 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
         r.camera[6],
         r.starting_focal_px,
         r.camera_source,
+        principal_point,
         r.initial_pair.0,
         r.initial_pair.1,
         r.initial_pair_geometry.model,

@@ -48,7 +48,7 @@ impl Rigid3 {
 
     /// The rotation's Rodrigues vector (axis × angle, radians).
     pub fn rvec(&self) -> Vector3<f64> {
-        self.rotation.scaled_axis()
+        super::so3::log(&self.rotation)
     }
 
     /// `R·p + t`.

@@ -153,7 +153,7 @@ fn camera_sigma(q: &[f64; 6], cov: &nalgebra::Matrix6<f64>) -> CameraSigma {
         v[k] += h;
         let (c, r) = at(&v);
         let dc = (c - c0) / h;
-        let dr = (r * r0.inverse()).scaled_axis() / h;
+        let dr = crate::geom::so3::log(&(r * r0.inverse())) / h;
         for row in 0..3 {
             j[(row, k)] = dc[row];
             j[(row + 3, k)] = dr[row];
@@ -1102,10 +1102,9 @@ mod tests {
                 .collect();
             let report = place(&mut model, &pixels, &points, &[]).unwrap();
             centres.push(model.poses[4].unwrap().centre());
-            rotations.push(
-                (model.poses[4].unwrap().rotation * truth.poses[4].unwrap().rotation.inverse())
-                    .scaled_axis(),
-            );
+            rotations.push(crate::geom::so3::log(
+                &(model.poses[4].unwrap().rotation * truth.poses[4].unwrap().rotation.inverse()),
+            ));
             predicted.push(report.camera_sigma[4].unwrap());
         }
         let n = trials as f64;

@@ -454,7 +454,7 @@ impl TruthTables {
     fn add_camera(&mut self, f: &TruthFrame) {
         let (i, t, pose) = (f.index, f.time_s, f.pose);
         let r_cw = pose.world_from_cam.transpose();
-        let rvec = nalgebra::Rotation3::from_matrix_unchecked(r_cw).scaled_axis();
+        let rvec = crate::geom::so3::log(&nalgebra::Rotation3::from_matrix_unchecked(r_cw));
         let tvec = -(r_cw * pose.centre);
         let _ = writeln!(
             self.cam_csv,

@@ -112,7 +112,11 @@ fn frames_check(dir: &Path, report: &RunReport) -> anyhow::Result<FramesCheck> {
         let d = (t.centre() - e.centre()).norm();
         sum += d;
         worst = worst.max(d);
-        worst_deg = worst_deg.max((t.rotation * e.rotation.inverse()).angle().to_degrees());
+        worst_deg = worst_deg.max(
+            geostride::geom::so3::log(&(t.rotation * e.rotation.inverse()))
+                .norm()
+                .to_degrees(),
+        );
     }
     let count = |k: &str| {
         report

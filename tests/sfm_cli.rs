@@ -573,6 +573,88 @@ fn a_flat_nadir_flight_starts_from_a_homography() {
     );
 }
 
+/// Photos of two places in one folder (the flat survey simulated twice, its ground textured
+/// from two seeds: 8 photos of one, 6 of the other): two models that share no points, the
+/// larger kept and written, the other's photos listed in the report as a second model.
+#[test]
+fn a_model_that_splits_in_two_keeps_the_larger_and_lists_the_other() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/flat-survey.toml"),
+    )
+    .unwrap();
+    let photos = tmp.path().join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    for (seed, prefix, count) in [(17, "a", 8), (18, "b", 6)] {
+        let toml = tmp.path().join(format!("{prefix}.toml"));
+        std::fs::write(&toml, scene.replace("seed = 17", &format!("seed = {seed}"))).unwrap();
+        let sim = tmp.path().join(prefix);
+        let o = geostride(&[
+            "simulate",
+            toml.to_str().unwrap(),
+            "--out",
+            sim.to_str().unwrap(),
+            "-q",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        for k in 1..=count {
+            let name = format!("IMG_{k:04}.jpg");
+            std::fs::copy(
+                sim.join("survey/photos").join(&name),
+                photos.join(format!("{prefix}-{name}")),
+            )
+            .unwrap();
+        }
+    }
+    let out = tmp.path().join("model");
+    let args = [
+        "sfm",
+        photos.to_str().unwrap(),
+        "--camera",
+        "mini3pro",
+        "--max-features",
+        "2048",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let o = geostride(&args);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        text.contains("The photos make 2 models that share no points")
+            && text.contains("model 2: 6 images (b-IMG_0001.jpg"),
+        "{text}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["registered"], 8);
+    let other = report["other_models"].as_array().unwrap();
+    assert_eq!(other.len(), 1, "{other:?}");
+    let images: Vec<&str> = other[0]["images"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert_eq!(images.len(), 6);
+    assert!(images.iter().all(|n| n.starts_with("b-")), "{images:?}");
+    for i in report["per_image"].as_array().unwrap() {
+        let a = i["name"].as_str().unwrap().starts_with("a-");
+        assert_eq!(i["registered"], a, "{i}");
+        if !a {
+            assert!(i["reason"].as_str().unwrap().contains("in model 2"), "{i}");
+        }
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("## Other models") && md.contains("- model 2: 6 images"),
+        "{md}"
+    );
+    // Only the kept model's images are written.
+    let images_txt = std::fs::read_to_string(out.join("images.txt")).unwrap();
+    assert!(images_txt.contains("a-IMG_0008.jpg") && !images_txt.contains("b-IMG_0001"));
+}
+
 /// Herz-Jesu with its ground-truth camera centres given as measured centres (a local frame):
 /// the model is placed and adjusted on them, and its centres lie within millimetres of them.
 #[test]

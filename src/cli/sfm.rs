@@ -486,6 +486,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         r.mean_track_length,
         r.mean_reprojection_px
     );
+    if !r.other_models.is_empty() {
+        println!(
+            "The photos make {} models that share no points; the largest is kept. Left out:",
+            r.other_models.len() + 1
+        );
+        for (k, m) in r.other_models.iter().enumerate() {
+            println!(
+                "  model {}: {} images ({}), {} points",
+                k + 2,
+                m.images.len(),
+                m.images.join(", "),
+                m.points
+            );
+        }
+    }
     if let Some(g) = &r.gps {
         println!(
             "Placed on the EXIF GPS of {} images (east-north-up at {:.7}, {:.7}; adjusted with them as priors, σ {:.2}/{:.2} m horizontally/vertically{}): cameras {:.2} m RMS horizontally, {:.2} m vertically from their GPS",

@@ -204,6 +204,7 @@ mod tests {
             initial_pair: (0, 2),
             start: Default::default(),
             principal_point: None,
+            other_models: Vec::new(),
         };
         (r, keypoints)
     }

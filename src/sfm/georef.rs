@@ -952,6 +952,7 @@ mod tests {
             initial_pair: (0, 1),
             start: Default::default(),
             principal_point: None,
+            other_models: Vec::new(),
         };
         let mut model = truth.clone();
         let sim = Similarity {

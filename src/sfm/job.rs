@@ -207,6 +207,13 @@ pub struct ImageReport {
     pub reason: Option<String>,
 }
 
+/// A model the photos made beside the one kept.
+#[derive(Clone, Debug, Serialize)]
+pub struct OtherModelReport {
+    pub images: Vec<String>,
+    pub points: usize,
+}
+
 /// The model on the photos' GPS positions.
 #[derive(Clone, Debug, Serialize)]
 pub struct GpsPlacement {
@@ -256,6 +263,9 @@ pub struct SfmReport {
     /// With the intrinsics refined: the principal point's σ and whether it was refined (else it
     /// stayed where it started).
     pub principal_point: Option<super::reconstruct::PrincipalPoint>,
+    /// The models of images that share no points with the one kept (the largest), largest
+    /// first: their images, registered there but not here.
+    pub other_models: Vec<OtherModelReport>,
     /// With GPS: the model scaled and placed on the GPS positions (a local east-north-up frame
     /// at their centroid, metres), and the camera centres' distances from their GPS positions.
     pub gps: Option<GpsPlacement>,
@@ -558,6 +568,14 @@ pub fn run_sfm(
         camera_source: camera_source.to_string(),
         starting_focal_px: camera.fx,
         principal_point: r.principal_point,
+        other_models: r
+            .other_models
+            .iter()
+            .map(|m| OtherModelReport {
+                images: m.images.iter().map(|&i| names[i].clone()).collect(),
+                points: m.points,
+            })
+            .collect(),
         gps: gps_placement,
         georef,
         frame: frame.to_string(),
@@ -717,18 +735,29 @@ fn image_reports(
             seen[i] += 1;
         }
     }
+    let other = |i: usize| {
+        r.other_models
+            .iter()
+            .position(|m| m.images.contains(&i))
+            .map(|k| (k, r.other_models[k].images.len()))
+    };
     let per_image = (0..n)
         .map(|i| ImageReport {
             name: names[i].clone(),
             registered: r.poses[i].is_some(),
             features: found[i].len(),
             observations: seen[i],
-            reason: r.poses[i].is_none().then(|| {
-                format!(
+            reason: r.poses[i].is_none().then(|| match other(i) {
+                Some((k, size)) => format!(
+                    "in model {} ({size} images), which shares no points with the one kept: \
+                     photos of another place, or a gap in the flight",
+                    k + 2
+                ),
+                None => format!(
                     "fewer than {} of its features agree on a pose with the model's points \
                      (too little overlap with the registered images, or too little texture)",
                     job.sfm.min_pnp_inliers
-                )
+                ),
             }),
         })
         .collect();
@@ -1152,6 +1181,24 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
             i.observations,
             i.reason.as_deref().unwrap_or("")
         ));
+    }
+    if !r.other_models.is_empty() {
+        s.push_str(&format!(
+            "\n## Other models\n\nThe photos fall into {} models that share no points; the \
+             largest (model 1, {} images) is kept and written. The others (their images are \
+             not registered above; run `geostride sfm` on each group alone to model it):\n\n",
+            r.other_models.len() + 1,
+            r.registered
+        ));
+        for (k, m) in r.other_models.iter().enumerate() {
+            s.push_str(&format!(
+                "- model {}: {} images, {} points: {}\n",
+                k + 2,
+                m.images.len(),
+                m.points,
+                m.images.join(", ")
+            ));
+        }
     }
     if let Some(g) = &r.gps {
         s.push_str(&format!(

@@ -79,6 +79,17 @@ pub struct Reconstruction {
     pub start: Start,
     /// With the intrinsics refined: whether the principal point was too.
     pub principal_point: Option<PrincipalPoint>,
+    /// The models of images that share no points with this one (largest first; this is the
+    /// largest): their images are left without a pose here.
+    pub other_models: Vec<OtherModel>,
+}
+
+/// A model built from images that share no points with the one kept.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct OtherModel {
+    /// Its registered images.
+    pub images: Vec<usize>,
+    pub points: usize,
 }
 
 /// Whether the principal point was refined at the end, and how well the images determine it.
@@ -338,6 +349,7 @@ pub fn triangulate(rays: &[(Rigid3, Vector2<f64>)], min_angle_deg: f64) -> Optio
 }
 
 /// The state of a reconstruction in progress.
+#[derive(Clone)]
 struct Builder<'a> {
     camera: Camera,
     pixels: &'a [Vec<Vector2<f64>>],
@@ -345,9 +357,9 @@ struct Builder<'a> {
     sigmas: Option<&'a [Vec<f64>]>,
     normalised: Vec<Vec<Option<Vector2<f64>>>>,
     settings: &'a SfmSettings,
-    tracks: Vec<Vec<FeatureId>>,
+    tracks: &'a [Vec<FeatureId>],
     /// Per image, keypoint → track.
-    track_of: Vec<HashMap<usize, usize>>,
+    track_of: &'a [HashMap<usize, usize>],
     point_of_track: Vec<Option<usize>>,
     points: Vec<Option<ModelPoint>>,
     poses: Vec<Option<Rigid3>>,
@@ -604,7 +616,7 @@ impl Builder<'_> {
         true
     }
 
-    /// The unregistered image with the most features on points.
+    /// The unregistered image with the most features on points (`failed`: not to be tried).
     fn next_image(&self, failed: &[bool]) -> Option<usize> {
         (0..self.poses.len())
             .filter(|&i| self.poses[i].is_none() && !failed[i])
@@ -624,6 +636,9 @@ impl Builder<'_> {
 /// Reconstructs from the images' keypoints (`pixels`, full-resolution pixels; `sigmas`, each
 /// keypoint's relative σ, weighs them in the adjustments) and their pairwise matches (not yet
 /// verified), with one known camera. Images that cannot be registered are left without a pose.
+/// Where the images fall into groups that share no points (two sites, a gap in a flight), each
+/// group that starts a model of its own is built: the largest is returned, the others listed in
+/// [`Reconstruction::other_models`].
 pub fn reconstruct(
     camera: &Camera,
     pixels: &[Vec<Vector2<f64>>],
@@ -654,24 +669,64 @@ pub fn reconstruct(
             track_of[i].insert(kp, t);
         }
     }
-    let mut b = Builder {
+    let empty = Builder {
         camera: camera.clone(),
         pixels,
         sigmas,
         normalised,
         settings: s,
         point_of_track: vec![None; tracks.len()],
-        tracks,
-        track_of,
+        tracks: &tracks,
+        track_of: &track_of,
         points: Vec::new(),
         poses: vec![None; n],
         gauge: (0, 0),
     };
+    // Model after model, each from the images no earlier one took.
+    let mut models: Vec<Reconstruction> = Vec::new();
+    let mut taken = vec![false; n];
+    while let Some(model) = build_model(empty.clone(), &verified, &taken)? {
+        for (i, p) in model.poses.iter().enumerate() {
+            taken[i] |= p.is_some();
+        }
+        models.push(model);
+    }
+    if models.is_empty() {
+        return Err(SfmError::NoInitialPair {
+            needed: s.min_pair_inliers,
+        });
+    }
+    // The largest kept: the most images, then the most points.
+    let size = |m: &Reconstruction| (m.poses.iter().flatten().count(), m.points.len());
+    let largest = (0..models.len())
+        .max_by(|&a, &b| size(&models[a]).cmp(&size(&models[b])).then(b.cmp(&a)))
+        .expect("one at least");
+    let mut r = models.swap_remove(largest);
+    r.other_models = models
+        .iter()
+        .map(|m| OtherModel {
+            images: (0..n).filter(|&i| m.poses[i].is_some()).collect(),
+            points: m.points.len(),
+        })
+        .collect();
+    r.other_models
+        .sort_by_key(|m| std::cmp::Reverse(m.images.len()));
+    Ok(r)
+}
+
+/// One model grown in `b` (empty) from the best initial pair of `verified` whose images no
+/// earlier model `taken`; `None` when no such pair starts one.
+fn build_model(
+    mut b: Builder<'_>,
+    verified: &[(PairMatches, Matrix3<f64>)],
+    taken: &[bool],
+) -> Result<Option<Reconstruction>, SfmError> {
+    let (n, s) = (b.poses.len(), b.settings);
     // The initial pair: the most verified matches whose relative pose triangulates enough
     // points with enough parallax.
     let mut started = false;
     let (mut rotations, mut start) = (0, Start::default());
-    for (p, e) in &verified {
+    for (p, e) in verified.iter().filter(|(p, _)| !taken[p.i] && !taken[p.j]) {
         let x1: Vec<Vector2<f64>> = p
             .matches
             .iter()
@@ -682,7 +737,7 @@ pub fn reconstruct(
             .iter()
             .map(|&(_, c)| b.normalised[p.j][c].expect("verified"))
             .collect();
-        let (pose, geometry) = two_view_pose(&x1, &x2, e, camera.fx, s);
+        let (pose, geometry) = two_view_pose(&x1, &x2, e, b.camera.fx, s);
         let Some(pose) = pose else {
             rotations += 1;
             continue;
@@ -706,12 +761,10 @@ pub fn reconstruct(
         }
     }
     if !started {
-        return Err(SfmError::NoInitialPair {
-            needed: s.min_pair_inliers,
-        });
+        return Ok(None);
     }
     let initial_pair = b.gauge;
-    let mut failed = vec![false; n];
+    let mut failed = taken.to_vec();
     while let Some(i) = b.next_image(&failed) {
         if !b.register(i) {
             failed[i] = true;
@@ -724,7 +777,7 @@ pub fn reconstruct(
         let growing = s.refine_intrinsics && b.registered() >= 3;
         b.adjust(RobustLoss::Huber(1.0), Refine::when(growing))?;
         // A newly registered image may make another registrable again.
-        failed.iter_mut().for_each(|f| *f = false);
+        failed.copy_from_slice(taken);
     }
     // Tracks whose points were dropped may triangulate now; then a last adjustment.
     b.triangulate_new();
@@ -751,9 +804,10 @@ pub fn reconstruct(
         initial_pair,
         start,
         principal_point,
+        other_models: Vec::new(),
     };
-    r.mean_reprojection_px = r.mean_reprojection(pixels);
-    Ok(r)
+    r.mean_reprojection_px = r.mean_reprojection(b.pixels);
+    Ok(Some(r))
 }
 
 #[cfg(test)]
@@ -887,6 +941,38 @@ mod tests {
             r.start
         );
         check_strip(&r, &truth);
+    }
+
+    /// Two strips that share no points (the second is five images of another such strip):
+    /// two models, the larger kept with its six images, the other's five listed.
+    #[test]
+    fn images_of_two_places_make_two_models_and_the_larger_is_kept() {
+        let (camera, truth, pixels_a, pairs_a) = strip(2.0, false);
+        let (_, _, pixels_b, pairs_b) = strip(0.0, false);
+        let mut pixels = pixels_a.clone();
+        pixels.extend(pixels_b[..5].iter().cloned());
+        let mut pairs = pairs_a;
+        pairs.extend(
+            pairs_b
+                .into_iter()
+                .filter(|p| p.j < 5)
+                .map(|p| PairMatches {
+                    i: p.i + 6,
+                    j: p.j + 6,
+                    matches: p.matches,
+                }),
+        );
+        let r = reconstruct(&camera, &pixels, None, &pairs, &SfmSettings::default()).unwrap();
+        assert!(r.poses[..6].iter().all(Option::is_some));
+        assert!(r.poses[6..].iter().all(Option::is_none));
+        assert_eq!(r.other_models.len(), 1, "{:?}", r.other_models);
+        assert_eq!(r.other_models[0].images, vec![6, 7, 8, 9, 10]);
+        assert!(r.other_models[0].points > 500, "{:?}", r.other_models);
+        let kept = Reconstruction {
+            poses: r.poses[..6].to_vec(),
+            ..r.clone()
+        };
+        check_strip(&kept, &truth);
     }
 
     /// A camera known only roughly (focal length 10 % long, principal point 12 px and 9 px

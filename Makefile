@@ -40,7 +40,9 @@ bench: bootstrap
 	$(CARGO) bench --locked --bench pipeline_throughput
 	$(CARGO) bench --locked --bench cluster_scaling
 	$(CARGO) bench --locked --bench ba_vs_ceres
-	$(CARGO) bench --locked --bench sfm_vs_colmap
+	$(PYTHON) -m venv out/bench-venv
+	out/bench-venv/bin/pip install -q --disable-pip-version-check -r benches/requirements.txt
+	GEOSTRIDE_PYCOLMAP_PYTHON=$(CURDIR)/out/bench-venv/bin/python $(CARGO) bench --locked --bench sfm_vs_colmap
 	./scripts/pets-benchmark.sh out/pets-benchmark
 	$(CARGO) bench --locked --bench detect_vs_opencv
 	$(CARGO) bench --locked --bench overhead_detector

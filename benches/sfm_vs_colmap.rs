@@ -9,6 +9,14 @@
 //! with the same camera held fixed. Sceaux runs a second time with the intrinsics refined from K
 //! (its photos are distorted and K.txt has no distortion): COLMAP an OPENCV camera with its focal
 //! lengths and distortion refined, geostride `refine_intrinsics` (fx, fy, k1, k2).
+//!
+//! Beside them pycolmap 4.2.1 (COLMAP 4, CPU; `make bench` installs it in a virtual environment
+//! and names its Python in `GEOSTRIDE_PYCOLMAP_PYTHON`), its incremental and its global (GLOMAP)
+//! mapper, through `benches/pycolmap_sfm.py`: SIFT at geostride's largest side and feature cap
+//! (2000 px, 8192), exhaustive matching, the same camera start; and a third start, no camera
+//! (each tool's own: EXIF, else 1.2 times the longer side, refined). Where a tool's result
+//! varies with its seed, seeds 0, 1 and 2 run and the median centre RMSE is shown; the time is
+//! seed 0's, features and matching included (geostride's seeds 1 and 2 reuse its cache).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -174,26 +182,30 @@ fn run_colmap(images: &Path, names: &[String], k: [f64; 4], refine: bool, work: 
     }
 }
 
+/// geostride with `camera` (`None`: from the EXIF or a guess, refined), seed `seed`, features
+/// and matches cached in `cache`.
 fn run_geostride(
     images: &Path,
     names: &[String],
-    k: [f64; 4],
-    size: (u32, u32),
+    camera: Option<Camera>,
     refine: bool,
+    seed: u64,
+    cache: &Path,
 ) -> Outcome {
     let job = SfmJob {
         images: names.iter().map(|n| images.join(n)).collect(),
-        camera: Some(Camera::pinhole(k[0], k[1], k[2], k[3]).with_image_size(size.0, size.1)),
+        camera,
         gps_neighbours: 0,
         sequential: 0,
         features: FeatureSettings::default(),
         matching: MatchSettings::default(),
         sfm: SfmSettings {
             refine_intrinsics: refine,
+            seed,
             ..SfmSettings::default()
         },
         georef: None,
-        cache_dir: None,
+        cache_dir: Some(cache.to_path_buf()),
     };
     let t = Instant::now();
     let run = run_sfm(&job, &NoProgress, &NoProgress).expect("geostride sfm");
@@ -210,8 +222,70 @@ fn run_geostride(
     }
 }
 
+/// pycolmap's incremental and global mappers, seeds 0 to 2, through benches/pycolmap_sfm.py:
+/// per mapper, its three outcomes (each one's time: features + matching + its mapping).
+fn run_pycolmap(
+    python: &Path,
+    images: &Path,
+    names: &[String],
+    start: Start,
+    k: [f64; 4],
+) -> Vec<(String, Vec<Outcome>)> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/pycolmap_sfm.py");
+    let mut cmd = Command::new(python);
+    cmd.arg(script).arg(images).args(names);
+    let k = format!("{},{},{},{}", k[0], k[1], k[2], k[3]);
+    match start {
+        Start::Held => cmd.args(["--camera", &k]),
+        Start::Refined => cmd.args(["--camera-refine", &k]),
+        Start::None => cmd.args(["--camera", "guess"]),
+    };
+    let out = cmd
+        .output()
+        .expect("the pycolmap environment's Python runs");
+    assert!(
+        out.status.success(),
+        "pycolmap_sfm.py: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let shared = v["features_s"].as_f64().unwrap() + v["matching_s"].as_f64().unwrap();
+    let mut by_mapper: Vec<(String, Vec<Outcome>)> = Vec::new();
+    for r in v["runs"].as_array().unwrap() {
+        let mapper = r["mapper"].as_str().unwrap().to_string();
+        let centres = r["centres"]
+            .as_object()
+            .map(|c| {
+                c.iter()
+                    .map(|(n, x)| {
+                        let x: Vec<f64> = x
+                            .as_array()
+                            .unwrap()
+                            .iter()
+                            .map(|v| v.as_f64().unwrap())
+                            .collect();
+                        (n.clone(), Vector3::new(x[0], x[1], x[2]))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        let o = Outcome {
+            registered: r["registered"].as_u64().unwrap() as usize,
+            points: r["points"].as_u64().unwrap_or(0) as usize,
+            mean_px: r["mean_reprojection_px"].as_f64().unwrap_or(f64::NAN),
+            seconds: shared + r["mapping_s"].as_f64().unwrap(),
+            centres,
+        };
+        match by_mapper.iter_mut().find(|(m, _)| *m == mapper) {
+            Some((_, v)) => v.push(o),
+            None => by_mapper.push((mapper, vec![o])),
+        }
+    }
+    by_mapper
+}
+
 /// RMS of the centres' distances from the truth after a 7-parameter similarity.
-fn centre_rmse(centres: &[(String, Vector3<f64>)], truth: &dyn Fn(&str) -> Vector3<f64>) -> f64 {
+fn centre_rmse(centres: &[(String, Vector3<f64>)], truth: Truth) -> f64 {
     let src: Vec<_> = centres.iter().map(|c| c.1).collect();
     let dst: Vec<_> = centres.iter().map(|c| truth(&c.0)).collect();
     let sim = fit_weighted(&src, &dst, &vec![1.0; src.len()], ScaleMode::Free).unwrap();
@@ -223,55 +297,95 @@ fn centre_rmse(centres: &[(String, Vector3<f64>)], truth: &dyn Fn(&str) -> Vecto
         .sqrt()
 }
 
+/// Where the camera starts: K held, K refined (focal lengths and distortion), or no camera.
+#[derive(Clone, Copy, PartialEq)]
+enum Start {
+    Held,
+    Refined,
+    None,
+}
+
 /// An image set: folder, subfolder of the images, image count, `[fx, fy, cx, cy]`, size, and
-/// whether both tools refine the focal lengths and distortion from that start.
+/// where the camera starts.
 type Set = (
     &'static str,
     &'static str,
     usize,
     [f64; 4],
     (u32, u32),
-    bool,
+    Start,
 );
+
+/// An image's true camera centre from its name.
+type Truth<'a> = &'a dyn Fn(&str) -> Vector3<f64>;
+
+/// The median of the seeds' centre RMSEs (`-` without ground truth).
+fn median_rmse(runs: &[Outcome], truth: Option<Truth>) -> String {
+    let Some(truth) = truth else {
+        return "-".into();
+    };
+    let mut v: Vec<f64> = runs
+        .iter()
+        .filter(|o| o.centres.len() >= 3)
+        .map(|o| centre_rmse(&o.centres, truth))
+        .collect();
+    if v.is_empty() {
+        return "failed".into();
+    }
+    v.sort_by(f64::total_cmp);
+    format!("{:.4} m", v[v.len() / 2])
+}
 
 fn main() {
     let Some(data) = std::env::var_os("GEOSTRIDE_DATA").map(PathBuf::from) else {
         eprintln!("sfm_vs_colmap: set GEOSTRIDE_DATA (make bench does)");
         std::process::exit(2);
     };
+    let Some(pycolmap) = std::env::var_os("GEOSTRIDE_PYCOLMAP_PYTHON").map(PathBuf::from) else {
+        eprintln!(
+            "sfm_vs_colmap: set GEOSTRIDE_PYCOLMAP_PYTHON to a Python with pycolmap 4.2.1 (make bench does)"
+        );
+        std::process::exit(2);
+    };
     let work = tempfile::tempdir().unwrap();
-    println!("sfm_vs_colmap: the same images and camera, COLMAP 3.8 (CPU) and geostride, 2 cores");
     println!(
-        "  {:<32} {:<10} {:>10} {:>8} {:>10} {:>9} {:>12}",
+        "sfm_vs_colmap: the same images and camera start, COLMAP 3.8 (CPU), pycolmap 4.2.1 (CPU) and geostride, 2 cores"
+    );
+    println!(
+        "  {:<36} {:<22} {:>10} {:>8} {:>10} {:>9} {:>12}",
         "set", "tool", "registered", "points", "mean px", "seconds", "centre RMSE"
     );
-    let sets: [Set; 3] = [
+    let herzjesu_k = [2759.48, 2764.16, 1520.69, 1006.81];
+    let sceaux_k = [2905.88, 2905.88, 1416.0, 1064.0];
+    let sets: [Set; 5] = [
         (
             "strecha-herzjesu-p8",
             "images",
             8,
-            [2759.48, 2764.16, 1520.69, 1006.81],
+            herzjesu_k,
             (3072, 2048),
-            false,
+            Start::Held,
         ),
+        (
+            "strecha-herzjesu-p8",
+            "images",
+            8,
+            herzjesu_k,
+            (3072, 2048),
+            Start::None,
+        ),
+        ("sceaux-castle", "", 11, sceaux_k, (2832, 2128), Start::Held),
         (
             "sceaux-castle",
             "",
             11,
-            [2905.88, 2905.88, 1416.0, 1064.0],
+            sceaux_k,
             (2832, 2128),
-            false,
+            Start::Refined,
         ),
-        (
-            "sceaux-castle",
-            "",
-            11,
-            [2905.88, 2905.88, 1416.0, 1064.0],
-            (2832, 2128),
-            true,
-        ),
+        ("sceaux-castle", "", 11, sceaux_k, (2832, 2128), Start::None),
     ];
-    for (set, sub, count, k, size, refine) in sets {
+    for (set, sub, count, k, size, start) in sets {
         let images = data.join(set).join(sub);
         let names: Vec<String> = if set == "sceaux-castle" {
             (7100..7100 + count)
@@ -296,28 +410,68 @@ fn main() {
                 .collect();
             Vector3::new(v[0], v[1], v[2])
         };
-        let label = if refine {
-            format!("{set} (refined)")
-        } else {
-            set.to_string()
+        let has_truth = set.starts_with("strecha");
+        let truth_fn: Option<Truth> = has_truth.then_some(&truth as _);
+        let label = match start {
+            Start::Held => format!("{set} (K held)"),
+            Start::Refined => format!("{set} (refined from K)"),
+            Start::None => format!("{set} (no camera)"),
         };
-        let cm_work = work.path().join(&label);
-        let c = run_colmap(&images, &names, k, refine, &cm_work);
-        let g = run_geostride(&images, &names, k, size, refine);
-        for (tool, o) in [("COLMAP", &c), ("geostride", &g)] {
-            let rmse = if set.starts_with("strecha") {
-                format!("{:.4} m", centre_rmse(&o.centres, &truth))
-            } else {
-                "-".into()
-            };
+        let mut rows: Vec<(String, Vec<Outcome>)> = Vec::new();
+        if start != Start::None {
+            let cm_work = work.path().join(label.replace(' ', "_"));
+            rows.push((
+                "COLMAP 3.8".into(),
+                vec![run_colmap(
+                    &images,
+                    &names,
+                    k,
+                    start == Start::Refined,
+                    &cm_work,
+                )],
+            ));
+        }
+        for (mapper, runs) in run_pycolmap(&pycolmap, &images, &names, start, k) {
+            rows.push((format!("pycolmap {mapper}"), runs));
+        }
+        let camera = (start != Start::None)
+            .then(|| Camera::pinhole(k[0], k[1], k[2], k[3]).with_image_size(size.0, size.1));
+        let cache = work
+            .path()
+            .join(format!("cache-{}", label.replace(' ', "_")));
+        let geostride: Vec<Outcome> = (0..3)
+            .map(|seed| {
+                run_geostride(
+                    &images,
+                    &names,
+                    camera.clone(),
+                    start != Start::Held,
+                    seed,
+                    &cache,
+                )
+            })
+            .collect();
+        let g_seconds = geostride[0].seconds;
+        rows.push(("geostride".into(), geostride));
+        for (tool, runs) in &rows {
+            let o = &runs[0];
             println!(
-                "  {:<32} {:<10} {:>7}/{:<2} {:>8} {:>10.3} {:>9.1} {:>12}",
-                label, tool, o.registered, count, o.points, o.mean_px, o.seconds, rmse
+                "  {:<36} {:<22} {:>7}/{:<2} {:>8} {:>10.3} {:>9.1} {:>12}",
+                label,
+                tool,
+                o.registered,
+                count,
+                o.points,
+                o.mean_px,
+                o.seconds,
+                median_rmse(runs, truth_fn)
             );
         }
-        println!(
-            "  {label}: time ratio geostride / COLMAP {:.2}",
-            g.seconds / c.seconds
-        );
+        for (tool, runs) in rows.iter().filter(|(t, _)| t != "geostride") {
+            println!(
+                "  {label}: time ratio geostride / {tool} {:.2}",
+                g_seconds / runs[0].seconds
+            );
+        }
     }
 }

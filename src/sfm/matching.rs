@@ -34,7 +34,7 @@ pub struct Match {
 
 /// `x·y` of two descriptors, in eight independent lanes (so that the compiler may use vector
 /// registers: floating-point sums are otherwise kept in order).
-#[inline]
+#[inline(always)]
 fn dot(x: &[f32], y: &[f32]) -> f32 {
     let mut acc = [0.0f32; 8];
     for (cx, cy) in x.chunks_exact(8).zip(y.chunks_exact(8)) {
@@ -43,6 +43,22 @@ fn dot(x: &[f32], y: &[f32]) -> f32 {
         }
     }
     acc.iter().sum()
+}
+
+/// `x·y` for four descriptors `x` at once, each summed exactly as [`dot`] sums it (so bit for
+/// bit its result), `y` read once for the four.
+#[inline(always)]
+fn dot4(x: [&[f32]; 4], y: &[f32]) -> [f32; 4] {
+    let mut acc = [[0.0f32; 8]; 4];
+    for (k, cy) in y.chunks_exact(8).enumerate() {
+        for (r, acc) in acc.iter_mut().enumerate() {
+            let cx = &x[r][8 * k..8 * k + 8];
+            for l in 0..8 {
+                acc[l] += cx[l] * cy[l];
+            }
+        }
+    }
+    acc.map(|a| a.iter().sum())
 }
 
 /// Rows of `a` per task.
@@ -62,39 +78,85 @@ struct Nearest {
     col_best: Vec<ColBest>,
 }
 
+/// One block of `a`'s rows against every row of `b`: their `RowBest`s, and each row of `b`'s
+/// `ColBest` among them.
+#[inline(always)]
+fn block_portable(
+    a: &Features,
+    b: &Features,
+    rows: std::ops::Range<usize>,
+) -> (Vec<RowBest>, Vec<ColBest>) {
+    let nb = b.len();
+    let mut col = vec![(f32::NEG_INFINITY, usize::MAX); nb];
+    let mut out = vec![(f32::NEG_INFINITY, f32::NEG_INFINITY, 0); rows.len()];
+    // `b` in tiles that stay in the cache while the block's rows pass over them.
+    // Every row meets the columns in order and every column the rows in order, as a plain
+    // double loop would: ties go to the first, whatever the grouping.
+    let update = |o: &mut RowBest, c: &mut ColBest, i: usize, j: usize, d: f32| {
+        if d > o.0 {
+            o.1 = o.0;
+            o.0 = d;
+            o.2 = j;
+        } else if d > o.1 {
+            o.1 = d;
+        }
+        if d > c.0 {
+            *c = (d, i);
+        }
+    };
+    for tile in (0..nb).step_by(TILE) {
+        let cols = tile..(tile + TILE).min(nb);
+        // Four rows at a time, then the rest one by one.
+        let mut i = rows.start;
+        while i + 4 <= rows.end {
+            let x = [0, 1, 2, 3].map(|r| a.descriptor(i + r));
+            for j in cols.clone() {
+                let d = dot4(x, b.descriptor(j));
+                for (r, &d) in d.iter().enumerate() {
+                    update(&mut out[i + r - rows.start], &mut col[j], i + r, j, d);
+                }
+            }
+            i += 4;
+        }
+        for i in i..rows.end {
+            let da = a.descriptor(i);
+            for j in cols.clone() {
+                let d = dot(da, b.descriptor(j));
+                update(&mut out[i - rows.start], &mut col[j], i, j, d);
+            }
+        }
+    }
+    (out, col)
+}
+
+/// [`block_portable`] compiled for AVX2: the eight lanes of [`dot`] in one register. Multiply
+/// and add stay separate (no FMA), so every dot product, and so every match, is bit for bit
+/// the portable build's.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn block_avx2(
+    a: &Features,
+    b: &Features,
+    rows: std::ops::Range<usize>,
+) -> (Vec<RowBest>, Vec<ColBest>) {
+    block_portable(a, b, rows)
+}
+
+/// [`block_portable`] on the widest vector unit this processor has.
+fn block(a: &Features, b: &Features, rows: std::ops::Range<usize>) -> (Vec<RowBest>, Vec<ColBest>) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2 (checked just above).
+        return unsafe { block_avx2(a, b, rows) };
+    }
+    block_portable(a, b, rows)
+}
+
 fn nearest(a: &Features, b: &Features) -> Nearest {
     let nb = b.len();
     let blocks: Vec<(Vec<RowBest>, Vec<ColBest>)> = (0..a.len().div_ceil(BLOCK))
         .into_par_iter()
-        .map(|blk| {
-            let rows = blk * BLOCK..((blk + 1) * BLOCK).min(a.len());
-            let mut col = vec![(f32::NEG_INFINITY, usize::MAX); nb];
-            let mut out = vec![(f32::NEG_INFINITY, f32::NEG_INFINITY, 0); rows.len()];
-            // `b` in tiles that stay in the cache while the block's rows pass over them.
-            for tile in (0..nb).step_by(TILE) {
-                let cols = tile..(tile + TILE).min(nb);
-                for (i, o) in rows.clone().zip(out.iter_mut()) {
-                    let da = a.descriptor(i);
-                    let (mut best, mut second, mut arg) = *o;
-                    for j in cols.clone() {
-                        let d = dot(da, b.descriptor(j));
-                        if d > best {
-                            second = best;
-                            best = d;
-                            arg = j;
-                        } else if d > second {
-                            second = d;
-                        }
-                        let c = &mut col[j];
-                        if d > c.0 {
-                            *c = (d, i);
-                        }
-                    }
-                    *o = (best, second, arg);
-                }
-            }
-            (out, col)
-        })
+        .map(|blk| block(a, b, blk * BLOCK..((blk + 1) * BLOCK).min(a.len())))
         .collect();
     let mut row_best = Vec::with_capacity(a.len());
     let mut col_best = vec![(f32::NEG_INFINITY, usize::MAX); nb];
@@ -178,6 +240,50 @@ mod tests {
                     .collect()
             })
             .collect()
+    }
+
+    /// The kernel by rows of four and one by one, portable and for AVX2: every block's bests
+    /// bit for bit the same as a plain double loop of [`dot`] (and so every match, whatever
+    /// the processor), ties included (duplicated descriptors).
+    #[test]
+    fn every_kernel_finds_the_same_bests_bit_for_bit() {
+        let mut da = random_descriptors(3, 203);
+        da[7] = da[5].clone();
+        let mut db = random_descriptors(4, 300);
+        db[11] = db[10].clone();
+        db[299] = da[6].clone();
+        let (a, b) = (features(da), features(db));
+        // 198 rows: 49 groups of four and two left over.
+        let rows = 3..201;
+        let mut want_rows = Vec::new();
+        let mut want_cols = vec![(f32::NEG_INFINITY, usize::MAX); b.len()];
+        for i in rows.clone() {
+            let mut o = (f32::NEG_INFINITY, f32::NEG_INFINITY, 0);
+            for (j, c) in want_cols.iter_mut().enumerate() {
+                let d = dot(a.descriptor(i), b.descriptor(j));
+                if d > o.0 {
+                    o = (d, o.0, j);
+                } else if d > o.1 {
+                    o.1 = d;
+                }
+                if d > c.0 {
+                    *c = (d, i);
+                }
+            }
+            want_rows.push(o);
+        }
+        let bits = |v: &[RowBest]| {
+            v.iter()
+                .map(|o| (o.0.to_bits(), o.1.to_bits(), o.2))
+                .collect::<Vec<_>>()
+        };
+        let col_bits = |v: &[ColBest]| v.iter().map(|c| (c.0.to_bits(), c.1)).collect::<Vec<_>>();
+        let (r, c) = block_portable(&a, &b, rows.clone());
+        assert_eq!(bits(&r), bits(&want_rows));
+        assert_eq!(col_bits(&c), col_bits(&want_cols));
+        let (r, c) = block(&a, &b, rows.clone());
+        assert_eq!(bits(&r), bits(&want_rows));
+        assert_eq!(col_bits(&c), col_bits(&want_cols));
     }
 
     /// The brute-force matcher against a plain double loop: the same matches.

@@ -214,6 +214,19 @@ pub struct OtherModelReport {
     pub points: usize,
 }
 
+impl OtherModelReport {
+    /// `r`'s other models, their images by name.
+    fn of(r: &Reconstruction, names: &[String]) -> Vec<OtherModelReport> {
+        r.other_models
+            .iter()
+            .map(|m| OtherModelReport {
+                images: m.images.iter().map(|&i| names[i].clone()).collect(),
+                points: m.points,
+            })
+            .collect()
+    }
+}
+
 /// The model on the photos' GPS positions.
 #[derive(Clone, Debug, Serialize)]
 pub struct GpsPlacement {
@@ -568,14 +581,7 @@ pub fn run_sfm(
         camera_source: camera_source.to_string(),
         starting_focal_px: camera.fx,
         principal_point: r.principal_point,
-        other_models: r
-            .other_models
-            .iter()
-            .map(|m| OtherModelReport {
-                images: m.images.iter().map(|&i| names[i].clone()).collect(),
-                points: m.points,
-            })
-            .collect(),
+        other_models: OtherModelReport::of(&r, &names),
         gps: gps_placement,
         georef,
         frame: frame.to_string(),

@@ -418,6 +418,18 @@ fn photos_registered_in_a_model_agree_with_the_full_reconstruction(dir: &Path, m
     }
 }
 
+/// `geostride simulate SCENE --out OUT -q`, which must succeed.
+fn simulate(scene: &Path, out: &Path) {
+    let o = geostride(&[
+        "simulate",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// `tests/scenes/SCENE` simulated, then `geostride sfm` on its survey photos with the preset
 /// camera, its GCPs and picks (and its recorded camera centres with `centres`): the folder
 /// (kept while the first is held), the simulation, the model folder and the report.
@@ -430,14 +442,7 @@ fn simulated_survey_sfm(
     let scene = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/scenes")
         .join(scene);
-    let o = geostride(&[
-        "simulate",
-        scene.to_str().unwrap(),
-        "--out",
-        sim.to_str().unwrap(),
-        "-q",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    simulate(&scene, &sim);
     let out = tmp.path().join("model");
     let p = |s: &str| sim.join(s).to_str().unwrap().to_string();
     let (photos, gcps, picks, recorded) = (
@@ -589,14 +594,7 @@ fn a_model_that_splits_in_two_keeps_the_larger_and_lists_the_other() {
         let toml = tmp.path().join(format!("{prefix}.toml"));
         std::fs::write(&toml, scene.replace("seed = 17", &format!("seed = {seed}"))).unwrap();
         let sim = tmp.path().join(prefix);
-        let o = geostride(&[
-            "simulate",
-            toml.to_str().unwrap(),
-            "--out",
-            sim.to_str().unwrap(),
-            "-q",
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        simulate(&toml, &sim);
         for k in 1..=count {
             let name = format!("IMG_{k:04}.jpg");
             std::fs::copy(
@@ -1011,8 +1009,7 @@ fn inconsistent_measurements_are_left_out_or_refused_and_the_model_stays_right()
         env!("CARGO_MANIFEST_DIR"),
         "/tests/scenes/survey-flight.toml"
     );
-    let o = geostride(&["simulate", scene, "--out", sim.to_str().unwrap(), "-q"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    simulate(Path::new(scene), &sim);
     let s = |p: &Path| p.to_str().unwrap().to_string();
     // The centres as name,x,y,z (ellipsoidal heights, EPSG:3812 given on the command line).
     let emlid = common::read_csv(&sim.join("survey/centres.csv"));

@@ -187,19 +187,8 @@ mod tests {
     /// refused the problem.
     #[test]
     fn a_near_identity_rotation_gives_finite_pose_parameters() {
-        let m = nalgebra::Matrix3::new(
-            1.0000000000000004,
-            -1.09e-14,
-            3.83e-14,
-            1.15e-14,
-            1.0000000000000002,
-            9.0e-16,
-            -3.84e-14,
-            -7.9e-16,
-            1.0000000000000002,
-        );
         let pose = Rigid3 {
-            rotation: Rotation3::from_matrix_unchecked(m),
+            rotation: Rotation3::from_matrix_unchecked(crate::geom::so3::near_identity_over_trace()),
             translation: Vector3::new(-0.035, -0.015, -0.999),
         };
         let q = pose_params(&pose);

@@ -89,7 +89,6 @@ fn block_portable(
     let nb = b.len();
     let mut col = vec![(f32::NEG_INFINITY, usize::MAX); nb];
     let mut out = vec![(f32::NEG_INFINITY, f32::NEG_INFINITY, 0); rows.len()];
-    // `b` in tiles that stay in the cache while the block's rows pass over them.
     // Every row meets the columns in order and every column the rows in order, as a plain
     // double loop would: ties go to the first, whatever the grouping.
     let update = |o: &mut RowBest, c: &mut ColBest, i: usize, j: usize, d: f32| {
@@ -104,6 +103,7 @@ fn block_portable(
             *c = (d, i);
         }
     };
+    // `b` in tiles that stay in the cache while the block's rows pass over them.
     for tile in (0..nb).step_by(TILE) {
         let cols = tile..(tile + TILE).min(nb);
         // Four rows at a time, then the rest one by one.

@@ -7,6 +7,8 @@
 #   (proj-bin: cs2cs, the tests' reference for WGS 84 outputs)
 #   (linked from Debian, see docs/architecture.md), gdal-bin (ogrinfo, used by the tests),
 #   pkg-config, cmake, sqlite3, libtiff and libcurl (build needs of the geospatial crates).
+#   libhdf5-dev and libsqlite3-dev: the pedestrian-dynamics archives (`trajectories.h5` through
+#   the hdf5-metno crate, `trajectories.sqlite` through rusqlite), linked from Debian.
 #   ffmpeg: the annotated video is piped into its x264 encoder (OpenCV's writer, the fallback,
 #   takes no encoder options and was 1.6 times slower for the annotated video). python3-venv: the PedPy test's
 #   throwaway environment.
@@ -30,7 +32,7 @@ set -euo pipefail
 packages=(
   pkg-config cmake clang libclang-dev
   libopencv-dev libopencv-contrib-dev ffmpeg
-  libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libtiff-dev libcurl4-openssl-dev
+  libgdal-dev gdal-bin libproj-dev proj-data proj-bin libsqlite3-dev sqlite3 libhdf5-dev libtiff-dev libcurl4-openssl-dev
   python3 python3-venv python3-pip
   python3-torch python3-pil python3-onnx
   chromium chromium-driver python3-selenium

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The pure core: geostride built and tested with no adapter feature (no OpenCV, GDAL, PROJ or
-# ONNX Runtime), then every test binary of that build checked with ldd: none may link one of
-# those libraries. Called by `make test`.
+# The pure core: geostride built and tested with no adapter feature (no OpenCV, GDAL, PROJ,
+# ONNX Runtime, HDF5 or SQLite), then every test binary of that build checked with ldd: none may
+# link one of those libraries. Called by `make test`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo=${CARGO:-cargo}
@@ -12,7 +12,7 @@ if [ -z "$bins" ]; then
   echo "check-pure: the pure build gave no test binaries" >&2
   exit 1
 fi
-libs='libopencv|libgdal|libproj|onnxruntime'
+libs='libopencv|libgdal|libproj|onnxruntime|libhdf5|libsqlite3'
 # The check must be able to fail: the full binary, when built, links OpenCV.
 if [ -x target/release/geostride ] && ! ldd target/release/geostride | grep -Eq "$libs"; then
   echo "check-pure: ldd shows no adapter library even in target/release/geostride" >&2
@@ -30,4 +30,4 @@ done
 if [ $bad -ne 0 ]; then
   exit 1
 fi
-echo "check-pure: $n test binaries built without features; none links libopencv, libgdal, libproj or onnxruntime"
+echo "check-pure: $n test binaries built without features; none links libopencv, libgdal, libproj, onnxruntime, libhdf5 or libsqlite3"

@@ -19,7 +19,7 @@ fn setup(dir: &Path) -> PathBuf {
         "pipeline test",
         video,
         "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
-        "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\", \"detections\"]",
+        "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"gpkg\", \"petrack\", \"mot\", \"detections\", \"hdf5\", \"sqlite\"]",
     );
     // The simulator names the picks' image after its video.
     let picks = std::fs::read_to_string(dir.join("picks.csv")).unwrap();
@@ -38,8 +38,11 @@ fn report(out: &Path) -> serde_json::Value {
 }
 
 /// The outputs that must not depend on how the run went: byte for byte, the GeoPackage too
-/// (its time stamps are fixed).
-const SAME: [&str; 8] = [
+/// (its time stamps are fixed), and the HDF5 (it keeps none).
+const SAME: [&str; 11] = [
+    "trajectories.h5",
+    "trajectories.sqlite",
+    "walkable_area.wkt",
     "trajectories.csv",
     "detections.csv",
     "trajectories.txt",

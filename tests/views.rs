@@ -29,7 +29,7 @@ fn fixture() -> &'static (tempfile::TempDir, PathBuf) {
             video,
             "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
             // UTM: a grid turned about 1.1° from the site frame's north.
-            "crs = \"EPSG:32631\"\nformats = [\"csv\", \"petrack\", \"gpkg\"]",
+            "crs = \"EPSG:32631\"\nformats = [\"csv\", \"petrack\", \"gpkg\", \"hdf5\", \"sqlite\"]",
         ) + &format!(
             "[output]\nvideo = true\nvideo_width = 960\n[analysis]\nmeasurement_area = {MEASUREMENT}\nwalkable_area = {WALKABLE}\n"
         );
@@ -322,42 +322,68 @@ fn render_makes_the_views_again_from_the_stages_and_refuses_a_folder_without_a_r
     );
 }
 
-/// PedPy from PyPI in a throwaway environment: `None` (the test skipped, and says why) when it
-/// cannot be installed outside CI; in CI a failure.
-fn pedpy_python(dir: &Path) -> Option<PathBuf> {
-    let in_ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
-    let venv = dir.join("pedpy-venv");
-    let ok = std::process::Command::new("python3")
-        .args(["-m", "venv"])
-        .arg(&venv)
-        .status()
-        .is_ok_and(|s| s.success())
-        && std::process::Command::new(venv.join("bin/pip"))
-            .args(["install", "-q", "--disable-pip-version-check", "pedpy"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if ok {
-        return Some(venv.join("bin/python"));
-    }
-    let why = "python3 -m venv and pip install pedpy failed (no python3-venv, or PyPI unreachable)";
-    if in_ci {
-        panic!("the PedPy test cannot run in CI: {why}");
-    }
-    eprintln!("SKIPPED: {why}");
-    None
+/// PedPy and JuPedSim from PyPI (pinned) in a throwaway environment, made once for the tests
+/// that use it: `None` (the test skipped, and says why) when they cannot be installed outside
+/// CI; in CI a failure.
+fn pedpy_python() -> Option<PathBuf> {
+    static PYTHON: OnceLock<Option<(tempfile::TempDir, PathBuf)>> = OnceLock::new();
+    PYTHON
+        .get_or_init(|| {
+            let in_ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
+            let dir = tempfile::tempdir().unwrap();
+            let venv = dir.path().join("pedpy-venv");
+            let ok = std::process::Command::new("python3")
+                .args(["-m", "venv"])
+                .arg(&venv)
+                .status()
+                .is_ok_and(|s| s.success())
+                && std::process::Command::new(venv.join("bin/pip"))
+                    .args(["install", "-q", "--disable-pip-version-check"])
+                    .args(["pedpy==1.5.1", "jupedsim==1.4.2"])
+                    .status()
+                    .is_ok_and(|s| s.success());
+            if ok {
+                let python = venv.join("bin/python");
+                return Some((dir, python));
+            }
+            let why = "python3 -m venv and pip install pedpy jupedsim failed (no python3-venv, or PyPI unreachable)";
+            if in_ci {
+                panic!("the PedPy test cannot run in CI: {why}");
+            }
+            eprintln!("SKIPPED: {why}");
+            None
+        })
+        .as_ref()
+        .map(|(_, p)| p.clone())
 }
 
+/// Loads the run's trajectories in PedPy as argv[1] says (`txt`: the PeTrack text with the
+/// project's walkable area; `hdf5`, `sqlite`: the archive with the walkable area it holds,
+/// which must be the one `walkable_area.wkt` gives) and prints its measures frame by frame.
 const PEDPY_SCRIPT: &str = r#"
 import json, pathlib, sys
-import pedpy
-traj = pedpy.load_trajectory(trajectory_file=pathlib.Path(sys.argv[1]))
-walk = pedpy.WalkableArea(json.loads(sys.argv[2]))
-ma = pedpy.MeasurementArea(json.loads(sys.argv[3]))
+import pedpy, shapely
+kind, path = sys.argv[1], pathlib.Path(sys.argv[2])
+if kind == "txt":
+    traj = pedpy.load_trajectory(trajectory_file=path)
+    walk = pedpy.WalkableArea(json.loads(sys.argv[3]))
+elif kind == "hdf5":
+    traj = pedpy.load_trajectory_from_ped_data_archive_hdf5(trajectory_file=path)
+    walk = pedpy.load_walkable_area_from_ped_data_archive_hdf5(trajectory_file=path)
+else:
+    traj = pedpy.load_trajectory_from_jupedsim_sqlite(trajectory_file=path)
+    walk = pedpy.load_walkable_area_from_jupedsim_sqlite(trajectory_file=path)
+if kind != "txt":
+    written = shapely.from_wkt(open(path.parent / "walkable_area.wkt").read())
+    assert walk.polygon.equals(written), (walk.polygon.wkt, written.wkt)
+    given = shapely.Polygon(json.loads(sys.argv[3]))
+    assert walk.polygon.symmetric_difference(given).area < 1e-6, (walk.polygon.wkt, given.wkt)
+ma = pedpy.MeasurementArea(json.loads(sys.argv[4]))
 print("frame_rate", traj.frame_rate, "points", len(traj.data))
 cells = pedpy.compute_individual_voronoi_polygons(traj_data=traj, walkable_area=walk)
 vdens, inter = pedpy.compute_voronoi_density(individual_voronoi_data=cells, measurement_area=ma)
 cdens = pedpy.compute_classic_density(traj_data=traj, measurement_area=ma)
-speed = pedpy.compute_individual_speed(traj_data=traj, frame_step=int(sys.argv[4]),
+speed = pedpy.compute_individual_speed(traj_data=traj, frame_step=int(sys.argv[5]),
     speed_calculation=pedpy.SpeedCalculation.BORDER_SINGLE_SIDED)
 vspeed = pedpy.compute_voronoi_speed(traj_data=traj, individual_speed=speed,
     individual_voronoi_intersection=inter, measurement_area=ma)
@@ -367,18 +393,21 @@ for f in vdens.index:
           mspeed.loc[f, "speed"] if f in mspeed.index else 0.0)
 "#;
 
-#[test]
-fn pedpy_reads_the_petrack_file_and_agrees_with_geostride_within_two_percent() {
+/// PedPy's measures from the run's file `file` read as `kind` against geostride's
+/// `measures.csv`: every frame's Voronoi density and the means of the four measures within
+/// `tolerance` (relative).
+fn pedpy_agrees(kind: &str, file: &str, tolerance: f64) {
     let (dir, out) = fixture();
-    let Some(python) = pedpy_python(dir.path()) else {
+    let Some(python) = pedpy_python() else {
         return;
     };
-    let script = dir.path().join("pedpy_check.py");
+    let script = dir.path().join(format!("pedpy_check_{kind}.py"));
     std::fs::write(&script, PEDPY_SCRIPT).unwrap();
     // PedPy differences positions 2 frames either side (0.27 s at 15 frames/s).
     let o = std::process::Command::new(&python)
         .arg(&script)
-        .arg(out.join("trajectories.txt"))
+        .arg(kind)
+        .arg(out.join(file))
         .arg(WALKABLE)
         .arg(MEASUREMENT)
         .arg("2")
@@ -422,7 +451,7 @@ fn pedpy_reads_the_petrack_file_and_agrees_with_geostride_within_two_percent() {
     assert_eq!(frames, 60, "PedPy's frames: {text}");
     let rel = |a: f64, b: f64| (a - b).abs() / b.abs().max(1e-12);
     eprintln!(
-        "PedPy / geostride over {frames} frames: Voronoi density {:.4} / {:.4} (worst frame {:.2e}), classic {:.4} / {:.4}, Voronoi speed {:.4} / {:.4} m/s, mean speed {:.4} / {:.4} m/s",
+        "PedPy ({kind}) / geostride over {frames} frames: Voronoi density {:.4} / {:.4} (worst frame {:.2e}), classic {:.4} / {:.4}, Voronoi speed {:.4} / {:.4} m/s, mean speed {:.4} / {:.4} m/s",
         sums[0] / 60.0,
         sums[1] / 60.0,
         worst_density,
@@ -434,7 +463,7 @@ fn pedpy_reads_the_petrack_file_and_agrees_with_geostride_within_two_percent() {
         sums[7] / 60.0
     );
     assert!(
-        worst_density < 0.02,
+        worst_density < tolerance,
         "Voronoi density differs by {worst_density:.4} in a frame"
     );
     for (k, what) in [
@@ -445,11 +474,97 @@ fn pedpy_reads_the_petrack_file_and_agrees_with_geostride_within_two_percent() {
     ] {
         let d = rel(sums[k], sums[k + 1]);
         assert!(
-            d < 0.02,
+            d < tolerance,
             "{what}: PedPy {} against geostride {} ({:.2} %)",
             sums[k],
             sums[k + 1],
             100.0 * d
+        );
+    }
+}
+
+#[test]
+fn pedpy_reads_the_petrack_file_and_agrees_with_geostride_within_two_percent() {
+    // The text's positions are rounded to 0.1 mm.
+    pedpy_agrees("txt", "trajectories.txt", 0.02);
+}
+
+#[test]
+fn pedpy_reads_the_hdf5_archive_and_its_walkable_area_and_agrees_within_one_percent() {
+    pedpy_agrees("hdf5", "trajectories.h5", 0.01);
+}
+
+#[test]
+fn pedpy_reads_the_jupedsim_sqlite_and_its_walkable_area_and_agrees_within_one_percent() {
+    pedpy_agrees("sqlite", "trajectories.sqlite", 0.01);
+}
+
+/// JuPedSim's own reader (`jupedsim.Recording`) opens the SQLite: its frame count, frame rate,
+/// bounds, geometry and a frame's agents are those of the run's trajectories.
+#[test]
+fn jupedsim_opens_the_sqlite() {
+    let (dir, out) = fixture();
+    let Some(python) = pedpy_python() else {
+        return;
+    };
+    let script = dir.path().join("jupedsim_check.py");
+    std::fs::write(
+        &script,
+        r#"
+import sys, jupedsim
+rec = jupedsim.Recording(sys.argv[1])
+frame = rec.frame(30)
+print(rec.num_frames, rec.fps, rec.geometry().area, len(frame.agents))
+for a in frame.agents:
+    print(a.id, a.position[0], a.position[1], a.orientation[0], a.orientation[1])
+"#,
+    )
+    .unwrap();
+    let o = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(out.join("trajectories.sqlite"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<f64> = lines
+        .next()
+        .unwrap()
+        .split_whitespace()
+        .map(|t| t.parse().unwrap())
+        .collect();
+    let rows = common::read_csv(&out.join("trajectories.csv"));
+    let last = rows
+        .iter()
+        .map(|r| common::num(r, "frame"))
+        .fold(0.0, f64::max);
+    assert_eq!(head[0], last + 1.0, "frames from 0 to the last: {text}");
+    assert_eq!(head[1], 15.0, "fps: {text}");
+    assert!(
+        (head[2] - 80.0 * 5.0).abs() < 1e-6,
+        "the deck's 80 × 5 m: {text}"
+    );
+    let at30: Vec<_> = rows
+        .iter()
+        .filter(|r| common::num(r, "frame") == 30.0)
+        .collect();
+    assert_eq!(head[3] as usize, at30.len(), "{text}");
+    assert!(!at30.is_empty());
+    for line in lines {
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map(|t| t.parse().unwrap())
+            .collect();
+        let r = at30
+            .iter()
+            .find(|r| common::num(r, "id") == v[0])
+            .unwrap_or_else(|| panic!("agent {} is not in trajectories.csv: {text}", v[0]));
+        assert!((v[1] - common::num(r, "e_m")).abs() < 1e-3, "{line}");
+        assert!((v[2] - common::num(r, "n_m")).abs() < 1e-3, "{line}");
+        assert!(
+            (v[3].hypot(v[4]) - 1.0).abs() < 1e-9,
+            "orientation a unit vector: {line}"
         );
     }
 }

@@ -373,6 +373,7 @@ mod tests {
                     sigma_m: Vector2::zeros(),
                     cov: PointCov::default(),
                     observed: true,
+                    score: Some(0.9),
                 }],
             })
             .collect();

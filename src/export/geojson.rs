@@ -202,6 +202,7 @@ mod tests {
                     sigma_m: Vector2::new(0.02, f64::NAN),
                     cov: PointCov::default(),
                     observed: k != 1,
+                    score: (k != 1).then_some(0.9),
                 })
                 .collect(),
         }

@@ -1,6 +1,9 @@
-//! Trajectory outputs: CSV, PeTrack/JuPedSim text and MOTChallenge text (pure formatting), and
-//! GeoJSON (`geojson`, pure formatting) and GeoPackage through GDAL (`gis`, an adapter).
+//! Trajectory outputs: CSV, PeTrack/JuPedSim text and MOTChallenge text (pure formatting),
+//! GeoJSON (`geojson`, pure formatting), GeoPackage through GDAL (`gis`, an adapter), and the
+//! pedestrian-dynamics archives, HDF5 and SQLite (`archive`, an adapter).
 
+#[cfg(feature = "archives")]
+pub mod archive;
 pub mod geojson;
 #[cfg(feature = "gdal")]
 pub mod gis;
@@ -42,6 +45,8 @@ pub struct TrajectoryPoint {
     pub cov: PointCov,
     /// Whether the frame had a detection (else predicted through a gap).
     pub observed: bool,
+    /// The detector's score of the frame's detection; `None` without one.
+    pub score: Option<f64>,
 }
 
 /// A trajectory point's horizontal covariance (east, north; m²) by source: what is left of the
@@ -117,6 +122,63 @@ pub fn image_tracks_csv(tracks: &[crate::track::ImageTrack]) -> String {
     s
 }
 
+/// How the site frame's metres lie in the survey's CRS, for the files' headers: a local
+/// east-north-up tangent plane at an origin (not a plain offset of the CRS's grid: its axes
+/// follow true north and its scale is 1).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SiteFrameNote {
+    /// How the origin was chosen.
+    pub origin_note: String,
+    /// The survey's CRS (its label); `None` for a survey in its own local frame.
+    pub crs: Option<String>,
+    /// The origin: latitude, longitude (degrees, on the CRS's datum) and height (metres).
+    pub origin_geodetic: Option<[f64; 3]>,
+    /// The origin's coordinates in the survey's CRS.
+    pub origin_in_crs: Option<[f64; 3]>,
+    /// The survey's kind of height.
+    pub heights: String,
+}
+
+impl SiteFrameNote {
+    /// `(key, value)` pairs: the archives' attributes and the text files' header lines.
+    pub fn fields(&self) -> Vec<(&'static str, String)> {
+        let mut f = vec![
+            (
+                "axes",
+                "x east, y north, z up, metres (a local tangent plane)".to_string(),
+            ),
+            ("origin", self.origin_note.clone()),
+        ];
+        if let Some(crs) = &self.crs {
+            f.push(("crs", crs.clone()));
+        }
+        if let Some([lat, lon, h]) = self.origin_geodetic {
+            f.push((
+                "origin_lat_lon_h",
+                format!("{lat:.9} {lon:.9} {h:.4} (degrees, degrees, metres)"),
+            ));
+        }
+        if let Some([x, y, z]) = self.origin_in_crs {
+            f.push(("origin_in_crs", format!("{x:.4} {y:.4} {z:.4}")));
+        }
+        f.push(("heights", self.heights.clone()));
+        f
+    }
+}
+
+/// A polygon as WKT, its ring closed: `POLYGON ((x y, ..., x y))`, 4 decimals.
+pub fn polygon_wkt(vertices: &[Vector2<f64>]) -> String {
+    let mut s = String::from("POLYGON ((");
+    for (i, v) in vertices.iter().chain(vertices.first()).enumerate() {
+        if i > 0 {
+            s.push_str(", ");
+        }
+        let _ = write!(s, "{} {}", Fixed::<4>(v.x), Fixed::<4>(v.y));
+    }
+    s.push_str("))");
+    s
+}
+
 /// A run's export formats (`[export] formats`), each written by its own writer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportFormat {
@@ -132,17 +194,23 @@ pub enum ExportFormat {
     Mot,
     /// `detections.csv`.
     Detections,
+    /// `trajectories.h5`, the Pedestrian Dynamics Data Archive's HDF5.
+    Hdf5,
+    /// `trajectories.sqlite`, JuPedSim's trajectory database.
+    Sqlite,
 }
 
 impl ExportFormat {
     /// Every format: a run's default list, in this order.
-    pub const ALL: [ExportFormat; 6] = [
+    pub const ALL: [ExportFormat; 8] = [
         ExportFormat::Csv,
         ExportFormat::GeoJson,
         ExportFormat::GeoPackage,
         ExportFormat::PeTrack,
         ExportFormat::Mot,
         ExportFormat::Detections,
+        ExportFormat::Hdf5,
+        ExportFormat::Sqlite,
     ];
 
     /// The name a project file gives it.
@@ -154,6 +222,8 @@ impl ExportFormat {
             ExportFormat::PeTrack => "petrack",
             ExportFormat::Mot => "mot",
             ExportFormat::Detections => "detections",
+            ExportFormat::Hdf5 => "hdf5",
+            ExportFormat::Sqlite => "sqlite",
         }
     }
 
@@ -213,10 +283,11 @@ pub fn write_trajectories_csv<T: std::borrow::Borrow<Trajectory>>(
     out.finish()
 }
 
-/// PeTrack's and JuPedSim's trajectory text: comment lines, then `id frame x y z` in metres of
-/// the site frame (a local metric frame, as those tools expect).
-pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame_note: &str) -> String {
-    text_of(|w| write_petrack_txt(w, trajectories.iter().map(Ok), fps, frame_note))
+/// PeTrack's and JuPedSim's trajectory text: comment lines (the frame rate; how the site frame
+/// lies in the survey's CRS), then `id frame x y z` in metres of the site frame (a local metric
+/// frame, as those tools expect).
+pub fn petrack_txt(trajectories: &[Trajectory], fps: f64, frame: &SiteFrameNote) -> String {
+    text_of(|w| write_petrack_txt(w, trajectories.iter().map(Ok), fps, frame))
 }
 
 /// [`petrack_txt`] written to `w` as the trajectories come, like [`write_trajectories_csv`].
@@ -224,13 +295,16 @@ pub fn write_petrack_txt<T: std::borrow::Borrow<Trajectory>>(
     w: &mut dyn std::io::Write,
     trajectories: impl IntoIterator<Item = std::io::Result<T>>,
     fps: f64,
-    frame_note: &str,
+    frame: &SiteFrameNote,
 ) -> std::io::Result<()> {
     let mut out = Pieces::new(w);
     let s = &mut out.s;
     let _ = writeln!(s, "# geostride trajectories: head positions, smoothed");
     let _ = writeln!(s, "# framerate: {fps}");
-    let _ = writeln!(s, "# coordinates: {frame_note}");
+    // PedPy reads the frame rate and the unit from these lines: no other may name either.
+    for (key, value) in frame.fields() {
+        let _ = writeln!(s, "# site frame {key}: {value}");
+    }
     let _ = writeln!(s, "# id\tframe\tx/m\ty/m\tz/m");
     for t in trajectories {
         let t = t?;
@@ -360,6 +434,7 @@ mod tests {
                     pose: Matrix2::zeros(),
                 },
                 observed: k != 1,
+                score: (k != 1).then_some(0.9),
             })
             .collect();
         Trajectory {
@@ -382,7 +457,27 @@ mod tests {
                 .unwrap()
                 .starts_with("7,11,0.4400,1.1400,2.0000,8.2000,")
         );
-        let pt = petrack_txt(std::slice::from_ref(&t), 25.0, "site frame");
+        let frame = SiteFrameNote {
+            origin_note: "point A".into(),
+            crs: Some("EPSG:32631 (WGS 84 / UTM zone 31N)".into()),
+            origin_geodetic: Some([48.1, 2.5, 120.0]),
+            origin_in_crs: Some([500000.0, 5330000.0, 120.0]),
+            heights: "ellipsoidal".into(),
+        };
+        let pt = petrack_txt(std::slice::from_ref(&t), 25.0, &frame);
+        assert!(pt.contains("# site frame crs: EPSG:32631"), "{pt}");
+        assert!(pt.contains("# site frame origin_in_crs: 500000.0000 5330000.0000 120.0000"));
+        // PedPy takes the frame rate from the first number of any line naming it, and the
+        // unit from any line with "x/m" or "in cm": only one line may name each.
+        let head: Vec<&str> = pt.lines().filter(|l| l.starts_with('#')).collect();
+        assert_eq!(head.iter().filter(|l| l.contains("framerate")).count(), 1);
+        assert_eq!(
+            head.iter()
+                .filter(|l| l.to_lowercase().contains("in cm"))
+                .count(),
+            0
+        );
+        assert_eq!(head.iter().filter(|l| l.contains("x/m")).count(), 1);
         assert_eq!(pt.lines().filter(|l| !l.starts_with('#')).count(), 3);
         assert!(pt.contains("7\t10\t1.0000\t2.0000\t8.2000"));
         let it = ImageTrack {
@@ -392,6 +487,7 @@ mod tests {
                 uv: Vector2::new(10.0, 20.0),
                 cov: Matrix2::identity(),
                 bbox: [4.5, 14.5, 11.0, 11.0],
+                score: Some(0.9),
             }],
         };
         assert_eq!(
@@ -411,6 +507,7 @@ mod tests {
                     uv: Vector2::zeros(),
                     cov: Matrix2::identity(),
                     bbox: [0.0; 4],
+                    score: Some(1.0),
                 })
                 .collect(),
         };

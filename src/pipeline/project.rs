@@ -274,8 +274,8 @@ impl Default for OutputSection {
 pub struct AnalysisSection {
     /// A convex polygon in the site frame, `[[e, n], ...]` metres; none: no fundamental diagram.
     pub measurement_area: Vec<[f64; 2]>,
-    /// The convex area people can walk in (Voronoi cells end at its edge) [default: the
-    /// trajectories' bounding box, 1 m wider on every side].
+    /// The convex area people can walk in (Voronoi cells end at its edge) [default: a deck's
+    /// outline, else the trajectories' bounding box, 1 m wider on every side].
     pub walkable_area: Vec<[f64; 2]>,
 }
 
@@ -726,7 +726,10 @@ fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
                 "export",
                 "formats",
                 format!(
-                    "unknown format '{f}': expected csv, geojson, gpkg, petrack, mot or detections"
+                    "unknown format '{f}': expected one of {}",
+                    crate::export::ExportFormat::ALL
+                        .map(|f| f.name())
+                        .join(", ")
                 ),
             ));
         }

@@ -253,6 +253,37 @@ impl HeightSurface for DeckProfile {
         Some(self)
     }
 
+    /// The centre line offset by half the width to each side, mitred at its bends: the left
+    /// edge forward, then the right edge back (counter-clockwise).
+    fn outline(&self) -> Option<Vec<Vector2<f64>>> {
+        let mut line: Vec<Vector2<f64>> = Vec::with_capacity(self.centre_line.len());
+        for p in &self.centre_line {
+            if line.last().is_none_or(|q| (p - q).norm() > 0.0) {
+                line.push(*p);
+            }
+        }
+        if line.len() < 2 || line.iter().any(|p| !(p.x.is_finite() && p.y.is_finite())) {
+            return None;
+        }
+        let left = |d: Vector2<f64>| Vector2::new(-d.y, d.x) / d.norm();
+        let half = self.width_m / 2.0;
+        let n = line.len();
+        // Each vertex's offset direction: the mitre of its two segments' normals, scaled so the
+        // edges stay half the width from the centre line.
+        let offset: Vec<Vector2<f64>> = (0..n)
+            .map(|i| {
+                let a = left(line[i.max(1)] - line[i.max(1) - 1]);
+                let b = left(line[(i + 1).min(n - 1)] - line[i.min(n - 2)]);
+                let m = a + b;
+                let cos_half = (m.norm() / 2.0).max(0.2);
+                m.normalize() * (half / cos_half)
+            })
+            .collect();
+        let mut ring: Vec<Vector2<f64>> = line.iter().zip(&offset).map(|(p, o)| p + o).collect();
+        ring.extend(line.iter().zip(&offset).rev().map(|(p, o)| p - o));
+        Some(ring)
+    }
+
     fn height(&self, en: &Vector2<f64>) -> Option<f64> {
         let (s, off, _) = self.station(en)?;
         if off.abs() > self.width_m / 2.0 {
@@ -306,6 +337,38 @@ mod tests {
             assert!((n - Vector3::new(-slope, 0.0, 1.0).normalize()).norm() < 1e-9);
         }
         assert!(DeckProfile::fit_polynomial(line, 0.0, 5.0, 2, &pts[..2]).is_err());
+    }
+
+    #[test]
+    fn the_outline_is_the_centre_line_widened_and_mitred_at_its_bend() {
+        let d = deck(VerticalAlignment::Stations(vec![
+            (100.0, 10.0),
+            (200.0, 12.0),
+        ]));
+        let ring = d.outline().unwrap();
+        let want = [
+            (0.0, 2.0),
+            (58.0, 2.0),
+            (58.0, 40.0),
+            (62.0, 40.0),
+            (62.0, -2.0),
+            (0.0, -2.0),
+        ];
+        assert_eq!(ring.len(), want.len());
+        for (p, (x, y)) in ring.iter().zip(want) {
+            assert!(
+                (p - Vector2::new(x, y)).norm() < 1e-9,
+                "{p:?} against ({x}, {y})"
+            );
+        }
+        // Every outline vertex is on the deck's edge: half the width off the centre line.
+        for p in &ring {
+            let (_, off, _) = d.station(p).unwrap();
+            assert!((off.abs() - 2.0).abs() < 1e-9, "{p:?}: {off}");
+        }
+        let mut degenerate = d.clone();
+        degenerate.centre_line = vec![Vector2::new(1.0, 1.0); 3];
+        assert!(degenerate.outline().is_none());
     }
 
     #[test]

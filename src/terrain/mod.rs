@@ -33,6 +33,12 @@ pub trait HeightSurface {
         None
     }
 
+    /// The surface's edge as a polygon in the site frame (a deck's outline), where it has one:
+    /// the walkable area's default.
+    fn outline(&self) -> Option<Vec<Vector2<f64>>> {
+        None
+    }
+
     /// Upward unit normal at a horizontal position. The default differentiates `height`
     /// numerically over 5 cm.
     fn normal(&self, en: &Vector2<f64>) -> Option<Vector3<f64>> {
@@ -68,6 +74,10 @@ impl<S: HeightSurface> HeightSurface for Offset<S> {
 
     fn height_sigma(&self, en: &Vector2<f64>) -> Option<f64> {
         self.base.height_sigma(&self.base_point(en)?.0)
+    }
+
+    fn outline(&self) -> Option<Vec<Vector2<f64>>> {
+        self.base.outline()
     }
 }
 

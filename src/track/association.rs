@@ -126,6 +126,7 @@ impl Tracker for AssociationTracker {
                         uv: d.uv,
                         cov: d.cov,
                         bbox: d.bbox,
+                        score: Some(d.score),
                     });
                     if t.id.is_none() && t.hits >= s.confirm_hits {
                         t.id = Some(self.next_id);
@@ -168,6 +169,7 @@ impl Tracker for AssociationTracker {
                     uv: d.uv,
                     cov: d.cov,
                     bbox: d.bbox,
+                    score: Some(d.score),
                 }],
             });
         }

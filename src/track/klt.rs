@@ -95,6 +95,8 @@ struct Step {
     measured: bool,
     /// The detection's position and covariance, when there was one.
     det: Option<(Vector2<f64>, Matrix2<f64>)>,
+    /// The detection's score, when there was one.
+    score: Option<f64>,
 }
 
 struct Live {
@@ -529,6 +531,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                 detected,
                 measured,
                 det: m.map(|j| (detections[j].uv, detections[j].cov)),
+                score: m.map(|j| detections[j].score),
             });
             let gap = if t.hits >= CONFIRM_HITS {
                 s.max_gap
@@ -597,6 +600,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                     detected: true,
                     measured: false,
                     det: Some((d.uv, d.cov)),
+                    score: Some(d.score),
                 }],
                 since_detection: 0,
                 hits: 1,
@@ -699,6 +703,8 @@ impl<F: FeatureTracker> KltTracker<F> {
                             + det_cov[a]
                             + Matrix2::identity() * (s.motion_var_px2 * (m + 1) as f64),
                         bbox,
+                        // Followed back before the first detection: none here.
+                        score: None,
                     }
                 })
                 .collect();
@@ -719,6 +725,7 @@ impl<F: FeatureTracker> KltTracker<F> {
                             uv: *uv,
                             cov: cov + extra,
                             bbox,
+                            score: x.score,
                         }
                     }),
             );

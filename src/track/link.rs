@@ -244,6 +244,7 @@ mod tests {
                     uv: Vector2::new(x0 + vx * f as f64, 100.0),
                     cov: Matrix2::identity(),
                     bbox: [0.0; 4],
+                    score: Some(1.0),
                 })
                 .collect(),
         }

@@ -16,6 +16,9 @@ pub struct TrackPoint {
     pub uv: Vector2<f64>,
     pub cov: Matrix2<f64>,
     pub bbox: [f64; 4],
+    /// The detector's score of this frame's detection; `None` where the tracker bridged a
+    /// frame without one.
+    pub score: Option<f64>,
 }
 
 /// A person's path through the image.

@@ -295,6 +295,7 @@ fn stage_seeds() -> Vec<Vec<u8>> {
             pose: Matrix2::identity() * 2e-4,
         },
         observed: f % 3 != 0,
+        score: (f % 3 != 0).then_some(0.9),
     };
     let trajectories = vec![
         Trajectory {

@@ -86,4 +86,6 @@ pub(super) struct WorldTrack {
     pub(super) height_sd_m: f64,
     pub(super) height_source: String,
     pub(super) points: Vec<(usize, WorldPoint)>,
+    /// The detector's score of each point (`None` where the tracker bridged a frame).
+    pub(super) scores: Vec<Option<f64>>,
 }

@@ -9,7 +9,9 @@ use nalgebra::Vector3;
 use super::{Env, RunError, RunInputs, StageRecord, StageStatus};
 use crate::cache::{StageCache, cache_gone};
 use crate::export::gis::write_geopackage;
-use crate::export::{ExportFormat, Trajectory};
+use crate::export::{ExportFormat, SiteFrameNote, Trajectory};
+use crate::pipeline::project::AnalysisSection;
+use crate::pipeline::views::{Walkable, walkable_area};
 use crate::survey::crs::{Crs, HeightKind, Transform, UsedOperations};
 use crate::track::ImageTrack;
 
@@ -111,6 +113,10 @@ struct ExportInputs<'a> {
     out: &'a Path,
     fps: f64,
     origin_note: &'a str,
+    /// How the site frame lies in the survey's CRS, for the files' headers.
+    frame: SiteFrameNote,
+    /// The walkable area the analysis uses too (none when nobody was tracked and none given).
+    walkable: Option<Walkable>,
     crs_wkt: String,
     out_crs_spec: Option<String>,
     height_kind: &'a HeightKind,
@@ -167,14 +173,12 @@ fn write_format(f: ExportFormat, x: &ExportInputs) -> Result<Written, RunError> 
             &mut |o| crate::export::write_trajectories_csv(o, x.trajectories()?),
             &mut w,
         )?,
-        ExportFormat::PeTrack => {
-            let note = format!("site frame ({}), metres", x.origin_note);
-            x.put(
-                "trajectories.txt",
-                &mut |o| crate::export::write_petrack_txt(o, x.trajectories()?, x.fps, &note),
-                &mut w,
-            )?
-        }
+        ExportFormat::PeTrack => x.put(
+            "trajectories.txt",
+            &mut |o| crate::export::write_petrack_txt(o, x.trajectories()?, x.fps, &x.frame),
+            &mut w,
+        )?,
+        ExportFormat::Hdf5 | ExportFormat::Sqlite => write_archive(f, x, &mut w)?,
         // The image tracks and the detections are read back from the stage caches a track and
         // a chunk at a time: a long video's are not held in memory for these files.
         ExportFormat::Mot => x.put(
@@ -205,6 +209,44 @@ fn write_format(f: ExportFormat, x: &ExportInputs) -> Result<Written, RunError> 
         ExportFormat::GeoJson => write_geojson(x, &mut w)?,
     }
     Ok(w)
+}
+
+/// `trajectories.h5` or `trajectories.sqlite` (`archive`), with the walkable area.
+#[cfg(feature = "archives")]
+fn write_archive(f: ExportFormat, x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
+    use crate::export::archive::{ArchiveInfo, write_hdf5, write_sqlite};
+    let info = ArchiveInfo {
+        fps: x.fps,
+        walkable: x.walkable.as_ref().map_or(&[], |w| w.polygon.vertices()),
+        walkable_source: x.walkable.as_ref().map_or("none", |w| w.source),
+        frame: &x.frame,
+        producer_version: crate::cache::build_id(),
+    };
+    let trajectories = x.trajectories().map_err(|source| RunError::Io {
+        path: x.out.to_path_buf(),
+        source,
+    })?;
+    let name = if f == ExportFormat::Hdf5 {
+        "trajectories.h5"
+    } else {
+        "trajectories.sqlite"
+    };
+    let path = x.out.join(name);
+    match f {
+        ExportFormat::Hdf5 => write_hdf5(&path, &info, trajectories),
+        _ => write_sqlite(&path, &info, trajectories),
+    }
+    .map_err(|e| RunError::Failed(e.to_string()))?;
+    w.outputs.push(name.into());
+    Ok(())
+}
+
+#[cfg(not(feature = "archives"))]
+fn write_archive(f: ExportFormat, _: &ExportInputs, _: &mut Written) -> Result<(), RunError> {
+    Err(RunError::Failed(format!(
+        "[export] formats: '{}' needs geostride built with its 'archives' feature (HDF5 and SQLite)",
+        f.name()
+    )))
 }
 
 /// `detections.csv`: every chunk's detections, read back a chunk at a time.
@@ -299,13 +341,69 @@ fn write_geojson(x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
     Ok(())
 }
 
+/// How the site frame lies in the survey's CRS.
+fn site_frame_note(frame: &crate::survey::frame::SiteFrame) -> SiteFrameNote {
+    SiteFrameNote {
+        origin_note: frame.origin_note.clone(),
+        crs: frame.crs.as_ref().map(|c| c.label()),
+        origin_geodetic: frame.tangent.as_ref().map(|t| {
+            [
+                t.origin.lat.to_degrees(),
+                t.origin.lon.to_degrees(),
+                t.origin.h,
+            ]
+        }),
+        origin_in_crs: frame
+            .crs
+            .as_ref()
+            .and_then(|_| frame.source_from_local(&Vector3::zeros()).ok())
+            .map(|v| [v.x, v.y, v.z]),
+        heights: frame.height.to_string(),
+    }
+}
+
+/// `walkable_area.wkt` (and `measurement_area.wkt` when `[analysis]` gives one): the areas in
+/// the site frame, as PedPy's `WalkableArea` and `MeasurementArea` read WKT.
+fn write_areas(
+    out: &Path,
+    analysis: &AnalysisSection,
+    walkable: Option<&Walkable>,
+) -> Result<Vec<String>, RunError> {
+    let (measurement, _) = analysis
+        .polygons()
+        .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
+    let mut files: Vec<(&str, String)> = walkable
+        .iter()
+        .map(|w| {
+            (
+                "walkable_area.wkt",
+                crate::export::polygon_wkt(w.polygon.vertices()),
+            )
+        })
+        .collect();
+    if let Some(m) = measurement {
+        files.push((
+            "measurement_area.wkt",
+            crate::export::polygon_wkt(m.vertices()),
+        ));
+    }
+    let mut names = Vec::new();
+    for (name, wkt) in files {
+        let path = out.join(name);
+        crate::io::write_atomic(&path, format!("{wkt}\n").as_bytes())
+            .map_err(|source| RunError::Io { path, source })?;
+        names.push(name.to_string());
+    }
+    Ok(names)
+}
+
 /// Stage 6: the output files (always written: cheap, and the files must be there). Returns
 /// the files written and the WGS 84 transformations used.
 pub(super) fn export_stage(
     env: &Env,
     inputs: &RunInputs,
-    smooth_key: &str,
-    track_key: &str,
+    analysis: &AnalysisSection,
+    (smooth_key, track_key, count): (&str, &str, usize),
     warnings: &mut Vec<String>,
 ) -> Result<(Vec<String>, Vec<String>, StageRecord), RunError> {
     use rayon::prelude::*;
@@ -313,10 +411,26 @@ pub(super) fn export_stage(
     let t0 = Instant::now();
     let mut outputs = Vec::new();
     let crs = inputs.out_crs.as_ref().or(framed.frame.crs.as_ref());
+    let cached = super::views_stage::Cached {
+        cache: &env.cache,
+        key: smooth_key,
+        count,
+    };
+    // None when nobody was tracked and no area is given: there is nothing to bound.
+    let walkable = match walkable_area(analysis, inputs.surface.as_ref(), &cached) {
+        Ok(w) => Some(w),
+        Err(e) => {
+            warnings.push(format!("no walkable area written: {e}"));
+            None
+        }
+    };
+    outputs.extend(write_areas(env.out, analysis, walkable.as_ref())?);
     let x = ExportInputs {
         out: env.out,
         fps: inputs.fps,
         origin_note: &framed.frame.origin_note,
+        frame: site_frame_note(&framed.frame),
+        walkable,
         crs_wkt: crs.map(|c| c.wkt.clone()).unwrap_or_default(),
         out_crs_spec: crs.map(|c| c.spec.clone()),
         height_kind: &framed.frame.height,

@@ -223,8 +223,13 @@ pub fn run_with(
         smooth_stage(&env, &x, &p.smooth, &project_key, &projected, &mut warnings)?;
     stages.push(record);
     release_freed();
-    let (mut outputs, transformations, record) =
-        export_stage(&env, &x, &smooth_key, &track_key, &mut warnings)?;
+    let (mut outputs, transformations, record) = export_stage(
+        &env,
+        &x,
+        &p.analysis,
+        (&smooth_key, &track_key, smoothed.trajectories),
+        &mut warnings,
+    )?;
     stages.push(record);
     let (views, record) = views_stage(
         &env,

@@ -247,11 +247,14 @@ fn world_track(
     (h, sd, source): (f64, f64, &str),
     each: impl Fn(&crate::track::TrackPoint) -> Option<crate::projection::WorldPoint>,
 ) -> (WorldTrack, usize) {
-    let mut points = Vec::new();
+    let (mut points, mut scores) = (Vec::new(), Vec::new());
     let mut dropped = 0;
     for q in &t.points {
         match each(q) {
-            Some(w) => points.push((q.frame, w)),
+            Some(w) => {
+                points.push((q.frame, w));
+                scores.push(q.score);
+            }
             None => dropped += 1,
         }
     }
@@ -261,6 +264,7 @@ fn world_track(
         height_sd_m: sd,
         height_source: source.into(),
         points,
+        scores,
     };
     (track, dropped)
 }

@@ -300,6 +300,12 @@ fn trajectory_points(
     for (t, states) in world.into_iter().zip(states) {
         let by_frame: BTreeMap<usize, &WorldPoint> =
             t.points.iter().map(|(f, w)| (*f, w)).collect();
+        let score_of: BTreeMap<usize, Option<f64>> = t
+            .points
+            .iter()
+            .zip(&t.scores)
+            .map(|((f, _), s)| (*f, *s))
+            .collect();
         // Sized once: a long video's points are most of the merge's memory.
         let mut points = Vec::with_capacity(states.len());
         for st in &states {
@@ -328,6 +334,7 @@ fn trajectory_points(
                 sigma_m: Vector2::new(total[(0, 0)].sqrt(), total[(1, 1)].sqrt()),
                 cov,
                 observed,
+                score: score_of.get(&frame).copied().flatten(),
             });
         }
         drop(by_frame);

@@ -16,10 +16,10 @@ use crate::pipeline::views::{
 };
 
 /// The smooth stage's trajectories, read from its cache for each pass of a view.
-struct Cached<'a> {
-    cache: &'a StageCache,
-    key: &'a str,
-    count: usize,
+pub(super) struct Cached<'a> {
+    pub(super) cache: &'a StageCache,
+    pub(super) key: &'a str,
+    pub(super) count: usize,
 }
 
 impl Trajectories for Cached<'_> {

@@ -262,7 +262,7 @@ fn fundamental(v: &Views) -> Result<Option<Vec<(String, String)>>, ViewError> {
     };
     let walkable = match walkable {
         Some(w) => w,
-        None => default_walkable(v.trajs, &measurement)?,
+        None => walkable_area(v.analysis, v.ground, v.trajs)?.polygon,
     };
     // Frame by frame, a batch of frames at a time side by side.
     let mut m = Vec::new();
@@ -306,10 +306,53 @@ fn fundamental(v: &Views) -> Result<Option<Vec<(String, String)>>, ViewError> {
     ]))
 }
 
+/// A run's walkable area and where it came from.
+pub(crate) struct Walkable {
+    pub polygon: crate::analysis::ConvexPolygon,
+    pub source: &'static str,
+}
+
+/// The walkable area the analysis and the exports share: `[analysis] walkable_area`; else the
+/// ground's outline (a deck's) where it is convex (the Voronoi cells are clipped by convex
+/// areas); else the trajectories' bounding box with the measurement area, 1 m wider.
+pub(crate) fn walkable_area(
+    analysis: &AnalysisSection,
+    ground: &dyn HeightSurface,
+    trajs: &dyn Trajectories,
+) -> Result<Walkable, ViewError> {
+    let (measurement, given) = analysis
+        .polygons()
+        .map_err(|(k, m)| ViewError::Failed(format!("[analysis] {k}: {m}")))?;
+    if let Some(polygon) = given {
+        return Ok(Walkable {
+            polygon,
+            source: "[analysis] walkable_area",
+        });
+    }
+    let outline = ground
+        .outline()
+        .and_then(|o| crate::analysis::ConvexPolygon::new(o).ok())
+        .filter(|o| {
+            measurement
+                .as_ref()
+                .is_none_or(|m| m.vertices().iter().all(|v| o.contains(v)))
+        });
+    if let Some(polygon) = outline {
+        return Ok(Walkable {
+            polygon,
+            source: "the deck's outline",
+        });
+    }
+    Ok(Walkable {
+        polygon: default_walkable(trajs, measurement.as_ref())?,
+        source: "the trajectories' extent, 1 m wider",
+    })
+}
+
 /// The trajectories' bounding box with the measurement area, 1 m wider on every side.
 pub(crate) fn default_walkable(
     trajs: &dyn Trajectories,
-    measurement: &crate::analysis::ConvexPolygon,
+    measurement: Option<&crate::analysis::ConvexPolygon>,
 ) -> Result<crate::analysis::ConvexPolygon, ViewError> {
     let (mut lo, mut hi) = (
         Vector2::repeat(f64::INFINITY),
@@ -322,7 +365,7 @@ pub(crate) fn default_walkable(
         }
         Ok(())
     })?;
-    for p in measurement.vertices() {
+    for p in measurement.iter().flat_map(|m| m.vertices()) {
         lo = lo.inf(p);
         hi = hi.sup(p);
     }
@@ -387,9 +430,55 @@ mod tests {
                     sigma_m: Vector2::zeros(),
                     cov: Default::default(),
                     observed: true,
+                    score: Some(0.9),
                 })
                 .collect(),
         }
+    }
+
+    #[test]
+    fn the_walkable_area_is_the_projects_else_the_decks_outline_else_the_extent() {
+        use crate::terrain::{DeckProfile, Plane, VerticalAlignment};
+        let trajs = vec![trajectory(2, &[0, 5]), trajectory(4, &[3])];
+        let deck = DeckProfile {
+            centre_line: vec![Vector2::new(-10.0, 2.0), Vector2::new(10.0, 2.0)],
+            start_s: 0.0,
+            width_m: 6.0,
+            alignment: VerticalAlignment::Stations(vec![(0.0, 0.0), (20.0, 0.0)]),
+        };
+        let plane = Plane::from_gradient(0.0, 0.0, 0.0);
+        let given = AnalysisSection {
+            walkable_area: vec![[0.0, 0.0], [5.0, 0.0], [5.0, 5.0]],
+            ..Default::default()
+        };
+        let w = walkable_area(&given, &deck, &trajs).unwrap();
+        assert_eq!(
+            (w.source, w.polygon.area()),
+            ("[analysis] walkable_area", 12.5)
+        );
+        let none = AnalysisSection::default();
+        let w = walkable_area(&none, &deck, &trajs).unwrap();
+        assert_eq!((w.source, w.polygon.area()), ("the deck's outline", 120.0));
+        // A measurement area off the deck: the outline cannot hold it.
+        let off = AnalysisSection {
+            measurement_area: vec![[0.0, 8.0], [1.0, 8.0], [1.0, 9.0]],
+            ..Default::default()
+        };
+        let w = walkable_area(&off, &deck, &trajs).unwrap();
+        assert_eq!(w.source, "the trajectories' extent, 1 m wider");
+        // x from 0 to 4 (the area and the points), y from 0 to 9, each 1 m wider.
+        assert!(
+            (w.polygon.area() - 6.0 * 11.0).abs() < 1e-9,
+            "{}",
+            w.polygon.area()
+        );
+        let w = walkable_area(&none, &plane, &trajs).unwrap();
+        assert!(
+            (w.polygon.area() - 4.0 * 7.0).abs() < 1e-9,
+            "{}",
+            w.polygon.area()
+        );
+        assert!(walkable_area(&none, &plane, &Vec::<Trajectory>::new()).is_err());
     }
 
     #[test]

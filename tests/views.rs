@@ -29,7 +29,7 @@ fn fixture() -> &'static (tempfile::TempDir, PathBuf) {
             video,
             "kind = \"deck\"\ncentre_line = [[654460.0, 696000.0], [654540.0, 696000.0]]\nwidth_m = 5.0",
             // UTM: a grid turned about 1.1° from the site frame's north.
-            "crs = \"EPSG:32631\"\nformats = [\"csv\", \"petrack\", \"gpkg\", \"hdf5\", \"sqlite\"]",
+            "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"petrack\", \"gpkg\", \"hdf5\", \"sqlite\"]",
         ) + &format!(
             "[output]\nvideo = true\nvideo_width = 960\n[analysis]\nmeasurement_area = {MEASUREMENT}\nwalkable_area = {WALKABLE}\n"
         );
@@ -567,4 +567,67 @@ for a in frame.agents:
             "orientation a unit vector: {line}"
         );
     }
+}
+
+/// `areas.geojson` holds the walkable and measurement areas in WGS 84 where the site frame puts
+/// them: each polygon's area on the ground (from its longitudes and latitudes) is the site
+/// frame's, the measurement area lies inside the walkable one, and the WKT files say the same.
+#[test]
+fn the_areas_are_written_as_wkt_and_as_geojson_in_wgs84() {
+    let (_, out) = fixture();
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("areas.geojson")).unwrap()).unwrap();
+    let f = j["features"].as_array().unwrap();
+    assert_eq!(f.len(), 2);
+    let ring = |k: usize| -> Vec<(f64, f64)> {
+        f[k]["geometry"]["coordinates"][0]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| (c[0].as_f64().unwrap(), c[1].as_f64().unwrap()))
+            .collect()
+    };
+    // The shoelace area on a local equirectangular projection (exact enough over 80 m).
+    let ground_area = |r: &[(f64, f64)]| {
+        let (lon0, lat0) = r[0];
+        let m = 6_371_000.0f64.to_radians();
+        let xy: Vec<(f64, f64)> = r
+            .iter()
+            .map(|(lon, lat)| ((lon - lon0) * m * lat0.to_radians().cos(), (lat - lat0) * m))
+            .collect();
+        0.5 * xy
+            .windows(2)
+            .map(|w| w[0].0 * w[1].1 - w[1].0 * w[0].1)
+            .sum::<f64>()
+            .abs()
+    };
+    for (k, role, area, file) in [
+        (0, "walkable", 400.0, "walkable_area.wkt"),
+        (1, "measurement", 60.0, "measurement_area.wkt"),
+    ] {
+        let p = &f[k]["properties"];
+        assert_eq!(p["role"], role);
+        assert_eq!(p["area_m2"].as_f64(), Some(area));
+        let wkt = std::fs::read_to_string(out.join(file)).unwrap();
+        assert_eq!(p["site_frame_wkt"].as_str().unwrap(), wkt.trim());
+        let r = ring(k);
+        assert_eq!(r.first(), r.last());
+        let a = ground_area(&r);
+        assert!(
+            (a - area).abs() < 0.005 * area,
+            "{role}: {a} m² on the ground, {area} in the site frame"
+        );
+    }
+    assert_eq!(f[0]["properties"]["source"], "[analysis] walkable_area");
+    let (walk, meas) = (ring(0), ring(1));
+    let (lo, hi) = walk.iter().fold(
+        ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN)),
+        |(lo, hi), &(x, y)| ((lo.0.min(x), lo.1.min(y)), (hi.0.max(x), hi.1.max(y))),
+    );
+    // The two share the deck's edges: inside within 3e-9° (0.3 mm; 9 decimals are written).
+    let e = 3e-9;
+    assert!(
+        meas.iter()
+            .all(|&(x, y)| x > lo.0 - e && x < hi.0 + e && y > lo.1 - e && y < hi.1 + e)
+    );
 }

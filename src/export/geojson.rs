@@ -150,6 +150,37 @@ impl<'w> Features<'w> {
         self.out.done_piece()
     }
 
+    /// An area as a Polygon feature (its ring closed, 2D) with its `role` (`walkable`,
+    /// `measurement`), where it came from, its area in square metres and its site-frame WKT.
+    pub fn area(
+        &mut self,
+        (role, source, wkt, area_m2): (&str, &str, &str, f64),
+        wgs: &[Vector3<f64>],
+    ) -> std::io::Result<()> {
+        let s = self.next();
+        s.push_str("{\"type\":\"Feature\",\"properties\":{");
+        for (k, (name, value)) in [("role", role), ("source", source), ("site_frame_wkt", wkt)]
+            .into_iter()
+            .enumerate()
+        {
+            if k > 0 {
+                s.push(',');
+            }
+            let _ = write!(s, "\"{name}\":{}", serde_json::Value::from(value));
+        }
+        s.push(',');
+        real(s, "area_m2", area_m2);
+        s.push_str("},\"geometry\":{\"type\":\"Polygon\",\"coordinates\":[[");
+        for (k, c) in wgs.iter().chain(wgs.first()).enumerate() {
+            if k > 0 {
+                s.push(',');
+            }
+            position(s, c, true);
+        }
+        s.push_str("]]}}");
+        self.out.done_piece()
+    }
+
     /// Closes the collection.
     pub fn finish(mut self) -> std::io::Result<()> {
         self.out.s.push_str(TAIL);
@@ -206,6 +237,32 @@ mod tests {
                 })
                 .collect(),
         }
+    }
+
+    #[test]
+    fn an_area_is_a_closed_2d_polygon_with_its_role_and_site_frame_wkt() {
+        let mut v = Vec::new();
+        let mut f = Features::new(&mut v);
+        let ring = [
+            Vector3::new(4.1, 51.0, 10.0),
+            Vector3::new(4.2, 51.0, 10.0),
+            Vector3::new(4.2, 51.1, f64::NAN),
+        ];
+        let wkt = "POLYGON ((0 0, 1 0, 1 1, 0 0))";
+        f.area(("walkable", "the deck's \"outline\"", wkt, 0.5), &ring)
+            .unwrap();
+        f.finish().unwrap();
+        let j: serde_json::Value = serde_json::from_slice(&v).unwrap();
+        let a = &j["features"][0];
+        assert_eq!(a["properties"]["role"], "walkable");
+        assert_eq!(a["properties"]["source"], "the deck's \"outline\"");
+        assert_eq!(a["properties"]["site_frame_wkt"], wkt);
+        assert_eq!(a["properties"]["area_m2"].as_f64(), Some(0.5));
+        assert_eq!(a["geometry"]["type"], "Polygon");
+        let r = a["geometry"]["coordinates"][0].as_array().unwrap();
+        assert_eq!(r.len(), 4);
+        assert_eq!(r[0], r[3]);
+        assert!(r.iter().all(|c| c.as_array().unwrap().len() == 2));
     }
 
     #[test]

@@ -54,12 +54,17 @@ impl Wgs84 {
 
     /// The trajectory's points as (longitude, latitude, ellipsoidal height or NaN).
     fn convert(&mut self, t: &Trajectory) -> Result<Vec<Vector3<f64>>, RunError> {
-        t.points
-            .iter()
+        let crs: Vec<Vector3<f64>> = t.points.iter().map(|q| q.crs).collect();
+        self.convert_points(&crs)
+    }
+
+    /// Output-CRS points as (longitude, latitude, ellipsoidal height or NaN).
+    fn convert_points(&mut self, crs: &[Vector3<f64>]) -> Result<Vec<Vector3<f64>>, RunError> {
+        crs.iter()
             .map(|q| {
                 let (lon, lat, h) = self
                     .to_wgs84
-                    .apply_3d_noting(q.crs.x, q.crs.y, q.crs.z, &mut self.used)
+                    .apply_3d_noting(q.x, q.y, q.z, &mut self.used)
                     .map_err(RunError::Crs)?;
                 Ok(Vector3::new(
                     lon,
@@ -102,6 +107,66 @@ impl Wgs84 {
     }
 }
 
+/// An area for `areas.geojson`: its role, where it came from, its site-frame WKT and area, and
+/// its vertices in the output CRS.
+struct AreaOut {
+    role: &'static str,
+    source: &'static str,
+    wkt: String,
+    area_m2: f64,
+    crs: Vec<Vector3<f64>>,
+}
+
+/// The run's areas with their vertices in the output CRS; none without a CRS.
+fn areas_out(
+    inputs: &RunInputs,
+    analysis: &AnalysisSection,
+    walkable: Option<&Walkable>,
+) -> Result<Vec<AreaOut>, RunError> {
+    let frame = &inputs.framed.frame;
+    if frame.crs.is_none() {
+        return Ok(Vec::new());
+    }
+    let (measurement, _) = analysis
+        .polygons()
+        .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
+    let mut areas = Vec::new();
+    let polygons = walkable
+        .map(|w| ("walkable", w.source, &w.polygon))
+        .into_iter()
+        .chain(
+            measurement
+                .as_ref()
+                .map(|m| ("measurement", "[analysis] measurement_area", m)),
+        );
+    for (role, source, polygon) in polygons {
+        let crs = polygon
+            .vertices()
+            .iter()
+            .map(|v| {
+                let src = frame
+                    .source_from_local(&Vector3::new(v.x, v.y, 0.0))
+                    .map_err(RunError::Crs)?;
+                Ok(match &inputs.transform {
+                    Some(t) => {
+                        let (x, y) = t.apply(src.x, src.y).map_err(RunError::Crs)?;
+                        Vector3::new(x, y, src.z)
+                    }
+                    None => src,
+                })
+            })
+            .collect::<Result<Vec<_>, RunError>>()?;
+        areas.push(AreaOut {
+            role,
+            source,
+            wkt: crate::export::polygon_wkt(polygon.vertices()),
+            area_m2: polygon.area(),
+            crs,
+        });
+    }
+    Ok(areas)
+}
+
 /// [`cache_gone`] as an I/O error, for the writers.
 fn gone(cache: &StageCache, stage: &str) -> std::io::Error {
     std::io::Error::other(cache_gone(cache, stage).to_string())
@@ -117,6 +182,9 @@ struct ExportInputs<'a> {
     frame: SiteFrameNote,
     /// The walkable area the analysis uses too (none when nobody was tracked and none given).
     walkable: Option<Walkable>,
+    /// The walkable and measurement areas with their vertices in the output CRS, for
+    /// `areas.geojson` (none without a CRS).
+    areas: Vec<AreaOut>,
     crs_wkt: String,
     out_crs_spec: Option<String>,
     height_kind: &'a HeightKind,
@@ -335,6 +403,22 @@ fn write_geojson(x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
     })?;
     w.outputs.push("trajectories.geojson".into());
     w.outputs.push("positions.geojson".into());
+    if !x.areas.is_empty() {
+        let path = x.out.join("areas.geojson");
+        let mut rings = Vec::new();
+        for a in &x.areas {
+            rings.push(wgs.convert_points(&a.crs)?);
+        }
+        crate::io::write_atomic_with(&path, |o| {
+            let mut f = crate::export::geojson::Features::new(o);
+            for (a, ring) in x.areas.iter().zip(&rings) {
+                f.area((a.role, a.source, &a.wkt, a.area_m2), ring)?;
+            }
+            f.finish()
+        })
+        .map_err(|source| RunError::Io { path, source })?;
+        w.outputs.push("areas.geojson".into());
+    }
     let (operations, notes) = wgs.report();
     w.warnings.extend(notes);
     w.transformations = operations;
@@ -425,12 +509,14 @@ pub(super) fn export_stage(
         }
     };
     outputs.extend(write_areas(env.out, analysis, walkable.as_ref())?);
+    let areas = areas_out(inputs, analysis, walkable.as_ref())?;
     let x = ExportInputs {
         out: env.out,
         fps: inputs.fps,
         origin_note: &framed.frame.origin_note,
         frame: site_frame_note(&framed.frame),
         walkable,
+        areas,
         crs_wkt: crs.map(|c| c.wkt.clone()).unwrap_or_default(),
         out_crs_spec: crs.map(|c| c.spec.clone()),
         height_kind: &framed.frame.height,

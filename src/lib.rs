@@ -68,6 +68,7 @@ pub mod smooth;
 #[cfg(feature = "gdal")]
 pub mod survey;
 pub mod targets;
+pub mod telemetry;
 pub mod terrain;
 pub mod text;
 pub mod track;

@@ -18,6 +18,7 @@ mod run;
 mod sfm;
 mod simulate;
 pub(crate) mod survey;
+mod telemetry;
 mod track;
 
 use std::path::Path;
@@ -112,6 +113,9 @@ enum Command {
     /// Read, inspect and convert ground control point surveys (RTK exports, GCP lists)
     #[command(subcommand)]
     Survey(survey::Command),
+    /// Read a DJI flight telemetry subtitle file (.SRT): positions, heights, gimbal and camera
+    /// settings per block, as CSV
+    Telemetry(telemetry::Args),
 }
 
 impl Cli {
@@ -133,6 +137,7 @@ impl Cli {
             Command::Slurm(args) => cluster::run_slurm(args),
             Command::Track(args) => track::run(args),
             Command::Survey(cmd) => survey::run(cmd),
+            Command::Telemetry(args) => telemetry::run(args),
             Command::Gcp(cmd) => gcp::run(cmd),
             Command::Plan(args) => plan::run(args),
             Command::Pose(args) if args.video.is_some() => pose_video::run(&args),

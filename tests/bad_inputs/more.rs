@@ -158,6 +158,11 @@ impl Case {
     }
 }
 
+/// One DJI telemetry block: its counter, time range and fields line.
+fn srt_block(index: u32, times: &str, fields: &str) -> String {
+    format!("{index}\n{times}\n{fields}\n")
+}
+
 /// The fixture's file as bytes.
 fn read(name: &str) -> Vec<u8> {
     std::fs::read(fixture().join(name)).unwrap()
@@ -722,6 +727,24 @@ pub(super) fn cases() -> Vec<Case> {
             "is a file",
             "heights.csv",
         ),
+        // DJI telemetry subtitles (`geostride telemetry`).
+        case("srt-latitude-beyond-90", "nonsense accepted", &["telemetry", "d.SRT", "--out", "t.csv"], "within ±90", "d.SRT:3")
+            .file("d.SRT", srt_block(1, "00:00:00,000 --> 00:00:00,033", "[latitude: 97.5] [longitude: 8.5]")),
+        case("srt-bad-time-range", "wrong code", &["telemetry", "d.SRT", "--out", "t.csv"], "HH:MM:SS,mmm", "d.SRT:2")
+            .file("d.SRT", srt_block(1, "00:00:00,000 -> 00:00:00,033", "[latitude: 47.5] [longitude: 8.5]")),
+        case("srt-number-unread", "nonsense accepted", &["telemetry", "d.SRT", "--out", "t.csv"], "field 'rel_alt'", "d.SRT:3")
+            .file("d.SRT", srt_block(1, "00:00:00,000 --> 00:00:00,033", "[latitude: 47.5] [longitude: 8.5] [rel_alt: 3,5 abs_alt: 400.0]")),
+        case("srt-out-of-order", "nonsense accepted", &["telemetry", "d.SRT", "--out", "t.csv"], "time order", "d.SRT:6")
+            .file(
+                "d.SRT",
+                srt_block(1, "00:00:01,000 --> 00:00:01,033", "[latitude: 47.5] [longitude: 8.5]")
+                    + "\n"
+                    + &srt_block(2, "00:00:00,000 --> 00:00:00,033", "[latitude: 47.5] [longitude: 8.5]"),
+            ),
+        case("srt-no-blocks", "nonsense accepted", &["telemetry", "d.SRT", "--out", "t.csv"], "no subtitle blocks", "d.SRT")
+            .file("d.SRT", "\n\n".into()),
+        case("srt-not-text", "wrong code", &["telemetry", "d.SRT", "--out", "t.csv"], "not UTF-8", "d.SRT")
+            .bytes("d.SRT", vec![0xff, 0xfe, 0x31, 0x0a]),
     ];
     // Keep the id order readable in failures.
     c.retain(|x| !x.id.is_empty());

@@ -294,8 +294,8 @@ fn stage_seeds() -> Vec<Vec<u8>> {
             height: Matrix2::zeros(),
             pose: Matrix2::identity() * 2e-4,
         },
-        observed: f % 3 != 0,
-        score: (f % 3 != 0).then_some(0.9),
+        observed: !f.is_multiple_of(3),
+        score: (!f.is_multiple_of(3)).then_some(0.9),
     };
     let trajectories = vec![
         Trajectory {
@@ -479,6 +479,39 @@ pub fn targets() -> Vec<Target> {
         target!("truth-boxes", "boxes.csv", [TRUTH_BOXES], |p, t| {
             geostride::detect::simulated::parse_truth_boxes(p, t)
         }),
+        target!(
+            "dji-srt",
+            "DJI_0001.SRT",
+            [
+                include_str!("../data/dji-srt/mavic3t.SRT"),
+                include_str!("../data/dji-srt/m300rtk.SRT"),
+                include_str!("../data/dji-srt/mavic2ea.SRT"),
+                include_str!("../data/dji-srt/neo2-nogps.SRT"),
+                include_str!("../data/dji-srt/p4rtk.SRT"),
+                include_str!("../data/dji-srt/mavicpro.SRT"),
+                include_str!("../data/dji-srt/m300-legacy.srt"),
+            ],
+            |p, t| geostride::telemetry::srt::parse_srt(p, t).and_then(|f| {
+                // What is read must be in range: a position on the globe, times in order.
+                let sane = f.records.iter().all(|r| {
+                    r.latitude_deg.is_none_or(|v| v.abs() <= 90.0)
+                        && r.longitude_deg.is_none_or(|v| v.abs() <= 180.0)
+                        && r.end_s >= r.start_s
+                        && r.shutter_s.is_none_or(|s| s > 0.0 && s.is_finite())
+                }) && f.records.windows(2).all(|w| w[1].start_s >= w[0].start_s);
+                if sane {
+                    Ok(f)
+                } else {
+                    // Not naming the file: the fuzzer reports it.
+                    Err(geostride::io::FileError {
+                        path: "(accepted)".into(),
+                        line: None,
+                        field: None,
+                        message: "a value out of range was accepted".into(),
+                    })
+                }
+            })
+        ),
         Target {
             name: "colmap-model",
             share: 1.0,

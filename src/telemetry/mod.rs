@@ -1,0 +1,3 @@
+//! Flight telemetry recorded beside the video (pure parsing): DJI's `.SRT` subtitles.
+
+pub mod srt;

@@ -172,6 +172,13 @@ pub struct VideoSection {
     /// the chunk before's.
     #[serde(default = "default_overlap_s")]
     pub overlap_s: f64,
+    /// The drone's flight telemetry beside the video (DJI's `.SRT`): each frame's camera
+    /// centre is checked against its position (`pose/telemetry.csv`).
+    #[serde(default)]
+    pub telemetry: Option<String>,
+    /// σ of the telemetry's horizontal positions about their common offset, metres.
+    #[serde(default = "default_telemetry_sigma_m")]
+    pub telemetry_sigma_m: f64,
 }
 
 impl VideoSection {
@@ -182,8 +189,14 @@ impl VideoSection {
             duration_s: None,
             chunk_s: default_chunk_s(),
             overlap_s: default_overlap_s(),
+            telemetry: None,
+            telemetry_sigma_m: default_telemetry_sigma_m(),
         }
     }
+}
+
+fn default_telemetry_sigma_m() -> f64 {
+    1.5
 }
 
 fn default_chunk_s() -> f64 {
@@ -434,6 +447,9 @@ impl Loaded {
             files.push(("picks.codes", self.resolve(c)));
         }
         files.push(("video.path", self.resolve(&p.video.path)));
+        if let Some(t) = &p.video.telemetry {
+            files.push(("video.telemetry", self.resolve(t)));
+        }
         if let Some(h) = &p.projection.heights {
             files.push(("projection.heights", self.resolve(h)));
         }
@@ -598,6 +614,16 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     }
     check_picks(l)?;
     exists(l, "video", "path", &p.video.path)?;
+    if let Some(t) = &p.video.telemetry {
+        exists(l, "video", "telemetry", t)?;
+    }
+    if !(p.video.telemetry_sigma_m > 0.0 && p.video.telemetry_sigma_m.is_finite()) {
+        return Err(l.error(
+            "video",
+            "telemetry_sigma_m",
+            "expected a positive number of metres",
+        ));
+    }
     if let Some(h) = &p.survey.height
         && h != "ellipsoidal"
         && h != "orthometric"

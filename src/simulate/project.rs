@@ -138,8 +138,9 @@ pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
 }
 
 /// The group scene's project (a moving camera): every frame placed in the reference model
-/// `model` (`geostride sfm` of the survey flight's photos in `model_images`), the ground the
-/// model's local planes (2 m windows), the hats' colour detector and association tracking.
+/// `model` (`geostride sfm` of the survey flight's photos in `model_images`) and checked against
+/// the drone's telemetry (`video.SRT`), the ground the model's local planes (2 m windows), the
+/// hats' colour detector and association tracking.
 pub fn group_project(
     scene: &Scene,
     calibration: &str,
@@ -152,6 +153,10 @@ pub fn group_project(
         survey: SurveySection {
             picks: Vec::new(),
             ..hats.survey.clone()
+        },
+        video: VideoSection {
+            telemetry: Some("video.SRT".into()),
+            ..hats.video.clone()
         },
         pose: PoseSection::Model(ModelSettings {
             model: model.into(),

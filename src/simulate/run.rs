@@ -318,6 +318,9 @@ pub fn simulate(
         seed,
         video_name.as_deref(),
     )?);
+    if let Some(v) = &video {
+        files.push(write_telemetry(scene, &poses, v, seed)?);
+    }
     files.extend(write_checkerboards(scene, camera, out, seed)?);
     files.extend(write_survey_flight(scene, &world, camera, out, seed, &sun)?);
     files.push(write_scene_meta(
@@ -776,6 +779,103 @@ fn write_gcps(
     write_file(&paths[1], &truth)?;
     write_file(&paths[2], &picks)?;
     Ok(paths.to_vec())
+}
+
+/// The gimbal's yaw, pitch and roll of a camera pose, degrees, as DJI writes them: pitch up
+/// from the horizon (−90 straight down), yaw the heading of the image's top (clockwise from
+/// north; the view's for a tilted camera), roll the image's x axis above the horizon.
+fn gimbal_angles(pose: &CameraPose) -> [f64; 3] {
+    let r = &pose.world_from_cam;
+    let (x, forward, up) = (
+        r.column(0).into_owned(),
+        r.column(2).into_owned(),
+        -r.column(1).into_owned(),
+    );
+    let heading = forward.xy() + up.xy();
+    [
+        heading.x.atan2(heading.y).to_degrees(),
+        forward.z.clamp(-1.0, 1.0).asin().to_degrees(),
+        x.z.clamp(-1.0, 1.0).asin().to_degrees(),
+    ]
+}
+
+/// DJI's telemetry subtitles for the video (`video.SRT`, the bracketed generation with the
+/// gimbal's angles), one block a frame: the camera centre as a consumer drone's GNSS gives it
+/// (an offset common to the flight, σ 2 m per horizontal axis and 3 m up, and a slow wander of
+/// σ 0.7 m per axis, correlated over about 10 s), its height above the site frame's origin as
+/// `rel_alt` (the take-off point), the ellipsoidal height as `abs_alt`, and the gimbal's angles with 0.3°
+/// of noise. Truth: the exact centres are in `truth/camera.csv`.
+fn write_telemetry(
+    scene: &Scene,
+    poses: &[CameraPose],
+    video: &Path,
+    seed: u64,
+) -> Result<PathBuf, SimError> {
+    use std::fmt::Write as _;
+    let (_, tangent) = site_frame(&scene.site)?;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5127_7E1E);
+    let n = |s: f64| Normal::new(0.0, s).expect("sigma");
+    let offset = Vector3::new(
+        n(2.0).sample(&mut rng),
+        n(2.0).sample(&mut rng),
+        n(3.0).sample(&mut rng),
+    );
+    // AR(1) per axis: step correlation exp(−dt/τ), τ = 10 s, stationary σ 0.7 m.
+    let dt = 1.0 / scene.fps;
+    let phi = (-dt / 10.0f64).exp();
+    let step = n(0.7 * (1.0 - phi * phi).sqrt());
+    let mut wander = Vector3::new(
+        n(0.7).sample(&mut rng),
+        n(0.7).sample(&mut rng),
+        n(0.7).sample(&mut rng),
+    );
+    let angle_noise = n(0.3);
+    let ms = (1000.0 * dt).round() as u64;
+    let stamp = |t: f64| {
+        let ms = (t * 1000.0).round() as u64;
+        format!(
+            "{:02}:{:02}:{:02},{:03}",
+            ms / 3_600_000,
+            ms / 60_000 % 60,
+            ms / 1000 % 60,
+            ms % 1000
+        )
+    };
+    let mut s = String::new();
+    for (i, pose) in poses.iter().enumerate() {
+        let t = i as f64 * dt;
+        let measured = pose.centre + offset + wander;
+        wander = wander * phi
+            + Vector3::new(
+                step.sample(&mut rng),
+                step.sample(&mut rng),
+                step.sample(&mut rng),
+            );
+        let g = tangent.geodetic_from_enu(&measured);
+        let [yaw, pitch, roll] = gimbal_angles(pose).map(|a| a + angle_noise.sample(&mut rng));
+        let clock = 36_000.0 + t;
+        let _ = write!(
+            s,
+            "{}\n{} --> {}\n<font size=\"28\">FrameCnt: {}, DiffTime: {ms}ms\n2026-06-01 {:02}:{:02}:{:06.3}\n\
+             [iso: 100] [shutter: 1/1000.0] [fnum: 2.8] [ev: 0] [color_md: default] [focal_len: 24.00] \
+             [latitude: {:.7}] [longitude: {:.7}] [rel_alt: {:.3} abs_alt: {:.3}] \
+             [gb_yaw: {yaw:.1} gb_pitch: {pitch:.1} gb_roll: {roll:.1}] </font>\n\n",
+            i + 1,
+            stamp(t),
+            stamp(t + dt),
+            i + 1,
+            (clock / 3600.0).floor(),
+            (clock / 60.0).floor() % 60.0,
+            clock % 60.0,
+            g.lat.to_degrees(),
+            g.lon.to_degrees(),
+            measured.z,
+            g.h,
+        );
+    }
+    let path = video.with_extension("SRT");
+    write_file(&path, &s)?;
+    Ok(path)
 }
 
 /// Checkerboard images taken with the scene's camera (9x6 inner corners, 5 cm squares).

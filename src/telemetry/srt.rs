@@ -465,10 +465,7 @@ fn number(v: &str) -> Option<f64> {
 
 /// Three numbers `a, b, c`.
 fn triple(v: &str) -> Option<[f64; 3]> {
-    let n: Vec<f64> = v
-        .split(',')
-        .map(number)
-        .collect::<Option<Vec<f64>>>()?;
+    let n: Vec<f64> = v.split(',').map(number).collect::<Option<Vec<f64>>>()?;
     <[f64; 3]>::try_from(n).ok()
 }
 

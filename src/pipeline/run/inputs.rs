@@ -343,6 +343,35 @@ pub(super) fn picked(
     Ok((frame, seen.control, seen.check))
 }
 
+/// What a track's and a frame's checks read: the heights file (`[projection] heights`), and
+/// the drone's telemetry with its σ (`[video] telemetry`), read before any work.
+pub(super) type HeightsAndTelemetry = (
+    BTreeMap<usize, (f64, f64)>,
+    Option<(crate::telemetry::srt::SrtFile, f64)>,
+);
+
+/// [`HeightsAndTelemetry`] of the project.
+pub(super) fn read_heights_and_telemetry(
+    l: &Loaded,
+) -> Result<HeightsAndTelemetry, crate::io::FileError> {
+    let p = &l.project;
+    let heights = match &p.projection.heights {
+        Some(h) => read_heights(&l.resolve(h))?,
+        None => BTreeMap::new(),
+    };
+    let telemetry = match &p.video.telemetry {
+        Some(t) => {
+            let path = l.resolve(t);
+            let text = crate::io::FileCtx { path: &path }
+                .read_text("a DJI telemetry subtitle file (.SRT)")?;
+            let srt = crate::telemetry::srt::parse_srt(&path, &text)?;
+            Some((srt, p.video.telemetry_sigma_m))
+        }
+        None => None,
+    };
+    Ok((heights, telemetry))
+}
+
 /// Known head heights from a heights file (`parse_heights`).
 pub(super) fn read_heights(
     path: &Path,

@@ -38,6 +38,7 @@ mod prepare;
 mod project_stage;
 mod scan_stage;
 mod smooth_stage;
+mod telemetry_check;
 mod track_stage;
 mod views_stage;
 
@@ -200,6 +201,9 @@ pub fn run_with(
         &mut warnings,
     )?;
     stages.push(record);
+    if let Some(record) = telemetry_check::telemetry_check(&env, &x, &pose_data, &mut warnings)? {
+        stages.push(record);
+    }
     let frames = scan_data.frames;
     drop(scan_data);
     let poses: Vec<Rigid3> = pose_data.frames.iter().map(FramePoseData::pose).collect();

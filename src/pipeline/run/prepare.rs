@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Vector2;
 
-use super::inputs::{self, load_survey, project_camera, read_heights};
+use super::inputs::{self, load_survey, project_camera};
 use super::pose_source;
 use super::{ChunkMode, InputRecord, RunError, StageProgress};
 use crate::cache::{StageCache, stage_key};
@@ -93,10 +93,7 @@ pub(super) fn prepare<'a>(
     })?;
 
     // What the later stages read, checked now rather than after hours of scanning.
-    let heights = match &p.projection.heights {
-        Some(h) => read_heights(&l.resolve(h))?,
-        None => BTreeMap::new(),
-    };
+    let (heights, telemetry) = inputs::read_heights_and_telemetry(l)?;
     let (out_crs, transform) = inputs::output_transform(l, &framed)?;
     let frames = inputs::frames_to_process(l, frames_total)?;
     let grid = ChunkGrid::new(frames, fps, p.video.chunk_s, p.video.overlap_s);
@@ -172,6 +169,7 @@ pub(super) fn prepare<'a>(
         surface,
         px_per_m,
         heights,
+        telemetry,
         bodies,
         out_crs,
         transform,
@@ -394,6 +392,8 @@ pub(super) struct RunInputs {
     pub(super) px_per_m: f64,
     /// Heights given per track: (height, σ), metres.
     pub(super) heights: BTreeMap<usize, (f64, f64)>,
+    /// The drone's telemetry (`[video] telemetry`) and the σ of its horizontal positions.
+    pub(super) telemetry: Option<(crate::telemetry::srt::SrtFile, f64)>,
     /// Where the detector boxes whole bodies: how their boxes are read.
     pub(super) bodies: Option<Bodies>,
     pub(super) out_crs: Option<Crs>,

@@ -165,14 +165,12 @@ pub(crate) fn write_dataset(
         .extension()
         .map(|e| format!(".{}", e.to_string_lossy()))
         .unwrap_or_default();
-    let tmp = crate::io::temp_path(path, &ext);
-    let _ = std::fs::remove_file(&tmp);
     let cannot = |what: &'static str, e: &dyn std::fmt::Display| GisError::File {
         what,
         path: path.to_path_buf(),
         reason: e.to_string(),
     };
-    let result = (|| -> Result<(), GisError> {
+    let fill = |tmp: &Path| -> Result<(), GisError> {
         if format == GisFormat::GeoPackage {
             // GeoPackage stamps its tables with the time of writing: a fixed one makes two
             // identical runs give identical files.
@@ -187,7 +185,7 @@ pub(crate) fn write_dataset(
         // SAFETY: resets this thread's GDAL error state; takes nothing.
         unsafe { gdal_sys::CPLErrorReset() };
         let mut ds = driver
-            .create_vector_only(&tmp)
+            .create_vector_only(tmp)
             .map_err(|e| cannot("create", &e))?;
         if format == GisFormat::GeoPackage {
             // One transaction: SQLite otherwise commits (and syncs) every feature.
@@ -207,19 +205,15 @@ pub(crate) fn write_dataset(
             let msg = unsafe { std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg()) };
             return Err(cannot("write", &msg.to_string_lossy()));
         }
-        if format == GisFormat::GeoJson && !ends_with_json_close(&tmp) {
+        if format == GisFormat::GeoJson && !ends_with_json_close(tmp) {
             return Err(cannot(
                 "write",
                 &"the file was cut short (is the disk full?)",
             ));
         }
-        crate::io::commit_temp(&tmp, path).map_err(|e| cannot("write", &e))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-        let _ = std::fs::remove_file(crate::io::temp_path(path, &format!("{ext}-journal")));
-    }
-    result
+        Ok(())
+    };
+    crate::io::write_atomic_by_name(path, &ext, fill, |e| cannot("write", &e))
 }
 
 /// Writes an 8-bit RGBA image as a GeoTIFF (deflate, tiled; the alpha band marks where there
@@ -249,9 +243,7 @@ pub(crate) fn write_geotiff(
             driver: "GTiff",
             source,
         })?;
-    let tmp = crate::io::temp_path(path, ".tif");
-    let _ = std::fs::remove_file(&tmp);
-    let result = (|| -> Result<(), GisError> {
+    let fill = |tmp: &Path| -> Result<(), GisError> {
         let options = RasterCreationOptions::from_iter([
             "COMPRESS=DEFLATE",
             "TILED=YES",
@@ -259,7 +251,7 @@ pub(crate) fn write_geotiff(
             "ALPHA=YES",
         ]);
         let mut ds = driver
-            .create_with_band_type_with_options::<u8, _>(&tmp, width, height, 4, &options)
+            .create_with_band_type_with_options::<u8, _>(tmp, width, height, 4, &options)
             .map_err(|e| cannot("create", &e))?;
         ds.set_geo_transform(&geo_transform)
             .map_err(|e| cannot("write", &e))?;
@@ -293,7 +285,7 @@ pub(crate) fn write_geotiff(
             let msg = unsafe { std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg()) };
             return Err(cannot("write", &msg.to_string_lossy()));
         }
-        let back = Dataset::open(&tmp).map_err(|e| cannot("read back", &e))?;
+        let back = Dataset::open(tmp).map_err(|e| cannot("read back", &e))?;
         for k in 1..=4 {
             let band = back.rasterband(k).map_err(|e| cannot("read back", &e))?;
             let data = band
@@ -313,12 +305,9 @@ pub(crate) fn write_geotiff(
             }
         }
         drop(back);
-        crate::io::commit_temp(&tmp, path).map_err(|e| cannot("write", &e))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+        Ok(())
+    };
+    crate::io::write_atomic_by_name(path, ".tif", fill, |e| cannot("write", &e))
 }
 
 /// The time stamp written into GeoPackages (see [`write_dataset`]).

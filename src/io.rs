@@ -336,6 +336,26 @@ pub fn commit_temp(tmp: &Path, path: &Path) -> std::io::Result<()> {
     Ok(())
 }
 
+/// [`write_atomic`] for a library that writes a file by its name (GDAL, libhdf5, SQLite):
+/// `fill` writes the temporary [`temp_path`]`(path, ext)` (any one left before is removed),
+/// which is then committed (its error through `io_error`). On failure the temporary and its
+/// SQLite journal are removed; the target is never touched.
+pub fn write_atomic_by_name<E>(
+    path: &Path,
+    ext: &str,
+    fill: impl FnOnce(&Path) -> Result<(), E>,
+    io_error: impl FnOnce(std::io::Error) -> E,
+) -> Result<(), E> {
+    let tmp = temp_path(path, ext);
+    let _ = std::fs::remove_file(&tmp);
+    let result = fill(&tmp).and_then(|()| commit_temp(&tmp, path).map_err(io_error));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+        let _ = std::fs::remove_file(temp_path(path, &format!("{ext}-journal")));
+    }
+    result
+}
+
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over the target. A failed write leaves no partial file and never touches the target.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

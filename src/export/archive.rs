@@ -78,16 +78,11 @@ fn atomic(
     ext: &str,
     fill: impl FnOnce(&Path) -> Result<(), String>,
 ) -> Result<(), ArchiveError> {
-    let tmp = crate::io::temp_path(path, ext);
-    let _ = std::fs::remove_file(&tmp);
-    let result =
-        fill(&tmp).and_then(|()| crate::io::commit_temp(&tmp, path).map_err(|e| e.to_string()));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(|reason| ArchiveError {
-        path: path.to_path_buf(),
-        reason,
+    crate::io::write_atomic_by_name(path, ext, fill, |e| e.to_string()).map_err(|reason| {
+        ArchiveError {
+            path: path.to_path_buf(),
+            reason,
+        }
     })
 }
 

@@ -7,6 +7,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 use super::{Env, RunError, RunInputs, StageRecord, StageStatus};
+use crate::analysis::ConvexPolygon;
 use crate::cache::{StageCache, cache_gone};
 use crate::export::gis::write_geopackage;
 use crate::export::{ExportFormat, SiteFrameNote, Trajectory};
@@ -120,25 +121,18 @@ struct AreaOut {
 /// The run's areas with their vertices in the output CRS; none without a CRS.
 fn areas_out(
     inputs: &RunInputs,
-    analysis: &AnalysisSection,
+    measurement: Option<&ConvexPolygon>,
     walkable: Option<&Walkable>,
 ) -> Result<Vec<AreaOut>, RunError> {
     let frame = &inputs.framed.frame;
     if frame.crs.is_none() {
         return Ok(Vec::new());
     }
-    let (measurement, _) = analysis
-        .polygons()
-        .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
     let mut areas = Vec::new();
     let polygons = walkable
         .map(|w| ("walkable", w.source, &w.polygon))
         .into_iter()
-        .chain(
-            measurement
-                .as_ref()
-                .map(|m| ("measurement", "[analysis] measurement_area", m)),
-        );
+        .chain(measurement.map(|m| ("measurement", "[analysis] measurement_area", m)));
     for (role, source, polygon) in polygons {
         let crs = polygon
             .vertices()
@@ -450,12 +444,9 @@ fn site_frame_note(frame: &crate::survey::frame::SiteFrame) -> SiteFrameNote {
 /// the site frame, as PedPy's `WalkableArea` and `MeasurementArea` read WKT.
 fn write_areas(
     out: &Path,
-    analysis: &AnalysisSection,
+    measurement: Option<&ConvexPolygon>,
     walkable: Option<&Walkable>,
 ) -> Result<Vec<String>, RunError> {
-    let (measurement, _) = analysis
-        .polygons()
-        .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
     let mut files: Vec<(&str, String)> = walkable
         .iter()
         .map(|w| {
@@ -508,8 +499,15 @@ pub(super) fn export_stage(
             None
         }
     };
-    outputs.extend(write_areas(env.out, analysis, walkable.as_ref())?);
-    let areas = areas_out(inputs, analysis, walkable.as_ref())?;
+    let (measurement, _) = analysis
+        .polygons()
+        .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
+    outputs.extend(write_areas(
+        env.out,
+        measurement.as_ref(),
+        walkable.as_ref(),
+    )?);
+    let areas = areas_out(inputs, measurement.as_ref(), walkable.as_ref())?;
     let x = ExportInputs {
         out: env.out,
         fps: inputs.fps,

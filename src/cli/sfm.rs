@@ -123,6 +123,108 @@ fn list_images(inputs: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
 enum SfmCommand {
     /// Register more images in an existing model (its frame, its points held): their poses
     Register(RegisterArgs),
+    /// Georeference a COLMAP model (text or binary) with GCPs and their picks: the same
+    /// GCP-constrained adjustment, check points and camera σ as `geostride sfm --gcps`; the model
+    /// written back in COLMAP's format in the survey's site frame
+    Georef(GeorefArgs),
+    /// Convert a COLMAP model between text and binary, byte for byte as `colmap
+    /// model_converter` does
+    Convert(ConvertArgs),
+}
+
+#[derive(clap::Args)]
+struct ConvertArgs {
+    /// The COLMAP model folder (cameras, images, points3D; .bin or .txt)
+    #[arg(value_name = "MODEL_DIR")]
+    model: PathBuf,
+    /// Format written
+    #[arg(long, value_enum, value_name = "FORMAT")]
+    output_type: OutputType,
+    /// Output folder (created; its model files replaced)
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+}
+
+/// `geostride sfm convert MODEL_DIR --output-type txt|bin --out DIR`.
+fn run_convert_cli(args: ConvertArgs) -> anyhow::Result<()> {
+    use geostride::sfm::colmap_model::{ModelFormat, read_model_dir};
+    let (model, _) = read_model_dir(&args.model).map_err(bad_input)?;
+    let format = match args.output_type {
+        OutputType::Txt => ModelFormat::Text,
+        OutputType::Bin => ModelFormat::Binary,
+    };
+    if args.out.canonicalize().ok() == args.model.canonicalize().ok()
+        && geostride::sfm::colmap_model::detect_format(&args.model) == Some(format)
+    {
+        return Err(bad_input(anyhow!(
+            "{}: the output folder is the model's and the format its own: give another --out",
+            args.out.display()
+        )));
+    }
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| anyhow!("{}: cannot create it: {e}", args.out.display()))?;
+    let written = model
+        .write(&args.out, format)
+        .map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
+    println!(
+        "{} cameras, {} images, {} points",
+        model.cameras.len(),
+        model.images.len(),
+        model.points.len()
+    );
+    for f in written {
+        println!("Written: {}", args.out.join(f).display());
+    }
+    Ok(())
+}
+
+#[derive(clap::Args)]
+struct GeorefArgs {
+    /// The COLMAP model folder (cameras, images, points3D; .bin or .txt), e.g. sparse/0
+    #[arg(value_name = "MODEL_DIR")]
+    model: PathBuf,
+    /// Ground control and check points with their pixel picks (as for `geostride sfm --gcps`);
+    /// picks name the model's images (file name, or file name without extension)
+    #[arg(long, value_name = "FILE", required = true)]
+    gcps: Option<PathBuf>,
+    #[command(flatten)]
+    read: ReadArgs,
+    /// Camera centres measured in flight (RTK, PPK), named after the images, in the CRS of
+    /// --gcps: priors of the adjustment
+    #[arg(long, value_name = "FILE")]
+    centres: Option<PathBuf>,
+    /// σ of picks that do not state one, pixels
+    #[arg(long, default_value = "1.0", value_parser = super::parse_positive, value_name = "PX")]
+    pick_sigma: f64,
+    /// σ of surveyed points that do not state one (each axis), metres
+    #[arg(long, default_value = "0.02", value_parser = super::parse_positive, value_name = "M")]
+    gcp_sigma: f64,
+    /// σ of camera centres that do not state one: horizontal,vertical metres
+    #[arg(
+        long,
+        default_value = "0.03,0.05",
+        value_delimiter = ',',
+        value_name = "H,V"
+    )]
+    centre_sigma: Vec<f64>,
+    /// Format of the model written [default: the input's]
+    #[arg(long, value_enum, value_name = "FORMAT")]
+    output_type: Option<OutputType>,
+    /// Output folder: the COLMAP model in the site frame, points.ply, cameras.csv (and
+    /// cameras.gpkg with a CRS), report.json, report.md
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Print the report as JSON
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum OutputType {
+    /// cameras.txt, images.txt, points3D.txt
+    Txt,
+    /// cameras.bin, images.bin, points3D.bin
+    Bin,
 }
 
 #[derive(clap::Args)]
@@ -435,8 +537,11 @@ pub(super) fn args_from<I: IntoIterator<Item = String>>(words: I) -> anyhow::Res
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    if let Some(SfmCommand::Register(r)) = args.command {
-        return run_register_cli(r);
+    match args.command {
+        Some(SfmCommand::Register(r)) => return run_register_cli(r),
+        Some(SfmCommand::Georef(g)) => return run_georef_cli(g),
+        Some(SfmCommand::Convert(c)) => return run_convert_cli(c),
+        None => {}
     }
     let Built {
         run,
@@ -518,38 +623,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     if let Some(g) = r.georef.as_ref().filter(|_| r.frame == "site") {
-        let rms = |x: &Option<geostride::sfm::georef::Rms>| match x {
-            Some(x) => format!(
-                "{:.3} m horizontally, {:.3} m vertically ({} points)",
-                x.horizontal_m, x.vertical_m, x.points
-            ),
-            None => "none".into(),
-        };
-        println!(
-            "Georeferenced in {} (placed by the {}): control {}; check {}{}",
-            r.site_frame.as_deref().unwrap_or("the site frame"),
-            g.placed_by,
-            rms(&g.control_rms),
-            rms(&g.check_rms),
-            g.check_rms_px
-                .map(|p| format!(", check picks {p:.2} px"))
-                .unwrap_or_default()
-        );
-        if let Some(c) = &g.centres_rms {
-            println!(
-                "Camera centres {:.3} m horizontally, {:.3} m vertically from their measurements ({} images)",
-                c.horizontal_m, c.vertical_m, c.points
-            );
-        }
-        for (name, why) in &g.left_out {
-            println!("  left out: {name}: {why}");
-        }
-        if g.sigma_scale > 1.0 {
-            println!(
-                "  camera σ scaled by {:.2}: the surveyed points and centres spread more than their σ say",
-                g.sigma_scale
-            );
-        }
+        print_georef_summary(g, r.site_frame.as_deref().unwrap_or("the site frame"));
     }
     if !r.unmatched_names.is_empty() {
         println!(
@@ -582,9 +656,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 /// The surveyed points, picks and camera centres in the site frame, and the frame.
 fn georef_input(args: &Args) -> anyhow::Result<(Option<GeorefInput>, Option<SiteFrame>)> {
-    let (points, frame, source) = match &args.gcps {
+    georef_input_of(&GeorefFiles {
+        gcps: args.gcps.as_deref(),
+        read: &args.read,
+        centres: args.centres.as_deref(),
+        pick_sigma: args.pick_sigma,
+        gcp_sigma: args.gcp_sigma,
+        centre_sigma: &args.centre_sigma,
+    })
+}
+
+/// The georeferencing options `geostride sfm` and `geostride sfm georef` share.
+struct GeorefFiles<'a> {
+    gcps: Option<&'a Path>,
+    read: &'a ReadArgs,
+    centres: Option<&'a Path>,
+    pick_sigma: f64,
+    gcp_sigma: f64,
+    centre_sigma: &'a [f64],
+}
+
+/// The surveyed points, picks and camera centres in the site frame, and the frame.
+fn georef_input_of(args: &GeorefFiles) -> anyhow::Result<(Option<GeorefInput>, Option<SiteFrame>)> {
+    let (points, frame, source) = match args.gcps {
         Some(file) => {
-            let framed = read_framed(file, &args.read, None)?;
+            let framed = read_framed(file, args.read, None)?;
             let mut points = Vec::new();
             for (p, local) in framed.survey.points.iter().zip(&framed.local) {
                 let role = match p.role {
@@ -629,10 +725,10 @@ fn georef_input(args: &Args) -> anyhow::Result<(Option<GeorefInput>, Option<Site
         None => (Vec::new(), None, None),
     };
     let mut centres = Vec::new();
-    let frame = match &args.centres {
+    let frame = match args.centres {
         None => frame,
         Some(file) => {
-            let survey = read_other(file, &args.read)?;
+            let survey = read_other(file, args.read)?;
             if let Some(g) = &source
                 && (g.crs != survey.crs || g.height != survey.height)
             {
@@ -694,9 +790,15 @@ fn georef_input(args: &Args) -> anyhow::Result<(Option<GeorefInput>, Option<Site
 
 /// Each registered camera's centre in the survey's CRS.
 fn crs_positions(run: &SfmRun, frame: &SiteFrame) -> anyhow::Result<CrsPositions> {
-    let positions = run
-        .reconstruction
-        .poses
+    crs_positions_of(&run.reconstruction.poses, frame)
+}
+
+/// Each registered camera's centre (`poses`, site frame) in the survey's CRS.
+fn crs_positions_of(
+    poses: &[Option<geostride::geom::Rigid3>],
+    frame: &SiteFrame,
+) -> anyhow::Result<CrsPositions> {
+    let positions = poses
         .iter()
         .map(|p| match p {
             Some(p) => frame
@@ -716,12 +818,22 @@ fn write_gpkg(
     frame: &SiteFrame,
     crs: &CrsPositions,
 ) -> anyhow::Result<()> {
-    let cams: Vec<CameraPoint> = run
-        .names
+    write_gpkg_of(path, &run.names, &run.reconstruction.poses, frame, crs)
+}
+
+/// `cameras.gpkg` of images `names` with `poses` (site frame).
+fn write_gpkg_of(
+    path: &Path,
+    names: &[String],
+    poses: &[Option<geostride::geom::Rigid3>],
+    frame: &SiteFrame,
+    crs: &CrsPositions,
+) -> anyhow::Result<()> {
+    let cams: Vec<CameraPoint> = names
         .iter()
         .enumerate()
         .filter_map(|(i, name)| {
-            let pose = run.reconstruction.poses[i]?;
+            let pose = poses[i]?;
             let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);
             let c = pose.centre();
             Some(CameraPoint {
@@ -739,4 +851,135 @@ fn write_gpkg(
         .unwrap_or_default();
     write_cameras(path, &wkt, &frame.height.to_string(), &cams)
         .map_err(|e| anyhow!("{}: {e}", path.display()))
+}
+
+/// `geostride sfm georef MODEL_DIR --gcps FILE --out DIR`.
+fn run_georef_cli(args: GeorefArgs) -> anyhow::Result<()> {
+    use geostride::sfm::colmap_model::ModelFormat;
+    use geostride::sfm::georef_job::{GeorefModelJob, run_georef_model, write_georef_outputs};
+    if args.centre_sigma.len() != 2
+        || args
+            .centre_sigma
+            .iter()
+            .any(|v| !(*v > 0.0 && v.is_finite()))
+    {
+        return Err(bad_input(anyhow!(
+            "--centre-sigma {:?}: two positive numbers, horizontal,vertical metres",
+            args.centre_sigma
+        )));
+    }
+    if !args.model.is_dir() {
+        return Err(bad_input(anyhow!(
+            "{}: no such folder (give the COLMAP model's folder, e.g. sparse/0)",
+            args.model.display()
+        )));
+    }
+    let (georef, frame) = georef_input_of(&GeorefFiles {
+        gcps: args.gcps.as_deref(),
+        read: &args.read,
+        centres: args.centres.as_deref(),
+        pick_sigma: args.pick_sigma,
+        gcp_sigma: args.gcp_sigma,
+        centre_sigma: &args.centre_sigma,
+    })?;
+    let (Some(georef), Some(frame)) = (georef, frame) else {
+        return Err(bad_input(anyhow!("--gcps: no surveyed points")));
+    };
+    let inputs: Vec<&Path> = [args.model.as_path()]
+        .into_iter()
+        .chain(args.gcps.iter().map(PathBuf::as_path))
+        .chain(args.centres.iter().map(PathBuf::as_path))
+        .chain(args.read.picks.iter().map(PathBuf::as_path))
+        .collect();
+    let guard = check_output_dir(&args.out, inputs)?;
+    let job = GeorefModelJob {
+        model_dir: args.model.clone(),
+        georef,
+        format: args.output_type.map(|t| match t {
+            OutputType::Txt => ModelFormat::Text,
+            OutputType::Bin => ModelFormat::Binary,
+        }),
+    };
+    let run = run_georef_model(&job).map_err(|e| {
+        let input = e.is_input();
+        exit_for(e, input)
+    })?;
+    let r = &run.converted.reconstruction;
+    let crs = crs_positions_of(&r.poses, &frame)?;
+    guard.create_dir(&args.out).map_err(output_error)?;
+    let mut written = write_georef_outputs(&args.out, &run, Some(&crs))
+        .map_err(|e| anyhow!("{}: {e}", args.out.display()))?;
+    if frame.crs.is_some() {
+        write_gpkg_of(
+            &args.out.join("cameras.gpkg"),
+            &run.converted.names,
+            &r.poses,
+            &frame,
+            &crs,
+        )?;
+        written.push("cameras.gpkg".into());
+    }
+    let report = &run.report;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+        return Ok(());
+    }
+    let g = &report.georef;
+    println!(
+        "Model: {} images, {} points, camera {} {}x{}; mean reprojection {:.3} px as read, {:.3} px adjusted",
+        report.images,
+        report.points,
+        report.camera_model,
+        report.width,
+        report.height,
+        report.mean_reprojection_px_before,
+        report.mean_reprojection_px
+    );
+    print_georef_summary(g, &report.site_frame);
+    if !report.unmatched_names.is_empty() {
+        println!(
+            "Note: picks or centres name images not in the model (ignored): {}",
+            report.unmatched_names.join(", ")
+        );
+    }
+    for f in written {
+        println!("Written: {}", args.out.join(f).display());
+    }
+    Ok(())
+}
+
+/// The georeferencing's lines of the terminal summary.
+fn print_georef_summary(g: &geostride::sfm::georef::GeorefReport, site_frame: &str) {
+    let rms = |x: &Option<geostride::sfm::georef::Rms>| match x {
+        Some(x) => format!(
+            "{:.3} m horizontally, {:.3} m vertically ({} points)",
+            x.horizontal_m, x.vertical_m, x.points
+        ),
+        None => "none".into(),
+    };
+    println!(
+        "Georeferenced in {} (placed by the {}): control {}; check {}{}",
+        site_frame,
+        g.placed_by,
+        rms(&g.control_rms),
+        rms(&g.check_rms),
+        g.check_rms_px
+            .map(|p| format!(", check picks {p:.2} px"))
+            .unwrap_or_default()
+    );
+    if let Some(c) = &g.centres_rms {
+        println!(
+            "Camera centres {:.3} m horizontally, {:.3} m vertically from their measurements ({} images)",
+            c.horizontal_m, c.vertical_m, c.points
+        );
+    }
+    for (name, why) in &g.left_out {
+        println!("  left out: {name}: {why}");
+    }
+    if g.sigma_scale > 1.0 {
+        println!(
+            "  camera σ scaled by {:.2}: the surveyed points and centres spread more than their σ say",
+            g.sigma_scale
+        );
+    }
 }

@@ -431,7 +431,7 @@ fn check_exif_focals(images: &[PathBuf], metas: &[PhotoMeta]) -> Result<(), SfmJ
 
 /// Refuses measured camera centres that lie far from every GCP (the two in different CRSs or
 /// sites): no drone flies kilometres from the targets it photographs.
-fn check_centres_near_gcps(g: &GeorefInput) -> Result<(), SfmJobError> {
+pub(crate) fn check_centres_near_gcps(g: &GeorefInput) -> Result<(), SfmJobError> {
     if g.points.is_empty() || g.centres.is_empty() {
         return Ok(());
     }
@@ -787,7 +787,7 @@ fn image_index(names: &[String], wanted: &str) -> Option<usize> {
 
 /// The georeferencing input with image indices; picks outside their image are an error, names
 /// of images not given are collected in `unmatched`.
-fn index_georef(
+pub(crate) fn index_georef(
     g: &GeorefInput,
     names: &[String],
     width: u32,
@@ -1244,7 +1244,7 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
 }
 
 /// The georeferencing section of `report.md`.
-fn georef_md(g: &GeorefReport, frame: &str) -> String {
+pub(crate) fn georef_md(g: &GeorefReport, frame: &str) -> String {
     let rms = |r: &Option<super::georef::Rms>| match r {
         Some(r) => format!(
             "{:.3} m horizontally, {:.3} m vertically ({} points)",
@@ -1309,8 +1309,26 @@ fn georef_md(g: &GeorefReport, frame: &str) -> String {
 /// rotation as a unit quaternion, in the model's frame: east-north-up metres at the GPS centroid
 /// when placed on the GPS (`frame` says which), else the arbitrary frame of the reconstruction.
 pub(crate) fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
-    let frame = &run.report.frame;
-    let sigmas = run.report.georef.as_ref().map(|g| &g.camera_sigma);
+    cameras_csv_of(
+        &run.names,
+        &run.reconstruction.poses,
+        &run.report.frame,
+        run.report
+            .georef
+            .as_ref()
+            .map(|g| g.camera_sigma.as_slice()),
+        crs,
+    )
+}
+
+/// `cameras.csv` of images `names` with `poses` in `frame`, their σ when georeferenced.
+pub(crate) fn cameras_csv_of(
+    names: &[String],
+    poses: &[Option<crate::geom::Rigid3>],
+    frame: &str,
+    sigmas: Option<&[Option<super::georef::CameraSigma>]>,
+    crs: Option<&CrsPositions>,
+) -> String {
     let mut s = String::from("image,registered,frame,x,y,z,qw,qx,qy,qz");
     if crs.is_some() {
         s.push_str(",crs_x,crs_y,crs_h");
@@ -1319,8 +1337,9 @@ pub(crate) fn cameras_csv(run: &SfmRun, crs: Option<&CrsPositions>) -> String {
         s.push_str(",sigma_e_m,sigma_n_m,sigma_u_m,sigma_rotation_deg");
     }
     s.push('\n');
-    for (i, name) in run.names.iter().enumerate() {
-        match run.reconstruction.poses[i] {
+    for (i, name) in names.iter().enumerate() {
+        let name = crate::survey::write::csv_field(name);
+        match poses[i] {
             Some(pose) => {
                 let c = pose.centre();
                 let q = nalgebra::UnitQuaternion::from_rotation_matrix(&pose.rotation);

@@ -8,8 +8,12 @@
 
 pub mod cache;
 pub mod colmap;
+pub mod colmap_convert;
+pub mod colmap_model;
 pub mod exif;
 pub mod georef;
+#[cfg(feature = "opencv")]
+pub mod georef_job;
 #[cfg(feature = "opencv")]
 pub mod job;
 pub mod matching;

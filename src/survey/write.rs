@@ -157,7 +157,7 @@ fn sigma_fields(g: &Gcp) -> [String; 3] {
         .unwrap_or_default()
 }
 
-fn csv_field(s: &str) -> String {
+pub(crate) fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {

@@ -170,6 +170,103 @@ fn picks_survey() -> geostride::survey::Survey {
 /// A COLMAP text model in one text: each file after a `== NAME ==` line.
 const COLMAP: &str = "== cameras.txt ==\n# Camera list\n1 OPENCV 1280 720 1000.5 1001 640.5 360.5 -0.01 0.002 0.0001 -0.0002\n== images.txt ==\n# Image list\n1 1 0 0 0 0 0 0 1 p0.png\n100.5 200.5 1 300.5 400.5 2 50 60 -1\n2 0.9998 0.02 0 0 -1 0.1 0 1 p1.png\n120.5 210.5 1 320.5 390.5 2\n3 1 0 0 0 -2 0 0 1 p2.png\n\n== points3D.txt ==\n# 3D point list\n1 0.5 0.25 10 200 200 200 0.4 1 0 2 0\n2 -0.5 0.5 11 200 200 200 0.4 1 1 2 1\n";
 
+/// A model with a SIMPLE_RADIAL camera, a point seen by no image, an image of no keypoints.
+const COLMAP_RADIAL: &str = "== cameras.txt ==\n1 SIMPLE_RADIAL 640 480 500 320 240 -0.1\n2 PINHOLE 640 480 500 500 320 240\n== images.txt ==\n5 0.7 0.1 0.1 0.7 1 2 3 1 a/b_c.jpg\n1 2 -1 3 4 7\n9 1 0 0 0 0 0 0 1 d.jpg\n\n== points3D.txt ==\n7 0 0 1 0 0 0 0.5 5 1\n8 1 1 1 1 1 1 1\n";
+
+/// The three binary files of a [`COLMAP`]-like text, split by [`SPLIT`].
+fn colmap_binary_seed(t: &str) -> Vec<u8> {
+    let [c, i, p] = colmap_parts(t);
+    let path = Path::new("seed");
+    let model = geostride::sfm::colmap_model::parse_text((path, &c), (path, &i), (path, &p))
+        .unwrap_or_else(|e| panic!("the seed parses: {e}"));
+    let [c, i, p] = model.to_binary();
+    [c, SPLIT.to_vec(), i, SPLIT.to_vec(), p].concat()
+}
+
+const SPLIT: &[u8] = b"@@next file@@";
+
+/// Bytes cut at the first two [`SPLIT`]s (missing parts empty).
+fn split_three(b: &[u8]) -> [&[u8]; 3] {
+    let find = |b: &[u8]| b.windows(SPLIT.len()).position(|w| w == SPLIT);
+    let Some(k) = find(b) else {
+        return [b, &[], &[]];
+    };
+    let (c, rest) = (&b[..k], &b[k + SPLIT.len()..]);
+    let Some(k) = find(rest) else {
+        return [c, rest, &[]];
+    };
+    [c, &rest[..k], &rest[k + SPLIT.len()..]]
+}
+
+/// A parsed COLMAP model must survive being written and read again (the same records, in the
+/// hash map's order) and its conversion for georeferencing (an error or a reconstruction).
+fn colmap_checked(
+    parsed: Result<
+        geostride::sfm::colmap_model::ColmapModel,
+        geostride::sfm::colmap_model::ColmapError,
+    >,
+) -> Outcome {
+    use geostride::sfm::colmap_model::{ColmapModel, parse_binary, parse_text};
+    let m = match parsed {
+        Ok(m) => m,
+        Err(e) => return Outcome::Err(e.to_string()),
+    };
+    let sorted = |mut m: ColmapModel| {
+        m.cameras.sort_by_key(|c| c.id);
+        m.images.sort_by_key(|c| c.id);
+        m.points.sort_by_key(|c| c.id);
+        m
+    };
+    let path = Path::new("again");
+    // Writing normalises each quaternion, and reading does again (as COLMAP does): the model
+    // read back holds them normalised twice more.
+    let norm = geostride::sfm::colmap_model::normalize_quaternion;
+    let mut expected = m.clone();
+    for i in &mut expected.images {
+        i.qvec = norm(norm(i.qvec));
+    }
+    let [c, i, p] = m.to_binary();
+    let again = parse_binary((path, &c), (path, &i), (path, &p));
+    let bytes = |m: ColmapModel| sorted(m).to_binary();
+    if again.map(bytes).ok() != Some(bytes(expected.clone())) {
+        return Outcome::Err("(accepted): the binary written does not read back".into());
+    }
+    // Text holds names without spaces and control characters only (as COLMAP's).
+    if m.images.iter().all(|i| {
+        !i.name.is_empty()
+            && !i
+                .name
+                .contains(|c: char| c.is_whitespace() || c.is_control())
+    }) {
+        let [c, i, p] = m.to_text();
+        let again = parse_text((path, &c), (path, &i), (path, &p));
+        let same = again
+            .as_ref()
+            .is_ok_and(|a| a.to_binary() == sorted_binary(&expected, a));
+        if !same {
+            return Outcome::Err("(accepted): the text written does not read back".into());
+        }
+    }
+    let _ = geostride::sfm::colmap_convert::to_reconstruction(&m);
+    Outcome::Ok
+}
+
+/// `m`'s binary in the order `a` (the same records read back) holds them.
+fn sorted_binary(
+    m: &geostride::sfm::colmap_model::ColmapModel,
+    a: &geostride::sfm::colmap_model::ColmapModel,
+) -> [Vec<u8>; 3] {
+    let mut m = m.clone();
+    let pos = |ids: &[u64], id: u64| ids.iter().position(|v| *v == id).unwrap_or(usize::MAX);
+    let cams: Vec<u64> = a.cameras.iter().map(|c| u64::from(c.id)).collect();
+    let imgs: Vec<u64> = a.images.iter().map(|c| u64::from(c.id)).collect();
+    let pts: Vec<u64> = a.points.iter().map(|c| c.id).collect();
+    m.cameras.sort_by_key(|c| pos(&cams, u64::from(c.id)));
+    m.images.sort_by_key(|c| pos(&imgs, u64::from(c.id)));
+    m.points.sort_by_key(|c| pos(&pts, c.id));
+    m.to_binary()
+}
+
 /// The three files of a [`COLMAP`]-like text (missing ones empty).
 fn colmap_parts(t: &str) -> [String; 3] {
     let mut parts: [String; 3] = Default::default();
@@ -527,6 +624,39 @@ pub fn targets() -> Vec<Target> {
                     ))
                 }
                 None => Outcome::Err("model/: not UTF-8 text".into()),
+            }),
+        },
+        Target {
+            name: "colmap-text",
+            share: 1.0,
+            file: "model/",
+            seeds: vec![COLMAP.as_bytes().to_vec(), COLMAP_RADIAL.as_bytes().to_vec()],
+            run: Box::new(|_: &Path, b: &[u8]| match text(b) {
+                Some(t) => {
+                    let [c, i, p] = colmap_parts(t);
+                    let parsed = geostride::sfm::colmap_model::parse_text(
+                        (Path::new("model/cameras.txt"), &c),
+                        (Path::new("model/images.txt"), &i),
+                        (Path::new("model/points3D.txt"), &p),
+                    );
+                    colmap_checked(parsed)
+                }
+                None => Outcome::Err("model/: not UTF-8 text".into()),
+            }),
+        },
+        Target {
+            name: "colmap-binary",
+            share: 1.0,
+            file: "model/",
+            seeds: vec![colmap_binary_seed(COLMAP), colmap_binary_seed(COLMAP_RADIAL)],
+            run: Box::new(|_: &Path, b: &[u8]| {
+                let [c, i, p] = split_three(b);
+                let parsed = geostride::sfm::colmap_model::parse_binary(
+                    (Path::new("model/cameras.bin"), c),
+                    (Path::new("model/images.bin"), i),
+                    (Path::new("model/points3D.bin"), p),
+                );
+                colmap_checked(parsed)
             }),
         },
         Target {

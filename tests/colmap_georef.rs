@@ -384,3 +384,239 @@ fn bad_models_are_refused_with_file_and_place() {
     let e = georef(&bad("empty"));
     assert!(e.contains("no COLMAP model here"), "{e}");
 }
+
+/// A ground-truth camera of Herz-Jesu-P8: `K`, and `R` mapping camera to world with centre `C`.
+fn herzjesu_camera(
+    path: &Path,
+) -> (
+    nalgebra::Matrix3<f64>,
+    nalgebra::Matrix3<f64>,
+    nalgebra::Vector3<f64>,
+) {
+    let v: Vec<f64> = std::fs::read_to_string(path)
+        .unwrap()
+        .split_whitespace()
+        .map(|t| t.parse().unwrap())
+        .collect();
+    let k = nalgebra::Matrix3::from_row_slice(&v[0..9]);
+    let r = nalgebra::Matrix3::from_row_slice(&v[12..21]);
+    (k, r, nalgebra::Vector3::new(v[21], v[22], v[23]))
+}
+
+/// Real photos with a surveyed frame: COLMAP 3.8's model of Herz-Jesu-P8 (8 photos of a church
+/// facade) georeferenced into the laser scan's frame. Its "GCPs" are eight model points, well
+/// spread, whose positions in that frame are triangulated from their keypoints with the
+/// benchmark's ground-truth cameras (each camera registered to the scan): five control
+/// points, three check points. The cameras must come out where the scan placed them, the check
+/// points within twice their σ.
+#[test]
+fn a_real_colmap_model_is_georeferenced_into_the_laser_scans_frame() {
+    let Some(data) = common::data_dir("strecha-herzjesu-p8") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let db = tmp.path().join("db.db");
+    let sparse = tmp.path().join("sparse");
+    std::fs::create_dir_all(&sparse).unwrap();
+    let images = data.join("images");
+    let (k, _, _) = herzjesu_camera(&data.join("gt_dense_cameras/0000.jpg.camera"));
+    let params = format!(
+        "{},{},{},{}",
+        k[(0, 0)],
+        k[(1, 1)],
+        k[(0, 2)] + 0.5,
+        k[(1, 2)] + 0.5
+    );
+    colmap(&[
+        "feature_extractor",
+        "--database_path",
+        s(&db),
+        "--image_path",
+        s(&images),
+        "--ImageReader.single_camera",
+        "1",
+        "--ImageReader.camera_model",
+        "PINHOLE",
+        "--ImageReader.camera_params",
+        &params,
+        "--SiftExtraction.use_gpu",
+        "0",
+        "--SiftExtraction.max_image_size",
+        "1600",
+        "--SiftExtraction.max_num_features",
+        "4000",
+        "--SiftExtraction.num_threads",
+        "2",
+    ]);
+    colmap(&[
+        "exhaustive_matcher",
+        "--database_path",
+        s(&db),
+        "--SiftMatching.use_gpu",
+        "0",
+        "--SiftMatching.num_threads",
+        "2",
+    ]);
+    colmap(&[
+        "mapper",
+        "--database_path",
+        s(&db),
+        "--image_path",
+        s(&images),
+        "--output_path",
+        s(&sparse),
+        "--Mapper.num_threads",
+        "2",
+        "--Mapper.ba_refine_focal_length",
+        "0",
+        "--Mapper.ba_refine_extra_params",
+        "0",
+    ]);
+    let model_dir = sparse.join("0");
+    let (model, _) = geostride::sfm::colmap_model::read_model_dir(&model_dir).unwrap();
+    assert_eq!(
+        model.images.len(),
+        8,
+        "COLMAP registered {} of 8",
+        model.images.len()
+    );
+    // The ground-truth projection of each image: x ~ K Rᵀ (X − C).
+    let gt: std::collections::HashMap<u32, nalgebra::Matrix3x4<f64>> = model
+        .images
+        .iter()
+        .map(|i| {
+            let (k, r, c) =
+                herzjesu_camera(&data.join(format!("gt_dense_cameras/{}.camera", i.name)));
+            let mut rt = nalgebra::Matrix3x4::zeros();
+            rt.fixed_view_mut::<3, 3>(0, 0).copy_from(&r.transpose());
+            rt.set_column(3, &(-r.transpose() * c));
+            (i.id, k * rt)
+        })
+        .collect();
+    let image = |id: u32| model.images.iter().find(|i| i.id == id).unwrap();
+    // Points seen in 4 images or more, triangulated (DLT) with the ground-truth cameras; those
+    // they reproject within 1.5 px RMS.
+    let mut candidates = Vec::new();
+    for p in model.points.iter().filter(|p| p.track.len() >= 4) {
+        let obs: Vec<(u32, [f64; 2])> = p
+            .track
+            .iter()
+            .map(|&(i, k)| (i, image(i).points2d[k as usize].xy))
+            .collect();
+        let mut a = nalgebra::DMatrix::<f64>::zeros(2 * obs.len(), 4);
+        for (row, (i, xy)) in obs.iter().enumerate() {
+            let m = &gt[i];
+            for c in 0..4 {
+                a[(2 * row, c)] = xy[0] * m[(2, c)] - m[(0, c)];
+                a[(2 * row + 1, c)] = xy[1] * m[(2, c)] - m[(1, c)];
+            }
+        }
+        let v = a.svd(false, true).v_t.unwrap();
+        let h = v.row(v.nrows() - 1);
+        let x = nalgebra::Vector3::new(h[0] / h[3], h[1] / h[3], h[2] / h[3]);
+        let rms = (obs
+            .iter()
+            .map(|(i, xy)| {
+                let q = gt[i] * x.push(1.0);
+                (q[0] / q[2] - xy[0]).powi(2) + (q[1] / q[2] - xy[1]).powi(2)
+            })
+            .sum::<f64>()
+            / obs.len() as f64)
+            .sqrt();
+        if rms < 1.5 {
+            candidates.push((x, obs));
+        }
+    }
+    assert!(
+        candidates.len() > 100,
+        "{} points agree with the ground-truth cameras",
+        candidates.len()
+    );
+    // Eight spread points: farthest-point sampling from the first.
+    let mut chosen = vec![0usize];
+    while chosen.len() < 8 {
+        let next = (0..candidates.len())
+            .max_by(|&a, &b| {
+                let d = |k: usize| {
+                    chosen
+                        .iter()
+                        .map(|&c| (candidates[k].0 - candidates[c].0).norm())
+                        .fold(f64::MAX, f64::min)
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        chosen.push(next);
+    }
+    let sigma = 0.01;
+    let mut gcps = String::from("name,x,y,z,sx,sy,sz\n");
+    let mut picks = String::from("name,image,u,v,sigma\n");
+    for (n, &c) in chosen.iter().enumerate() {
+        let name = if n < 5 {
+            format!("GCP{n}")
+        } else {
+            format!("CHK-{n}")
+        };
+        let x = candidates[c].0;
+        gcps.push_str(&format!(
+            "{name},{},{},{},{sigma},{sigma},{sigma}\n",
+            x.x, x.y, x.z
+        ));
+        for (i, xy) in &candidates[c].1 {
+            picks.push_str(&format!(
+                "{name},{},{},{},1.0\n",
+                image(*i).name,
+                xy[0] - 0.5,
+                xy[1] - 0.5
+            ));
+        }
+    }
+    std::fs::write(tmp.path().join("gcps.csv"), gcps).unwrap();
+    std::fs::write(tmp.path().join("picks.csv"), picks).unwrap();
+    let out = tmp.path().join("georef");
+    let o = geostride(&[
+        "sfm",
+        "georef",
+        s(&model_dir),
+        "--gcps",
+        s(&tmp.path().join("gcps.csv")),
+        "--format",
+        "csv",
+        "--columns",
+        "name,x,y,z,sx,sy,sz",
+        "--crs",
+        "local",
+        "--picks",
+        s(&tmp.path().join("picks.csv")),
+        "--out",
+        s(&out),
+        "--json",
+    ]);
+    common::assert_success(&o);
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for (name, r, sigma) in check_points(&report) {
+        let d = nalgebra::Vector3::from(r).norm();
+        eprintln!("Herz-Jesu {name}: {d:.4} m from its position in the scan's frame");
+        assert!(
+            r[0].hypot(r[1]) <= 2.0 * sigma[0].hypot(sigma[1]) && r[2].abs() <= 2.0 * sigma[2],
+            "{name}: {r:?}"
+        );
+    }
+    let got = common::read_csv(&out.join("cameras.csv"));
+    let mut worst = 0.0f64;
+    for row in &got {
+        let (_, _, c) =
+            herzjesu_camera(&data.join(format!("gt_dense_cameras/{}.camera", row["image"])));
+        let e = nalgebra::Vector3::new(
+            common::num(row, "crs_x"),
+            common::num(row, "crs_y"),
+            common::num(row, "crs_h"),
+        ) - c;
+        worst = worst.max(e.norm());
+    }
+    eprintln!(
+        "Herz-Jesu: COLMAP's 8 cameras georeferenced within {worst:.4} m of the laser scan's"
+    );
+    assert_eq!(got.len(), 8);
+    assert!(worst < 0.03, "{worst} m");
+}

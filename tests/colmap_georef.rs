@@ -1,8 +1,9 @@
 //! COLMAP models in and out, against COLMAP 3.8 itself (Debian's `colmap`, installed by
 //! scripts/bootstrap.sh): a model COLMAP reconstructed from the simulated survey flight is
 //! converted text ↔ binary byte for byte as `colmap model_converter` converts it, and
-//! georeferenced by `geostride sfm georef` with the flight's GCPs and picks; bad models are
-//! refused with their file and place, exit 2.
+//! georeferenced by `geostride sfm georef` with the flight's GCPs and picks; COLMAP's model of
+//! the real Herz-Jesu-P8 photos is placed in its laser scan's frame; bad models are refused with
+//! their file and place, exit 2.
 
 #![cfg(all(feature = "opencv", feature = "gdal", feature = "onnx"))]
 

@@ -80,6 +80,14 @@ impl SrtFile {
             .filter_map(|i| self.records.get(i))
             .min_by(|a, b| mid(a).total_cmp(&mid(b)))
     }
+
+    /// The record of video frame `frame` at `fps`: the one covering the frame's middle. DJI
+    /// writes the block times in whole milliseconds, so a frame's start (frame 40 at 15 fps:
+    /// 2.6667 s) can fall just before its own block's rounded start (2.667 s) and in the block
+    /// of the frame before.
+    pub fn record_of_frame(&self, frame: usize, fps: f64) -> Option<&SrtRecord> {
+        self.record_at((frame as f64 + 0.5) / fps)
+    }
 }
 
 /// The columns of [`records_csv`].

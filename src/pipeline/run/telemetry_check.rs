@@ -64,7 +64,7 @@ pub(super) fn telemetry_check(
     let to_survey = Transform::new(&wgs84, crs).map_err(RunError::Crs)?;
     let mut pairs = Vec::new();
     for f in &pose_data.frames {
-        let Some(r) = srt.record_at(f.frame as f64 / x.fps) else {
+        let Some(r) = srt.record_of_frame(f.frame, x.fps) else {
             continue;
         };
         let (Some(lat), Some(lon)) = (r.latitude_deg, r.longitude_deg) else {

@@ -127,6 +127,34 @@ fn the_record_of_a_time_is_the_one_covering_it_else_the_nearest() {
 }
 
 #[test]
+fn a_frame_is_matched_with_its_own_block_when_the_times_are_rounded_to_milliseconds() {
+    // 15 fps, the block times rounded to ms as DJI and the simulator write them: frame k's
+    // start k/15 s is just before block k+1's rounded start for k = 10, 40, ...
+    let mut text = String::new();
+    for k in 0..60u32 {
+        let ms = |f: u32| (f64::from(f) * 1000.0 / 15.0).round() as u32;
+        let t = |ms: u32| format!("00:00:{:02},{:03}", ms / 1000, ms % 1000);
+        text += &format!(
+            "{}\n{} --> {}\n[latitude: 51.{:07}] [longitude: 4.4]\n\n",
+            k + 1,
+            t(ms(k)),
+            t(ms(k + 1)),
+            k
+        );
+    }
+    let f = parse(&text).unwrap();
+    for frame in 0..60usize {
+        assert_eq!(
+            f.record_of_frame(frame, 15.0).unwrap().index,
+            frame as u64 + 1,
+            "frame {frame}"
+        );
+    }
+    // What the check used before: the frame's start lands in the block before.
+    assert_eq!(f.record_at(40.0 / 15.0).unwrap().index, 40);
+}
+
+#[test]
 fn malformed_blocks_are_refused_with_their_line_and_field() {
     let cases: [(String, &str, &str); 7] = [
         (

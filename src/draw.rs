@@ -391,7 +391,8 @@ pub struct Chart {
     /// Short vertical marks along the bottom of the plot area, with their legend label.
     pub ticks: Vec<f64>,
     pub ticks_label: String,
-    /// The y axis spans the data only (an altitude near 30 m, say), not from 0.
+    /// The y axis spans the data only (an altitude near 30 m, say; negative values too), not
+    /// from 0.
     pub y_from_data: bool,
     /// The x axis starts at 0 (a density, a speed), not at the smallest x.
     pub x_from_zero: bool,
@@ -452,7 +453,7 @@ impl ChartRanges {
         if x1 <= x0 {
             x1 = x0 + 1.0;
         }
-        let (y0, y_step, y1) = if chart.y_from_data && y_min.is_finite() && y_min > 0.0 {
+        let (y0, y_step, y1) = if chart.y_from_data && y_min.is_finite() {
             // At least a few millimetres of span, centred on flat data.
             let span = (y1 - y_min).max(1e-3 * y1.abs()).max(1e-6);
             let step = nice_step(span, 5.0);

@@ -924,9 +924,33 @@ fn video_frames_are_placed_in_the_reference_model() {
     }
     // The pipeline's `model` pose: every frame of the clip placed in the model (key frames
     // registered, the frames between carried), the ground the model's local planes.
+    // The drone's telemetry with one key frame's block (48's) 10 m north (the key frames are
+    // then matched with the photos nearest the telemetry) and one between key frames 10 m east.
+    let srt = std::fs::read_to_string(sim.join("video.SRT")).unwrap();
+    let shifted: Vec<String> = srt
+        .split("\n\n")
+        .enumerate()
+        .map(|(k, b)| {
+            let field = match k {
+                48 => "latitude",
+                33 => "longitude",
+                _ => return b.to_string(),
+            };
+            let v = b
+                .split(&format!("[{field}: "))
+                .nth(1)
+                .and_then(|r| r.split(']').next())
+                .unwrap();
+            // 10 m: 9e-5° of latitude, 1.43e-4° of longitude at 51°N.
+            let d = if field == "latitude" { 9.0e-5 } else { 1.43e-4 };
+            let moved = format!("{:.7}", v.parse::<f64>().unwrap() + d);
+            b.replace(&format!("[{field}: {v}]"), &format!("[{field}: {moved}]"))
+        })
+        .collect();
+    std::fs::write(sim.join("shifted.SRT"), shifted.join("\n\n")).unwrap();
     let project = |model_images: &str| {
         format!(
-            "[camera]\ncalibration = \"mavic3e\"\n[survey]\ngcps = \"sim/gcps.csv\"\nheight = \"ellipsoidal\"\n[video]\npath = \"sim/{video}\"\n[pose]\nkind = \"model\"\nmodel = \"model\"\nmodel_images = \"{model_images}\"\n[ground]\nkind = \"local_planes\"\nmodel = \"model\"\n[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n"
+            "[camera]\ncalibration = \"mavic3e\"\n[survey]\ngcps = \"sim/gcps.csv\"\nheight = \"ellipsoidal\"\n[video]\npath = \"sim/{video}\"\ntelemetry = \"sim/shifted.SRT\"\ntelemetry_height = \"ellipsoidal\"\n[pose]\nkind = \"model\"\nmodel = \"model\"\nmodel_images = \"{model_images}\"\n[ground]\nkind = \"local_planes\"\nmodel = \"model\"\n[detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n"
         )
     };
     std::fs::write(tmp.path().join("bad.toml"), project("sim/no-such-folder")).unwrap();
@@ -990,8 +1014,41 @@ fn video_frames_are_placed_in_the_reference_model() {
         .expect("frame 20 a key frame");
     assert_eq!(k20["placed"], "no", "{k20:?}");
     assert!(!k20["reason"].is_empty());
+    // Every key frame but the lost ones matched with the photos nearest its telemetry, frame
+    // 48's too (its telemetry 10 m off, still near enough), and placed within a metre of that
+    // position (the telemetry's wander), 48 about 10 m from it.
+    let key_names: Vec<&str> = keys.iter().map(|k| k["frame"].as_str()).collect();
+    assert_eq!(key_names, ["0", "20", "21", "22", "23", "48"]);
+    for k in &keys {
+        if ["20", "21", "22"].contains(&k["frame"].as_str()) {
+            assert_eq!(
+                (k["near"].as_str(), k["placed"].as_str()),
+                ("all", "no"),
+                "{k:?}"
+            );
+            continue;
+        }
+        assert_eq!(k["near"], "telemetry", "{k:?}");
+        assert_eq!(k["placed"], "yes", "{k:?}");
+        let d = common::num(k, "from_telemetry_m");
+        let want = if k["frame"] == "48" { 10.0 } else { 0.0 };
+        assert!((d - want).abs() < 1.5, "{k:?}");
+    }
+    // The check flags exactly the two frames whose telemetry is 10 m off.
+    let checked = common::read_csv(&run_dir.join("pose/telemetry.csv"));
+    assert_eq!(checked.len(), 50);
+    let flagged: Vec<&str> = checked
+        .iter()
+        .filter(|r| r["flagged"] == "1")
+        .map(|r| r["frame"].as_str())
+        .collect();
+    assert_eq!(flagged, ["33", "48"]);
     let run_report = std::fs::read_to_string(run_dir.join("report.json")).unwrap();
     assert!(run_report.contains("interpolated poses"), "{run_report}");
+    assert!(
+        run_report.contains("2 frame(s) whose camera centre"),
+        "{run_report}"
+    );
     let tracks = common::read_csv(&run_dir.join("trajectories.csv"));
     assert!(!tracks.is_empty());
 }

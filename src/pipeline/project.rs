@@ -173,12 +173,21 @@ pub struct VideoSection {
     #[serde(default = "default_overlap_s")]
     pub overlap_s: f64,
     /// The drone's flight telemetry beside the video (DJI's `.SRT`): each frame's camera
-    /// centre is checked against its position (`pose/telemetry.csv`).
+    /// centre is checked against its position (`pose/telemetry.csv`), and a moving camera's
+    /// key frames are matched with the model photos nearest it.
     #[serde(default)]
     pub telemetry: Option<String>,
     /// σ of the telemetry's horizontal positions about their common offset, metres.
     #[serde(default = "default_telemetry_sigma_m")]
     pub telemetry_sigma_m: f64,
+    /// What the telemetry's `abs_alt` is above: "ellipsoidal" (WGS 84) or "egm96" (the geoid,
+    /// "above sea level", DJI's consumer drones). DJI's files do not say: unset, heights are not
+    /// compared.
+    #[serde(default)]
+    pub telemetry_height: Option<String>,
+    /// σ of the telemetry's heights about their common offset, metres.
+    #[serde(default = "default_telemetry_sigma_vertical_m")]
+    pub telemetry_sigma_vertical_m: f64,
 }
 
 impl VideoSection {
@@ -191,12 +200,18 @@ impl VideoSection {
             overlap_s: default_overlap_s(),
             telemetry: None,
             telemetry_sigma_m: default_telemetry_sigma_m(),
+            telemetry_height: None,
+            telemetry_sigma_vertical_m: default_telemetry_sigma_vertical_m(),
         }
     }
 }
 
 fn default_telemetry_sigma_m() -> f64 {
     1.5
+}
+
+fn default_telemetry_sigma_vertical_m() -> f64 {
+    3.0
 }
 
 fn default_chunk_s() -> f64 {
@@ -617,11 +632,28 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     if let Some(t) = &p.video.telemetry {
         exists(l, "video", "telemetry", t)?;
     }
-    if !(p.video.telemetry_sigma_m > 0.0 && p.video.telemetry_sigma_m.is_finite()) {
+    for (key, v) in [
+        ("telemetry_sigma_m", p.video.telemetry_sigma_m),
+        (
+            "telemetry_sigma_vertical_m",
+            p.video.telemetry_sigma_vertical_m,
+        ),
+    ] {
+        if !(v > 0.0 && v.is_finite()) {
+            return Err(l.error("video", key, "expected a positive number of metres"));
+        }
+    }
+    if let Some(h) = &p.video.telemetry_height
+        && h != "ellipsoidal"
+        && h != "egm96"
+    {
         return Err(l.error(
             "video",
-            "telemetry_sigma_m",
-            "expected a positive number of metres",
+            "telemetry_height",
+            format!(
+                "expected \"ellipsoidal\" or \"egm96\" (what DJI's abs_alt is above), got \"{}\"",
+                crate::io::clip(h, 40)
+            ),
         ));
     }
     if let Some(h) = &p.survey.height

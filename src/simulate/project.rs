@@ -138,8 +138,9 @@ pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
 }
 
 /// The group scene's project (a moving camera): every frame placed in the reference model
-/// `model` (`geostride sfm` of the survey flight's photos in `model_images`) and checked against
-/// the drone's telemetry (`video.SRT`), the ground the model's local planes (2 m windows), the
+/// `model` (`geostride sfm` of the survey flight's photos in `model_images`; each key frame
+/// matched with the photos nearest its telemetry) and checked against the drone's telemetry
+/// (`video.SRT`, its heights ellipsoidal), the ground the model's local planes (2 m windows), the
 /// hats' colour detector and association tracking.
 pub fn group_project(
     scene: &Scene,
@@ -156,6 +157,8 @@ pub fn group_project(
         },
         video: VideoSection {
             telemetry: Some("video.SRT".into()),
+            // The simulator writes ellipsoidal heights.
+            telemetry_height: Some("ellipsoidal".into()),
             ..hats.video.clone()
         },
         pose: PoseSection::Model(ModelSettings {

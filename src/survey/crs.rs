@@ -976,6 +976,63 @@ impl Transform {
     }
 }
 
+/// The EGM96 geoid's height above the WGS 84 ellipsoid, from PROJ's 15' grid (Debian's
+/// `proj-data`): DJI's consumer drones write their altitude above it. Not `Send`.
+pub struct Egm96 {
+    // Dropped before the context it was made in.
+    op: Pj,
+    ctx: Rc<Context>,
+}
+
+impl Egm96 {
+    /// The grid under its current name, else under the older one; an error naming both when
+    /// neither is installed (never a silent zero).
+    pub fn new() -> Result<Egm96, CrsError> {
+        let ctx = Context::shared();
+        for grid in ["us_nga_egm96_15.tif", "egm96_15.gtx"] {
+            let spec = format!(
+                "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad +step +proj=vgridshift +grids={grid} +multiplier=1 +step +proj=unitconvert +xy_in=rad +xy_out=deg"
+            );
+            let c = CString::new(spec).expect("no NUL in a literal");
+            // SAFETY: the context is a live handle made on this thread (`Context`: non-null, not `Send`); the string is a NUL-terminated `CString` that outlives the call; PROJ copies what it keeps.
+            let raw = unsafe { sys::proj_create(ctx.ptr, c.as_ptr()) };
+            if !raw.is_null() {
+                return Ok(Egm96 {
+                    op: Pj { ptr: raw },
+                    ctx,
+                });
+            }
+        }
+        Err(CrsError {
+            spec: "EGM96".into(),
+            message: format!(
+                "PROJ has no EGM96 geoid grid (us_nga_egm96_15.tif or egm96_15.gtx): install proj-data ({})",
+                ctx.last_error()
+            ),
+        })
+    }
+
+    /// The geoid's height above the ellipsoid at `lon`, `lat` (degrees), metres.
+    pub fn undulation_m(&self, lon: f64, lat: f64) -> Result<f64, CrsError> {
+        let c = sys::PJ_COORD {
+            v: [lon, lat, 0.0, f64::INFINITY],
+        };
+        // SAFETY: the context and object are live handles made on this thread (`Context`, `Pj`: non-null, not `Send`).
+        let v = unsafe { sys::proj_trans(self.op.ptr, sys::PJ_DIRECTION_PJ_FWD, c).v };
+        if v[2].is_finite() {
+            Ok(v[2])
+        } else {
+            Err(CrsError {
+                spec: "EGM96".into(),
+                message: format!(
+                    "no geoid height at longitude {lon}, latitude {lat}: {}",
+                    self.ctx.last_error()
+                ),
+            })
+        }
+    }
+}
+
 /// The operations a `Transform` used over many points (`Transform::apply_3d_noting`). Not
 /// `Send`, like the transform.
 #[derive(Default)]
@@ -999,6 +1056,15 @@ impl UsedOperations {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn egm96_undulation_matches_the_published_geoid_heights() {
+        let g = Egm96::new().unwrap();
+        // NGA's EGM96 at 0°N 0°E: 17.16 m; near Munich the geoid is about 45.6 m up.
+        assert!((g.undulation_m(0.0, 0.0).unwrap() - 17.16).abs() < 0.02);
+        let munich = g.undulation_m(11.5, 48.1).unwrap();
+        assert!((munich - 45.57).abs() < 0.05, "{munich}");
+    }
 
     #[test]
     fn odm_utm_spelling() {

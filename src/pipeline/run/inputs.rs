@@ -347,7 +347,7 @@ pub(super) fn picked(
 /// the drone's telemetry with its σ (`[video] telemetry`), read before any work.
 pub(super) type HeightsAndTelemetry = (
     BTreeMap<usize, (f64, f64)>,
-    Option<(crate::telemetry::srt::SrtFile, f64)>,
+    Option<super::telemetry_site::Telemetry>,
 );
 
 /// [`HeightsAndTelemetry`] of the project.
@@ -365,7 +365,18 @@ pub(super) fn read_heights_and_telemetry(
             let text = crate::io::FileCtx { path: &path }
                 .read_text("a DJI telemetry subtitle file (.SRT)")?;
             let srt = crate::telemetry::srt::parse_srt(&path, &text)?;
-            Some((srt, p.video.telemetry_sigma_m))
+            use super::telemetry_site::{AltitudeDatum, Telemetry};
+            Some(Telemetry {
+                srt,
+                sigma_m: p.video.telemetry_sigma_m,
+                sigma_vertical_m: p.video.telemetry_sigma_vertical_m,
+                // Checked when the project was read.
+                datum: match p.video.telemetry_height.as_deref() {
+                    Some("ellipsoidal") => Some(AltitudeDatum::Ellipsoidal),
+                    Some(_) => Some(AltitudeDatum::Egm96),
+                    None => None,
+                },
+            })
         }
         None => None,
     };

@@ -39,6 +39,7 @@ mod project_stage;
 mod scan_stage;
 mod smooth_stage;
 mod telemetry_check;
+mod telemetry_site;
 mod track_stage;
 mod views_stage;
 

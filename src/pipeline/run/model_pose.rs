@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
 
+use super::telemetry_site::SiteTelemetry;
 use super::{Env, FramePoseData, RunError, RunInputs, ScanData};
 use crate::camera::Camera;
 use crate::detect::Detection;
@@ -150,7 +151,82 @@ pub(super) struct ModelPoses {
     pub frames: Vec<FramePoseData>,
     pub key_frames: Vec<usize>,
     pub key_frames_failed: Vec<usize>,
-    pub registrations: Vec<(usize, Registration, Vec<usize>)>,
+    pub registrations: Vec<KeyRegistration>,
+}
+
+/// One key frame's registration in the model.
+pub(super) struct KeyRegistration {
+    pub frame: usize,
+    pub registration: Registration,
+    /// The model photos it was matched with.
+    pub with: Vec<usize>,
+    /// Whether those were the photos nearest its telemetry position.
+    pub near_telemetry: bool,
+    /// How far its placed centre is from that position (east-north, metres).
+    pub from_telemetry_m: Option<f64>,
+}
+
+/// The telemetry as the key frames' prior: each key frame is expected at its SRT position
+/// moved by the median offset between the poses placed so far (frame 0's first) and theirs.
+struct KeyPrior<'a> {
+    site: Option<SiteTelemetry<'a>>,
+    /// Placed centre minus telemetry, east and north, metres.
+    offsets: Vec<(f64, f64)>,
+}
+
+impl<'a> KeyPrior<'a> {
+    fn new(x: &'a RunInputs) -> Result<KeyPrior<'a>, RunError> {
+        let site = match &x.telemetry {
+            Some(t) => SiteTelemetry::new(t, &x.framed, x.fps)?.ok(),
+            None => None,
+        };
+        let mut prior = KeyPrior {
+            site,
+            offsets: Vec::new(),
+        };
+        prior.placed(0, &x.first_pose.centre())?;
+        Ok(prior)
+    }
+
+    /// Frame `frame` posed at `centre`: its offset from the telemetry joins the others.
+    fn placed(&mut self, frame: usize, centre: &Vector3<f64>) -> Result<(), RunError> {
+        if let Some(fix) = self
+            .site
+            .as_ref()
+            .map(|s| s.at(frame))
+            .transpose()?
+            .flatten()
+        {
+            self.offsets
+                .push((centre.x - fix.site.x, centre.y - fix.site.y));
+        }
+        Ok(())
+    }
+
+    /// Where frame `frame` is expected (its height that of the telemetry or NaN; only east and
+    /// north choose the photos); `None` without telemetry for it.
+    fn expected(&self, frame: usize) -> Result<Option<Vector3<f64>>, RunError> {
+        let Some(fix) = self
+            .site
+            .as_ref()
+            .map(|s| s.at(frame))
+            .transpose()?
+            .flatten()
+        else {
+            return Ok(None);
+        };
+        let med = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        };
+        let de = med(self.offsets.iter().map(|o| o.0).collect());
+        let dn = med(self.offsets.iter().map(|o| o.1).collect());
+        Ok(Some(Vector3::new(
+            fix.site.x + de,
+            fix.site.y + dn,
+            fix.site.z,
+        )))
+    }
 }
 
 /// Every frame's pose: key frames registered in the model, the frames between carried.
@@ -173,10 +249,13 @@ pub(super) fn model_poses(
     let mask_px = m.mask_m * scan.px_per_m;
     let settings = video_pose_settings(m);
 
-    // 1. Key frames: features (people masked), registered in order near the last one placed.
+    // 1. Key frames: features (people masked), registered in order against the model photos
+    // nearest the telemetry's position (its offset from the poses placed so far removed), else
+    // nearest the last one placed.
     let mut placed_keys: BTreeMap<usize, PlacedKey> = BTreeMap::new();
     let mut registrations = Vec::new();
     let mut near = Some(x.first_pose.centre());
+    let mut prior = KeyPrior::new(x)?;
     let video_name = x
         .video
         .file_name()
@@ -201,18 +280,29 @@ pub(super) fn model_poses(
             .map_or(&[][..], Vec::as_slice);
         mask_people(&mut f, dets, mask_px);
         let name = format!("{video_name}#{index}");
+        let expected = prior.expected(index)?;
         let (r, with, key) = model.reference.place_key_frame(
             camera,
             &name,
             &f,
-            near.as_ref(),
+            expected.as_ref().or(near.as_ref()),
             (&model.floor, &settings),
         );
+        let mut from_telemetry_m = None;
         if let Some(key) = key {
-            near = Some(key.placed.pose.centre());
+            let centre = key.placed.pose.centre();
+            from_telemetry_m = expected.map(|e| (centre - e).xy().norm());
+            prior.placed(index, &centre)?;
+            near = Some(centre);
             placed_keys.insert(index, key);
         }
-        registrations.push((index, r, with));
+        registrations.push(KeyRegistration {
+            frame: index,
+            registration: r,
+            with,
+            near_telemetry: expected.is_some(),
+            from_telemetry_m,
+        });
         progress.inc(1);
         Ok::<(), RunError>(())
     })?;
@@ -236,7 +326,7 @@ pub(super) fn model_poses(
             x.video.display(),
             registrations
                 .iter()
-                .filter_map(|(_, r, _)| r.reason.clone())
+                .filter_map(|k| k.registration.reason.clone())
                 .next()
                 .unwrap_or_default()
         )));
@@ -299,16 +389,19 @@ pub(super) fn write_model_pose_outputs(
         );
     }
     write_atomic(&dir.join("poses.csv"), csv.as_bytes()).map_err(io(dir.join("poses.csv")))?;
-    let mut keys =
-        String::from("frame,placed,correspondences,inliers,rms_px,model_images,reason\n");
-    for (f, r, with) in &poses.registrations {
-        let names: Vec<&str> = with
+    let mut keys = String::from(
+        "frame,placed,correspondences,inliers,rms_px,model_images,near,from_telemetry_m,reason\n",
+    );
+    for k in &poses.registrations {
+        let (f, r) = (&k.frame, &k.registration);
+        let names: Vec<&str> = k
+            .with
             .iter()
-            .map(|&k| model.reference.model.images[k].name.as_str())
+            .map(|&i| model.reference.model.images[i].name.as_str())
             .collect();
         let _ = writeln!(
             keys,
-            "{f},{},{},{},{},{},{}",
+            "{f},{},{},{},{},{},{},{},{}",
             if poses.key_frames_failed.contains(f) {
                 "no"
             } else {
@@ -318,6 +411,15 @@ pub(super) fn write_model_pose_outputs(
             r.inliers,
             r.rms_px.map_or(String::new(), |v| format!("{v:.4}")),
             names.join(" "),
+            if k.with.len() == model.reference.model.images.len() {
+                "all"
+            } else if k.near_telemetry {
+                "telemetry"
+            } else {
+                "last_placed"
+            },
+            k.from_telemetry_m
+                .map_or(String::new(), |v| format!("{v:.3}")),
             // One plain field: no comma, no quote.
             r.reason
                 .clone()

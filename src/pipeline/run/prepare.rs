@@ -392,8 +392,8 @@ pub(super) struct RunInputs {
     pub(super) px_per_m: f64,
     /// Heights given per track: (height, σ), metres.
     pub(super) heights: BTreeMap<usize, (f64, f64)>,
-    /// The drone's telemetry (`[video] telemetry`) and the σ of its horizontal positions.
-    pub(super) telemetry: Option<(crate::telemetry::srt::SrtFile, f64)>,
+    /// The drone's telemetry (`[video] telemetry`).
+    pub(super) telemetry: Option<super::telemetry_site::Telemetry>,
     /// Where the detector boxes whole bodies: how their boxes are read.
     pub(super) bodies: Option<Bodies>,
     pub(super) out_crs: Option<Crs>,

@@ -16,6 +16,8 @@ use common::{assert_success, geostride};
 /// The walkable area (the deck) and the measurement area, site frame.
 const WALKABLE: &str = "[[-40.0, -2.5], [40.0, -2.5], [40.0, 2.5], [-40.0, 2.5]]";
 const MEASUREMENT: &str = "[[-6.0, -2.5], [6.0, -2.5], [6.0, 2.5], [-6.0, 2.5]]";
+/// Two lines across the deck, for PedPy's flow.
+const LINES: &str = "[[[0.0, -2.5], [0.0, 2.5]], [[-10.0, -2.5], [-10.0, 2.5]]]";
 
 /// One simulated run shared by the tests: (folder, run folder).
 fn fixture() -> &'static (tempfile::TempDir, PathBuf) {
@@ -31,7 +33,7 @@ fn fixture() -> &'static (tempfile::TempDir, PathBuf) {
             // UTM: a grid turned about 1.1° from the site frame's north.
             "crs = \"EPSG:32631\"\nformats = [\"csv\", \"geojson\", \"petrack\", \"gpkg\", \"hdf5\", \"sqlite\"]",
         ) + &format!(
-            "[output]\nvideo = true\nvideo_width = 960\n[analysis]\nmeasurement_area = {MEASUREMENT}\nwalkable_area = {WALKABLE}\n"
+            "[output]\nvideo = true\nvideo_width = 960\n[analysis]\nmeasurement_area = {MEASUREMENT}\nwalkable_area = {WALKABLE}\nmeasurement_lines = {LINES}\n"
         );
         let project = dir.path().join("project.toml");
         std::fs::write(&project, text).unwrap();
@@ -499,6 +501,108 @@ fn pedpy_reads_the_jupedsim_sqlite_and_its_walkable_area_and_agrees_within_one_p
     pedpy_agrees("sqlite", "trajectories.sqlite", 0.01);
 }
 
+/// Whether segment `a`–`b` crosses segment `c`–`d` (their ends strictly on either side).
+fn crosses(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> bool {
+    let side = |p: [f64; 2], q: [f64; 2], r: [f64; 2]| {
+        ((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])).signum()
+    };
+    side(a, b, c) * side(a, b, d) < 0.0 && side(c, d, a) * side(c, d, b) < 0.0
+}
+
+/// The measurement lines geostride writes (`measurement_lines.wkt`, `areas.geojson`) read by
+/// PedPy as its `MeasurementLine`s: its N(t) counts as many people across each as the
+/// trajectories say.
+#[test]
+fn pedpy_counts_the_people_across_geostrides_measurement_lines() {
+    let (dir, out) = fixture();
+    let wkt = std::fs::read_to_string(out.join("measurement_lines.wkt")).unwrap();
+    assert_eq!(
+        wkt,
+        "LINESTRING (0.0000 -2.5000, 0.0000 2.5000)\nLINESTRING (-10.0000 -2.5000, -10.0000 2.5000)\n"
+    );
+    let areas: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("areas.geojson")).unwrap()).unwrap();
+    let lines: Vec<_> = areas["features"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["properties"]["role"] == "measurement_line")
+        .collect();
+    assert_eq!(lines.len(), 2, "{areas}");
+    for l in &lines {
+        assert_eq!(l["geometry"]["type"], "LineString");
+        assert_eq!(l["geometry"]["coordinates"].as_array().unwrap().len(), 2);
+        assert!((l["properties"]["length_m"].as_f64().unwrap() - 5.0).abs() < 1e-9);
+    }
+    // Who crosses each line, from the trajectories.
+    let rows = common::read_csv(&out.join("trajectories.csv"));
+    let mut by_id: std::collections::BTreeMap<String, Vec<(f64, [f64; 2])>> = Default::default();
+    for r in &rows {
+        by_id.entry(r["id"].clone()).or_default().push((
+            common::num(r, "frame"),
+            [common::num(r, "e_m"), common::num(r, "n_m")],
+        ));
+    }
+    let ends = [([0.0, -2.5], [0.0, 2.5]), ([-10.0, -2.5], [-10.0, 2.5])];
+    for t in by_id.values_mut() {
+        t.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    let ours: Vec<usize> = ends
+        .iter()
+        .map(|&(c, d)| {
+            by_id
+                .values()
+                .filter(|t| {
+                    t.windows(2)
+                        .any(|w| w[1].0 == w[0].0 + 1.0 && crosses(w[0].1, w[1].1, c, d))
+                })
+                .count()
+        })
+        .collect();
+    assert!(ours.iter().all(|&n| n > 0), "nobody crosses: {ours:?}");
+    // A line of one point: refused before any work, with its key and line, exit 2.
+    let text = std::fs::read_to_string(dir.path().join("project.toml")).unwrap();
+    let bad = dir.path().join("bad-line.toml");
+    std::fs::write(&bad, text.replace(LINES, "[[[1.0, 2.0], [1.0, 2.0]]]")).unwrap();
+    let o = common::run_project(&bad, &dir.path().join("bad-line"));
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("analysis.measurement_lines") && err.contains("bad-line.toml:"),
+        "{err}"
+    );
+    let Some(python) = pedpy_python() else {
+        return;
+    };
+    let script = dir.path().join("pedpy_lines.py");
+    std::fs::write(
+        &script,
+        r#"
+import pathlib, sys, pedpy, shapely
+traj = pedpy.load_trajectory_from_ped_data_archive_hdf5(trajectory_file=pathlib.Path(sys.argv[1]))
+for line in open(sys.argv[2]).read().splitlines():
+    ml = pedpy.MeasurementLine(shapely.from_wkt(line))
+    nt, crossing = pedpy.compute_n_t(traj_data=traj, measurement_line=ml)
+    print(crossing["id"].nunique())
+"#,
+    )
+    .unwrap();
+    let o = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(out.join("trajectories.h5"))
+        .arg(out.join("measurement_lines.wkt"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let pedpy: Vec<usize> = String::from_utf8(o.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| l.trim().parse().unwrap())
+        .collect();
+    eprintln!("people across the lines: PedPy {pedpy:?}, the trajectories {ours:?}");
+    assert_eq!(pedpy, ours);
+}
+
 /// JuPedSim's own reader (`jupedsim.Recording`) opens the SQLite: its frame count, frame rate,
 /// bounds, geometry and a frame's agents are those of the run's trajectories.
 #[test]
@@ -578,7 +682,8 @@ fn the_areas_are_written_as_wkt_and_as_geojson_in_wgs84() {
     let j: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("areas.geojson")).unwrap()).unwrap();
     let f = j["features"].as_array().unwrap();
-    assert_eq!(f.len(), 2);
+    // The two areas, then the two measurement lines (`pedpy_counts_the_people_across_...`).
+    assert_eq!(f.len(), 4);
     let ring = |k: usize| -> Vec<(f64, f64)> {
         f[k]["geometry"]["coordinates"][0]
             .as_array()

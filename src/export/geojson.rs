@@ -59,6 +59,13 @@ fn integer(s: &mut String, name: &str, v: i64) {
 const HEAD: &str = "{\"type\":\"FeatureCollection\",\"features\":[\n";
 const TAIL: &str = "\n]}\n";
 
+/// What an area feature is: a polygon and its area, or a line and its length.
+#[derive(Clone, Copy, Debug)]
+pub enum Shape {
+    Polygon { area_m2: f64 },
+    Line { length_m: f64 },
+}
+
 /// A FeatureCollection written to `w` one trajectory at a time (an hour's positions never stand
 /// whole in memory); `wgs` gives each trajectory's positions in WGS 84, point by point.
 pub struct Features<'w> {
@@ -150,11 +157,12 @@ impl<'w> Features<'w> {
         self.out.done_piece()
     }
 
-    /// An area as a Polygon feature (its ring closed, 2D) with its `role` (`walkable`,
-    /// `measurement`), where it came from, its area in square metres and its site-frame WKT.
+    /// An area as a Polygon feature (its ring closed, 2D), or a measurement line as a
+    /// LineString, with its `role` (`walkable`, `measurement`, `measurement_line`), where it
+    /// came from, its site-frame WKT and its area or length.
     pub fn area(
         &mut self,
-        (role, source, wkt, area_m2): (&str, &str, &str, f64),
+        (role, source, wkt, shape): (&str, &str, &str, Shape),
         wgs: &[Vector3<f64>],
     ) -> std::io::Result<()> {
         let s = self.next();
@@ -169,15 +177,25 @@ impl<'w> Features<'w> {
             let _ = write!(s, "\"{name}\":{}", serde_json::Value::from(value));
         }
         s.push(',');
-        real(s, "area_m2", area_m2);
-        s.push_str("},\"geometry\":{\"type\":\"Polygon\",\"coordinates\":[[");
-        for (k, c) in wgs.iter().chain(wgs.first()).enumerate() {
+        let closed = match shape {
+            Shape::Polygon { area_m2 } => {
+                real(s, "area_m2", area_m2);
+                s.push_str("},\"geometry\":{\"type\":\"Polygon\",\"coordinates\":[[");
+                true
+            }
+            Shape::Line { length_m } => {
+                real(s, "length_m", length_m);
+                s.push_str("},\"geometry\":{\"type\":\"LineString\",\"coordinates\":[");
+                false
+            }
+        };
+        for (k, c) in wgs.iter().chain(wgs.first().filter(|_| closed)).enumerate() {
             if k > 0 {
                 s.push(',');
             }
             position(s, c, true);
         }
-        s.push_str("]]}}");
+        s.push_str(if closed { "]]}}" } else { "]}}" });
         self.out.done_piece()
     }
 
@@ -249,8 +267,16 @@ mod tests {
             Vector3::new(4.2, 51.1, f64::NAN),
         ];
         let wkt = "POLYGON ((0 0, 1 0, 1 1, 0 0))";
-        f.area(("walkable", "the deck's \"outline\"", wkt, 0.5), &ring)
-            .unwrap();
+        f.area(
+            (
+                "walkable",
+                "the deck's \"outline\"",
+                wkt,
+                Shape::Polygon { area_m2: 0.5 },
+            ),
+            &ring,
+        )
+        .unwrap();
         f.finish().unwrap();
         let j: serde_json::Value = serde_json::from_slice(&v).unwrap();
         let a = &j["features"][0];

@@ -179,6 +179,15 @@ pub fn polygon_wkt(vertices: &[Vector2<f64>]) -> String {
     s
 }
 
+/// A line as WKT: `LINESTRING (x y, x y)`, 4 decimals.
+pub fn linestring_wkt(vertices: &[Vector2<f64>]) -> String {
+    let points: Vec<String> = vertices
+        .iter()
+        .map(|v| format!("{} {}", Fixed::<4>(v.x), Fixed::<4>(v.y)))
+        .collect();
+    format!("LINESTRING ({})", points.join(", "))
+}
+
 /// A run's export formats (`[export] formats`), each written by its own writer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportFormat {

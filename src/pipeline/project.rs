@@ -305,6 +305,9 @@ pub struct AnalysisSection {
     /// The convex area people can walk in (Voronoi cells end at its edge) [default: a deck's
     /// outline, else the trajectories' bounding box, 1 m wider on every side].
     pub walkable_area: Vec<[f64; 2]>,
+    /// Lines across the flow, `[[[e, n], [e, n]], ...]` in the site frame, metres: written
+    /// for PedPy's line measures (`measurement_lines.wkt`, `areas.geojson`).
+    pub measurement_lines: Vec<[[f64; 2]; 2]>,
 }
 
 impl AnalysisSection {
@@ -347,6 +350,30 @@ impl AnalysisSection {
             ));
         }
         Ok((m, w))
+    }
+
+    /// The measurement lines, checked: finite ends at least 1 cm apart.
+    pub(crate) fn lines(&self) -> Result<Vec<[nalgebra::Vector2<f64>; 2]>, (&'static str, String)> {
+        self.measurement_lines
+            .iter()
+            .enumerate()
+            .map(|(k, [a, b])| {
+                let (a, b) = (
+                    nalgebra::Vector2::new(a[0], a[1]),
+                    nalgebra::Vector2::new(b[0], b[1]),
+                );
+                if !(a.iter().chain(b.iter()).all(|v| v.is_finite()) && (a - b).norm() >= 0.01) {
+                    return Err((
+                        "measurement_lines",
+                        format!(
+                            "line {} is not two distinct points (each line is [[e, n], [e, n]] in the site frame, metres)",
+                            k + 1
+                        ),
+                    ));
+                }
+                Ok([a, b])
+            })
+            .collect()
     }
 }
 
@@ -806,6 +833,9 @@ fn check_later_stages(l: &Loaded) -> Result<(), FileError> {
     }
     p.analysis
         .polygons()
+        .map_err(|(key, m)| l.error("analysis", key, m))?;
+    p.analysis
+        .lines()
         .map_err(|(key, m)| l.error("analysis", key, m))?;
     Ok(())
 }

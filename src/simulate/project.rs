@@ -77,7 +77,8 @@ pub fn with_auto_picks(mut project: Project, scene: &Scene) -> Project {
 
 /// The scene's measurement and walkable areas (site frame): on a deck, its middle 8 m and the
 /// whole deck; on a track, 10 m of the right-hand straight (15 to 25 m before its middle,
-/// where the group demo's runners pass) and that straight's lanes.
+/// where the group demo's runners pass) and that straight's lanes; a measurement line across
+/// the middle of the measurement area.
 pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
     let rect = |centre: [f64; 2], heading_deg: f64, along: [f64; 2], lateral: [f64; 2]| {
         let h = heading_deg.to_radians();
@@ -96,6 +97,8 @@ pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
             at(along[0], lateral[1]),
         ]
     };
+    // A rectangle of no length is a line across the flow: its first and third corners.
+    let across = |r: Vec<[f64; 2]>| [r[0], r[2]];
     match &scene.ground {
         Ground::Deck {
             centre,
@@ -107,6 +110,7 @@ pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
             let lateral = [-width_m / 2.0, width_m / 2.0];
             AnalysisSection {
                 measurement_area: rect(*centre, *heading_deg, [-4.0, 4.0], lateral),
+                measurement_lines: vec![across(rect(*centre, *heading_deg, [0.0, 0.0], lateral))],
                 walkable_area: rect(
                     *centre,
                     *heading_deg,
@@ -126,6 +130,12 @@ pub(crate) fn analysis_areas(scene: &Scene) -> AnalysisSection {
             let lateral = [-(radius_m + f64::from(*lanes) * lane_width_m), -radius_m];
             AnalysisSection {
                 measurement_area: rect(*centre, *heading_deg, [-25.0, -15.0], lateral),
+                measurement_lines: vec![across(rect(
+                    *centre,
+                    *heading_deg,
+                    [-20.0, -20.0],
+                    lateral,
+                ))],
                 walkable_area: rect(
                     *centre,
                     *heading_deg,

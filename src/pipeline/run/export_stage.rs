@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 
 use super::{Env, RunError, RunInputs, StageRecord, StageStatus};
 use crate::analysis::ConvexPolygon;
@@ -114,7 +114,7 @@ struct AreaOut {
     role: &'static str,
     source: &'static str,
     wkt: String,
-    area_m2: f64,
+    shape: crate::export::geojson::Shape,
     crs: Vec<Vector3<f64>>,
 }
 
@@ -123,19 +123,40 @@ fn areas_out(
     inputs: &RunInputs,
     measurement: Option<&ConvexPolygon>,
     walkable: Option<&Walkable>,
+    lines: &[[Vector2<f64>; 2]],
 ) -> Result<Vec<AreaOut>, RunError> {
+    use crate::export::geojson::Shape;
     let frame = &inputs.framed.frame;
     if frame.crs.is_none() {
         return Ok(Vec::new());
     }
     let mut areas = Vec::new();
-    let polygons = walkable
-        .map(|w| ("walkable", w.source, &w.polygon))
+    let polygon = |p: &ConvexPolygon| {
+        (
+            p.vertices().to_vec(),
+            crate::export::polygon_wkt(p.vertices()),
+            Shape::Polygon { area_m2: p.area() },
+        )
+    };
+    let shapes = walkable
+        .map(|w| ("walkable", w.source, polygon(&w.polygon)))
         .into_iter()
-        .chain(measurement.map(|m| ("measurement", "[analysis] measurement_area", m)));
-    for (role, source, polygon) in polygons {
-        let crs = polygon
-            .vertices()
+        .chain(measurement.map(|m| ("measurement", "[analysis] measurement_area", polygon(m))))
+        .chain(lines.iter().map(|l| {
+            (
+                "measurement_line",
+                "[analysis] measurement_lines",
+                (
+                    l.to_vec(),
+                    crate::export::linestring_wkt(l),
+                    Shape::Line {
+                        length_m: (l[1] - l[0]).norm(),
+                    },
+                ),
+            )
+        }));
+    for (role, source, (vertices, wkt, shape)) in shapes {
+        let crs = vertices
             .iter()
             .map(|v| {
                 let src = frame
@@ -153,8 +174,8 @@ fn areas_out(
         areas.push(AreaOut {
             role,
             source,
-            wkt: crate::export::polygon_wkt(polygon.vertices()),
-            area_m2: polygon.area(),
+            wkt,
+            shape,
             crs,
         });
     }
@@ -406,7 +427,7 @@ fn write_geojson(x: &ExportInputs, w: &mut Written) -> Result<(), RunError> {
         crate::io::write_atomic_with(&path, |o| {
             let mut f = crate::export::geojson::Features::new(o);
             for (a, ring) in x.areas.iter().zip(&rings) {
-                f.area((a.role, a.source, &a.wkt, a.area_m2), ring)?;
+                f.area((a.role, a.source, &a.wkt, a.shape), ring)?;
             }
             f.finish()
         })
@@ -440,12 +461,14 @@ fn site_frame_note(frame: &crate::survey::frame::SiteFrame) -> SiteFrameNote {
     }
 }
 
-/// `walkable_area.wkt` (and `measurement_area.wkt` when `[analysis]` gives one): the areas in
-/// the site frame, as PedPy's `WalkableArea` and `MeasurementArea` read WKT.
+/// `walkable_area.wkt` (and `measurement_area.wkt`, `measurement_lines.wkt` (a line each) when
+/// `[analysis]` gives them): the areas and lines in the site frame, as PedPy's
+/// `WalkableArea`, `MeasurementArea` and `MeasurementLine` read WKT.
 fn write_areas(
     out: &Path,
     measurement: Option<&ConvexPolygon>,
     walkable: Option<&Walkable>,
+    lines: &[[Vector2<f64>; 2]],
 ) -> Result<Vec<String>, RunError> {
     let mut files: Vec<(&str, String)> = walkable
         .iter()
@@ -461,6 +484,13 @@ fn write_areas(
             "measurement_area.wkt",
             crate::export::polygon_wkt(m.vertices()),
         ));
+    }
+    if !lines.is_empty() {
+        let wkt: Vec<String> = lines
+            .iter()
+            .map(|l| crate::export::linestring_wkt(l))
+            .collect();
+        files.push(("measurement_lines.wkt", wkt.join("\n")));
     }
     let mut names = Vec::new();
     for (name, wkt) in files {
@@ -502,12 +532,16 @@ pub(super) fn export_stage(
     let (measurement, _) = analysis
         .polygons()
         .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
+    let lines = analysis
+        .lines()
+        .map_err(|(k, m)| RunError::Failed(format!("[analysis] {k}: {m}")))?;
     outputs.extend(write_areas(
         env.out,
         measurement.as_ref(),
         walkable.as_ref(),
+        &lines,
     )?);
-    let areas = areas_out(inputs, measurement.as_ref(), walkable.as_ref())?;
+    let areas = areas_out(inputs, measurement.as_ref(), walkable.as_ref(), &lines)?;
     let x = ExportInputs {
         out: env.out,
         fps: inputs.fps,

@@ -436,14 +436,20 @@ impl ChartRanges {
             .iter()
             .flat_map(|s| s.xy.iter())
             .filter(|(x, y)| x.is_finite() && y.is_finite());
-        let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+        let (mut x0, mut x1, mut y_max) = (f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
         let mut y_min = f64::INFINITY;
         for &(x, y) in pts {
             x0 = x0.min(x);
             x1 = x1.max(x);
-            y1 = y1.max(y);
+            y_max = y_max.max(y);
             y_min = y_min.min(y);
         }
+        // From 0 the axis reaches at least 0; from the data, the data's top.
+        let y1 = if chart.y_from_data && y_max.is_finite() {
+            y_max
+        } else {
+            y_max.max(0.0)
+        };
         if !x0.is_finite() {
             (x0, x1) = (0.0, 1.0);
         }
@@ -640,5 +646,36 @@ mod tests {
         assert_eq!(nice_step(730.0, 8.0), 100.0);
         assert_eq!(label(0.4, 0.2), "0.4");
         assert_eq!(label(300.0, 100.0), "300");
+    }
+
+    #[test]
+    fn data_ranges_span_negative_values_and_zero_ranges_start_at_zero() {
+        let chart = |xy: Vec<(f64, f64)>, y_from_data: bool| Chart {
+            series: vec![Series {
+                label: "s".into(),
+                xy,
+                rgb: [0, 0, 0],
+                style: Style::Line,
+            }],
+            y_from_data,
+            ..Chart::default()
+        };
+        // All below 0, from the data: the axis holds them and stops near their top.
+        let r = ChartRanges::of(&chart(vec![(0.0, -30.0), (1.0, -20.0)], true));
+        assert!(
+            r.y0 <= -30.0 && r.y1 >= -20.0 && r.y1 < -15.0,
+            "{} {}",
+            r.y0,
+            r.y1
+        );
+        // Across 0.
+        let r = ChartRanges::of(&chart(vec![(0.0, -0.4), (1.0, 0.6)], true));
+        assert!(r.y0 <= -0.4 && r.y1 >= 0.6 && r.y0 > -1.0 && r.y1 < 1.0);
+        // From 0, positive data: 0 to the top.
+        let r = ChartRanges::of(&chart(vec![(0.0, 3.0), (1.0, 7.0)], false));
+        assert!(r.y0 == 0.0 && r.y1 >= 7.0);
+        // No data: a unit axis.
+        let r = ChartRanges::of(&chart(Vec::new(), true));
+        assert!(r.y0 == 0.0 && r.y1 > 0.0);
     }
 }

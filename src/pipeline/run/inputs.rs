@@ -365,6 +365,12 @@ pub(super) fn read_heights_and_telemetry(
             let text = crate::io::FileCtx { path: &path }
                 .read_text("a DJI telemetry subtitle file (.SRT)")?;
             let srt = crate::telemetry::srt::parse_srt(&path, &text)?;
+            // The geoid grid checked before any work, not when the poses are compared.
+            if p.video.telemetry_height.is_some()
+                && let Err(e) = crate::survey::crs::Egm96::new()
+            {
+                return Err(l.error("video", "telemetry_height", e.message));
+            }
             use super::telemetry_site::{AltitudeDatum, Telemetry};
             Some(Telemetry {
                 srt,

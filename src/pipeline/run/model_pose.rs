@@ -160,8 +160,9 @@ pub(super) struct KeyRegistration {
     pub registration: Registration,
     /// The model photos it was matched with.
     pub with: Vec<usize>,
-    /// Whether those were the photos nearest its telemetry position.
-    pub near_telemetry: bool,
+    /// Which photos those were: `telemetry` (nearest its telemetry position), `last_placed`
+    /// (nearest the last frame placed) or `all` (the nearest failed, or there was no position).
+    pub near: &'static str,
     /// How far its placed centre is from that position (east-north, metres).
     pub from_telemetry_m: Option<f64>,
 }
@@ -170,19 +171,20 @@ pub(super) struct KeyRegistration {
 /// moved by the median offset between the poses placed so far (frame 0's first) and theirs.
 struct KeyPrior<'a> {
     site: Option<SiteTelemetry<'a>>,
-    /// Placed centre minus telemetry, east and north, metres.
-    offsets: Vec<(f64, f64)>,
+    /// Placed centre minus telemetry, east and north, metres, by frame.
+    offsets: BTreeMap<usize, (f64, f64)>,
 }
 
 impl<'a> KeyPrior<'a> {
     fn new(x: &'a RunInputs) -> Result<KeyPrior<'a>, RunError> {
         let site = match &x.telemetry {
-            Some(t) => SiteTelemetry::new(t, &x.framed, x.fps)?.ok(),
+            // East and north choose the photos: no heights, no geoid.
+            Some(t) => SiteTelemetry::new(t, &x.framed, x.fps, false)?.ok(),
             None => None,
         };
         let mut prior = KeyPrior {
             site,
-            offsets: Vec::new(),
+            offsets: BTreeMap::new(),
         };
         prior.placed(0, &x.first_pose.centre())?;
         Ok(prior)
@@ -198,14 +200,17 @@ impl<'a> KeyPrior<'a> {
             .flatten()
         {
             self.offsets
-                .push((centre.x - fix.site.x, centre.y - fix.site.y));
+                .insert(frame, (centre.x - fix.site.x, centre.y - fix.site.y));
         }
         Ok(())
     }
 
-    /// Where frame `frame` is expected (its height that of the telemetry or NaN; only east and
-    /// north choose the photos); `None` without telemetry for it.
+    /// Where frame `frame` is expected (east and north; up NaN); `None` without telemetry for
+    /// it, or before any frame placed has telemetry (its bias unknown).
     fn expected(&self, frame: usize) -> Result<Option<Vector3<f64>>, RunError> {
+        if self.offsets.is_empty() {
+            return Ok(None);
+        }
         let Some(fix) = self
             .site
             .as_ref()
@@ -219,8 +224,8 @@ impl<'a> KeyPrior<'a> {
             v.sort_by(f64::total_cmp);
             v.get(v.len() / 2).copied().unwrap_or(0.0)
         };
-        let de = med(self.offsets.iter().map(|o| o.0).collect());
-        let dn = med(self.offsets.iter().map(|o| o.1).collect());
+        let de = med(self.offsets.values().map(|o| o.0).collect());
+        let dn = med(self.offsets.values().map(|o| o.1).collect());
         Ok(Some(Vector3::new(
             fix.site.x + de,
             fix.site.y + dn,
@@ -281,13 +286,21 @@ pub(super) fn model_poses(
         mask_people(&mut f, dets, mask_px);
         let name = format!("{video_name}#{index}");
         let expected = prior.expected(index)?;
-        let (r, with, key) = model.reference.place_key_frame(
-            camera,
-            &name,
-            &f,
-            expected.as_ref().or(near.as_ref()),
-            (&model.floor, &settings),
-        );
+        let around = expected.as_ref().or(near.as_ref());
+        let nearest = model
+            .reference
+            .nearest_images(around, settings.neighbours)
+            .len();
+        let (r, with, key) =
+            model
+                .reference
+                .place_key_frame(camera, &name, &f, around, (&model.floor, &settings));
+        // Which photos it was matched with: all of them after a failure among the nearest.
+        let matched_near = match (with.len() > nearest, expected.is_some(), near.is_some()) {
+            (true, _, _) | (false, false, false) => "all",
+            (false, true, _) => "telemetry",
+            (false, false, true) => "last_placed",
+        };
         let mut from_telemetry_m = None;
         if let Some(key) = key {
             let centre = key.placed.pose.centre();
@@ -300,7 +313,7 @@ pub(super) fn model_poses(
             frame: index,
             registration: r,
             with,
-            near_telemetry: expected.is_some(),
+            near: matched_near,
             from_telemetry_m,
         });
         progress.inc(1);
@@ -411,13 +424,7 @@ pub(super) fn write_model_pose_outputs(
             r.inliers,
             r.rms_px.map_or(String::new(), |v| format!("{v:.4}")),
             names.join(" "),
-            if k.with.len() == model.reference.model.images.len() {
-                "all"
-            } else if k.near_telemetry {
-                "telemetry"
-            } else {
-                "last_placed"
-            },
+            k.near,
             k.from_telemetry_m
                 .map_or(String::new(), |v| format!("{v:.3}")),
             // One plain field: no comma, no quote.

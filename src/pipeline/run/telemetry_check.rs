@@ -259,7 +259,7 @@ pub(super) fn telemetry_check(
         return Ok(None);
     };
     let t0 = Instant::now();
-    let site = match SiteTelemetry::new(telemetry, &x.framed, x.fps)? {
+    let site = match SiteTelemetry::new(telemetry, &x.framed, x.fps, true)? {
         Ok(s) => s,
         Err(why) => {
             warnings.push(format!("telemetry not checked: {why}"));

@@ -58,11 +58,13 @@ pub(super) struct SiteTelemetry<'a> {
 }
 
 impl<'a> SiteTelemetry<'a> {
-    /// `Ok(Err(why))` when the survey has no CRS to place latitudes and longitudes in.
+    /// `Ok(Err(why))` when the survey has no CRS to place latitudes and longitudes in. Without
+    /// `with_heights` only east and north are placed.
     pub fn new(
         telemetry: &'a Telemetry,
         framed: &'a Framed,
         fps: f64,
+        with_heights: bool,
     ) -> Result<Result<SiteTelemetry<'a>, String>, RunError> {
         let Some(crs) = &framed.frame.crs else {
             return Ok(Err(
@@ -73,7 +75,8 @@ impl<'a> SiteTelemetry<'a> {
         let to_survey = Transform::new(&wgs84, crs).map_err(RunError::Crs)?;
         // The survey's heights: ellipsoidal, or gravity-related (EGM96 then differs from its
         // vertical datum by an offset that is constant over a site, removed with the common one).
-        let (heights, heights_note) = match (telemetry.datum, &framed.frame.height) {
+        let datum = telemetry.datum.filter(|_| with_heights);
+        let (heights, heights_note) = match (datum, &framed.frame.height) {
             (None, _) => (
                 None,
                 "heights not compared: say what abs_alt is above with [video] telemetry_height"

@@ -395,6 +395,25 @@ for f in vdens.index:
           mspeed.loc[f, "speed"] if f in mspeed.index else 0.0)
 "#;
 
+/// `script` written as `dir/name` and run by `python` with `args`: its standard output (the
+/// test fails on a non-zero exit, with the script's errors).
+fn run_python(
+    python: &Path,
+    dir: &Path,
+    (name, script): (&str, &str),
+    args: &[&std::ffi::OsStr],
+) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, script).unwrap();
+    let o = std::process::Command::new(python)
+        .arg(&path)
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8(o.stdout).unwrap()
+}
+
 /// PedPy's measures from the run's file `file` read as `kind` against geostride's
 /// `measures.csv`: every frame's Voronoi density and the means of the four measures within
 /// `tolerance` (relative).
@@ -403,20 +422,20 @@ fn pedpy_agrees(kind: &str, file: &str, tolerance: f64) {
     let Some(python) = pedpy_python() else {
         return;
     };
-    let script = dir.path().join(format!("pedpy_check_{kind}.py"));
-    std::fs::write(&script, PEDPY_SCRIPT).unwrap();
     // PedPy differences positions 2 frames either side (0.27 s at 15 frames/s).
-    let o = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(kind)
-        .arg(out.join(file))
-        .arg(WALKABLE)
-        .arg(MEASUREMENT)
-        .arg("2")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let text = String::from_utf8(o.stdout).unwrap();
+    let path = out.join(file);
+    let text = run_python(
+        &python,
+        dir.path(),
+        (&format!("pedpy_check_{kind}.py"), PEDPY_SCRIPT),
+        &[
+            kind.as_ref(),
+            path.as_os_str(),
+            WALKABLE.as_ref(),
+            MEASUREMENT.as_ref(),
+            "2".as_ref(),
+        ],
+    );
     let mut lines = text.lines();
     let head: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
     assert_eq!(head[1].parse::<f64>().unwrap(), 15.0, "frame rate: {text}");
@@ -574,10 +593,16 @@ fn pedpy_counts_the_people_across_geostrides_measurement_lines() {
     let Some(python) = pedpy_python() else {
         return;
     };
-    let script = dir.path().join("pedpy_lines.py");
-    std::fs::write(
-        &script,
-        r#"
+    let (h5, wkt) = (
+        out.join("trajectories.h5"),
+        out.join("measurement_lines.wkt"),
+    );
+    let text = run_python(
+        &python,
+        dir.path(),
+        (
+            "pedpy_lines.py",
+            r#"
 import pathlib, sys, pedpy, shapely
 traj = pedpy.load_trajectory_from_ped_data_archive_hdf5(trajectory_file=pathlib.Path(sys.argv[1]))
 for line in open(sys.argv[2]).read().splitlines():
@@ -585,20 +610,10 @@ for line in open(sys.argv[2]).read().splitlines():
     nt, crossing = pedpy.compute_n_t(traj_data=traj, measurement_line=ml)
     print(crossing["id"].nunique())
 "#,
-    )
-    .unwrap();
-    let o = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(out.join("trajectories.h5"))
-        .arg(out.join("measurement_lines.wkt"))
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let pedpy: Vec<usize> = String::from_utf8(o.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| l.trim().parse().unwrap())
-        .collect();
+        ),
+        &[h5.as_os_str(), wkt.as_os_str()],
+    );
+    let pedpy: Vec<usize> = text.lines().map(|l| l.trim().parse().unwrap()).collect();
     eprintln!("people across the lines: PedPy {pedpy:?}, the trajectories {ours:?}");
     assert_eq!(pedpy, ours);
 }
@@ -611,10 +626,13 @@ fn jupedsim_opens_the_sqlite() {
     let Some(python) = pedpy_python() else {
         return;
     };
-    let script = dir.path().join("jupedsim_check.py");
-    std::fs::write(
-        &script,
-        r#"
+    let sqlite = out.join("trajectories.sqlite");
+    let text = run_python(
+        &python,
+        dir.path(),
+        (
+            "jupedsim_check.py",
+            r#"
 import sys, jupedsim
 rec = jupedsim.Recording(sys.argv[1])
 frame = rec.frame(30)
@@ -622,15 +640,9 @@ print(rec.num_frames, rec.fps, rec.geometry().area, len(frame.agents))
 for a in frame.agents:
     print(a.id, a.position[0], a.position[1], a.orientation[0], a.orientation[1])
 "#,
-    )
-    .unwrap();
-    let o = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(out.join("trajectories.sqlite"))
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let text = String::from_utf8(o.stdout).unwrap();
+        ),
+        &[sqlite.as_os_str()],
+    );
     let mut lines = text.lines();
     let head: Vec<f64> = lines
         .next()

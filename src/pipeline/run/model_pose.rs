@@ -190,15 +190,19 @@ impl<'a> KeyPrior<'a> {
         Ok(prior)
     }
 
-    /// Frame `frame` posed at `centre`: its offset from the telemetry joins the others.
-    fn placed(&mut self, frame: usize, centre: &Vector3<f64>) -> Result<(), RunError> {
-        if let Some(fix) = self
+    /// Frame `frame`'s telemetry in the site frame, where there is one.
+    fn fix(&self, frame: usize) -> Result<Option<super::telemetry_site::Fix>, RunError> {
+        Ok(self
             .site
             .as_ref()
             .map(|s| s.at(frame))
             .transpose()?
-            .flatten()
-        {
+            .flatten())
+    }
+
+    /// Frame `frame` posed at `centre`: its offset from the telemetry joins the others.
+    fn placed(&mut self, frame: usize, centre: &Vector3<f64>) -> Result<(), RunError> {
+        if let Some(fix) = self.fix(frame)? {
             self.offsets
                 .insert(frame, (centre.x - fix.site.x, centre.y - fix.site.y));
         }
@@ -211,21 +215,11 @@ impl<'a> KeyPrior<'a> {
         if self.offsets.is_empty() {
             return Ok(None);
         }
-        let Some(fix) = self
-            .site
-            .as_ref()
-            .map(|s| s.at(frame))
-            .transpose()?
-            .flatten()
-        else {
+        let Some(fix) = self.fix(frame)? else {
             return Ok(None);
         };
-        let med = |mut v: Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied().unwrap_or(0.0)
-        };
-        let de = med(self.offsets.values().map(|o| o.0).collect());
-        let dn = med(self.offsets.values().map(|o| o.1).collect());
+        let de = median(self.offsets.values().map(|o| o.0).collect());
+        let dn = median(self.offsets.values().map(|o| o.1).collect());
         Ok(Some(Vector3::new(
             fix.site.x + de,
             fix.site.y + dn,

@@ -321,6 +321,15 @@ pub fn simulate(
     if let Some(v) = &video {
         files.push(write_telemetry(scene, &poses, v, seed)?);
     }
+    files.extend(write_frame_picks(
+        scene,
+        &world,
+        camera,
+        &poses,
+        out,
+        seed,
+        video_name.as_deref(),
+    )?);
     files.extend(write_checkerboards(scene, camera, out, seed)?);
     files.extend(write_survey_flight(scene, &world, camera, out, seed, &sun)?);
     files.push(write_scene_meta(
@@ -779,6 +788,54 @@ fn write_gcps(
     write_file(&paths[1], &truth)?;
     write_file(&paths[2], &picks)?;
     Ok(paths.to_vec())
+}
+
+/// A moving camera's GCP picks on every second's frame (0, fps, 2 fps, ...), each target in
+/// view 10 px inside the edge, with pixel noise: what a user picks in the video itself when
+/// there was no survey flight (`picks-frames.csv`). None for a camera that does not move.
+fn write_frame_picks(
+    scene: &Scene,
+    world: &World,
+    camera: &Camera,
+    poses: &[CameraPose],
+    out: &Path,
+    seed: u64,
+    video: Option<&str>,
+) -> Result<Vec<PathBuf>, SimError> {
+    if world.gcps.is_empty() || matches!(scene.camera.motion, Motion::Hover { .. }) {
+        return Ok(Vec::new());
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xF4A3_E5C1);
+    let pick_noise = Normal::new(0.0, scene.output.pick_noise_px.max(1e-12)).expect("sigma");
+    let size = camera.image_size.expect("size");
+    let (w, h) = (f64::from(size.width), f64::from(size.height));
+    let every = (scene.fps.round() as usize).max(1);
+    let mut picks = String::from("name,image,u,v,sigma\n");
+    for (i, pose) in poses.iter().enumerate().step_by(every) {
+        let image = video.map_or_else(|| format!("frame-{i:05}"), |v| format!("{v}#{i}"));
+        for (name, p) in &world.gcps {
+            let Some(uv) = pose.project(camera, p) else {
+                continue;
+            };
+            let inside = uv.x >= 10.0 && uv.y >= 10.0 && uv.x <= w - 11.0 && uv.y <= h - 11.0;
+            let dir = (p - pose.centre).normalize();
+            let seen = world
+                .intersect(&pose.centre, &dir)
+                .is_some_and(|(hit, _)| (hit - p).norm() < 0.05);
+            if inside && seen {
+                let _ = writeln!(
+                    picks,
+                    "{name},{image},{:.3},{:.3},{}",
+                    uv.x + pick_noise.sample(&mut rng),
+                    uv.y + pick_noise.sample(&mut rng),
+                    scene.output.pick_noise_px
+                );
+            }
+        }
+    }
+    let path = out.join("picks-frames.csv");
+    write_file(&path, &picks)?;
+    Ok(vec![path])
 }
 
 /// The gimbal's yaw, pitch and roll of a camera pose, degrees, as DJI writes them: pitch up

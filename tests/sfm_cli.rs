@@ -1247,3 +1247,106 @@ fn copy_tree(from: &Path, to: &Path) {
         }
     }
 }
+
+/// A moving camera with no survey flight (`[pose] kind = "model"` without `model`): the run
+/// builds its reference model from the video's own frames and the GCP picks on them, places
+/// every frame in it and puts the runners within 0.10 m; picks that name no frame of the
+/// video, or none at all, are refused before any work.
+#[test]
+fn a_moving_camera_without_a_survey_flight_builds_its_model_from_the_video() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sim = tmp.path().join("sim");
+    // The group scene, 3 s, no survey flight; its four GCPs moved where those 3 s see them.
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/surveys/track-group/scene.toml"
+    ))
+    .unwrap();
+    let (text, _) = text.split_once("[survey_flight]").unwrap();
+    let text = text
+        .replace("[40.0, -10.0]", "[45.0, -27.0]")
+        .replace("[33.0, -5.0]", "[31.0, -41.0]");
+    let scene = tmp.path().join("scene.toml");
+    std::fs::write(&scene, text).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let o = geostride(&["simulate", &s(&scene), "--duration", "3", "--out", &s(&sim)]);
+    common::assert_success(&o);
+    let project = |picks: &str| {
+        // The scene's origin (EPSG:3812 651200, 693800) in latitude and longitude, so that
+        // the run's site frame is the simulator's.
+        format!(
+            "[camera]\ncalibration = \"mavic3e\"\n\
+             [survey]\ngcps = \"gcps.csv\"\npicks = [\"{picks}\"]\nheight = \"ellipsoidal\"\n\
+             origin = \"51.0543506217,4.3859151455,48\"\n\
+             [video]\npath = \"video.mp4\"\n\
+             [pose]\nkind = \"model\"\nframes_every_s = 1.0\n\
+             [ground]\nkind = \"local_planes\"\n\
+             [detect]\nkind = \"colour\"\ncolour = [255, 0, 255]\n\
+             [output]\nsite_image = false\nplots = false\n"
+        )
+    };
+    // Picks on a photo that is not in the video: refused, the file and line named.
+    std::fs::write(
+        sim.join("picks-photo.csv"),
+        "name,image,u,v,sigma\nGCP1,IMG_0001.jpg,100,100,1\n",
+    )
+    .unwrap();
+    std::fs::write(sim.join("bad.toml"), project("picks-photo.csv")).unwrap();
+    let o = geostride(&[
+        "run",
+        &s(&sim.join("bad.toml")),
+        "--out",
+        &s(&tmp.path().join("bad")),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("picks-photo.csv:2") && err.contains("is not a frame of the video"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("bad/model").exists());
+
+    std::fs::write(sim.join("project.toml"), project("picks-frames.csv")).unwrap();
+    let out = tmp.path().join("out");
+    let o = geostride(&[
+        "run",
+        &s(&sim.join("project.toml")),
+        "--out",
+        &s(&out),
+        "--quiet",
+    ]);
+    common::assert_success(&o);
+    let model: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("model/report.json")).unwrap()).unwrap();
+    assert_eq!(model["frame"], "site", "{model}");
+    assert_eq!(model["registered"], model["images"], "{model}");
+    // Frames 0, 25, 50 (a second apart) and the picks' (the same ones).
+    assert_eq!(model["images"], 3, "{model}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let pose = report["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|st| st["name"] == "pose")
+        .unwrap();
+    assert_eq!(pose["counts"]["interpolated_frames"], 0.0, "{pose}");
+    let o = geostride(&[
+        "evaluate",
+        "--truth",
+        &s(&sim.join("truth/heads.csv")),
+        "--tracks",
+        &s(&out.join("trajectories.csv")),
+        "--json",
+    ]);
+    common::assert_success(&o);
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rmse = e["rmse_m"].as_f64().unwrap();
+    eprintln!("no survey flight: horizontal RMSE {rmse:.4} m, {e}");
+    assert!(rmse <= 0.10, "{e}");
+    let (matches, truth) = (
+        e["matches"].as_f64().unwrap(),
+        e["truth_positions"].as_f64().unwrap(),
+    );
+    assert!(matches >= 0.9 * truth, "{e}");
+}

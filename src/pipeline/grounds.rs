@@ -19,6 +19,9 @@ pub struct GroundInputs<'a> {
     pub l: &'a Loaded,
     /// The survey in the site frame.
     pub framed: &'a Framed,
+    /// The `model` pose's reference model (the project's, or the one the run built from the
+    /// video): local planes without a `model` of their own use it.
+    pub pose_model: Option<&'a Path>,
 }
 
 impl GroundInputs<'_> {
@@ -109,7 +112,18 @@ pub fn local_planes(
     window_m: f64,
     x: &GroundInputs,
 ) -> Result<Box<dyn HeightSurface>, RunError> {
-    let points = model_points_in_site(x.l, &x.l.resolve(model), x.framed)?;
+    let dir = match (model.is_empty(), x.pose_model) {
+        (false, _) => x.l.resolve(model),
+        (true, Some(d)) => d.to_path_buf(),
+        (true, None) => {
+            return Err(x.error(
+                "model",
+                "local planes need a model's folder (geostride sfm PHOTOS --gcps GCPS --out model)"
+                    .to_string(),
+            ));
+        }
+    };
+    let points = model_points_in_site(x.l, &dir, x.framed)?;
     Ok(Box::new(LocalPlanes::new(points, window_m)))
 }
 

@@ -513,7 +513,9 @@ impl Loaded {
             }
             None => {}
         }
-        if let PoseSection::Model(m) = &p.pose {
+        if let PoseSection::Model(m) = &p.pose
+            && !m.model.is_empty()
+        {
             for f in ["cameras.txt", "images.txt", "points3D.txt", "cameras.csv"] {
                 files.push(("pose.model", self.resolve(&m.model).join(f)));
             }
@@ -734,7 +736,19 @@ fn check(l: &Loaded) -> Result<(), FileError> {
         Some(GroundInput::Model(dir)) => model_exists(l, "ground", "model", dir)?,
         None => {}
     }
-    if let super::settings::PoseSection::Model(m) = &p.pose {
+    if let super::settings::GroundSection::LocalPlanes { model, .. } = &p.ground
+        && model.is_empty()
+        && !matches!(p.pose, super::settings::PoseSection::Model(_))
+    {
+        return Err(l.error(
+            "ground",
+            "model",
+            "local planes need a model: name its folder (geostride sfm PHOTOS --gcps GCPS --out model); it may be left out only with [pose] kind = \"model\", whose model they then use",
+        ));
+    }
+    if let super::settings::PoseSection::Model(m) = &p.pose
+        && !m.model.is_empty()
+    {
         model_exists(l, "pose", "model", &m.model)?;
         if !l.resolve(&m.model_images).is_dir() {
             return Err(l.error(

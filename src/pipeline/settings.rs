@@ -99,11 +99,19 @@ impl Default for FixedSettings {
 #[serde(default, deny_unknown_fields)]
 pub struct ModelSettings {
     /// The reference model's folder (`geostride sfm ... --gcps --out DIR`, georeferenced in
-    /// the same survey); required.
+    /// the same survey); left out (no survey flight): built by the run from the video's own
+    /// frames and the survey's picks on them (`model/` in the output).
+    #[serde(skip_serializing_if = "String::is_empty")]
     pub model: String,
     /// The folder of the model's photos (their features are matched with the key frames');
-    /// required.
+    /// required with `model`.
+    #[serde(skip_serializing_if = "String::is_empty")]
     pub model_images: String,
+    /// Without `model`: a frame of the video in the model every this many seconds (and every
+    /// picked frame).
+    pub frames_every_s: f64,
+    /// ... each matched with the next this many of them.
+    pub sequential: usize,
     /// Model photos each key frame is matched with, nearest the last placed frame first
     /// (0: all of them).
     pub neighbours: usize,
@@ -127,6 +135,8 @@ impl Default for ModelSettings {
         ModelSettings {
             model: String::new(),
             model_images: String::new(),
+            frames_every_s: 0.5,
+            sequential: 6,
             neighbours: 6,
             max_features: None,
             min_inliers: 30,
@@ -780,8 +790,10 @@ pub enum GroundSection {
     /// A DEM raster in any CRS (heights of the survey's kind).
     Dem { path: String },
     /// Local planes fitted robustly to a reference model's points (`geostride sfm`'s output)
-    /// in a `window_m` square around each person (the paper: 2 m), wider where too few.
+    /// in a `window_m` square around each person (the paper: 2 m), wider where too few;
+    /// `model` left out: the `model` pose's.
     LocalPlanes {
+        #[serde(default, skip_serializing_if = "String::is_empty")]
         model: String,
         #[serde(default = "default_window")]
         window_m: f64,
@@ -845,7 +857,10 @@ impl GroundSection {
     pub fn reads(&self) -> Option<GroundInput<'_>> {
         match self {
             GroundSection::Dem { path } => Some(GroundInput::File(path)),
-            GroundSection::LocalPlanes { model, .. } => Some(GroundInput::Model(model)),
+            GroundSection::LocalPlanes { model, .. } if !model.is_empty() => {
+                Some(GroundInput::Model(model))
+            }
+            GroundSection::LocalPlanes { .. } => None,
             GroundSection::Plane { .. } | GroundSection::Deck { .. } => None,
         }
     }
@@ -901,17 +916,23 @@ impl PoseSection {
                 Ok(())
             }
             PoseSection::Model(m) => {
-                if m.model.is_empty() {
-                    return bad(
-                        "model",
-                        "the 'model' pose needs the reference model's folder: model = \"model\" (made by geostride sfm PHOTOS --gcps GCPS --out model)",
-                    );
-                }
-                if m.model_images.is_empty() {
+                if !m.model.is_empty() && m.model_images.is_empty() {
                     return bad(
                         "model_images",
-                        "the 'model' pose needs the folder of the model's photos: model_images = \"photos\"",
+                        "a reference model needs the folder of its photos: model_images = \"photos\"",
                     );
+                }
+                if m.model.is_empty() && !m.model_images.is_empty() {
+                    return bad(
+                        "model",
+                        "model_images is given without its model: name the model's folder (geostride sfm PHOTOS --gcps GCPS --out model), or leave both out to build the model from the video",
+                    );
+                }
+                if !(m.frames_every_s > 0.0 && m.frames_every_s.is_finite()) {
+                    return bad("frames_every_s", "must be positive seconds");
+                }
+                if m.sequential == 0 {
+                    return bad("sequential", "at least 1 (the frames each is matched with)");
                 }
                 if !(0.0..=1.0).contains(&m.key_fraction) {
                     return bad("key_fraction", "expected a fraction from 0 to 1");

@@ -184,6 +184,24 @@ pub fn group_project(
     })
 }
 
+/// The group scene's project with no survey flight: the model built by the run from the
+/// video's own frames and the GCP picks on them (`picks-frames.csv`, every second's frame), its
+/// points the local planes' ground; otherwise [`group_project`]'s.
+pub fn group_video_project(scene: &Scene, calibration: &str) -> Result<Project, CrsError> {
+    let mut project = group_project(scene, calibration, "", "", None)?;
+    project.survey.picks = vec!["picks-frames.csv".into()];
+    // A frame a second (the picked ones): the drone follows runners at under 4 m/s, so
+    // neighbours overlap by over 80 %.
+    if let PoseSection::Model(m) = &mut project.pose {
+        m.frames_every_s = 1.0;
+    }
+    project.ground = GroundSection::LocalPlanes {
+        model: String::new(),
+        window_m: 2.0,
+    };
+    Ok(project)
+}
+
 /// The crowd scene's project: an external detector's boxes (`boxes`, a MOTChallenge file beside
 /// the project; `shadow_samples` `[frame, x, y, w, h]` patches of shadow) and KLT tracking.
 pub fn crowd_project(

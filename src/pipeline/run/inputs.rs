@@ -23,7 +23,9 @@ pub(super) fn input_guard(l: &Loaded) -> crate::io::Inputs {
     let files = l.input_files();
     let mut guard = crate::io::Inputs::new(files.iter().map(|(_, f)| f));
     guard.add(&l.path);
-    if let super::super::settings::PoseSection::Model(m) = &p.pose {
+    if let super::super::settings::PoseSection::Model(m) = &p.pose
+        && !m.model.is_empty()
+    {
         guard.add_folder(l.resolve(&m.model));
     }
     if let Some(GroundInput::Model(model)) = p.ground.reads() {

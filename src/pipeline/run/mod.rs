@@ -41,6 +41,7 @@ mod smooth_stage;
 mod telemetry_check;
 mod telemetry_site;
 mod track_stage;
+mod video_model;
 mod views_stage;
 
 use export_stage::export_stage;

@@ -51,28 +51,21 @@ pub(super) fn open_model(
     l: &Loaded,
     m: &ModelSettings,
     framed: &Framed,
+    (dir, images): (&Path, &Path),
     cache_dir: &Path,
     progress: &dyn Progress,
 ) -> Result<SiteModel, RunError> {
-    let dir = l.resolve(&m.model);
     // The model's own files checked first: its cameras' CSV is only as good as they are.
-    let model = crate::sfm::register::read_model(&dir)
+    let model = crate::sfm::register::read_model(dir)
         .map_err(|e| RunError::Input(l.error("pose", "model", e.to_string())))?;
-    let (site_from, fit_rms_m, cams) = site_from_model(l, "pose", &dir, framed)?;
+    let (site_from, fit_rms_m, cams) = site_from_model(l, "pose", dir, framed)?;
     let features = FeatureSettings {
-        max_features: m.max_features.unwrap_or_else(|| model_max_features(&dir)),
+        max_features: m.max_features.unwrap_or_else(|| model_max_features(dir)),
         ..FeatureSettings::default()
     };
     let cache = crate::sfm::cache::SfmCache::new(Some(cache_dir));
-    let mut reference = Reference::of_model(
-        model,
-        &dir,
-        &l.resolve(&m.model_images),
-        &features,
-        &cache,
-        progress,
-    )
-    .map_err(|e| RunError::Input(l.error("pose", "model_images", e.to_string())))?;
+    let mut reference = Reference::of_model(model, dir, images, &features, &cache, progress)
+        .map_err(|e| RunError::Input(l.error("pose", "model_images", e.to_string())))?;
     reference.transform(&site_from);
     let pick =
         |f: &dyn Fn(&crate::sfm::reference::GeoCamera) -> f64| median(cams.iter().map(f).collect());

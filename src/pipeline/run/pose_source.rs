@@ -55,6 +55,12 @@ pub(super) trait PoseSource {
     /// The report's counts beyond those of every source (key frames, mean and largest
     /// reprojection error, interpolated frames).
     fn own_counts(&self, data: &PoseData) -> Vec<(String, f64)>;
+
+    /// The reference model the frames are placed in, where there is one (local planes
+    /// without a model of their own use it).
+    fn model_dir(&self) -> Option<&Path> {
+        None
+    }
 }
 
 /// A source's words for its warnings.
@@ -70,6 +76,7 @@ pub(super) struct PoseNotes {
 pub(super) fn open<'a>(
     l: &'a Loaded,
     framed: &Framed,
+    (camera, video, fps): (&Camera, &Path, f64),
     size: (u32, u32),
     frames_total: Option<usize>,
     out: &Path,
@@ -86,19 +93,39 @@ pub(super) fn open<'a>(
             })
         }
         PoseSection::Fixed(f) => Box::new(fixed_pose(l, f, framed)?),
-        PoseSection::Model(m) => Box::new(model_pose::Model {
-            key_sections: (&l.project.survey, &l.project.pose, &l.project.ground),
-            model_path: l.resolve(&m.model),
-            video_at: l.error("video", "path", ""),
-            settings: m,
-            model: model_pose::open_model(
-                l,
-                m,
-                framed,
-                &out.join(".stages").join("model-features"),
-                progress.stage("model").as_ref(),
-            )?,
-        }),
+        PoseSection::Model(m) => {
+            // No survey flight's model: one from the video's own frames and picks.
+            let (dir, images) = if m.model.is_empty() {
+                let built = super::video_model::build_video_model(
+                    l,
+                    m,
+                    framed,
+                    (camera, video, fps, frames_total),
+                    out,
+                    (
+                        progress.stage("video model features").as_ref(),
+                        progress.stage("video model matching").as_ref(),
+                    ),
+                )?;
+                (built.dir, built.images)
+            } else {
+                (l.resolve(&m.model), l.resolve(&m.model_images))
+            };
+            Box::new(model_pose::Model {
+                key_sections: (&l.project.survey, &l.project.pose, &l.project.ground),
+                model: model_pose::open_model(
+                    l,
+                    m,
+                    framed,
+                    (&dir, &images),
+                    &out.join(".stages").join("model-features"),
+                    progress.stage("model").as_ref(),
+                )?,
+                model_path: dir,
+                video_at: l.error("video", "path", ""),
+                settings: m,
+            })
+        }
     })
 }
 
@@ -253,6 +280,10 @@ impl PoseSource for model_pose::Model<'_> {
             ),
             ("model_fit_rms_m".into(), self.model.fit_rms_m),
         ]
+    }
+
+    fn model_dir(&self) -> Option<&Path> {
+        Some(&self.model_path)
     }
 }
 

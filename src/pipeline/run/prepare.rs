@@ -77,8 +77,23 @@ pub(super) fn prepare<'a>(
     } = inputs::video_facts(l)?;
     let camera = project_camera(l, width, height)?;
     let (framed, auto_picks, warnings) = survey_and_picks(l, &video)?;
-    let pose = pose_source::open(l, &framed, (width, height), frames_total, out, progress)?;
-    let surface = registry::ground(&p.ground, &grounds::GroundInputs { l, framed: &framed })?;
+    let pose = pose_source::open(
+        l,
+        &framed,
+        (&camera, &video, fps),
+        (width, height),
+        frames_total,
+        out,
+        progress,
+    )?;
+    let surface = registry::ground(
+        &p.ground,
+        &grounds::GroundInputs {
+            l,
+            framed: &framed,
+            pose_model: pose.model_dir(),
+        },
+    )?;
 
     // The scale of a head in the image, from a pose of the first frame (the picked one).
     let first_pose = pose.first_pose(&camera, &video)?;

@@ -30,12 +30,19 @@ pub struct VideoPoseSettings {
     pub min_inliers: usize,
 }
 
-/// The model's georeferencing σ: centre east/north/up (m), attitude about each axis (rad). No
-/// frame placed in the model is better placed than the model.
+/// The model's georeferencing σ: centre east/north/up (m), attitude about the east, north and
+/// up axes (rad). No frame placed in the model is better placed than the model.
+///
+/// A model placed by GCPs on the ground turns about them: a datum tilt ω moves a camera `lever_m`
+/// above the ground by ω × (0, 0, lever) with it, so its centre and attitude errors are one
+/// error that cancels on the ground. With a lever, `sigma_centre_m` is the datum's shift at the
+/// ground and the centre's σ is that and the tilt's share together, correlated with the
+/// attitude; with none, centre and attitude are independent (a camera on a pole).
 #[derive(Clone, Copy, Debug)]
 pub struct ModelFloor {
     pub sigma_centre_m: Vector3<f64>,
-    pub sigma_rotation_rad: f64,
+    pub sigma_rotation_rad: Vector3<f64>,
+    pub lever_m: f64,
 }
 
 /// One frame's pose from the model: `cam_from_world`, its covariance (increment `(δθ, δt)`),
@@ -74,12 +81,27 @@ impl ModelFloor {
         let mut j = Matrix6::zeros();
         j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-r));
         j.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-r));
+        cov + j * self.world_covariance() * j.transpose()
+    }
+
+    /// The floor as a covariance of `(δφ_world, δC)`: a shift at the ground and a tilt about
+    /// it, δC = t + ω × (0, 0, lever).
+    pub fn world_covariance(&self) -> Matrix6<f64> {
+        let var = self.sigma_rotation_rad.map(|s| s * s);
+        let l = self.lever_m;
         let mut world = Matrix6::zeros();
         for k in 0..3 {
-            world[(k, k)] = self.sigma_rotation_rad.powi(2);
+            world[(k, k)] = var[k];
             world[(3 + k, 3 + k)] = self.sigma_centre_m[k].powi(2);
         }
-        cov + j * world * j.transpose()
+        // ω × (0, 0, l) = (l ω_y, −l ω_x, 0).
+        world[(3, 3)] += l * l * var.y;
+        world[(4, 4)] += l * l * var.x;
+        world[(3, 1)] = l * var.y;
+        world[(1, 3)] = l * var.y;
+        world[(4, 0)] = -l * var.x;
+        world[(0, 4)] = -l * var.x;
+        world
     }
 
     /// A refined pose as placed: its covariance scaled by its residuals (σ taken as
@@ -243,6 +265,39 @@ pub fn fill_unplaced(placed: &[Option<Placed>]) -> Option<Vec<FramePose>> {
 mod tests {
     use super::*;
     use nalgebra::Rotation3;
+
+    #[test]
+    fn a_ground_tied_floor_leaves_its_ground_shift_below_the_camera() {
+        // A datum tilted about the ground moves a camera 30 m up by 30 m × the tilt, and its
+        // attitude with it: the point below it stays within the shift at the ground.
+        let floor = ModelFloor {
+            sigma_centre_m: Vector3::new(0.005, 0.006, 0.04),
+            sigma_rotation_rad: Vector3::new(0.002, 0.0055, 0.0003),
+            lever_m: 30.0,
+        };
+        let world = floor.world_covariance();
+        // The camera centre's σ east is the shift and the tilt about north together.
+        let east = (0.005f64.powi(2) + (30.0f64 * 0.0055).powi(2)).sqrt();
+        assert!((world[(3, 3)].sqrt() - east).abs() < 1e-12);
+        // δG = δC + δφ × (G − C), G 30 m below C.
+        let below = Vector3::new(0.0, 0.0, -30.0);
+        let mut j = nalgebra::Matrix3x6::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(-below.cross_matrix()));
+        j.fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&Matrix3::identity());
+        let ground = j * world * j.transpose();
+        assert!((ground[(0, 0)].sqrt() - 0.005).abs() < 1e-9, "{ground}");
+        assert!((ground[(1, 1)].sqrt() - 0.006).abs() < 1e-9, "{ground}");
+        assert!(ground[(0, 1)].abs() < 1e-12, "{ground}");
+        // Without a lever the two are independent: the tilt's share reaches the ground.
+        let pole = ModelFloor {
+            lever_m: 0.0,
+            ..floor
+        };
+        let ground = j * pole.world_covariance() * j.transpose();
+        assert!(ground[(0, 0)].sqrt() > 0.16, "{ground}");
+    }
 
     #[test]
     fn carried_points_give_the_moved_cameras_pose() {

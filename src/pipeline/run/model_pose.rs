@@ -69,19 +69,86 @@ pub(super) fn open_model(
     reference.transform(&site_from);
     let pick =
         |f: &dyn Fn(&crate::sfm::reference::GeoCamera) -> f64| median(cams.iter().map(f).collect());
+    let cameras = ModelFloor {
+        sigma_centre_m: Vector3::new(
+            pick(&|c| c.sigma_enu_m.x),
+            pick(&|c| c.sigma_enu_m.y),
+            pick(&|c| c.sigma_enu_m.z),
+        ),
+        sigma_rotation_rad: Vector3::repeat(pick(&|c| c.sigma_rotation_deg).to_radians()),
+        lever_m: 0.0,
+    };
+    let camera_up = median(cams.iter().map(|c| site_from.apply(&c.centre).z).collect());
+    let floor = if placed_by_control_points(dir) {
+        ground_floor(l, framed, &cameras, camera_up)
+    } else {
+        cameras
+    };
     Ok(SiteModel {
         reference,
         features,
-        floor: ModelFloor {
-            sigma_centre_m: Vector3::new(
-                pick(&|c| c.sigma_enu_m.x),
-                pick(&|c| c.sigma_enu_m.y),
-                pick(&|c| c.sigma_enu_m.z),
-            ),
-            sigma_rotation_rad: pick(&|c| c.sigma_rotation_deg).to_radians(),
-        },
+        floor,
         fit_rms_m,
     })
+}
+
+/// Whether the model's `report.json` says its control points placed it (rather than its
+/// camera centres).
+fn placed_by_control_points(dir: &Path) -> bool {
+    std::fs::read(dir.join("report.json"))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .is_some_and(|r| r["georef"]["placed_by"] == "control points")
+}
+
+/// The floor of a model placed by its control points: the datum turns about them, so a
+/// camera's centre σ east (north) is its tilt about north (east) times its height above them,
+/// and what is left at the ground is the control points' own σ over their number. Yaw: their
+/// horizontal σ over their spread. Falls back to `cameras` (centre and attitude independent)
+/// without three control points below the cameras.
+fn ground_floor(l: &Loaded, framed: &Framed, cameras: &ModelFloor, camera_up: f64) -> ModelFloor {
+    let default = l.project.survey.gcp_sigma_m;
+    let control: Vec<(Vector3<f64>, Vector3<f64>)> = framed
+        .survey
+        .points
+        .iter()
+        .zip(&framed.local)
+        .filter(|(p, x)| p.role == crate::survey::Role::Control && x.z.is_finite())
+        .map(|(p, x)| (*x, p.sigma_m.unwrap_or(Vector3::repeat(default))))
+        .collect();
+    let n = control.len() as f64;
+    let lever = camera_up - median(control.iter().map(|(x, _)| x.z).collect());
+    if control.len() < 3 || !(lever > 1.0) {
+        return *cameras;
+    }
+    let rms = |k: usize| (control.iter().map(|(_, s)| s[k] * s[k]).sum::<f64>() / n).sqrt();
+    let centroid = control
+        .iter()
+        .map(|(x, _)| x.xy())
+        .sum::<nalgebra::Vector2<f64>>()
+        / n;
+    let spread = (control
+        .iter()
+        .map(|(x, _)| (x.xy() - centroid).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    let largest = cameras.sigma_rotation_rad.max();
+    let tilt = |centre_sigma: f64| (centre_sigma / lever).min(largest);
+    let yaw = (0.5 * (rms(0) + rms(1)) / (spread * n.sqrt()).max(1e-9)).min(largest);
+    ModelFloor {
+        sigma_centre_m: Vector3::new(
+            rms(0) / n.sqrt(),
+            rms(1) / n.sqrt(),
+            cameras.sigma_centre_m.z,
+        ),
+        sigma_rotation_rad: Vector3::new(
+            tilt(cameras.sigma_centre_m.y),
+            tilt(cameras.sigma_centre_m.x),
+            yaw,
+        ),
+        lever_m: lever,
+    }
 }
 
 /// Leaves the people out of a frame's features: squares of `mask_px` around each detection,

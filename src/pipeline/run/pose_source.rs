@@ -330,7 +330,8 @@ fn fixed_pose<'a>(
     }
     let floor = crate::sfm::video_pose::ModelFloor {
         sigma_centre_m: Vector3::repeat(f.sigma_m),
-        sigma_rotation_rad: f.sigma_deg.to_radians(),
+        sigma_rotation_rad: Vector3::repeat(f.sigma_deg.to_radians()),
+        lever_m: 0.0,
     };
     let pose = extrinsics.cam_from_world;
     Ok(Fixed {

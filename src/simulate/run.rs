@@ -309,27 +309,16 @@ pub fn simulate(
     };
     let people_in_view = truth.seen.iter().filter(|s| **s).count();
     let mut files = truth.write(&out.join("truth"), &people, hat.is_some())?;
+    let video_name = video_name.as_deref();
     files.extend(write_gcps(
-        scene,
-        &world,
-        camera,
-        &poses[0],
-        out,
-        seed,
-        video_name.as_deref(),
+        scene, &world, camera, &poses[0], out, seed, video_name,
+    )?);
+    files.extend(write_frame_picks(
+        scene, &world, camera, &poses, out, seed, video_name,
     )?);
     if let Some(v) = &video {
         files.push(write_telemetry(scene, &poses, v, seed)?);
     }
-    files.extend(write_frame_picks(
-        scene,
-        &world,
-        camera,
-        &poses,
-        out,
-        seed,
-        video_name.as_deref(),
-    )?);
     files.extend(write_checkerboards(scene, camera, out, seed)?);
     files.extend(write_survey_flight(scene, &world, camera, out, seed, &sun)?);
     files.push(write_scene_meta(

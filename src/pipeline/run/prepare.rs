@@ -57,15 +57,11 @@ pub(super) fn prepare<'a>(
     mode: &ChunkMode,
 ) -> Result<Prepared<'a>, RunError> {
     let p = &l.project;
-    let files = l.input_files();
     let guard = inputs::input_guard(l);
     guard.check_dir(out).map_err(output_error)?;
 
     // Inputs and their checksums: every one is part of every stage's key.
-    let records = files
-        .iter()
-        .map(|(key, path)| file_record(key, path, &l.known_inputs))
-        .collect::<Result<Vec<_>, _>>()?;
+    let records = input_records(l)?;
     let sums: Vec<&str> = records.iter().map(|i| i.sha256.as_str()).collect();
 
     let inputs::VideoFacts {
@@ -86,14 +82,7 @@ pub(super) fn prepare<'a>(
         out,
         progress,
     )?;
-    let surface = registry::ground(
-        &p.ground,
-        &grounds::GroundInputs {
-            l,
-            framed: &framed,
-            pose_model: pose.model_dir(),
-        },
-    )?;
+    let surface = ground_of(l, &framed, pose.as_ref())?;
 
     // The scale of a head in the image, from a pose of the first frame (the picked one).
     let first_pose = pose.first_pose(&camera, &video)?;
@@ -348,6 +337,28 @@ fn first_detector(
 }
 
 /// The output folder and its stage cache's folders, once every input is checked.
+/// Every input file with its checksum.
+fn input_records(l: &Loaded) -> Result<Vec<InputRecord>, RunError> {
+    l.input_files()
+        .iter()
+        .map(|(key, path)| file_record(key, path, &l.known_inputs))
+        .collect()
+}
+
+/// The project's ground; local planes without a model of their own take the pose's.
+fn ground_of(
+    l: &Loaded,
+    framed: &Framed,
+    pose: &dyn pose_source::PoseSource,
+) -> Result<Box<dyn HeightSurface>, RunError> {
+    let inputs = grounds::GroundInputs {
+        l,
+        framed,
+        pose_model: pose.model_dir(),
+    };
+    registry::ground(&l.project.ground, &inputs)
+}
+
 fn make_out_dirs(guard: &crate::io::Inputs, out: &Path) -> Result<(), RunError> {
     guard.create_dir(out).map_err(output_error)?;
     guard

@@ -790,18 +790,10 @@ fn video_frames_are_placed_in_the_reference_model() {
     let sim = tmp.path().join("sim");
     // The track scene with frames 20 to 22 lost (plain grey: a frame of sky or fog), which must
     // be reported and interpolated with a flag, never posed as if measured.
-    let text = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/surveys/track-group/scene.toml"
-    ))
-    .unwrap();
-    assert!(text.contains("[output]\n"));
-    let scene_path = tmp.path().join("scene.toml");
-    std::fs::write(
-        &scene_path,
-        text.replace("[output]\n", "[output]\nlost_frames = [20, 21, 22]\n"),
-    )
-    .unwrap();
+    let scene_path = track_group_scene(tmp.path(), |text| {
+        assert!(text.contains("[output]\n"));
+        text.replace("[output]\n", "[output]\nlost_frames = [20, 21, 22]\n")
+    });
     let scene = scene_path.to_str().unwrap();
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let run = |args: &[&str]| {
@@ -1248,26 +1240,32 @@ fn copy_tree(from: &Path, to: &Path) {
     }
 }
 
-/// A moving camera with no survey flight (`[pose] kind = "model"` without `model`): the run
-/// builds its reference model from the video's own frames and the GCP picks on them, places
-/// every frame in it and puts the runners within 0.10 m; picks that name no frame of the
-/// video, or none at all, are refused before any work.
-#[test]
-fn a_moving_camera_without_a_survey_flight_builds_its_model_from_the_video() {
-    let tmp = tempfile::tempdir().unwrap();
-    let sim = tmp.path().join("sim");
-    // The group scene, 3 s, no survey flight; its four GCPs moved where those 3 s see them.
+/// The track scene (`surveys/track-group`) edited by `edit`, written as `DIR/scene.toml`.
+fn track_group_scene(dir: &Path, edit: impl Fn(&str) -> String) -> PathBuf {
     let text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/surveys/track-group/scene.toml"
     ))
     .unwrap();
-    let (text, _) = text.split_once("[survey_flight]").unwrap();
-    let text = text
-        .replace("[40.0, -10.0]", "[45.0, -27.0]")
-        .replace("[33.0, -5.0]", "[31.0, -41.0]");
-    let scene = tmp.path().join("scene.toml");
-    std::fs::write(&scene, text).unwrap();
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, edit(&text)).unwrap();
+    path
+}
+
+/// A moving camera with no survey flight (`[pose] kind = "model"` without `model`): the run
+/// builds its reference model from the video's own frames and the GCP picks on them, places
+/// every frame in it and puts the runners within 0.10 m; picks that name no frame of the
+/// video are refused before any work.
+#[test]
+fn a_moving_camera_without_a_survey_flight_builds_its_model_from_the_video() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sim = tmp.path().join("sim");
+    // The group scene, 3 s, no survey flight; its four GCPs moved where those 3 s see them.
+    let scene = track_group_scene(tmp.path(), |text| {
+        let (text, _) = text.split_once("[survey_flight]").unwrap();
+        text.replace("[40.0, -10.0]", "[45.0, -27.0]")
+            .replace("[33.0, -5.0]", "[31.0, -41.0]")
+    });
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let o = geostride(&["simulate", &s(&scene), "--duration", "3", "--out", &s(&sim)]);
     common::assert_success(&o);

@@ -7,14 +7,13 @@ use anyhow::anyhow;
 use super::survey::{ReadArgs, read_framed, read_other};
 use super::{bad_input, check_output_dir, load_camera, output_error, progress_bar};
 use geostride::sfm::FeatureSettings;
-use geostride::sfm::georef::{GeorefSettings, PointRole};
+use geostride::sfm::georef::GeorefSettings;
 use geostride::sfm::job::{
-    CrsPositions, GeorefInput, NamedCentre, NamedGroundPoint, NamedPick, SfmJob, SfmJobError,
-    SfmRun, run_sfm, write_outputs,
+    CrsPositions, GeorefInput, NamedCentre, SfmJob, SfmJobError, SfmRun, ground_points, run_sfm,
+    write_outputs,
 };
 use geostride::sfm::matching::MatchSettings;
 use geostride::sfm::reconstruct::SfmSettings;
-use geostride::survey::Role;
 use geostride::survey::frame::SiteFrame;
 use geostride::survey::gis::{CameraPoint, write_cameras};
 use nalgebra::Vector3;
@@ -681,39 +680,20 @@ fn georef_input_of(args: &GeorefFiles) -> anyhow::Result<(Option<GeorefInput>, O
     let (points, frame, source) = match args.gcps {
         Some(file) => {
             let framed = read_framed(file, args.read, None)?;
-            let mut points = Vec::new();
-            for (p, local) in framed.survey.points.iter().zip(&framed.local) {
-                let role = match p.role {
-                    Role::Control => PointRole::Control,
-                    Role::Check => PointRole::Check,
-                    Role::Disabled => continue,
-                };
-                if !local.z.is_finite() {
-                    return Err(bad_input(anyhow!(
-                        "{}:{}: '{}' has no height; georeferencing needs 3D points",
-                        file.display(),
-                        p.line,
-                        p.name
-                    )));
-                }
-                points.push(NamedGroundPoint {
-                    name: p.name.clone(),
-                    role,
-                    position: *local,
-                    sigma_m: p.sigma_m.unwrap_or(Vector3::repeat(args.gcp_sigma)),
-                    picks: p
-                        .observations
-                        .iter()
-                        .map(|o| NamedPick {
-                            image: o.image.clone(),
-                            uv: o.uv,
-                            sigma_px: o.sigma_px.unwrap_or(args.pick_sigma),
-                            file: o.file.clone(),
-                            line: o.line,
-                        })
-                        .collect(),
-                });
-            }
+            let points = ground_points(
+                &framed.survey.points,
+                &framed.local,
+                (args.pick_sigma, args.gcp_sigma),
+                |image| Some(image.to_string()),
+            )
+            .map_err(|p| {
+                bad_input(anyhow!(
+                    "{}:{}: '{}' has no height; georeferencing needs 3D points",
+                    file.display(),
+                    p.line,
+                    p.name
+                ))
+            })?;
             if points.iter().all(|p| p.picks.is_empty()) {
                 return Err(bad_input(anyhow!(
                     "{}: no pixel picks: add them with --picks FILE (CSV 'name,image,u,v[,sigma]') or use a GCP file with picks (ODM gcp_list.txt)",

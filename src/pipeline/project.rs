@@ -731,6 +731,14 @@ fn check(l: &Loaded) -> Result<(), FileError> {
     p.ground
         .check()
         .map_err(|(key, m)| l.error("ground", key, m))?;
+    check_models(l)?;
+    check_detect(l)?;
+    check_later_stages(l)
+}
+
+/// The files and folders the ground and the pose read: a model's folder whole.
+fn check_models(l: &Loaded) -> Result<(), FileError> {
+    let p = &l.project;
     match p.ground.reads() {
         Some(GroundInput::File(path)) => exists(l, "ground", "path", path)?,
         Some(GroundInput::Model(dir)) => model_exists(l, "ground", "model", dir)?,
@@ -758,8 +766,7 @@ fn check(l: &Loaded) -> Result<(), FileError> {
             ));
         }
     }
-    check_detect(l)?;
-    check_later_stages(l)
+    Ok(())
 }
 
 /// A reference model's folder: `points3D.txt` and its siblings inside.

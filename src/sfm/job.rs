@@ -71,6 +71,46 @@ pub struct NamedGroundPoint {
     pub picks: Vec<NamedPick>,
 }
 
+/// The survey's control and check points (`local`: their site-frame positions, in `points`'
+/// order) with their picks, for the georeferencing. σ a file does not state are `sigmas` (pick
+/// pixels, point metres); `image` names a pick's image in the job (`None`: the pick is left
+/// out). Err: the first point used that has no height.
+pub fn ground_points<'a>(
+    points: &'a [crate::survey::model::Gcp],
+    local: &[Vector3<f64>],
+    (pick_sigma_px, gcp_sigma_m): (f64, f64),
+    image: impl Fn(&str) -> Option<String>,
+) -> Result<Vec<NamedGroundPoint>, &'a crate::survey::model::Gcp> {
+    let mut out = Vec::new();
+    for (p, local) in points.iter().zip(local) {
+        let role = match p.role {
+            crate::survey::Role::Control => PointRole::Control,
+            crate::survey::Role::Check => PointRole::Check,
+            crate::survey::Role::Disabled => continue,
+        };
+        if !local.z.is_finite() {
+            return Err(p);
+        }
+        let picks = p.observations.iter().filter_map(|o| {
+            Some(NamedPick {
+                image: image(&o.image)?,
+                uv: o.uv,
+                sigma_px: o.sigma_px.unwrap_or(pick_sigma_px),
+                file: o.file.clone(),
+                line: o.line,
+            })
+        });
+        out.push(NamedGroundPoint {
+            name: p.name.clone(),
+            role,
+            position: *local,
+            sigma_m: p.sigma_m.unwrap_or(Vector3::repeat(gcp_sigma_m)),
+            picks: picks.collect(),
+        });
+    }
+    Ok(out)
+}
+
 /// A measured camera centre in the site frame, by image name.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NamedCentre {

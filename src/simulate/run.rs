@@ -796,35 +796,43 @@ fn write_frame_picks(
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xF4A3_E5C1);
     let pick_noise = Normal::new(0.0, scene.output.pick_noise_px.max(1e-12)).expect("sigma");
-    let size = camera.image_size.expect("size");
-    let (w, h) = (f64::from(size.width), f64::from(size.height));
     let every = (scene.fps.round() as usize).max(1);
     let mut picks = String::from("name,image,u,v,sigma\n");
     for (i, pose) in poses.iter().enumerate().step_by(every) {
         let image = video.map_or_else(|| format!("frame-{i:05}"), |v| format!("{v}#{i}"));
-        for (name, p) in &world.gcps {
-            let Some(uv) = pose.project(camera, p) else {
-                continue;
-            };
-            let inside = uv.x >= 10.0 && uv.y >= 10.0 && uv.x <= w - 11.0 && uv.y <= h - 11.0;
-            let dir = (p - pose.centre).normalize();
-            let seen = world
-                .intersect(&pose.centre, &dir)
-                .is_some_and(|(hit, _)| (hit - p).norm() < 0.05);
-            if inside && seen {
-                let _ = writeln!(
-                    picks,
-                    "{name},{image},{:.3},{:.3},{}",
-                    uv.x + pick_noise.sample(&mut rng),
-                    uv.y + pick_noise.sample(&mut rng),
-                    scene.output.pick_noise_px
-                );
-            }
-        }
+        let noise = (&pick_noise, scene.output.pick_noise_px);
+        write_visible_picks(&mut picks, &image, (world, pose, camera), noise, &mut rng);
     }
     let path = out.join("picks-frames.csv");
     write_file(&path, &picks)?;
     Ok(vec![path])
+}
+
+/// The picks rows of image `image`: every GCP its camera sees 10 px inside the edge and not
+/// hidden (behind the deck), with `noise` (its distribution and stated σ, px) on each axis.
+fn write_visible_picks(
+    picks: &mut String,
+    image: &str,
+    (world, pose, camera): (&World, &CameraPose, &Camera),
+    (noise, sigma_px): (&Normal<f64>, f64),
+    rng: &mut rand_chacha::ChaCha8Rng,
+) {
+    let size = camera.image_size.expect("size");
+    let (w, h) = (f64::from(size.width), f64::from(size.height));
+    for (name, p) in &world.gcps {
+        let Some(uv) = pose.project(camera, p) else {
+            continue;
+        };
+        let inside = uv.x >= 10.0 && uv.y >= 10.0 && uv.x <= w - 11.0 && uv.y <= h - 11.0;
+        let dir = (p - pose.centre).normalize();
+        let seen = world
+            .intersect(&pose.centre, &dir)
+            .is_some_and(|(hit, _)| (hit - p).norm() < 0.05);
+        if inside && seen {
+            let (u, v) = (uv.x + noise.sample(rng), uv.y + noise.sample(rng));
+            let _ = writeln!(picks, "{name},{image},{u:.3},{v:.3},{sigma_px}");
+        }
+    }
 }
 
 /// The gimbal's yaw, pitch and roll of a camera pose, degrees, as DJI writes them: pitch up
@@ -1021,29 +1029,14 @@ fn write_survey_flight(
             pose.centre.x, pose.centre.y, pose.centre.z, g.h, q.w, q.i, q.j, q.k
         );
         centres.push(rtk.measured(&name, x, y, g.h, i + 2, &mut rng));
-        for (gcp, p) in &world.gcps {
-            let Some(uv) = pose.project(&photo_camera, p) else {
-                continue;
-            };
-            let inside = uv.x >= 10.0
-                && uv.y >= 10.0
-                && uv.x <= f64::from(w) - 11.0
-                && uv.y <= f64::from(h) - 11.0;
-            // Seen, not hidden behind the deck.
-            let dir = (p - pose.centre).normalize();
-            let seen = world
-                .intersect(&pose.centre, &dir)
-                .is_some_and(|(hit, _)| (hit - p).norm() < 0.05);
-            if inside && seen {
-                let _ = writeln!(
-                    picks,
-                    "{gcp},{name},{:.3},{:.3},{}",
-                    uv.x + pick_noise.sample(&mut rng),
-                    uv.y + pick_noise.sample(&mut rng),
-                    scene.output.pick_noise_px
-                );
-            }
-        }
+        let noise = (&pick_noise, scene.output.pick_noise_px);
+        write_visible_picks(
+            &mut picks,
+            &name,
+            (world, pose, &photo_camera),
+            noise,
+            &mut rng,
+        );
     }
     let csv = emlid_in_site_crs(scene, &crs, &centres)?;
     let paths = [

@@ -336,7 +336,6 @@ fn first_detector(
     })
 }
 
-/// The output folder and its stage cache's folders, once every input is checked.
 /// Every input file with its checksum.
 fn input_records(l: &Loaded) -> Result<Vec<InputRecord>, RunError> {
     l.input_files()
@@ -359,6 +358,7 @@ fn ground_of(
     registry::ground(&l.project.ground, &inputs)
 }
 
+/// The output folder and its stage cache's folders, once every input is checked.
 fn make_out_dirs(guard: &crate::io::Inputs, out: &Path) -> Result<(), RunError> {
     guard.create_dir(out).map_err(output_error)?;
     guard

@@ -8,21 +8,17 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use nalgebra::Vector3;
-
 use super::RunError;
 use crate::camera::Camera;
 use crate::pipeline::project::Loaded;
 use crate::pipeline::settings::ModelSettings;
 use crate::progress::Progress;
 use crate::sfm::FeatureSettings;
-use crate::sfm::georef::PointRole;
 use crate::sfm::job::{
-    CrsPositions, GeorefInput, NamedGroundPoint, NamedPick, SfmJob, run_sfm, write_outputs,
+    CrsPositions, GeorefInput, NamedGroundPoint, SfmJob, ground_points, run_sfm, write_outputs,
 };
 use crate::sfm::matching::MatchSettings;
 use crate::sfm::reconstruct::SfmSettings;
-use crate::survey::Role;
 use crate::survey::load::Framed;
 
 /// Features per frame of the video's model (the survey flights' default is 8192 on larger
@@ -79,42 +75,26 @@ fn picked_frames(
 }
 
 /// The surveyed points with their picks renamed to the frames' files.
-fn ground_points(l: &Loaded, framed: &Framed) -> Vec<NamedGroundPoint> {
+fn ground_points_of(l: &Loaded, framed: &Framed) -> Result<Vec<NamedGroundPoint>, RunError> {
     let s = &l.project.survey;
-    framed
-        .survey
-        .points
-        .iter()
-        .zip(&framed.local)
-        .filter_map(|(p, local)| {
-            let role = match p.role {
-                Role::Control => PointRole::Control,
-                Role::Check => PointRole::Check,
-                Role::Disabled => return None,
-            };
-            let picks = p
-                .observations
-                .iter()
-                .filter_map(|o| {
-                    let (_, n) = o.image.rsplit_once('#')?;
-                    Some(NamedPick {
-                        image: frame_file(n.parse().ok()?),
-                        uv: o.uv,
-                        sigma_px: o.sigma_px.unwrap_or(s.pick_sigma_px),
-                        file: o.file.clone(),
-                        line: o.line,
-                    })
-                })
-                .collect();
-            Some(NamedGroundPoint {
-                name: p.name.clone(),
-                role,
-                position: *local,
-                sigma_m: p.sigma_m.unwrap_or(Vector3::repeat(s.gcp_sigma_m)),
-                picks,
-            })
+    let frame = |image: &str| Some(frame_file(crate::io::frame_of_name(image)?.ok()?));
+    ground_points(
+        &framed.survey.points,
+        &framed.local,
+        (s.pick_sigma_px, s.gcp_sigma_m),
+        frame,
+    )
+    .map_err(|p| {
+        RunError::Input(crate::io::FileError {
+            path: l.resolve(&s.gcps),
+            line: Some(p.line),
+            field: None,
+            message: format!(
+                "'{}' has no height: the model built from the video is placed by 3D points",
+                p.name
+            ),
         })
-        .collect()
+    })
 }
 
 /// Writes frames `frames` of `video` into `dir` as PNG.
@@ -188,7 +168,7 @@ pub(super) fn build_video_model(
         matching: MatchSettings::default(),
         sfm: SfmSettings::default(),
         georef: Some(GeorefInput {
-            points: ground_points(l, framed),
+            points: ground_points_of(l, framed)?,
             centres: Vec::new(),
             settings: Default::default(),
             frame: "the run's site frame".into(),

@@ -7,6 +7,10 @@ matching's seconds, and per mapper and seed its seconds, registered images, poin
 reprojection error and each registered image's camera centre (model frame). A run's total time
 is extraction + matching + its mapping.
 
+Pairs: exhaustive, or with `--priors FILE` (CSV `name,x,y,z`, metres in one Cartesian frame: the
+flight's measured camera centres) COLMAP's spatial matcher over each image's `--neighbours`
+nearest (horizontally), the centres written to the database as pose priors.
+
 Camera: `--camera guess` lets COLMAP start from its own guess (EXIF, else 1.2 times the longer
 side) and refine it (one SIMPLE_RADIAL camera, COLMAP's default; the principal point held, as
 COLMAP does by default); `--camera fx,fy,cx,cy` is one PINHOLE camera with that K (geostride's
@@ -15,6 +19,7 @@ OPENCV camera from that K with its focal lengths and distortion refined.
 """
 
 import argparse
+import csv
 import json
 import os
 import shutil
@@ -66,6 +71,30 @@ def mapping(db, images, work, mapper, seed, refine, threads):
     return run
 
 
+def write_priors(db_path, priors):
+    """The measured centres (name -> (x, y, z)) as Cartesian pose priors of their images."""
+    db = pycolmap.Database.open(db_path)
+    try:
+        for image in db.read_all_images():
+            if image.name not in priors:
+                continue
+            prior = pycolmap.PosePrior()
+            prior.corr_data_id = pycolmap.data_t(
+                sensor_id=pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=image.camera_id),
+                id=image.image_id,
+            )
+            prior.position = priors[image.name]
+            prior.coordinate_system = pycolmap.PosePriorCoordinateSystem.CARTESIAN
+            db.write_pose_prior(prior)
+    finally:
+        db.close()
+
+
+def read_priors(path):
+    with open(path, newline="") as f:
+        return {r[0]: [float(v) for v in r[1:4]] for r in csv.reader(f) if r and r[0] != "name"}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("images", help="folder of the images")
@@ -77,6 +106,8 @@ def main() -> int:
     ap.add_argument("--max-image-size", type=int, default=2000)
     ap.add_argument("--max-features", type=int, default=8192)
     ap.add_argument("--threads", type=int, default=-1)
+    ap.add_argument("--priors", default=None)
+    ap.add_argument("--neighbours", type=int, default=8)
     a = ap.parse_args()
 
     work = tempfile.mkdtemp(prefix="pycolmap-")
@@ -113,7 +144,17 @@ def main() -> int:
         t1 = time.perf_counter()
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = a.threads
-        pycolmap.match_exhaustive(db, matching_options=matching, device=cpu)
+        if a.priors:
+            write_priors(db, read_priors(a.priors))
+            pairing = pycolmap.SpatialPairingOptions()
+            pairing.max_num_neighbors = a.neighbours
+            pairing.max_distance = 1e9
+            pairing.num_threads = a.threads
+            pycolmap.match_spatial(
+                db, matching_options=matching, pairing_options=pairing, device=cpu
+            )
+        else:
+            pycolmap.match_exhaustive(db, matching_options=matching, device=cpu)
         matching_s = time.perf_counter() - t1
         runs = [
             mapping(db, a.images, work, m, int(seed), refine, a.threads)

@@ -39,6 +39,10 @@ pub struct Args {
     /// every other or its GPS neighbours
     #[arg(long, value_name = "N")]
     sequential: Option<usize>,
+    /// With a position for every photo (--centres, else the EXIF GPS): match each with its N
+    /// nearest (horizontally) instead of every other
+    #[arg(long, default_value = "8", value_name = "N")]
+    neighbours: usize,
     /// Features per image at most
     #[arg(long, default_value = "8192", value_name = "N")]
     max_features: usize,
@@ -479,7 +483,7 @@ pub(super) fn build(args: &Args) -> anyhow::Result<Built> {
     let job = SfmJob {
         images,
         camera,
-        gps_neighbours: 8,
+        gps_neighbours: args.neighbours,
         sequential: args.sequential.unwrap_or(0),
         features: FeatureSettings {
             max_features: args.max_features,

@@ -205,6 +205,7 @@ mod tests {
             start: Default::default(),
             principal_point: None,
             other_models: Vec::new(),
+            adjustments: Default::default(),
         };
         (r, keypoints)
     }

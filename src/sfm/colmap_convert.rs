@@ -179,6 +179,7 @@ pub fn to_reconstruction(m: &ColmapModel) -> Result<Converted, ConvertError> {
         },
         principal_point: None,
         other_models: Vec::new(),
+        adjustments: Default::default(),
     };
     reconstruction.mean_reprojection_px = reconstruction.mean_reprojection(&keypoints);
     Ok(Converted {

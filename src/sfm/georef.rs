@@ -953,6 +953,7 @@ mod tests {
             start: Default::default(),
             principal_point: None,
             other_models: Vec::new(),
+            adjustments: Default::default(),
         };
         let mut model = truth.clone();
         let sim = Similarity {

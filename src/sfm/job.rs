@@ -34,8 +34,9 @@ pub struct SfmJob {
     /// `None`: a pinhole from the EXIF 35 mm focal length, principal point at the centre,
     /// refined.
     pub camera: Option<Camera>,
-    /// With GPS in every image's EXIF, each image is matched with this many nearest (by GPS)
-    /// rather than with every other; 0: always every pair.
+    /// With a position for every image (measured centres, else GPS in its EXIF), each image
+    /// is matched with this many nearest (horizontally) rather than with every other; 0:
+    /// always every pair.
     pub gps_neighbours: usize,
     /// Ordered frames (a flight's photos in time order, video frames): each image matched with
     /// the next this many only (ahead of GPS neighbours); 0: not used.
@@ -305,7 +306,8 @@ pub struct SfmReport {
     /// centres at integers.
     pub camera: Vec<f64>,
     pub pairs_matched: usize,
-    /// How pairs were chosen: `all` or `gps-neighbours`.
+    /// How pairs were chosen: `all`, `sequential`, `centre-neighbours` (the measured centres)
+    /// or `gps-neighbours` (the EXIF GPS).
     pub pair_selection: String,
     /// Where the camera came from: `given`, or without one where its starting focal length
     /// came from: `exif` (the 35 mm equivalent), `exif-focal-plane` (the focal length on the
@@ -334,6 +336,8 @@ pub struct SfmReport {
     /// How the initial pair's relative pose was found: `model` (`essential` or `homography`),
     /// the matches each explains, the pairs passed over because the camera only turned.
     pub initial_pair_geometry: super::reconstruct::Start,
+    /// The bundle adjustments of the whole model and the local ones made as it grew.
+    pub adjustments: super::reconstruct::Adjustments,
     pub per_image: Vec<ImageReport>,
     pub seconds_features: f64,
     pub seconds_matching: f64,
@@ -539,7 +543,7 @@ pub fn run_sfm(
     };
     let t = Instant::now();
     let cache = SfmCache::new(job.cache_dir.as_deref());
-    let (found, feature_keys, features_cached) =
+    let (mut found, feature_keys, features_cached) =
         extract_features(&job.images, &job.features, &cache, features)?;
     let seconds_features = t.elapsed().as_secs_f64();
     let (width, height) = (found[0].width, found[0].height);
@@ -561,13 +565,13 @@ pub fn run_sfm(
     }
     let t = Instant::now();
     let gps = consistent_gps(&metas, &names);
-    let (chosen, pair_selection) = choose_pairs(job, found.len(), &gps);
+    let centres = indexed.as_ref().map(|(_, c)| c.as_slice());
+    let (chosen, pair_selection) = choose_pairs(job, found.len(), &gps, centres);
     let (pairs, pairs_cached) = match_pairs(job, &found, &feature_keys, &chosen, &cache, matching)?;
+    // Matched: the descriptors (a flight's largest data: 0.5 GB for 118 photos) are done with.
+    found.iter_mut().for_each(|f| f.descriptors = Vec::new());
     let seconds_matching = t.elapsed().as_secs_f64();
-    let keypoints: Vec<Vec<Vector2<f64>>> = found
-        .iter()
-        .map(|f| f.keypoints.iter().map(|k| Vector2::new(k.x, k.y)).collect())
-        .collect();
+    let keypoints = keypoint_positions(&found);
     let t = Instant::now();
     let sigmas = super::keypoint_sigmas(&found);
     let mut r = reconstruct(&camera, &keypoints, Some(&sigmas), &pairs, &sfm_settings)?;
@@ -628,6 +632,7 @@ pub fn run_sfm(
         site_frame: job.georef.as_ref().map(|g| g.frame.clone()),
         unmatched_names,
         initial_pair_geometry: r.start,
+        adjustments: r.adjustments,
         initial_pair: (
             names[r.initial_pair.0].clone(),
             names[r.initial_pair.1].clone(),
@@ -701,17 +706,34 @@ fn job_camera(
     Ok((c, source.name()))
 }
 
-/// The image pairs to match and how they were chosen: a sequential window, the GPS
-/// neighbours when every image has a fix, else all pairs.
+/// Each image's keypoints' positions, pixels.
+fn keypoint_positions(found: &[Features]) -> Vec<Vec<Vector2<f64>>> {
+    found
+        .iter()
+        .map(|f| f.keypoints.iter().map(|k| Vector2::new(k.x, k.y)).collect())
+        .collect()
+}
+
+/// The image pairs to match and how they were chosen: a sequential window, the nearest by
+/// measured centre when every image has one, else by GPS when every image has a fix, else all
+/// pairs.
 fn choose_pairs(
     job: &SfmJob,
     n: usize,
     gps: &ConsistentGps,
+    centres: Option<&[CentreMeasurement]>,
 ) -> (Vec<(usize, usize)>, &'static str) {
     let all_gps: Option<Vec<GpsFix>> = gps.fixes.iter().copied().collect();
-    match &all_gps {
+    let mut measured: Vec<Option<Vector2<f64>>> = vec![None; n];
+    for c in centres.unwrap_or(&[]) {
+        measured[c.image] = Some(c.position.xy());
+    }
+    let all_measured: Option<Vec<Vector2<f64>>> = measured.into_iter().collect();
+    let neighbours = job.gps_neighbours > 0 && n > job.gps_neighbours + 1;
+    match (&all_measured, &all_gps) {
         _ if job.sequential > 0 => (sequential_pairs(n, job.sequential), "sequential"),
-        Some(g) if job.gps_neighbours > 0 && n > job.gps_neighbours + 1 => {
+        (Some(c), _) if neighbours => (nearest_pairs(c, job.gps_neighbours), "centre-neighbours"),
+        (_, Some(g)) if neighbours => {
             (gps_neighbour_pairs(g, job.gps_neighbours), "gps-neighbours")
         }
         _ => (
@@ -1024,11 +1046,18 @@ pub(crate) fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize
     let Some((enu, _)) = enu_of(gps) else {
         return Vec::new();
     };
+    let xy: Vec<Vector2<f64>> = enu.iter().map(|p| p.xy()).collect();
+    nearest_pairs(&xy, k)
+}
+
+/// Each image with its `k` nearest by horizontal position (metres, any one frame): the pairs,
+/// `i < j`, sorted.
+pub(crate) fn nearest_pairs(xy: &[Vector2<f64>], k: usize) -> Vec<(usize, usize)> {
     let mut pairs = std::collections::BTreeSet::new();
-    for i in 0..enu.len() {
-        let mut by: Vec<(f64, usize)> = (0..enu.len())
+    for i in 0..xy.len() {
+        let mut by: Vec<(f64, usize)> = (0..xy.len())
             .filter(|&j| j != i)
-            .map(|j| ((enu[i] - enu[j]).xy().norm(), j))
+            .map(|j| ((xy[i] - xy[j]).norm(), j))
             .collect();
         by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         for &(_, j) in by.iter().take(k) {
@@ -1186,6 +1215,8 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
          {}\
          - started from: {} and {} (pose from the {} matrix; of the {} matches it kept, {} fit \
          one homography; {} pairs that only turned passed over)\n\
+         - bundle adjustments as the model grew: {} of the whole model, {} local (an image \
+         and its neighbours)\n\
          - time: features {:.1} s ({} images from the cache), matching {:.1} s ({} pairs, {} from \
          the cache), reconstruction {:.1} s\n\n\
          | image | registered | features | observations | why not |\n\
@@ -1211,6 +1242,8 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
         r.initial_pair_geometry.essential_inliers,
         r.initial_pair_geometry.homography_inliers,
         r.initial_pair_geometry.rotations_skipped,
+        r.adjustments.global,
+        r.adjustments.local,
         r.seconds_features,
         r.features_cached,
         r.seconds_matching,
@@ -1502,5 +1535,48 @@ mod tests {
             vec![(0, 1), (1, 2), (2, 3), (3, 4)]
         );
         assert_eq!(gps_neighbour_pairs(&gps, 4).len(), 10);
+    }
+
+    /// Measured centres for every image choose the pairs before the EXIF GPS: six photos whose
+    /// GPS puts them on a line but whose centres are two rows of three.
+    #[test]
+    fn measured_centres_choose_the_neighbours_before_the_gps() {
+        let job = SfmJob {
+            images: vec![PathBuf::new(); 6],
+            camera: None,
+            gps_neighbours: 1,
+            sequential: 0,
+            features: FeatureSettings::default(),
+            matching: MatchSettings::default(),
+            sfm: SfmSettings::default(),
+            georef: None,
+            cache_dir: None,
+        };
+        let gps = ConsistentGps {
+            fixes: (0..6)
+                .map(|k| {
+                    Some(GpsFix {
+                        lat_deg: 46.0 + 1e-4 * f64::from(k),
+                        lon_deg: 7.0,
+                        alt_m: Some(500.0),
+                    })
+                })
+                .collect(),
+            left_out: Vec::new(),
+        };
+        // Image k at column k % 3 (10 m apart), row k / 3 (3 m apart).
+        let centres: Vec<CentreMeasurement> = (0..6)
+            .map(|k| CentreMeasurement {
+                image: k,
+                position: Vector3::new(10.0 * (k % 3) as f64, 3.0 * (k / 3) as f64, 30.0),
+                sigma_m: Vector3::repeat(0.03),
+            })
+            .collect();
+        let (pairs, how) = choose_pairs(&job, 6, &gps, Some(&centres));
+        assert_eq!(how, "centre-neighbours");
+        assert_eq!(pairs, vec![(0, 3), (1, 4), (2, 5)]);
+        let (pairs, how) = choose_pairs(&job, 6, &gps, Some(&centres[..5]));
+        assert_eq!(how, "gps-neighbours");
+        assert_eq!(pairs, vec![(0, 1), (1, 2), (2, 3), (3, 4), (4, 5)]);
     }
 }

@@ -39,6 +39,14 @@ pub struct SfmSettings {
     /// Refine the focal lengths and `k1`, `k2` as the model grows (a camera known only roughly:
     /// EXIF, a guess, a preset).
     pub refine_intrinsics: bool,
+    /// From this many registered images on, a new image adjusts only itself, the
+    /// `local_images` − 1 images sharing most points with it and their points (the images that
+    /// also see those points held), and everything is adjusted only when the model has grown
+    /// by `global_growth` since the last time: the whole model after every image costs the
+    /// square of the images. Below it every image adjusts everything.
+    pub local_from: usize,
+    pub local_images: usize,
+    pub global_growth: f64,
     pub seed: u64,
 }
 
@@ -51,6 +59,9 @@ impl Default for SfmSettings {
             min_triangulation_deg: 1.5,
             max_reprojection_px: 4.0,
             refine_intrinsics: false,
+            local_from: 25,
+            local_images: 10,
+            global_growth: 1.1,
             seed: 0,
         }
     }
@@ -82,6 +93,16 @@ pub struct Reconstruction {
     /// The models of images that share no points with this one (largest first; this is the
     /// largest): their images are left without a pose here.
     pub other_models: Vec<OtherModel>,
+    /// The bundle adjustments made as the model grew.
+    pub adjustments: Adjustments,
+}
+
+/// How many bundle adjustments of the whole model, and how many local ones (an image and its
+/// neighbours), a reconstruction made.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Adjustments {
+    pub global: usize,
+    pub local: usize,
 }
 
 /// A model built from images that share no points with the one kept.
@@ -361,9 +382,13 @@ struct Builder<'a> {
     /// Per image, keypoint → track.
     track_of: &'a [HashMap<usize, usize>],
     point_of_track: Vec<Option<usize>>,
+    /// Per image, how many of its keypoints' tracks have a point (which image to register
+    /// next, without counting them all again after every image).
+    on_points: Vec<usize>,
     points: Vec<Option<ModelPoint>>,
     poses: Vec<Option<Rigid3>>,
     gauge: (usize, usize),
+    adjustments: Adjustments,
 }
 
 impl Builder<'_> {
@@ -374,10 +399,39 @@ impl Builder<'_> {
         }
     }
 
+    /// Track `t`'s point becomes `point` (or none): the counts of the images it crosses follow.
+    fn link(&mut self, t: usize, point: Option<usize>) {
+        match (self.point_of_track[t], point) {
+            (None, Some(_)) => self.tracks[t].iter().for_each(|f| self.on_points[f.0] += 1),
+            (Some(_), None) => self.tracks[t].iter().for_each(|f| self.on_points[f.0] -= 1),
+            _ => {}
+        }
+        self.point_of_track[t] = point;
+    }
+
+    /// Forgets every point (a new start).
+    fn clear_points(&mut self) {
+        self.points.clear();
+        self.point_of_track = vec![None; self.tracks.len()];
+        self.on_points = vec![0; self.poses.len()];
+    }
+
     /// Triangulates every track with two or more registered features and no point yet.
     fn triangulate_new(&mut self) -> usize {
+        self.triangulate_tracks(0..self.tracks.len())
+    }
+
+    /// Triangulates the tracks through image `i` that have no point yet.
+    fn triangulate_through(&mut self, i: usize) -> usize {
+        let mut through: Vec<usize> = self.track_of[i].values().copied().collect();
+        through.sort_unstable();
+        self.triangulate_tracks(through.into_iter())
+    }
+
+    /// Triangulates those of `tracks` with two or more registered features and no point yet.
+    fn triangulate_tracks(&mut self, tracks: impl Iterator<Item = usize>) -> usize {
         let mut made = 0;
-        for t in 0..self.tracks.len() {
+        for t in tracks {
             if self.point_of_track[t].is_some() {
                 continue;
             }
@@ -411,7 +465,7 @@ impl Builder<'_> {
             if good.len() < 2 {
                 continue;
             }
-            self.point_of_track[t] = Some(self.points.len());
+            self.link(t, Some(self.points.len()));
             self.points.push(Some(ModelPoint {
                 xyz,
                 observations: good,
@@ -433,10 +487,23 @@ impl Builder<'_> {
         let images: Vec<usize> = (0..self.poses.len())
             .filter(|&i| self.poses[i].is_some())
             .collect();
-        let slot: HashMap<usize, usize> = images.iter().enumerate().map(|(k, &i)| (i, k)).collect();
         let live: Vec<usize> = (0..self.points.len())
             .filter(|&p| self.points[p].is_some())
             .collect();
+        let problem = self.problem_of(&images, &live, None, refine);
+        (problem, images, live)
+    }
+
+    /// The bundle adjustment of the points `live` and the registered `images` that see them:
+    /// with `held`, the images it marks fixed (they hold the datum); without, the gauge pair.
+    fn problem_of(
+        &self,
+        images: &[usize],
+        live: &[usize],
+        held: Option<&[bool]>,
+        refine: Refine,
+    ) -> Problem<N_PARAMS> {
+        let slot: HashMap<usize, usize> = images.iter().enumerate().map(|(k, &i)| (i, k)).collect();
         let mut observations = Vec::new();
         let mut sigma_px = Vec::new();
         for (k, &p) in live.iter().enumerate() {
@@ -484,6 +551,14 @@ impl Builder<'_> {
         for &k in free {
             problem.fixed_intrinsics[0][k] = false;
         }
+        if let Some(held) = held {
+            for (k, &i) in images.iter().enumerate() {
+                if held[i] {
+                    problem.fixed_poses[k] = [true; 6];
+                }
+            }
+            return problem;
+        }
         problem.fixed_poses[slot[&self.gauge.0]] = [true; 6];
         let second = slot[&self.gauge.1];
         let t = &problem.poses[second];
@@ -491,13 +566,86 @@ impl Builder<'_> {
             .max_by(|&a, &b| t[a].abs().total_cmp(&t[b].abs()))
             .expect("three");
         problem.fixed_poses[second][largest] = true;
-        (problem, images, live)
+        problem
     }
 
     /// [`Self::problem`] solved and written back; then observations beyond
     /// `max_reprojection_px` dropped, and points left with fewer than two.
     fn adjust(&mut self, loss: RobustLoss, refine: Refine) -> Result<(), SfmError> {
-        let (mut problem, images, live) = self.problem(refine);
+        let (problem, images, live) = self.problem(refine);
+        self.solve(problem, &images, &live, loss, refine)?;
+        self.filter(0..self.points.len());
+        self.adjustments.global += 1;
+        Ok(())
+    }
+
+    /// After registering image `i`: it, the `local_images` − 1 images that share most points
+    /// with it, and every point they see adjusted, the other images that see those points
+    /// held (COLMAP's local bundle adjustment); the intrinsics held. `false` (nothing done)
+    /// where fewer than two images would be held: then the whole model is adjusted.
+    fn adjust_local(&mut self, i: usize) -> Result<bool, SfmError> {
+        let mut shared: HashMap<usize, usize> = HashMap::new();
+        for &t in self.track_of[i].values() {
+            let Some(p) = self.point_of_track[t] else {
+                continue;
+            };
+            for f in &self.points[p].as_ref().expect("live").observations {
+                if f.0 != i {
+                    *shared.entry(f.0).or_default() += 1;
+                }
+            }
+        }
+        let mut by: Vec<(usize, usize)> = shared.into_iter().map(|(j, n)| (n, j)).collect();
+        by.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        let n = self.poses.len();
+        let mut free = vec![false; n];
+        free[i] = true;
+        for &(_, j) in by.iter().take(self.settings.local_images.saturating_sub(1)) {
+            free[j] = true;
+        }
+        let mut live: Vec<usize> = (0..n)
+            .filter(|&j| free[j])
+            .flat_map(|j| {
+                self.track_of[j]
+                    .values()
+                    .filter_map(|&t| self.point_of_track[t])
+            })
+            .collect();
+        live.sort_unstable();
+        live.dedup();
+        let mut seen = free.clone();
+        for &p in &live {
+            for f in &self.points[p].as_ref().expect("live").observations {
+                seen[f.0] = true;
+            }
+        }
+        let images: Vec<usize> = (0..n).filter(|&j| seen[j]).collect();
+        let held: Vec<bool> = (0..n).map(|j| seen[j] && !free[j]).collect();
+        if held.iter().filter(|&&h| h).count() < 2 {
+            return Ok(false);
+        }
+        let problem = self.problem_of(&images, &live, Some(&held), Refine::Nothing);
+        self.solve(
+            problem,
+            &images,
+            &live,
+            RobustLoss::Huber(1.0),
+            Refine::Nothing,
+        )?;
+        self.filter(live.into_iter());
+        self.adjustments.local += 1;
+        Ok(true)
+    }
+
+    /// `problem` (of `images` and the points `live`) solved and written back.
+    fn solve(
+        &mut self,
+        mut problem: Problem<N_PARAMS>,
+        images: &[usize],
+        live: &[usize],
+        loss: RobustLoss,
+        refine: Refine,
+    ) -> Result<(), SfmError> {
         let settings = BaSettings {
             loss,
             max_iterations: 100,
@@ -516,7 +664,6 @@ impl Builder<'_> {
             let x = problem.points[k];
             self.points[p].as_mut().expect("live").xyz = Vector3::new(x[0], x[1], x[2]);
         }
-        self.filter();
         Ok(())
     }
 
@@ -539,10 +686,10 @@ impl Builder<'_> {
         sigma.iter().all(|v| v.is_finite()).then_some(sigma)
     }
 
-    /// Drops observations beyond `max_reprojection_px`, and points left with fewer than two
-    /// (their tracks may be triangulated again).
-    fn filter(&mut self) {
-        for p in 0..self.points.len() {
+    /// Drops observations of `points` beyond `max_reprojection_px`, and points left with fewer
+    /// than two (their tracks may be triangulated again).
+    fn filter(&mut self, points: impl Iterator<Item = usize>) {
+        for p in points {
             let Some(point) = &self.points[p] else {
                 continue;
             };
@@ -558,7 +705,7 @@ impl Builder<'_> {
             if keep.len() < 2 {
                 let f = point.observations[0];
                 let t = self.track_of[f.0][&f.1];
-                self.point_of_track[t] = None;
+                self.link(t, None);
                 self.points[p] = None;
             } else {
                 self.points[p].as_mut().expect("live").observations = keep;
@@ -620,13 +767,7 @@ impl Builder<'_> {
     fn next_image(&self, failed: &[bool]) -> Option<usize> {
         (0..self.poses.len())
             .filter(|&i| self.poses[i].is_none() && !failed[i])
-            .map(|i| {
-                let n = self.track_of[i]
-                    .values()
-                    .filter(|&&t| self.point_of_track[t].is_some())
-                    .count();
-                (n, i)
-            })
+            .map(|i| (self.on_points[i], i))
             .filter(|&(n, _)| n >= self.settings.min_pnp_inliers)
             .max_by(|a, b| a.0.cmp(&b.0).then(b.1.cmp(&a.1)))
             .map(|(_, i)| i)
@@ -676,11 +817,13 @@ pub fn reconstruct(
         normalised,
         settings: s,
         point_of_track: vec![None; tracks.len()],
+        on_points: vec![0; n],
         tracks: &tracks,
         track_of: &track_of,
         points: Vec::new(),
         poses: vec![None; n],
         gauge: (0, 0),
+        adjustments: Adjustments::default(),
     };
     // Model after model, each from the images no earlier one took.
     let mut models: Vec<Reconstruction> = Vec::new();
@@ -749,8 +892,7 @@ fn build_model(
         b.poses = vec![None; n];
         b.poses[p.i] = Some(Rigid3::identity());
         b.poses[p.j] = Some(pose);
-        b.points.clear();
-        b.point_of_track = vec![None; b.tracks.len()];
+        b.clear_points();
         b.gauge = (p.i, p.j);
         if b.triangulate_new() >= s.min_pair_inliers {
             b.adjust(RobustLoss::Huber(1.0), Refine::Nothing)?;
@@ -765,17 +907,29 @@ fn build_model(
     }
     let initial_pair = b.gauge;
     let mut failed = taken.to_vec();
+    let mut registered = b.registered();
+    let mut adjusted_at = registered;
     while let Some(i) = b.next_image(&failed) {
         if !b.register(i) {
             failed[i] = true;
             continue;
         }
-        b.triangulate_new();
-        // A camera known only roughly is refined as the model grows (as COLMAP does), once
-        // three images constrain it: refined only at the end, a focal length 30 % off has
-        // already bent the model it then cannot undo.
-        let growing = s.refine_intrinsics && b.registered() >= 3;
-        b.adjust(RobustLoss::Huber(1.0), Refine::when(growing))?;
+        registered += 1;
+        let global =
+            registered < s.local_from || registered as f64 >= s.global_growth * adjusted_at as f64;
+        if global {
+            b.triangulate_new();
+        } else {
+            b.triangulate_through(i);
+        }
+        if global || !b.adjust_local(i)? {
+            // A camera known only roughly is refined as the model grows (as COLMAP does),
+            // once three images constrain it: refined only at the end, a focal length 30 %
+            // off has already bent the model it then cannot undo.
+            let growing = s.refine_intrinsics && registered >= 3;
+            b.adjust(RobustLoss::Huber(1.0), Refine::when(growing))?;
+            adjusted_at = registered;
+        }
         // A newly registered image may make another registrable again.
         failed.copy_from_slice(taken);
     }
@@ -805,6 +959,7 @@ fn build_model(
         start,
         principal_point,
         other_models: Vec::new(),
+        adjustments: b.adjustments,
     };
     r.mean_reprojection_px = r.mean_reprojection(b.pixels);
     Ok(Some(r))
@@ -828,11 +983,16 @@ mod tests {
         Vec<PairMatches>,
     );
     fn strip(relief_m: f64, turned: bool) -> Strip {
+        strip_of(6, relief_m, turned)
+    }
+
+    /// [`strip`] with `cameras` nadir cameras, 8 m apart, over ground as dense.
+    fn strip_of(cameras: u32, relief_m: f64, turned: bool) -> Strip {
         let mut rng = Uniform::new(9);
         let camera = Camera::pinhole(1000.0, 1000.0, 640.0, 480.0)
             .with_image_size(1280, 960)
             .with_distortion(&[-0.05, 0.01, 0.0, 0.0, 0.0]);
-        let mut truth: Vec<Rigid3> = (0..6)
+        let mut truth: Vec<Rigid3> = (0..cameras)
             .map(|k| {
                 let centre = Vector3::new(8.0 * f64::from(k), 2.0 * rng.next(), 30.0);
                 let r = Rotation3::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0))
@@ -850,10 +1010,11 @@ mod tests {
             truth.push(Rigid3::new(rotation, -(rotation * truth[3].centre())));
         }
         let n = truth.len();
-        let world: Vec<Vector3<f64>> = (0..3000)
+        let length_m = 8.0 * f64::from(cameras - 1) + 30.0;
+        let world: Vec<Vector3<f64>> = (0..(3000.0 * length_m / 70.0) as usize)
             .map(|_| {
                 Vector3::new(
-                    -15.0 + 70.0 * (rng.next() + 1.0) / 2.0,
+                    -15.0 + length_m * (rng.next() + 1.0) / 2.0,
                     25.0 * rng.next(),
                     relief_m * rng.next(),
                 )
@@ -895,7 +1056,7 @@ mod tests {
         (camera, truth, pixels, pairs)
     }
 
-    /// Every image registered, the cameras the truth up to a similarity to 1 cm over the 40 m
+    /// Every image registered, the cameras the truth up to a similarity to 1 cm along the
     /// strip.
     fn check_strip(r: &Reconstruction, truth: &[Rigid3]) {
         assert!(
@@ -915,6 +1076,25 @@ mod tests {
                 (sim.apply(g) - w).norm()
             );
         }
+    }
+
+    /// A longer strip (16 images) grown with local adjustments (each new image with its three
+    /// best neighbours, the images that also see their points held) and the whole model
+    /// adjusted only at the end: as close to the truth as adjusting everything each time.
+    #[test]
+    fn a_strip_grown_by_local_adjustments_keeps_its_accuracy() {
+        let (camera, truth, pixels, pairs) = strip_of(16, 2.0, false);
+        let settings = SfmSettings {
+            local_from: 4,
+            local_images: 4,
+            global_growth: 100.0,
+            ..SfmSettings::default()
+        };
+        let r = reconstruct(&camera, &pixels, None, &pairs, &settings).unwrap();
+        assert!(r.adjustments.local >= 10, "{:?}", r.adjustments);
+        check_strip(&r, &truth);
+        let everything = reconstruct(&camera, &pixels, None, &pairs, &SfmSettings::default());
+        assert_eq!(everything.unwrap().adjustments.local, 0);
     }
 
     /// Rough ground (2 m of relief): started from the essential matrix.

@@ -1055,16 +1055,24 @@ pub(crate) fn gps_neighbour_pairs(gps: &[GpsFix], k: usize) -> Vec<(usize, usize
 pub(crate) fn nearest_pairs(xy: &[Vector2<f64>], k: usize) -> Vec<(usize, usize)> {
     let mut pairs = std::collections::BTreeSet::new();
     for i in 0..xy.len() {
-        let mut by: Vec<(f64, usize)> = (0..xy.len())
-            .filter(|&j| j != i)
-            .map(|j| ((xy[i] - xy[j]).norm(), j))
-            .collect();
-        by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        for &(_, j) in by.iter().take(k) {
+        let others = xy.iter().copied().enumerate().filter(|&(j, _)| j != i);
+        for j in nearest_to(xy[i], others, k) {
             pairs.insert((i.min(j), i.max(j)));
         }
     }
     pairs.into_iter().collect()
+}
+
+/// The indices of the `k` `positions` nearest `here` (horizontal distance, metres; ties to the
+/// lower index), nearest first.
+pub(crate) fn nearest_to(
+    here: Vector2<f64>,
+    positions: impl Iterator<Item = (usize, Vector2<f64>)>,
+    k: usize,
+) -> Vec<usize> {
+    let mut by: Vec<(f64, usize)> = positions.map(|(j, p)| ((here - p).norm(), j)).collect();
+    by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    by.into_iter().take(k).map(|(_, j)| j).collect()
 }
 
 /// The farthest a photo's GPS position may lie from the median of all of them (horizontally),

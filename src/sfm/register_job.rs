@@ -175,14 +175,8 @@ fn model_images_to_match(
     match gps.as_ref().and_then(|g| enu_of(g)) {
         Some((enu, _)) if job.neighbours > 0 && job.neighbours < m => (0..n_new)
             .map(|i| {
-                let here = enu[m + i];
-                let mut by: Vec<(f64, usize)> =
-                    (0..m).map(|k| ((enu[k] - here).xy().norm(), k)).collect();
-                by.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-                by.into_iter()
-                    .take(job.neighbours)
-                    .map(|(_, k)| k)
-                    .collect()
+                let model = enu[..m].iter().map(|p| p.xy()).enumerate();
+                super::job::nearest_to(enu[m + i].xy(), model, job.neighbours)
             })
             .collect(),
         _ => vec![(0..m).collect(); n_new],

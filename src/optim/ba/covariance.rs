@@ -84,7 +84,9 @@ fn covariance_on_pool<const M: usize>(
     for k in 0..e.residuals.len() {
         e.residuals[k] /= sigma;
         e.j_pose[k] /= sigma;
-        e.j_intr[k] /= sigma;
+        if let Some(j) = e.j_intr.get_mut(k) {
+            *j /= sigma;
+        }
         e.j_point[k] /= sigma;
     }
     // In Jacobi-scaled variables (as the solver's): focal lengths in pixels beside distortion
@@ -237,10 +239,10 @@ fn point_covariances<const M: usize>(
             let mut wsw = Matrix3::zeros();
             for &a in ks {
                 let (pa, ia) = lay.of(p, p.observations[a].camera);
-                let (wpa, wia) = (n.w_pose[a].transpose(), n.w_intr[a].transpose());
+                let (wpa, wia) = (n.w_pose[a].transpose(), n.wi(a).transpose());
                 for &b in ks {
                     let (pb, ib) = lay.of(p, p.observations[b].camera);
-                    let (wpb, wib) = (&n.w_pose[b], &n.w_intr[b]);
+                    let (wpb, wib) = (&n.w_pose[b], &n.wi(b));
                     wsw += wpa * s_inv.fixed_view::<6, 6>(pa, pb) * wpb
                         + wpa * s_inv.fixed_view::<6, M>(pa, ib) * wib
                         + wia * s_inv.fixed_view::<M, 6>(ia, pb) * wpb

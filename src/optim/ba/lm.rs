@@ -30,7 +30,7 @@ pub(super) fn model_decrease<const M: usize>(
         .map(|k| {
             let (pk, ik) = lay.of(p, obs[k].camera);
             let jd = e.j_pose[k] * delta_cam.fixed_rows::<6>(pk)
-                + e.j_intr[k] * delta_cam.fixed_rows::<M>(ik)
+                + e.ji(k) * delta_cam.fixed_rows::<M>(ik)
                 + e.j_point[k] * delta_point[obs[k].point];
             -jd.dot(&(e.residuals[k] + jd * 0.5))
         })

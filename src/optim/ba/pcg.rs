@@ -38,7 +38,7 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
                 let mut rows = b.fixed_rows_mut::<6>(pk);
                 rows += n.w_pose[k] * t;
                 let mut rows = b.fixed_rows_mut::<M>(ik);
-                rows += n.w_intr[k] * t;
+                rows += n.wi(k) * t;
             }
             add_unit_blocks(p, lay, n, ks, &v_inv[j], &mut blocks);
             (b, blocks)
@@ -101,7 +101,7 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
                 for &k in ks {
                     let (pk, ik) = lay.of(p, obs[k].camera);
                     t += n.w_pose[k].transpose() * x.fixed_rows::<6>(pk)
-                        + n.w_intr[k].transpose() * x.fixed_rows::<M>(ik);
+                        + n.wi(k).transpose() * x.fixed_rows::<M>(ik);
                 }
                 let t = v_inv[j] * t;
                 for &k in ks {
@@ -109,7 +109,7 @@ pub(super) fn iterative_reduced_solve<const M: usize>(
                     let mut rows = acc.fixed_rows_mut::<6>(pk);
                     rows += n.w_pose[k] * t;
                     let mut rows = acc.fixed_rows_mut::<M>(ik);
-                    rows += n.w_intr[k] * t;
+                    rows += n.wi(k) * t;
                 }
                 acc
             },

@@ -13,11 +13,20 @@ pub(super) struct Normal<const M: usize> {
     /// Per observation: `Jposeᵀ Jpoint` and `Jintrᵀ Jpoint`; empty when every point is fixed
     /// (they would be zero, and [`Structure::coupling`] names no observation to read them).
     pub(super) w_pose: Vec<Mat63>,
+    /// Empty when every intrinsic parameter is fixed: see [`Normal::wi`].
     pub(super) w_intr: Vec<SMatrix<f64, M, 3>>,
     pub(super) observations: usize,
     /// The camera side's gradient, in [`Layout`] order.
     pub(super) g_cam: DVector<f64>,
     pub(super) g_point: Vec<Vector3<f64>>,
+}
+
+impl<const M: usize> Normal<M> {
+    /// Observation `k`'s `Jintrᵀ Jpoint`.
+    #[inline]
+    pub(super) fn wi(&self, k: usize) -> SMatrix<f64, M, 3> {
+        self.w_intr.get(k).copied().unwrap_or_else(SMatrix::zeros)
+    }
 }
 
 /// Per group of observations (an image's, a point's): `Σ JᵀJ` and `Σ Jᵀr`, `jac(k)` the
@@ -49,6 +58,10 @@ pub(super) fn column_norms_sq<const N: usize>(
     groups: &[Vec<usize>],
     jac: &[SMatrix<f64, 2, N>],
 ) -> Vec<SVector<f64, N>> {
+    if jac.is_empty() {
+        // Jacobians not stored: all zeros.
+        return vec![SVector::<f64, N>::zeros(); groups.len()];
+    }
     groups
         .iter()
         .map(|ks| {
@@ -189,7 +202,7 @@ pub(super) fn scaled_normal<const M: usize>(
             let mut r = DVector::<f64>::zeros(rows);
             for (n, &k) in ks.iter().enumerate() {
                 a.fixed_view_mut::<2, 6>(2 * n, 0).copy_from(&e.j_pose[k]);
-                b.fixed_view_mut::<2, M>(2 * n, 0).copy_from(&e.j_intr[k]);
+                b.fixed_view_mut::<2, M>(2 * n, 0).copy_from(&e.ji(k));
                 r.fixed_rows_mut::<2>(2 * n).copy_from(&e.residuals[k]);
             }
             // Column dot products over the free columns only (a fixed parameter's column is
@@ -258,24 +271,40 @@ pub(super) fn scaled_normal<const M: usize>(
         g_pose[q.camera] += j.transpose() * r;
     }
     let all_fixed = p.fixed_points.iter().all(|f| *f);
-    let (w_pose, w_intr) = (0..if all_fixed { 0 } else { obs.len() })
+    let coupled = if all_fixed { 0 } else { obs.len() };
+    // Unscaled products, then scaled: no 2×M temporaries moved about. A fixed point's
+    // Jacobian is zero, and so are its couplings.
+    let w_pose = (0..coupled)
         .into_par_iter()
         .with_min_len(GRAIN)
         .map(|k| {
-            // A fixed point's Jacobian is zero, and so are its couplings.
             if fixed_point(k) {
-                return (Mat63::zeros(), SMatrix::<f64, M, 3>::zeros());
+                return Mat63::zeros();
             }
-            // Unscaled products, then scaled: no 2×M temporaries moved about.
-            let (pk, ik) = lay.of(p, obs[k].camera);
-            let sp = s_point[obs[k].point].transpose();
+            let (pk, _) = lay.of(p, obs[k].camera);
             let mut wp = e.j_pose[k].tr_mul(&e.j_point[k]);
-            let mut wi = e.j_intr[k].tr_mul(&e.j_point[k]);
-            wp.component_mul_assign(&(s_cam.fixed_rows::<6>(pk) * sp));
-            wi.component_mul_assign(&(s_cam.fixed_rows::<M>(ik) * sp));
-            (wp, wi)
+            wp.component_mul_assign(
+                &(s_cam.fixed_rows::<6>(pk) * s_point[obs[k].point].transpose()),
+            );
+            wp
         })
-        .unzip();
+        .collect();
+    // Not stored where the intrinsics are all fixed (all zeros: [`Normal::wi`]).
+    let w_intr = (0..if e.j_intr.is_empty() { 0 } else { coupled })
+        .into_par_iter()
+        .with_min_len(GRAIN)
+        .map(|k| {
+            if fixed_point(k) {
+                return SMatrix::<f64, M, 3>::zeros();
+            }
+            let (_, ik) = lay.of(p, obs[k].camera);
+            let mut wi = e.j_intr[k].tr_mul(&e.j_point[k]);
+            wi.component_mul_assign(
+                &(s_cam.fixed_rows::<M>(ik) * s_point[obs[k].point].transpose()),
+            );
+            wi
+        })
+        .collect();
     Normal {
         u_pose,
         u_pose_intr,
@@ -355,7 +384,7 @@ pub(super) fn reduced_system<const M: usize>(
             let vi = &v_inv[j];
             let wv: Vec<(Mat63, SMatrix<f64, M, 3>)> = ks
                 .iter()
-                .map(|&k| (n.w_pose[k] * vi, n.w_intr[k] * vi))
+                .map(|&k| (n.w_pose[k] * vi, n.wi(k) * vi))
                 .collect();
             for (&ka, (wpa, wia)) in ks.iter().zip(&wv) {
                 let (pa, ia) = lay.of(p, obs[ka].camera);
@@ -367,7 +396,7 @@ pub(super) fn reduced_system<const M: usize>(
                 // symmetric, mirrored once at the end.
                 for &kb in ks {
                     let (pb, ib) = lay.of(p, obs[kb].camera);
-                    let (wp, wi) = (n.w_pose[kb].transpose(), n.w_intr[kb].transpose());
+                    let (wp, wi) = (n.w_pose[kb].transpose(), n.wi(kb).transpose());
                     if pa >= pb {
                         let mut view = s.fixed_view_mut::<6, 6>(pa, pb);
                         view += wpa * wp;
@@ -446,9 +475,9 @@ pub(super) fn add_unit_blocks<const M: usize>(
         })
         .collect();
     for (&ka, &((upa, lpa), (uga, lga))) in ks.iter().zip(&at) {
-        let (wpa, wia) = (n.w_pose[ka] * vi, n.w_intr[ka] * vi);
+        let (wpa, wia) = (n.w_pose[ka] * vi, n.wi(ka) * vi);
         for (&kb, &((upb, lpb), (ugb, lgb))) in ks.iter().zip(&at) {
-            let (wpb, wib) = (n.w_pose[kb].transpose(), n.w_intr[kb].transpose());
+            let (wpb, wib) = (n.w_pose[kb].transpose(), n.wi(kb).transpose());
             if upa == upb {
                 let mut view = acc[upa].fixed_view_mut::<6, 6>(lpa, lpb);
                 view += wpa * wpb;
@@ -516,7 +545,7 @@ pub(super) fn schur_step<const M: usize>(
             for &k in ks {
                 let (pk, ik) = lay.of(p, obs[k].camera);
                 r -= n.w_pose[k].transpose() * y_cam.fixed_rows::<6>(pk)
-                    + n.w_intr[k].transpose() * y_cam.fixed_rows::<M>(ik);
+                    + n.wi(k).transpose() * y_cam.fixed_rows::<M>(ik);
             }
             v_inv[j] * r
         })

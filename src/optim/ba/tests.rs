@@ -448,7 +448,7 @@ fn schur_steps_equal_the_full_system_solution() {
                     j[pk + c] = e.j_pose[k][(r, c)] * s_cam[pk + c];
                 }
                 for c in 0..3 {
-                    j[ik + c] = e.j_intr[k][(r, c)] * s_cam[ik + c];
+                    j[ik + c] = e.ji(k)[(r, c)] * s_cam[ik + c];
                     j[lay.dim + 3 * o.point + c] = e.j_point[k][(r, c)] * s_point[o.point][c];
                 }
                 rows.push((j, e.residuals[k][r]));
@@ -659,7 +659,7 @@ fn covariance_against_the_full_inverse(all_fixed: bool) {
                 j[pk + c] = e.j_pose[k][(r, c)];
             }
             for c in 0..3 {
-                j[ik + c] = e.j_intr[k][(r, c)];
+                j[ik + c] = e.ji(k)[(r, c)];
                 j[lay.dim + 3 * o.point + c] = e.j_point[k][(r, c)];
             }
             add(j);

@@ -108,11 +108,18 @@ impl<const M: usize> Problem<M> {
     /// About how many bytes an adjustment of this problem allocates: per observation its
     /// residual and Jacobians (the current and a trial evaluation), its blocks of the normal
     /// equations and its place in the structure; per point and camera their blocks; the reduced
-    /// camera system when it is solved densely. Measured within 10 % on BAL problems.
+    /// camera system when it is solved densely. Measured within 10 % on BAL problems. The
+    /// intrinsics' Jacobians and couplings count only when some intrinsic parameter is free
+    /// (else they are not stored).
     pub fn memory_estimate(&self, solver: LinearSolver) -> u64 {
         let f = std::mem::size_of::<f64>() as u64;
         let m = M as u64;
-        let per_obs = 2 * f * (2 + 12 + 2 * m + 6) + f * (18 + 3 * m) + 64;
+        let mi = if evaluation::intrinsics_free(self) {
+            m
+        } else {
+            0
+        };
+        let per_obs = 2 * f * (2 + 12 + 2 * mi + 6) + f * (18 + 3 * mi) + 64;
         let per_point = f * (9 + 3 + 3 + 9) + 48;
         let cam_dim = 6 * self.poses.len() as u64 + m * self.intrinsics.len() as u64;
         let per_camera = f * (36 + 6 * m + m * m + 12) + 48;

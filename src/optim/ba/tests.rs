@@ -771,3 +771,34 @@ fn a_large_problem_sums_its_points_in_few_chunks() {
     assert!(points.div_ceil(point_chunk(points, observations)) <= MAX_POINT_PARTS);
     assert_eq!(point_chunk(5_000, 15_000), 2 * grain(5_000, 15_000));
 }
+
+/// With every intrinsic parameter held the adjustment stores no Jacobians by the intrinsics
+/// (two evaluations' 2×M) nor their couplings (M×3), and the memory estimate, which refuses a
+/// problem before any work, must not count them: it once did, and refused a 242-photo survey.
+#[test]
+fn a_held_camera_is_estimated_without_the_intrinsics_blocks() {
+    let mut p = gauged(1, None);
+    let n = p.observations.len() as u64;
+    p.fixed_intrinsics.iter_mut().for_each(|f| *f = [false; 3]);
+    let free = p.memory_estimate(LinearSolver::DenseSchur);
+    p.fixed_intrinsics.iter_mut().for_each(|f| *f = [true; 3]);
+    let held = p.memory_estimate(LinearSolver::DenseSchur);
+    let per_obs = 2 * 8 * (2 * 3) + 8 * (3 * 3);
+    let want = n * per_obs * 13 / 10;
+    assert!(
+        (free - held).abs_diff(want) <= 1,
+        "{free} - {held} against {want}"
+    );
+    // And the adjustment with the camera held still converges, its evaluation without them.
+    let e =
+        evaluation::evaluate(&p, &BalIntrinsics, &Priors::default(), RobustLoss::Squared).unwrap();
+    assert!(e.j_intr.is_empty());
+    let s = adjust(
+        &mut p,
+        &BalIntrinsics,
+        &Priors::default(),
+        &BaSettings::default(),
+    )
+    .unwrap();
+    assert!(s.final_cost < s.initial_cost, "{s:?}");
+}

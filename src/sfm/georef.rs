@@ -636,6 +636,7 @@ fn adjust_placed(
         let settings = BaSettings {
             loss,
             max_iterations: 100,
+            max_memory_bytes: super::adjustment_memory_limit(),
             ..BaSettings::default()
         };
         adjust(&mut problem, &BrownConrady, &priors, &settings)

@@ -108,6 +108,23 @@ pub fn root_sift(d: &mut [f32]) {
     }
 }
 
+/// The memory a reconstruction's adjustments may take: this machine's (`MemTotal`), else no
+/// limit. `BaSettings`'s 2 GiB default guards `geostride ba`'s single problem file; a survey of
+/// 500 photos needs about 2 GB for its final adjustment alone.
+pub fn adjustment_memory_limit() -> u64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|t| mem_total_bytes(&t))
+        .unwrap_or(u64::MAX)
+}
+
+/// `MemTotal` of a `/proc/meminfo` text, bytes.
+fn mem_total_bytes(meminfo: &str) -> Option<u64> {
+    let v = meminfo.lines().find_map(|l| l.strip_prefix("MemTotal:"))?;
+    let kb: u64 = v.trim().strip_suffix("kB")?.trim().parse().ok()?;
+    kb.checked_mul(1024)
+}
+
 /// A unit-length descriptor's entries are stored as bytes: `DESCRIPTOR_SCALE` × the entry,
 /// rounded, at most 255 (as COLMAP stores them). RootSIFT entries seldom pass 0.3, so nothing
 /// is lost to the cap; the step (0.002) is far below the differences the matcher weighs, and
@@ -225,6 +242,15 @@ mod tests {
         let mut z = vec![0.0f32; 4];
         root_sift(&mut z);
         assert_eq!(z, vec![0.0; 4]);
+    }
+
+    #[test]
+    fn the_machines_memory_is_read_from_meminfo() {
+        let t = "MemTotal:       24589012 kB\nMemFree:         1000 kB\n";
+        assert_eq!(mem_total_bytes(t), Some(24_589_012 * 1024));
+        assert_eq!(mem_total_bytes("MemFree: 1 kB\n"), None);
+        assert_eq!(mem_total_bytes("MemTotal: lots\n"), None);
+        assert!(adjustment_memory_limit() > 0);
     }
 
     #[test]

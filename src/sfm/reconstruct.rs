@@ -649,6 +649,7 @@ impl Builder<'_> {
         let settings = BaSettings {
             loss,
             max_iterations: 100,
+            max_memory_bytes: super::adjustment_memory_limit(),
             ..BaSettings::default()
         };
         adjust(&mut problem, &BrownConrady, &Priors::default(), &settings)

@@ -43,6 +43,8 @@ bench: bootstrap
 	$(PYTHON) -m venv out/bench-venv
 	out/bench-venv/bin/pip install -q --disable-pip-version-check -r benches/requirements.txt
 	GEOSTRIDE_PYCOLMAP_PYTHON=$(CURDIR)/out/bench-venv/bin/python $(CARGO) bench --locked --bench sfm_vs_colmap
+	$(CARGO) build --release --locked
+	$(PYTHON) benches/sfm_scale.py out/sfm-scale --pycolmap-python out/bench-venv/bin/python
 	./scripts/pets-benchmark.sh out/pets-benchmark
 	$(CARGO) bench --locked --bench detect_vs_opencv
 	$(CARGO) bench --locked --bench overhead_detector

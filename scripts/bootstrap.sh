@@ -28,7 +28,8 @@
 # checksum, into third_party/ (skipped when already there).
 #
 # `bootstrap.sh --bench` adds what only `make bench` needs: Ceres Solver and a C++ compiler for
-# the bundle adjustment peer program (benches/ceres/).
+# the bundle adjustment peer program (benches/ceres/), and GNU time for the peak memory of the
+# survey-scale runs (benches/sfm_scale.py).
 set -euo pipefail
 
 packages=(
@@ -42,7 +43,7 @@ packages=(
   colmap
 )
 if [ "${1:-}" = "--bench" ]; then
-  packages+=(g++ libceres-dev)
+  packages+=(g++ libceres-dev time)
 fi
 
 if ! command -v cargo >/dev/null 2>&1; then

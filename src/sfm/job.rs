@@ -348,6 +348,8 @@ pub struct SfmReport {
     pub features_cached: usize,
     pub pairs_cached: usize,
     pub seconds_reconstruction: f64,
+    /// Of `seconds_reconstruction`: placing the model (GCPs, centres or GPS) and its σ.
+    pub seconds_georeferencing: f64,
 }
 
 /// A finished run: the model, the images' names and keypoints, the report.
@@ -575,6 +577,7 @@ pub fn run_sfm(
     let t = Instant::now();
     let sigmas = super::keypoint_sigmas(&found);
     let mut r = reconstruct(&camera, &keypoints, Some(&sigmas), &pairs, &sfm_settings)?;
+    let t_georef = Instant::now();
     let (gps_placement, georef) = match (&job.georef, indexed) {
         (Some(g), Some((points, centres))) => {
             let mut settings = g.settings.clone();
@@ -610,6 +613,7 @@ pub fn run_sfm(
     } else {
         "model"
     };
+    let seconds_georeferencing = t_georef.elapsed().as_secs_f64();
     let seconds_reconstruction = t.elapsed().as_secs_f64();
     let (observations, per_image) = image_reports(job, &r, &names, &found);
     let report = SfmReport {
@@ -644,6 +648,7 @@ pub fn run_sfm(
         features_cached,
         pairs_cached,
         seconds_reconstruction,
+        seconds_georeferencing,
     };
     Ok(SfmRun {
         reconstruction: r,
@@ -1223,10 +1228,10 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
          {}\
          - started from: {} and {} (pose from the {} matrix; of the {} matches it kept, {} fit \
          one homography; {} pairs that only turned passed over)\n\
-         - bundle adjustments as the model grew: {} of the whole model, {} local (an image \
-         and its neighbours)\n\
+         - bundle adjustments as the model grew: {} of the whole model ({:.1} s), {} local (an \
+         image and its neighbours, {:.1} s)\n\
          - time: features {:.1} s ({} images from the cache), matching {:.1} s ({} pairs, {} from \
-         the cache), reconstruction {:.1} s\n\n\
+         the cache), reconstruction {:.1} s (georeferencing {:.1} s of it)\n\n\
          | image | registered | features | observations | why not |\n\
          | --- | --- | --- | --- | --- |\n",
         r.registered,
@@ -1251,13 +1256,16 @@ pub(crate) fn report_md(r: &SfmReport) -> String {
         r.initial_pair_geometry.homography_inliers,
         r.initial_pair_geometry.rotations_skipped,
         r.adjustments.global,
+        r.adjustments.seconds_global,
         r.adjustments.local,
+        r.adjustments.seconds_local,
         r.seconds_features,
         r.features_cached,
         r.seconds_matching,
         r.pairs_matched,
         r.pairs_cached,
-        r.seconds_reconstruction
+        r.seconds_reconstruction,
+        r.seconds_georeferencing
     );
     for i in &r.per_image {
         s.push_str(&format!(

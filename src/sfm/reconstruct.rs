@@ -98,11 +98,14 @@ pub struct Reconstruction {
 }
 
 /// How many bundle adjustments of the whole model, and how many local ones (an image and its
-/// neighbours), a reconstruction made.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+/// neighbours), a reconstruction made, and the seconds each kind took (with the filtering of
+/// the observations after each).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct Adjustments {
     pub global: usize,
     pub local: usize,
+    pub seconds_global: f64,
+    pub seconds_local: f64,
 }
 
 /// A model built from images that share no points with the one kept.
@@ -572,10 +575,12 @@ impl Builder<'_> {
     /// [`Self::problem`] solved and written back; then observations beyond
     /// `max_reprojection_px` dropped, and points left with fewer than two.
     fn adjust(&mut self, loss: RobustLoss, refine: Refine) -> Result<(), SfmError> {
+        let t = std::time::Instant::now();
         let (problem, images, live) = self.problem(refine);
         self.solve(problem, &images, &live, loss, refine)?;
         self.filter(0..self.points.len());
         self.adjustments.global += 1;
+        self.adjustments.seconds_global += t.elapsed().as_secs_f64();
         Ok(())
     }
 
@@ -584,6 +589,7 @@ impl Builder<'_> {
     /// held (COLMAP's local bundle adjustment); the intrinsics held. `false` (nothing done)
     /// where fewer than two images would be held: then the whole model is adjusted.
     fn adjust_local(&mut self, i: usize) -> Result<bool, SfmError> {
+        let t = std::time::Instant::now();
         let mut shared: HashMap<usize, usize> = HashMap::new();
         for &t in self.track_of[i].values() {
             let Some(p) = self.point_of_track[t] else {
@@ -634,6 +640,7 @@ impl Builder<'_> {
         )?;
         self.filter(live.into_iter());
         self.adjustments.local += 1;
+        self.adjustments.seconds_local += t.elapsed().as_secs_f64();
         Ok(true)
     }
 

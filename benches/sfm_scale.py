@@ -220,7 +220,7 @@ def plot(rows, path):
         out.append(f'<text x="{px(x):.1f}" y="{H - B + 16}" text-anchor="middle">{x:g}</text>')
     out.append(f'<text x="{(W + L) / 2}" y="{H - 12}" text-anchor="middle">photos</text>')
     out.append(f'<text x="16" y="{(H - B) / 2}" transform="rotate(-90 16 {(H - B) / 2})" '
-               'text-anchor="middle">seconds (solid), peak MB (dashed)</text>')
+               'text-anchor="middle">seconds (solid, filled), peak MB (dashed, open)</text>')
     colours = {"geostride": "#c03030", "pycolmap 4.2.1 incremental": "#3060c0"}
     for i, (tool, colour) in enumerate(colours.items()):
         mine = sorted((r for r in rows if r["tool"] == tool), key=lambda r: float(r["photos"]))
@@ -229,6 +229,11 @@ def plot(rows, path):
             if pts:
                 out.append(f'<polyline points="{pts}" fill="none" stroke="{colour}" '
                            f'stroke-width="2"{dash}/>')
+            for r in mine:
+                fill = colour if key == "total_s" else "white"
+                out.append(f'<circle cx="{px(float(r["photos"])):.1f}" '
+                           f'cy="{py(float(r[key])):.1f}" r="4" fill="{fill}" '
+                           f'stroke="{colour}" stroke-width="2"/>')
         out.append(f'<text x="{L + 10}" y="{30 + 16 * i}" fill="{colour}">{tool}</text>')
     out.append("</svg>")
     with open(path, "w") as f:

@@ -175,7 +175,6 @@ pub(super) fn scaled_normal<const M: usize>(
     s_point: &[Vector3<f64>],
 ) -> Normal<M> {
     let obs = &p.observations;
-    let fixed_point = |k: usize| p.fixed_points[obs[k].point];
     // One pass per image: its pose blocks and its share of its camera's intrinsic blocks (in
     // parallel even when every image shares one camera), each Jacobian scaled once.
     type PerImage<const M: usize> = (
@@ -270,6 +269,31 @@ pub(super) fn scaled_normal<const M: usize>(
         u_pose[q.camera] += j.transpose() * j;
         g_pose[q.camera] += j.transpose() * r;
     }
+    let (w_pose, w_intr) = couplings(p, lay, e, s_cam, s_point);
+    Normal {
+        u_pose,
+        u_pose_intr,
+        u_intr,
+        v,
+        w_pose,
+        w_intr,
+        g_cam: flat(lay, &g_pose, &g_intr),
+        g_point,
+        observations: obs.len(),
+    }
+}
+
+/// Per observation, its scaled `Jposeᵀ Jpoint` and `Jintrᵀ Jpoint` (see [`Normal`]'s fields for
+/// when each is left empty).
+fn couplings<const M: usize>(
+    p: &Problem<M>,
+    lay: &Layout,
+    e: &Evaluation<M>,
+    s_cam: &DVector<f64>,
+    s_point: &[Vector3<f64>],
+) -> (Vec<Mat63>, Vec<SMatrix<f64, M, 3>>) {
+    let obs = &p.observations;
+    let fixed_point = |k: usize| p.fixed_points[obs[k].point];
     let all_fixed = p.fixed_points.iter().all(|f| *f);
     let coupled = if all_fixed { 0 } else { obs.len() };
     // Unscaled products, then scaled: no 2×M temporaries moved about. A fixed point's
@@ -305,17 +329,7 @@ pub(super) fn scaled_normal<const M: usize>(
             wi
         })
         .collect();
-    Normal {
-        u_pose,
-        u_pose_intr,
-        u_intr,
-        v,
-        w_pose,
-        w_intr,
-        g_cam: flat(lay, &g_pose, &g_intr),
-        g_point,
-        observations: obs.len(),
-    }
+    (w_pose, w_intr)
 }
 
 /// The LM diagonal: the diagonals of `JᵀJ` clamped to `[lo, hi]`.

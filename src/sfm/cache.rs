@@ -12,7 +12,7 @@ use crate::cache::hex;
 
 use super::{DESCRIPTOR_LEN, Features, Keypoint};
 
-const FEATURES_MAGIC: &[u8; 4] = b"GSF3";
+const FEATURES_MAGIC: &[u8; 4] = b"GSF2";
 const MATCHES_MAGIC: &[u8; 4] = b"GSM2";
 
 /// A cache folder; `None` caches nothing. A second folder may be read but is never written (a
@@ -54,6 +54,9 @@ impl Reader<'_> {
     fn f64(&mut self) -> Option<f64> {
         Some(f64::from_le_bytes(self.take(8)?.try_into().ok()?))
     }
+    fn f32(&mut self) -> Option<f32> {
+        Some(f32::from_le_bytes(self.take(4)?.try_into().ok()?))
+    }
 }
 
 /// The header every cache file starts with: magic, the key it was stored under, and a digest of
@@ -85,7 +88,7 @@ fn payload<'a>(bytes: &'a [u8], magic: &[u8; 4], key: &str) -> Option<&'a [u8]> 
 
 /// Features as bytes: the header, then width, height, count, keypoints, descriptors.
 pub fn encode_features(f: &Features, key: &str) -> Vec<u8> {
-    let mut b = Vec::with_capacity(16 + f.len() * (40 + DESCRIPTOR_LEN));
+    let mut b = Vec::with_capacity(16 + f.len() * (40 + 4 * DESCRIPTOR_LEN));
     b.extend_from_slice(&f.width.to_le_bytes());
     b.extend_from_slice(&f.height.to_le_bytes());
     b.extend_from_slice(&(f.keypoints.len() as u64).to_le_bytes());
@@ -94,7 +97,9 @@ pub fn encode_features(f: &Features, key: &str) -> Vec<u8> {
             b.extend_from_slice(&v.to_le_bytes());
         }
     }
-    b.extend_from_slice(&f.descriptors);
+    for d in &f.descriptors {
+        b.extend_from_slice(&d.to_le_bytes());
+    }
     with_header(FEATURES_MAGIC, key, b)
 }
 
@@ -112,7 +117,7 @@ pub fn decode_features(bytes: &[u8], key: &str) -> Option<Features> {
     }
     let n = usize::try_from(r.u64()?).ok()?;
     // The exact length first: a count from a damaged file must not allocate wildly.
-    if bytes.len() != 16 + n.checked_mul(40 + DESCRIPTOR_LEN)? {
+    if bytes.len() != 16 + n.checked_mul(40 + 4 * DESCRIPTOR_LEN)? {
         return None;
     }
     let mut keypoints = Vec::with_capacity(n);
@@ -135,7 +140,10 @@ pub fn decode_features(bytes: &[u8], key: &str) -> Option<Features> {
         }
         keypoints.push(k);
     }
-    let descriptors = r.take(n * DESCRIPTOR_LEN)?.to_vec();
+    let mut descriptors = Vec::with_capacity(n * DESCRIPTOR_LEN);
+    for _ in 0..n * DESCRIPTOR_LEN {
+        descriptors.push(r.f32().filter(|d| d.is_finite())?);
+    }
     Some(Features {
         width,
         height,
@@ -261,9 +269,7 @@ mod tests {
                 };
                 2
             ],
-            descriptors: (0..2 * DESCRIPTOR_LEN)
-                .map(|i| (i * 7 % 256) as u8)
-                .collect(),
+            descriptors: (0..2 * DESCRIPTOR_LEN).map(|i| i as f32 / 7.0).collect(),
         };
         let b = encode_features(&f, "k1");
         let back = decode_features(&b, "k1").unwrap();
@@ -280,6 +286,9 @@ mod tests {
         let mut off = f.clone();
         off.keypoints[1].x = 700.0;
         assert!(decode_features(&encode_features(&off, "k1"), "k1").is_none());
+        let mut nan = f.clone();
+        nan.descriptors[3] = f32::NAN;
+        assert!(decode_features(&encode_features(&nan, "k1"), "k1").is_none());
         let m = vec![(0, 5), (7, 1)];
         let b = encode_matches(&m, "k");
         assert_eq!(decode_matches(&b, "k").unwrap(), m);

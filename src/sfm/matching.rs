@@ -1,10 +1,9 @@
 //! Descriptor matching (pure): mutual nearest neighbours with Lowe's ratio test, by brute force
-//! over unit-length descriptors quantised to bytes (`Features::descriptors`), on the rayon
-//! pool.
+//! over unit-length descriptors (`Features::descriptors`), on the rayon pool.
 
 use rayon::prelude::*;
 
-use super::{DESCRIPTOR_LEN, DESCRIPTOR_SCALE, Features};
+use super::{DESCRIPTOR_LEN, Features};
 
 /// How two images' features are matched.
 #[derive(Clone, Debug)]
@@ -33,59 +32,44 @@ pub struct Match {
     pub distance: f32,
 }
 
-/// `x·y` of two quantised descriptors: integers, so exact in any order.
+/// `x·y` of two descriptors, in eight independent lanes (so that the compiler may use vector
+/// registers: floating-point sums are otherwise kept in order).
 #[inline(always)]
-fn dot(x: &[u8], y: &[u8]) -> i32 {
-    x.iter()
-        .zip(y)
-        .map(|(&p, &q)| i32::from(p) * i32::from(q))
-        .sum()
-}
-
-/// [`dot`] of four descriptors `x` with `y`, with AVX2: bytes widened to 16 bits, multiplied
-/// and summed in pairs into 32 bits (`vpmaddwd`, exact: 2 × 255² fits), `y` read once for the
-/// four. About 2.4 times as fast as the float kernel it replaces.
-///
-/// # Safety
-/// The processor must have AVX2; every slice must hold `DESCRIPTOR_LEN` bytes.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn dot4_avx2(x: [&[u8]; 4], y: &[u8]) -> [i32; 4] {
-    use std::arch::x86_64::*;
-    debug_assert!(x.iter().all(|x| x.len() == DESCRIPTOR_LEN) && y.len() == DESCRIPTOR_LEN);
-    let load = |p: &[u8], k: usize| {
-        // SAFETY: 16 bytes from 16 k, within the descriptor's 128 for k < 8.
-        unsafe { _mm256_cvtepu8_epi16(_mm_loadu_si128(p.as_ptr().add(16 * k).cast())) }
-    };
-    let mut acc = [_mm256_setzero_si256(); 4];
-    for k in 0..DESCRIPTOR_LEN / 16 {
-        let yv = load(y, k);
-        for (acc, x) in acc.iter_mut().zip(x) {
-            *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(load(x, k), yv));
+fn dot(x: &[f32], y: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    for (cx, cy) in x.chunks_exact(8).zip(y.chunks_exact(8)) {
+        for l in 0..8 {
+            acc[l] += cx[l] * cy[l];
         }
     }
-    // Four registers of eight partial sums to the four sums.
-    let h = _mm256_hadd_epi32(
-        _mm256_hadd_epi32(acc[0], acc[1]),
-        _mm256_hadd_epi32(acc[2], acc[3]),
-    );
-    let s = _mm_add_epi32(_mm256_castsi256_si128(h), _mm256_extracti128_si256(h, 1));
-    let mut out = [0i32; 4];
-    // SAFETY: `out` holds four i32, 16 bytes.
-    unsafe { _mm_storeu_si128(out.as_mut_ptr().cast(), s) };
-    out
+    acc.iter().sum()
+}
+
+/// `x·y` for four descriptors `x` at once, each summed exactly as [`dot`] sums it (so bit for
+/// bit its result), `y` read once for the four.
+#[inline(always)]
+fn dot4(x: [&[f32]; 4], y: &[f32]) -> [f32; 4] {
+    let mut acc = [[0.0f32; 8]; 4];
+    for (k, cy) in y.chunks_exact(8).enumerate() {
+        for (r, acc) in acc.iter_mut().enumerate() {
+            let cx = &x[r][8 * k..8 * k + 8];
+            for l in 0..8 {
+                acc[l] += cx[l] * cy[l];
+            }
+        }
+    }
+    acc.map(|a| a.iter().sum())
 }
 
 /// Rows of `a` per task.
 const BLOCK: usize = 64;
-/// Descriptors of `b` per tile: 32 KiB, within a core's L1/L2 cache.
+/// Descriptors of `b` per tile: 128 KiB, within a core's L2 cache.
 const TILE: usize = 256;
 
 /// A row's best and second-best dot product and the best's index.
-type RowBest = (i32, i32, usize);
+type RowBest = (f32, f32, usize);
 /// A column's best dot product and its index.
-type ColBest = (i32, usize);
+type ColBest = (f32, usize);
 
 /// For each row of `a` its `RowBest` among the rows of `b`, and for each row of `b` its
 /// `ColBest` among the rows of `a`.
@@ -95,20 +79,19 @@ struct Nearest {
 }
 
 /// One block of `a`'s rows against every row of `b`: their `RowBest`s, and each row of `b`'s
-/// `ColBest` among them; four rows at a time with AVX2 when `AVX2` (the caller has checked the
-/// processor), else one by one. The dot products are exact, so both give the same result.
+/// `ColBest` among them.
 #[inline(always)]
-fn block_with<const AVX2: bool>(
+fn block_portable(
     a: &Features,
     b: &Features,
     rows: std::ops::Range<usize>,
 ) -> (Vec<RowBest>, Vec<ColBest>) {
     let nb = b.len();
-    let mut col = vec![(i32::MIN, usize::MAX); nb];
-    let mut out = vec![(i32::MIN, i32::MIN, 0); rows.len()];
+    let mut col = vec![(f32::NEG_INFINITY, usize::MAX); nb];
+    let mut out = vec![(f32::NEG_INFINITY, f32::NEG_INFINITY, 0); rows.len()];
     // Every row meets the columns in order and every column the rows in order, as a plain
     // double loop would: ties go to the first, whatever the grouping.
-    let update = |o: &mut RowBest, c: &mut ColBest, i: usize, j: usize, d: i32| {
+    let update = |o: &mut RowBest, c: &mut ColBest, i: usize, j: usize, d: f32| {
         if d > o.0 {
             o.1 = o.0;
             o.0 = d;
@@ -123,20 +106,17 @@ fn block_with<const AVX2: bool>(
     // `b` in tiles that stay in the cache while the block's rows pass over them.
     for tile in (0..nb).step_by(TILE) {
         let cols = tile..(tile + TILE).min(nb);
+        // Four rows at a time, then the rest one by one.
         let mut i = rows.start;
-        #[cfg(target_arch = "x86_64")]
-        if AVX2 {
-            while i + 4 <= rows.end {
-                let x = [0, 1, 2, 3].map(|r| a.descriptor(i + r));
-                for j in cols.clone() {
-                    // SAFETY: AVX2 is checked by the caller; descriptors are DESCRIPTOR_LEN.
-                    let d = unsafe { dot4_avx2(x, b.descriptor(j)) };
-                    for (r, &d) in d.iter().enumerate() {
-                        update(&mut out[i + r - rows.start], &mut col[j], i + r, j, d);
-                    }
+        while i + 4 <= rows.end {
+            let x = [0, 1, 2, 3].map(|r| a.descriptor(i + r));
+            for j in cols.clone() {
+                let d = dot4(x, b.descriptor(j));
+                for (r, &d) in d.iter().enumerate() {
+                    update(&mut out[i + r - rows.start], &mut col[j], i + r, j, d);
                 }
-                i += 4;
             }
+            i += 4;
         }
         for i in i..rows.end {
             let da = a.descriptor(i);
@@ -149,7 +129,9 @@ fn block_with<const AVX2: bool>(
     (out, col)
 }
 
-/// [`block_with`] compiled for AVX2.
+/// [`block_portable`] compiled for AVX2: the eight lanes of [`dot`] in one register. Multiply
+/// and add stay separate (no FMA), so every dot product, and so every match, is bit for bit
+/// the portable build's.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn block_avx2(
@@ -157,17 +139,17 @@ fn block_avx2(
     b: &Features,
     rows: std::ops::Range<usize>,
 ) -> (Vec<RowBest>, Vec<ColBest>) {
-    block_with::<true>(a, b, rows)
+    block_portable(a, b, rows)
 }
 
-/// [`block_with`] on the widest vector unit this processor has.
+/// [`block_portable`] on the widest vector unit this processor has.
 fn block(a: &Features, b: &Features, rows: std::ops::Range<usize>) -> (Vec<RowBest>, Vec<ColBest>) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the processor has AVX2 (checked just above).
         return unsafe { block_avx2(a, b, rows) };
     }
-    block_with::<false>(a, b, rows)
+    block_portable(a, b, rows)
 }
 
 fn nearest(a: &Features, b: &Features) -> Nearest {
@@ -177,7 +159,7 @@ fn nearest(a: &Features, b: &Features) -> Nearest {
         .map(|blk| block(a, b, blk * BLOCK..((blk + 1) * BLOCK).min(a.len())))
         .collect();
     let mut row_best = Vec::with_capacity(a.len());
-    let mut col_best = vec![(i32::MIN, usize::MAX); nb];
+    let mut col_best = vec![(f32::NEG_INFINITY, usize::MAX); nb];
     for (rows, col) in blocks {
         row_best.extend(rows);
         // Blocks in row order, ties to the first row: the same result whatever the threads.
@@ -190,10 +172,9 @@ fn nearest(a: &Features, b: &Features) -> Nearest {
     Nearest { row_best, col_best }
 }
 
-/// Distance of unit vectors from the dot product of their quantised forms.
-fn distance(dot: i32) -> f32 {
-    let unit = f64::from(dot) / f64::from(DESCRIPTOR_SCALE * DESCRIPTOR_SCALE);
-    (2.0 - 2.0 * unit).max(0.0).sqrt() as f32
+/// Distance of unit vectors from their dot product.
+fn distance(dot: f32) -> f32 {
+    (2.0 - 2.0 * dot).max(0.0).sqrt()
 }
 
 /// The matches of `a`'s features to `b`'s, in the order of `a`.
@@ -222,7 +203,7 @@ pub fn match_features(a: &Features, b: &Features, s: &MatchSettings) -> Vec<Matc
 
 #[cfg(test)]
 mod tests {
-    use super::super::{Keypoint, quantise_descriptor, root_sift};
+    use super::super::{Keypoint, root_sift};
     use super::*;
 
     fn features(descriptors: Vec<Vec<f32>>) -> Features {
@@ -240,7 +221,7 @@ mod tests {
                 angle_deg: 0.0,
                 response: 1.0,
             });
-            f.descriptors.extend(quantise_descriptor(&d));
+            f.descriptors.extend(d);
         }
         f
     }
@@ -262,10 +243,10 @@ mod tests {
     }
 
     /// The kernel by rows of four and one by one, portable and for AVX2: every block's bests
-    /// the same as a plain double loop of [`dot`] (and so every match, whatever the
-    /// processor), ties included (duplicated descriptors).
+    /// bit for bit the same as a plain double loop of [`dot`] (and so every match, whatever
+    /// the processor), ties included (duplicated descriptors).
     #[test]
-    fn every_kernel_finds_the_same_bests() {
+    fn every_kernel_finds_the_same_bests_bit_for_bit() {
         let mut da = random_descriptors(3, 203);
         da[7] = da[5].clone();
         let mut db = random_descriptors(4, 300);
@@ -275,9 +256,9 @@ mod tests {
         // 198 rows: 49 groups of four and two left over.
         let rows = 3..201;
         let mut want_rows = Vec::new();
-        let mut want_cols = vec![(i32::MIN, usize::MAX); b.len()];
+        let mut want_cols = vec![(f32::NEG_INFINITY, usize::MAX); b.len()];
         for i in rows.clone() {
-            let mut o = (i32::MIN, i32::MIN, 0);
+            let mut o = (f32::NEG_INFINITY, f32::NEG_INFINITY, 0);
             for (j, c) in want_cols.iter_mut().enumerate() {
                 let d = dot(a.descriptor(i), b.descriptor(j));
                 if d > o.0 {
@@ -291,12 +272,18 @@ mod tests {
             }
             want_rows.push(o);
         }
-        let (r, c) = block_with::<false>(&a, &b, rows.clone());
-        assert_eq!(r, want_rows);
-        assert_eq!(c, want_cols);
+        let bits = |v: &[RowBest]| {
+            v.iter()
+                .map(|o| (o.0.to_bits(), o.1.to_bits(), o.2))
+                .collect::<Vec<_>>()
+        };
+        let col_bits = |v: &[ColBest]| v.iter().map(|c| (c.0.to_bits(), c.1)).collect::<Vec<_>>();
+        let (r, c) = block_portable(&a, &b, rows.clone());
+        assert_eq!(bits(&r), bits(&want_rows));
+        assert_eq!(col_bits(&c), col_bits(&want_cols));
         let (r, c) = block(&a, &b, rows.clone());
-        assert_eq!(r, want_rows);
-        assert_eq!(c, want_cols);
+        assert_eq!(bits(&r), bits(&want_rows));
+        assert_eq!(col_bits(&c), col_bits(&want_cols));
     }
 
     /// The brute-force matcher against a plain double loop: the same matches.
@@ -323,7 +310,7 @@ mod tests {
             let y = b.descriptor(j);
             x.iter()
                 .zip(y)
-                .map(|(&p, &q)| (f32::from(p) - f32::from(q)).powi(2))
+                .map(|(p, q)| (p - q) * (p - q))
                 .sum::<f32>()
                 .sqrt()
         };

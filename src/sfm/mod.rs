@@ -45,14 +45,14 @@ pub struct Keypoint {
     pub response: f64,
 }
 
-/// The features of one image: keypoints and their descriptors (`DESCRIPTOR_LEN` bytes each:
-/// unit-length RootSIFT quantised by [`quantise_descriptor`]), in the same order.
+/// The features of one image: keypoints and their descriptors (`DESCRIPTOR_LEN` floats each,
+/// unit length), in the same order.
 #[derive(Clone, Debug, Default)]
 pub struct Features {
     pub width: u32,
     pub height: u32,
     pub keypoints: Vec<Keypoint>,
-    pub descriptors: Vec<u8>,
+    pub descriptors: Vec<f32>,
 }
 
 impl Features {
@@ -64,7 +64,7 @@ impl Features {
         self.keypoints.is_empty()
     }
 
-    pub fn descriptor(&self, i: usize) -> &[u8] {
+    pub fn descriptor(&self, i: usize) -> &[f32] {
         &self.descriptors[i * DESCRIPTOR_LEN..(i + 1) * DESCRIPTOR_LEN]
     }
 }
@@ -123,19 +123,6 @@ fn mem_total_bytes(meminfo: &str) -> Option<u64> {
     let v = meminfo.lines().find_map(|l| l.strip_prefix("MemTotal:"))?;
     let kb: u64 = v.trim().strip_suffix("kB")?.trim().parse().ok()?;
     kb.checked_mul(1024)
-}
-
-/// A unit-length descriptor's entries are stored as bytes: `DESCRIPTOR_SCALE` × the entry,
-/// rounded, at most 255 (as COLMAP stores them). RootSIFT entries seldom pass 0.3, so nothing
-/// is lost to the cap; the step (0.002) is far below the differences the matcher weighs, and
-/// integer dot products are exact: the same matches on every processor, several times faster
-/// than floats.
-pub const DESCRIPTOR_SCALE: f32 = 512.0;
-
-/// A unit-length descriptor (non-negative entries, as RootSIFT's) as bytes.
-pub fn quantise_descriptor(d: &[f32]) -> impl Iterator<Item = u8> + '_ {
-    d.iter()
-        .map(|v| (v.max(0.0) * DESCRIPTOR_SCALE).round().min(255.0) as u8)
 }
 
 /// Which of `keypoints` to keep: at most `cap`, spread over a `cols`-column grid on a `width` ×
@@ -252,13 +239,6 @@ mod tests {
         assert_eq!(mem_total_bytes("MemTotal: lots\n"), None);
         assert!(adjustment_memory_limit() > 0);
     }
-
-    #[test]
-    fn descriptors_are_quantised_to_bytes_with_a_cap() {
-        let q: Vec<u8> = quantise_descriptor(&[0.0, 0.1, 0.2501, 0.49, 0.7, -0.1]).collect();
-        assert_eq!(q, vec![0, 51, 128, 251, 255, 0]);
-    }
-
     /// A strong corner of the image must not take the whole cap from a weak one.
     #[test]
     fn the_cap_is_spread_over_the_grid() {

@@ -409,10 +409,10 @@ mod tests {
             width: 100,
             height: 100,
             keypoints: vec![kp(5.0, 5.0), kp(50.0, 50.0), kp(90.0, 10.0)],
-            descriptors: (0..3 * len).map(|i| (i / len) as u8).collect(),
+            descriptors: (0..3 * len).map(|i| (i / len) as f32).collect(),
         };
         assert_eq!(mask_features(&mut f, &[[40.0, 40.0, 20.0, 20.0]]), 1);
         assert_eq!(f.keypoints.len(), 2);
-        assert_eq!(f.descriptor(1)[0], 2);
+        assert_eq!(f.descriptor(1)[0], 2.0);
     }
 }

@@ -8,9 +8,7 @@ use opencv::core::{KeyPoint, Mat, Size, Vector, no_array};
 use opencv::prelude::*;
 use opencv::{features2d, imgcodecs, imgproc};
 
-use super::{
-    DESCRIPTOR_LEN, FeatureSettings, Features, Keypoint, grid_cap, quantise_descriptor, root_sift,
-};
+use super::{DESCRIPTOR_LEN, FeatureSettings, Features, Keypoint, grid_cap, root_sift};
 use crate::imageio::{ImageError, file_error};
 
 /// Whether a decoder knows the file's format from its first bytes (nothing is decoded).
@@ -136,7 +134,7 @@ pub fn features_of_grey(grey: &Mat, s: &FeatureSettings) -> Result<Features, ope
         let mut d = row[..DESCRIPTOR_LEN].to_vec();
         root_sift(&mut d);
         out.keypoints.push(keypoints[i]);
-        out.descriptors.extend(quantise_descriptor(&d));
+        out.descriptors.extend(d);
     }
     Ok(out)
 }
